@@ -1,0 +1,63 @@
+"""Sources and writers: .cwa (AX3/AX6), .bin (GENEActiv), MCAP replay, USB devices.
+
+``open_recording(path)`` sniffs the content (not the file name) and returns a Source.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from .byteio import open_bytes, read_exact
+from .errors import (CorruptRecordingError, RecordingError, StillpointError,
+                     TruncatedRecordingError, UnsupportedFormatError)
+
+__all__ = [
+    "open_recording", "sniff_format", "RecordingError", "StillpointError",
+    "UnsupportedFormatError", "CorruptRecordingError", "TruncatedRecordingError",
+]
+
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+
+
+def sniff_format(path) -> str:
+    """Return "cwa", "geneactiv" or "mcap" from the first bytes of the (possibly gzipped) file."""
+    p = Path(path)
+    if not p.exists():
+        raise RecordingError(p, "no such file")
+    if p.is_dir():
+        raise RecordingError(p, "is a directory, not a recording")
+    if p.stat().st_size == 0:
+        raise TruncatedRecordingError(p, "file is empty (0 bytes)")
+    try:
+        with open_bytes(p) as f:
+            head = read_exact(f, 512)
+    except (OSError, EOFError) as e:
+        raise CorruptRecordingError(p, f"cannot read the file: {e}") from None
+    if not head:
+        raise TruncatedRecordingError(p, "file is empty after decompression")
+    if head.startswith(MCAP_MAGIC):
+        return "mcap"
+    if head[:2] == b"MD":
+        return "cwa"
+    text = head.lstrip(b"\xef\xbb\xbf")
+    if text.startswith(b"Device Identity"):
+        return "geneactiv"
+    if text.startswith(b"GENEA"):
+        raise UnsupportedFormatError(
+            p, "this is an original GENEA (2010) file, not GENEActiv .bin; it is not supported")
+    raise UnsupportedFormatError(
+        p, "not a recognised recording: expected an AX3/AX6 .cwa header ('MD'), a GENEActiv .bin "
+           f"header ('Device Identity') or an MCAP file; first bytes are {head[:16]!r}")
+
+
+def open_recording(path, **options):
+    """Open a recording as a Source (options go to the format's reader)."""
+    fmt = sniff_format(path)
+    if fmt == "cwa":
+        from .cwa import CwaReader
+        return CwaReader(path, **options)
+    if fmt == "geneactiv":
+        from .geneactiv import GeneactivReader
+        return GeneactivReader(path, **options)
+    from .mcap_replay import McapRawSource
+    return McapRawSource(path, **options)

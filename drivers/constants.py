@@ -1,0 +1,115 @@
+"""Every device-specific constant, in one place, each with its source.
+
+Sources (restated in ../shared/specs/):
+* [CWA]  openmovement Docs/ax3/cwa.h, ax3-technical.md, firmware Logger.c/Settings.c (cwa-format.md)
+* [GNA]  GENEActiv instruction manual "Understanding .bin files"; GENEAread/GGIRread (geneactiv-format.md)
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+# ----------------------------------------------------------------------------- Axivity .cwa
+CWA_HEADER_BYTES = 1024  # [CWA] §2: header block is two 512-byte sectors
+CWA_SECTOR_BYTES = 512  # [CWA] §2
+CWA_TAG_HEADER = 0x444D  # "MD" [CWA] §2
+CWA_TAG_DATA = 0x5841  # "AX" [CWA] §2
+CWA_TAG_ERASED = 0xFFFF  # [CWA] §2
+CWA_DATA_PACKET_LENGTH = 508  # [CWA] §5 packetLength of a data sector
+CWA_SAMPLE_OFFSET = 30  # [CWA] §5: sample data starts at byte 30
+CWA_SAMPLE_AREA = 480  # [CWA] §5: 480 bytes of samples per sector
+
+# hardwareType byte [CWA] §4
+CWA_HW_AX3 = (0x00, 0xFF, 0x17)
+CWA_HW_AX6 = (0x64,)
+
+# events bits [CWA] §5.4
+CWA_EVENT_RESUME = 0x01
+CWA_EVENT_FIFO_OVERFLOW = 0x10
+CWA_EVENT_BUFFER_OVERFLOW = 0x20
+CWA_EVENT_UNHANDLED_INT = 0x40
+
+# AX6 firmware before V56 swaps accel and gyro triplets at the start of a recording [CWA] §10
+CWA_AX6_AXIS_SWAP_FIXED_FIRMWARE = 56
+
+
+def cwa_rate_hz(code: int) -> float:
+    """Sampling frequency from the rate code: 3200 / 2^(15 - (code & 0x0F)) Hz. [CWA] §5.2"""
+    return 3200.0 / (1 << (15 - (code & 0x0F)))
+
+
+def cwa_range_g(code: int) -> int:
+    """Accelerometer range from the rate code: 16 >> (code >> 6) g. [CWA] §5.2"""
+    return 16 >> ((code >> 6) & 0x03)
+
+
+def cwa_rate_code(rate_hz: float, range_g: int) -> int:
+    """Inverse of cwa_rate_hz / cwa_range_g (used by the writer). [CWA] §5.2"""
+    low = 15 - int(round(np.log2(3200.0 / rate_hz)))
+    if not 6 <= low <= 15 or cwa_rate_hz(low) != rate_hz:
+        raise ValueError(f"AX rate must be 3200/2^k Hz between 6.25 and 3200, got {rate_hz}")
+    hi = {16: 0, 8: 1, 4: 2, 2: 3}.get(int(range_g))
+    if hi is None:
+        raise ValueError(f"AX range must be 2, 4, 8 or 16 g, got {range_g}")
+    return (hi << 6) | low
+
+
+def cwa_accel_counts_per_g(scale_code: int) -> float:
+    """Accel counts per g = 2^(8 + A), A = lightScale >> 13 (0 -> 256, AX3). [CWA] §6.3"""
+    return float(1 << (8 + scale_code))
+
+
+def cwa_gyro_range_dps(code: int) -> float:
+    """Gyro full-scale range = 8000 / 2^G dps; G = 0 on a gyro sector defaults to 2000. [CWA] §6.3"""
+    return 2000.0 if code == 0 else 8000.0 / (1 << code)
+
+
+def cwa_temperature_c(raw):
+    """MCP9700 temperature sensor: degC = raw * 75 / 256 - 50 (10-bit ADC, 3 V reference).
+
+    [CWA] §9 and §12.1: openmovement docs, OmApi, GGIRread, AX3 r1.7 schematic (MCP9700).
+    Other readers differ: actipy 0.15*raw - 20.5 (MCP9701), skdh (raw - 171) / 3.142.
+    """
+    return np.asarray(raw, dtype=np.float64) * (75.0 / 256.0) - 50.0
+
+
+def cwa_battery_v(b):
+    """Battery volts from the stored byte: (b + 512) * 6 / 1024; b = 0 means unknown (NaN).
+
+    [CWA] §9 and §12.2: firmware Logger.c stores clamp(ADC - 512, 0, 255).
+    """
+    b = np.asarray(b, dtype=np.float64)
+    return np.where(b == 0, np.nan, (b + 512.0) * 6.0 / 1024.0)
+
+
+def cwa_light_lux(raw):
+    """AX3 light (APDS-9007, 100 kOhm load): lux = 10^((raw + 512) * 6 / 1024). [CWA] §9"""
+    return np.power(10.0, (np.asarray(raw, dtype=np.float64) + 512.0) * 6.0 / 1024.0)
+
+
+# ----------------------------------------------------------------------------- GENEActiv .bin
+GNA_SAMPLES_PER_PAGE = 300  # [GNA] §3: 300 samples per page
+GNA_HEX_PER_SAMPLE = 12  # [GNA] §5: 12 hex chars (48 bits) per sample
+GNA_PAGE_LINES = 10  # [GNA] §3
+GNA_PAGE_MARKER = "Recorded Data"  # [GNA] §3
+GNA_ACCEL_BITS = 12  # [GNA] §5: x, y, z are 12-bit two's complement
+GNA_LIGHT_SHIFT = 2  # [GNA] §5: light = low 12 bits >> 2 (10 bits)
+GNA_RATE_85_7 = 600.0 / 7.0  # [GNA] §6.2: "85.7 Hz" is 300 samples per 3.5 s = 600/7 Hz
+
+
+def gna_rate_hz(text: str) -> float:
+    """Rate from a "Measurement Frequency" value ("85.7 Hz", "100", "85,7"). [GNA] §1, §6.2"""
+    value = float(text.replace(",", ".").split()[0])
+    if abs(value - 85.7) < 1e-6:
+        return GNA_RATE_85_7
+    return value
+
+
+def gna_accel_g(raw, gain, offset):
+    """Acceleration in g: (raw * 100 - offset) / gain. [GNA] §5 (vendor manual, all readers)"""
+    return (np.asarray(raw, dtype=np.float64) * 100.0 - offset) / gain
+
+
+def gna_light_lux(raw, lux, volts):
+    """Light in lux: raw * Lux / Volts. [GNA] §5"""
+    return np.asarray(raw, dtype=np.float64) * lux / volts

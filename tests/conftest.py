@@ -1,0 +1,35 @@
+"""Shared fixtures. Real-file conformance tests read STILLPOINT_REAL_DATA (set by .ci/run):
+set -> a missing file is a failure; unset -> those tests skip with a visible reason."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+REAL_DATA_ENV = "STILLPOINT_REAL_DATA"
+
+
+@pytest.fixture(scope="session")
+def real_data_dir() -> Path:
+    value = os.environ.get(REAL_DATA_ENV)
+    if not value:
+        pytest.skip(f"{REAL_DATA_ENV} is not set: real-recording conformance tests skipped")
+    d = Path(value)
+    if not d.is_dir():
+        pytest.fail(f"{REAL_DATA_ENV}={value} is not a directory")
+    return d
+
+
+@pytest.fixture(scope="session")
+def real_file(real_data_dir):
+    """real_file("name.cwa") -> Path; fails (never skips) when the file is missing."""
+
+    def get(name: str) -> Path:
+        p = real_data_dir / name
+        if not p.is_file():
+            pytest.fail(f"real recording {name} missing from {real_data_dir}")
+        return p
+
+    return get

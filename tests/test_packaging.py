@@ -1,0 +1,25 @@
+"""The installed layout: every package directory is listed in pyproject.toml, the CLI starts."""
+
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+TOP = {"engine": "stillpoint.engine", "drivers": "stillpoint.drivers", "tools": "stillpoint.tools"}
+
+
+def test_every_package_dir_is_listed_in_pyproject():
+    listed = set(tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
+    found = set()
+    for top, dotted in TOP.items():
+        for init in (ROOT / top).rglob("__init__.py"):
+            rel = init.parent.relative_to(ROOT / top)
+            found.add(".".join([dotted, *rel.parts]) if rel.parts else dotted)
+    assert found - listed == set(), f"add these packages to pyproject.toml: {sorted(found - listed)}"
+
+
+def test_cli_help_lists_commands():
+    out = subprocess.run([sys.executable, "-m", "stillpoint.tools", "--help"],
+                         capture_output=True, text=True, check=True).stdout
+    assert "COMMAND" in out

@@ -1,0 +1,394 @@
+"""The autocalibration fit: weighted iterative closest point (ICP) of nonmovement window means to
+the 1 g sphere (van Hees et al. 2014, J Appl Physiol 117:738; GGIR ``g.calibrate``).
+
+Model (GGIR form), per axis k, temperature T in degC, T_ref the mean temperature of the fitted
+windows::
+
+    cal_k = (raw_k + offset_k) * scale_k + (T - T_ref) * tempoffset_k
+
+Pure functions on arrays; :func:`fit_calibration` wraps them for a ``WindowFeatures`` table and
+returns a :class:`CalibrationEstimate` whose ``status`` and one-line ``reason`` say what happened.
+
+Two stopping rules:
+
+* ``ggir_compatible=True``: GGIR's rule (stop when the weighted residual ``res`` changes by less
+  than 1e-10 between iterations), GGIR's arithmetic and GGIR's error rounding (1e-5 g), so the
+  numbers equal GGIR's for the same windows.
+* default: iterate until no parameter moves by more than ``param_tol`` (1e-9): ``res`` is itself
+  only ~1e-6..1e-9, so the absolute 1e-10 rule can stop long before the parameters settle.
+
+Variants (the paper's comparison): ``"auto"`` (offset + scale, plus the temperature term when the
+temperature is usable: C2, else C1), ``"c1"`` (offset + scale), ``"c2"`` (offset + scale +
+temperature), ``"offset"`` (offset only), ``"scale"`` (scale only).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Optional
+
+import numpy as np
+
+from ..features import WindowFeatures
+from .estimate import CalibrationEstimate
+from .select import MAX_ABS_MEAN_G, SD_THRESHOLD_G, select_calibration_windows
+
+WINDOW_S = 10.0  # window length of the calibration features (van Hees 2014)
+MIN_WINDOWS = 10  # fewer nonmovement windows: no fit (spec section 4; GGIR)
+SPHERE_CRIT_G = 0.3  # every axis must reach below -0.3 g and above +0.3 g (GGIR spherecrit)
+TARGET_ERROR_MG = 10.0  # error below which a calibration is considered good (paper; GGIR 0.01 g)
+MAX_WEIGHT = 100.0  # weights min(1/dist, 100): points within 10 mg of the sphere weigh the same
+MAX_ITER = 1000
+GGIR_RES_TOL = 1e-10  # GGIR's absolute tolerance on the change of res
+PARAM_TOL = 1e-9  # default: largest parameter change at convergence
+TEMP_MIN_SD_C = 0.01  # GGIR: temperature with SD below this is "flat" and not used
+TEMP_MAX_C = 120.0  # GGIR: first temperatures above this are implausible, temperature not used
+GGIR_ERROR_DIGITS = 5  # GGIR rounds the calibration error (g) to 5 decimals
+
+VARIANTS = ("auto", "c1", "c2", "offset", "scale")
+
+
+# ----------------------------------------------------------------------------- pure maths
+def apply_model(mean: np.ndarray, temp_centered: Optional[np.ndarray], offset, scale, tempoffset,
+                *, ggir_arithmetic: bool = False) -> np.ndarray:
+    """Calibrated window means (k, 3). ``temp_centered`` is T - T_ref (k,) or None.
+
+    ``ggir_arithmetic`` evaluates the model the way GGIR does (divide by 1/scale, 1/tempoffset),
+    which differs from the plain form only in the last bits.
+    """
+    offset = np.asarray(offset, np.float64)
+    scale = np.asarray(scale, np.float64)
+    tempoffset = np.asarray(tempoffset, np.float64)
+    if ggir_arithmetic:
+        with np.errstate(divide="ignore"):
+            cal = (mean - (-offset)) / (1.0 / scale)
+            if temp_centered is not None:
+                cal = cal + temp_centered[:, None] / (1.0 / tempoffset)
+        return cal
+    cal = (mean + offset) * scale
+    if temp_centered is not None:
+        cal += temp_centered[:, None] * tempoffset
+    return cal
+
+
+def calibration_error_g(cal: np.ndarray) -> float:
+    """Mean over windows of | ||cal|| - 1 | in g (van Hees 2014's calibration error)."""
+    cal = np.asarray(cal, np.float64).reshape(-1, 3)
+    if cal.shape[0] == 0:
+        return float("nan")
+    return float(np.mean(np.abs(np.sqrt(np.sum(cal * cal, axis=1)) - 1.0)))
+
+
+def round_ggir_error(error_g: float) -> float:
+    """The calibration error as GGIR reports it: rounded to 1e-5 g."""
+    return round(float(error_g), GGIR_ERROR_DIGITS)
+
+
+@dataclass
+class SphereCoverage:
+    covered: bool
+    minimum: np.ndarray  # (3,) lowest window mean per axis, g
+    maximum: np.ndarray  # (3,) highest window mean per axis, g
+    crit: float
+
+    def describe(self) -> str:
+        if self.covered:
+            return f"sphere covered (every axis beyond +/-{self.crit:g} g)"
+        parts = []
+        for k, ax in enumerate("xyz"):
+            if not self.minimum[k] < -self.crit:
+                parts.append(f"{ax} never below -{self.crit:g} g (min {self.minimum[k]:+.3f} g)")
+            if not self.maximum[k] > self.crit:
+                parts.append(f"{ax} never above +{self.crit:g} g (max {self.maximum[k]:+.3f} g)")
+        return "sphere not covered: " + "; ".join(parts)
+
+
+def sphere_coverage(mean: np.ndarray, crit: float = SPHERE_CRIT_G) -> SphereCoverage:
+    """Sphere criterion: on every axis some window mean is below -crit and some above +crit."""
+    mean = np.asarray(mean, np.float64).reshape(-1, 3)
+    if mean.shape[0] == 0:
+        return SphereCoverage(False, np.full(3, np.nan), np.full(3, np.nan), crit)
+    lo, hi = mean.min(axis=0), mean.max(axis=0)
+    return SphereCoverage(bool(np.all(lo < -crit) and np.all(hi > crit)), lo, hi, crit)
+
+
+def temperature_check(temperature: Optional[np.ndarray]) -> tuple[bool, str]:
+    """Whether the temperature term can be fitted, and why not (GGIR's rules on window means)."""
+    if temperature is None:
+        return False, "temperature missing"
+    t = np.asarray(temperature, np.float64).reshape(-1)
+    finite = t[np.isfinite(t)]
+    if finite.size == 0:
+        return False, "temperature missing"
+    if finite.size < t.size / 2:
+        return False, f"temperature missing in {t.size - finite.size} of {t.size} windows"
+    if np.mean(finite[:10]) > TEMP_MAX_C:
+        return False, f"temperature implausible (first values above {TEMP_MAX_C:g} degC)"
+    if finite.size < 2 or np.std(finite, ddof=1) < TEMP_MIN_SD_C:
+        sd = np.std(finite, ddof=1) if finite.size > 1 else 0.0
+        return False, f"temperature flat (SD {sd:.3g} degC < {TEMP_MIN_SD_C:g})"
+    return True, "temperature used"
+
+
+@dataclass
+class IcpResult:
+    """Parameters and diagnostics of one ICP run."""
+
+    offset: np.ndarray
+    scale: np.ndarray
+    tempoffset: np.ndarray
+    iterations: int
+    converged: bool  # the stopping rule was met before max_iter
+    stop_rule: str  # "ggir-res" or "parameters"
+    res: list = field(default_factory=list)  # weighted residual per iteration
+    failed: str = ""  # non-empty when the iteration broke down (non-finite values)
+
+
+def icp_sphere_fit(mean: np.ndarray, temp_centered: Optional[np.ndarray] = None, *,
+                   fit_offset: bool = True, fit_scale: bool = True, ggir_compatible: bool = False,
+                   max_iter: int = MAX_ITER, param_tol: float = PARAM_TOL,
+                   res_tol: float = GGIR_RES_TOL, max_weight: float = MAX_WEIGHT) -> IcpResult:
+    """Weighted ICP of window means (k, 3) g to the unit sphere.
+
+    Each iteration: project the current calibrated points to the sphere; per axis, weighted least
+    squares of the projection on [1, current, T - T_ref] (columns per variant); fold the
+    coefficients into offset/scale/tempoffset; new weights min(1/distance, max_weight).
+    """
+    if not (fit_offset or fit_scale):
+        raise ValueError("at least one of offset and scale must be fitted")
+    mean = np.asarray(mean, np.float64).reshape(-1, 3)
+    n = mean.shape[0]
+    use_t = temp_centered is not None
+    t = np.asarray(temp_centered, np.float64).reshape(-1) if use_t else None
+    offset, scale, tempoffset = np.zeros(3), np.ones(3), np.zeros(3)
+    weights = np.ones(n)
+    res_hist = [float("inf")]
+    ones = np.ones(n)
+    converged, failed, it = False, "", 0
+    for it in range(1, max_iter + 1):
+        curr = apply_model(mean, t, offset, scale, tempoffset, ggir_arithmetic=ggir_compatible)
+        norm = np.sqrt(np.sum(curr * curr, axis=1))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            closest = curr / norm[:, None]
+        if not np.all(np.isfinite(closest)):
+            failed = f"non-finite values at iteration {it}"
+            it -= 1
+            break
+        sw = np.sqrt(weights)
+        d_off, d_scale, d_t = np.zeros(3), np.ones(3), np.zeros(3)
+        fitted = np.empty_like(curr)
+        for k in range(3):
+            cols = []
+            if fit_offset:
+                cols.append(ones)
+            if fit_scale:
+                cols.append(curr[:, k])
+            if use_t:
+                cols.append(t)
+            x = np.column_stack(cols) * sw[:, None]
+            y = closest[:, k] if fit_scale else closest[:, k] - curr[:, k]
+            yw = y * sw
+            coef = np.linalg.lstsq(x, yw, rcond=None)[0]
+            # fitted values as lm.wfit forms them: y minus the unweighted residual
+            yhat = y - (yw - x @ coef) / sw
+            fitted[:, k] = yhat if fit_scale else yhat + curr[:, k]
+            j = 0
+            if fit_offset:
+                d_off[k] = coef[j]
+                j += 1
+            if fit_scale:
+                d_scale[k] = coef[j]
+                j += 1
+            if use_t:
+                d_t[k] = coef[j]
+        new_offset = offset + d_off / (scale * d_scale)
+        new_tempoffset = tempoffset * d_scale + d_t if use_t else tempoffset
+        new_scale = scale * d_scale
+        change = max(np.max(np.abs(new_offset - offset)), np.max(np.abs(new_scale - scale)),
+                     np.max(np.abs(new_tempoffset - tempoffset)))
+        offset, scale, tempoffset = new_offset, new_scale, new_tempoffset
+        diff = fitted - closest
+        res_hist.append(float(3.0 * np.mean(weights[:, None] * diff ** 2 / np.sum(weights))))
+        with np.errstate(divide="ignore"):
+            weights = np.minimum(1.0 / np.sqrt(np.sum(diff * diff, axis=1)), max_weight)
+        if not np.all(np.isfinite(offset)) or not np.all(np.isfinite(scale)):
+            failed = f"non-finite parameters at iteration {it}"
+            break
+        if ggir_compatible:
+            if abs(res_hist[-1] - res_hist[-2]) < res_tol:
+                converged = True
+                break
+        elif change < param_tol:
+            converged = True
+            break
+    return IcpResult(offset, scale, tempoffset, it, converged,
+                     "ggir-res" if ggir_compatible else "parameters", res_hist[1:], failed)
+
+
+# ----------------------------------------------------------------------------- features -> estimate
+def _hours(start_ns, end_ns) -> Optional[float]:
+    if start_ns is None or end_ns is None:
+        return None
+    return (int(end_ns) - int(start_ns)) / 3.6e12
+
+
+def _mg(error_g: float, ggir_compatible: bool) -> float:
+    if ggir_compatible:
+        return round(round_ggir_error(error_g) * 1000.0, 2)
+    return float(error_g) * 1000.0
+
+
+def fit_calibration(features: WindowFeatures, *, temperature: bool = True,
+                    ggir_compatible: bool = False, variant: str = "auto", select: bool = True,
+                    min_windows: int = MIN_WINDOWS, sphere_crit: float = SPHERE_CRIT_G,
+                    target_error_mg: float = TARGET_ERROR_MG, sd_threshold: float = SD_THRESHOLD_G,
+                    max_abs_mean: float = MAX_ABS_MEAN_G, max_iter: int = MAX_ITER,
+                    param_tol: float = PARAM_TOL, device_key: Optional[str] = None,
+                    data_start_ns: Optional[int] = None, data_end_ns: Optional[int] = None,
+                    window_s: float = WINDOW_S) -> CalibrationEstimate:
+    """Fit the calibration on a table of window features and judge the result.
+
+    ``features``: all windows of a recording (``select=True`` picks the nonmovement windows) or
+    windows already selected (``select=False``). ``data_start_ns``/``data_end_ns``: the data range
+    the features cover (default: from the first window start to the end of the last window); it
+    becomes the estimate's fit range and ``hours_used``.
+
+    Outcomes (``status``): ``ok``; ``high_error`` (improved but still above ``target_error_mg``;
+    applied); ``reverted`` (the fit did not lower the error: identity); ``no_nonmovement``;
+    ``too_few_windows``; ``sphere_not_covered``; ``failed`` (the iteration broke down). Every
+    non-applied outcome carries identity parameters; the rejected fit is kept in ``extra``.
+    """
+    if variant not in VARIANTS:
+        raise ValueError(f"unknown variant {variant!r}; expected one of {', '.join(VARIANTS)}")
+    if ggir_compatible and variant in ("offset", "scale"):
+        raise ValueError("ggir_compatible fits offset and scale (variant auto, c1 or c2)")
+    n_in = len(features)
+    if data_start_ns is None and n_in:
+        data_start_ns = int(features.start_ns.min())
+    if data_end_ns is None and n_in:
+        data_end_ns = int(features.start_ns.max()) + int(round(window_s * 1e9))
+    extra: dict = {"variant": variant, "ggir_compatible": bool(ggir_compatible),
+                   "windows_offered": n_in, "flags": []}
+    if select:
+        sel = select_calibration_windows(features, sd_threshold=sd_threshold,
+                                         max_abs_mean=max_abs_mean)
+        feats = sel.features
+        extra["repeats_collapsed"] = sel.repeats_dropped
+    else:
+        feats = features
+    base = dict(device_key=device_key, hours_used=_hours(data_start_ns, data_end_ns),
+                fit_start_ns=data_start_ns, fit_end_ns=data_end_ns, extra=extra)
+
+    mean = feats.mean
+    usable = np.all(np.isfinite(mean), axis=1) & np.any(mean != 0.0, axis=1)
+    if not np.all(usable):
+        extra["windows_unusable"] = int((~usable).sum())
+        feats = feats.select(usable)
+        mean = feats.mean
+    n = len(feats)
+    if n == 0:
+        return CalibrationEstimate(
+            status="no_nonmovement", method="identity", windows=0, **base,
+            reason=(f"no nonmovement windows (SD < {sd_threshold * 1000:g} mg and |mean| < "
+                    f"{max_abs_mean:g} g on all axes) among {n_in} windows: not calibrated"))
+
+    error_before_g = calibration_error_g(mean)
+    err_before_mg = _mg(error_before_g, ggir_compatible)
+    if n < min_windows:
+        return CalibrationEstimate(
+            status="too_few_windows", method="identity", windows=n, error_before_mg=err_before_mg,
+            reason=f"only {n} nonmovement windows (< {min_windows}): not calibrated", **base)
+    cover = sphere_coverage(mean, sphere_crit)
+    extra["sphere_min_g"] = [float(v) for v in cover.minimum]
+    extra["sphere_max_g"] = [float(v) for v in cover.maximum]
+    if not cover.covered:
+        return CalibrationEstimate(
+            status="sphere_not_covered", method="identity", windows=n,
+            error_before_mg=err_before_mg,
+            reason=f"{cover.describe()} in {n} windows: not calibrated (fit unconstrained)", **base)
+
+    # temperature term
+    want_t = temperature and variant in ("auto", "c2")
+    temps = feats.temperature
+    t_ok, t_reason = temperature_check(temps) if want_t else (
+        False, "temperature term off (requested)" if variant in ("auto", "c2") else
+        f"temperature not part of variant {variant}")
+    temp_centered, t_ref = None, 0.0
+    if t_ok:
+        finite_t = np.isfinite(temps)
+        if not np.all(finite_t):
+            extra["windows_without_temperature"] = int((~finite_t).sum())
+            feats = feats.select(finite_t)
+            mean, temps, n = feats.mean, feats.temperature, len(feats)
+            error_before_g = calibration_error_g(mean)
+            err_before_mg = _mg(error_before_g, ggir_compatible)
+        t_ref = float(np.mean(temps))
+        temp_centered = temps - t_ref
+    extra["temperature_used"] = bool(t_ok)
+    extra["temperature_reason"] = t_reason
+    if variant == "c2" and not t_ok:
+        extra["flags"].append("temperature_unavailable")
+
+    r = icp_sphere_fit(mean, temp_centered, fit_offset=variant != "scale",
+                       fit_scale=variant != "offset", ggir_compatible=ggir_compatible,
+                       max_iter=max_iter, param_tol=param_tol)
+    method = {"offset": "autocal-offset", "scale": "autocal-scale"}.get(
+        variant, "autocal-c2" if t_ok else "autocal-c1")
+    extra.update(converged=r.converged, stop_rule=r.stop_rule,
+                 res_final=r.res[-1] if r.res else None)
+    if not r.converged:
+        extra["flags"].append("not_converged")
+    if r.failed:
+        extra["rejected_fit"] = {"offset": r.offset.tolist(), "scale": r.scale.tolist(),
+                                 "tempoffset": r.tempoffset.tolist()}
+        return CalibrationEstimate(
+            status="failed", method="identity", windows=n, iterations=r.iterations,
+            error_before_mg=err_before_mg, reason=f"fit failed ({r.failed}): not calibrated",
+            **base)
+    cal = apply_model(mean, temp_centered, r.offset, r.scale, r.tempoffset,
+                      ggir_arithmetic=ggir_compatible)
+    error_after_g = calibration_error_g(cal)
+    err_after_mg = _mg(error_after_g, ggir_compatible)
+    if ggir_compatible:
+        extra["error_before_g"] = round_ggir_error(error_before_g)
+        extra["error_after_g"] = round_ggir_error(error_after_g)
+        worse = extra["error_after_g"] > extra["error_before_g"]
+    else:
+        worse = not error_after_g < error_before_g
+    conv = "" if r.converged else f", not converged after {r.iterations} iterations"
+    t_note = "" if t_ok else f"; {t_reason}"
+    if worse:
+        extra["rejected_fit"] = {"offset": r.offset.tolist(), "scale": r.scale.tolist(),
+                                 "tempoffset": r.tempoffset.tolist(),
+                                 "temperature_ref": t_ref, "error_after_mg": err_after_mg}
+        return CalibrationEstimate(
+            status="reverted", method="identity", windows=n, iterations=r.iterations,
+            error_before_mg=err_before_mg, error_after_mg=err_before_mg,
+            reason=(f"fit did not lower the error ({err_before_mg:.2f} -> {err_after_mg:.2f} mg "
+                    f"on {n} windows{conv}): identity used"), **base)
+    if err_after_mg < target_error_mg:
+        status = "ok"
+        reason = (f"calibrated: error {err_before_mg:.2f} -> {err_after_mg:.2f} mg on {n} "
+                  f"windows, {method}{conv}{t_note}")
+    else:
+        status = "high_error"
+        reason = (f"error {err_before_mg:.2f} -> {err_after_mg:.2f} mg on {n} windows is still "
+                  f"above the {target_error_mg:g} mg target (applied){conv}{t_note}")
+    return CalibrationEstimate(
+        offset=r.offset, scale=r.scale, tempoffset=r.tempoffset, temperature_ref=t_ref,
+        status=status, reason=reason, method=method, error_before_mg=err_before_mg,
+        error_after_mg=err_after_mg, windows=n, iterations=r.iterations, **base)
+
+
+def estimate_error_mg(estimate: CalibrationEstimate, features: WindowFeatures) -> tuple[float, int]:
+    """Calibration error (mg) of ``estimate`` applied to the window means of ``features``, and the
+    number of windows it was computed on (windows without temperature are skipped when the
+    estimate has a temperature term)."""
+    mean, temps = features.mean, features.temperature
+    if estimate.uses_temperature:
+        ok = np.isfinite(temps)
+        mean, temps = mean[ok], temps[ok]
+        cal = estimate.apply(mean, temps)
+    else:
+        cal = estimate.apply(mean)
+    return calibration_error_g(cal) * 1000.0, int(mean.shape[0])

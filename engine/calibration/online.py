@@ -1,0 +1,153 @@
+"""Online refitting for streaming mode: refit at every 12 h boundary of data time.
+
+The window features are sufficient statistics of the fit, so the calibrator keeps only the
+nonmovement windows seen so far (a week is ~60k rows) and refits on all of them each time data
+time passes a boundary ``start + j * chunk_hours``. Each fit is published as an estimate with
+its fit range (``fit_start_ns``..``fit_end_ns``) and the data time from which it would apply
+(``effective_from_ns``: the boundary). It is **accepted** (``extra["accepted"]``) and becomes
+``current`` only when its own fit succeeded (sphere covered, error lowered) *and* its error on the
+windows so far is below that of the estimate in force; before the first accepted estimate the
+prior (the device's stored estimate) or identity is in force.
+"""
+
+from __future__ import annotations
+
+from typing import Optional
+
+import numpy as np
+
+from ..features import WindowFeatures
+from .estimate import CalibrationEstimate
+from .fit import WINDOW_S, estimate_error_mg, fit_calibration
+from .schedule import CHUNK_HOURS
+from .select import MAX_ABS_MEAN_G, SD_THRESHOLD_G, select_calibration_windows
+
+_NS_PER_HOUR = 3_600_000_000_000
+APPLICABLE = ("ok", "high_error")  # fit outcomes that carry non-identity parameters
+
+
+class OnlineCalibrator:
+    """Accumulates nonmovement windows and refits at each ``chunk_hours`` boundary.
+
+    ``prior``: the estimate in force before the first accepted fit (identity when None).
+    ``start_ns``: data time the boundaries count from (default: the first window's start).
+    Other keyword arguments go to :func:`fit_calibration` (``temperature``, ``variant``, ...).
+    """
+
+    def __init__(self, prior: Optional[CalibrationEstimate] = None,
+                 chunk_hours: float = CHUNK_HOURS, *, start_ns: Optional[int] = None,
+                 device_key: Optional[str] = None, sd_threshold: float = SD_THRESHOLD_G,
+                 max_abs_mean: float = MAX_ABS_MEAN_G, window_s: float = WINDOW_S,
+                 **fit_options):
+        if chunk_hours <= 0:
+            raise ValueError("chunk_hours must be positive")
+        if fit_options.get("ggir_compatible"):
+            raise ValueError("online refits use the converged fit (ggir_compatible is batch-only)")
+        self.prior = prior
+        self.chunk_ns = int(round(chunk_hours * _NS_PER_HOUR))
+        self.start_ns = start_ns
+        self.device_key = device_key if device_key is not None else (
+            prior.device_key if prior is not None else None)
+        self.sd_threshold = sd_threshold
+        self.max_abs_mean = max_abs_mean
+        self.window_s = window_s
+        self.fit_options = fit_options
+        if prior is None:
+            self.current = CalibrationEstimate.identity("online: no estimate accepted yet")
+            self.current.device_key = self.device_key
+        else:
+            self.current = prior
+        self.estimates: list[CalibrationEstimate] = []  # every published estimate, in order
+        self._parts: list[WindowFeatures] = []
+        self._n = 0
+        self._n_at_last_fit = -1
+        self._offered = 0
+        self._last_mean: Optional[np.ndarray] = None
+        self._next_boundary: Optional[int] = None
+        self._last_end: Optional[int] = None
+
+    # ------------------------------------------------------------------ state
+    @property
+    def windows(self) -> WindowFeatures:
+        """The nonmovement windows accumulated so far."""
+        if len(self._parts) > 1:
+            self._parts = [WindowFeatures.concat(self._parts)]
+        return self._parts[0] if self._parts else WindowFeatures.empty()
+
+    def _append(self, feats: WindowFeatures) -> None:
+        if len(feats) == 0:
+            return
+        sel = select_calibration_windows(feats, sd_threshold=self.sd_threshold,
+                                         max_abs_mean=self.max_abs_mean,
+                                         previous_mean=self._last_mean)
+        self._offered += len(feats)
+        self._last_mean = feats.mean[-1].copy()
+        self._last_end = int(feats.start_ns[-1]) + int(round(self.window_s * 1e9))
+        if len(sel.features):
+            self._parts.append(sel.features)
+            self._n += len(sel.features)
+
+    # ------------------------------------------------------------------ API
+    def add(self, features: WindowFeatures) -> list[CalibrationEstimate]:
+        """Take the next windows (in time order); return the estimates published because data
+        time passed one or more boundaries (each with ``extra["accepted"]``)."""
+        out: list[CalibrationEstimate] = []
+        if len(features) == 0:
+            return out
+        if self.start_ns is None:
+            self.start_ns = int(features.start_ns[0])
+        if self._next_boundary is None:
+            self._next_boundary = self.start_ns + self.chunk_ns
+        starts = features.start_ns
+        i = 0
+        while i < len(features):
+            j = i + int(np.searchsorted(starts[i:], self._next_boundary, side="left"))
+            self._append(features.select(slice(i, j)))
+            if j >= len(features):
+                break
+            # data time has reached the boundary: fit on everything before it
+            boundary = self._next_boundary
+            out.extend(self._refit(boundary, boundary))
+            k = (int(starts[j]) - self.start_ns) // self.chunk_ns + 1
+            self._next_boundary = self.start_ns + k * self.chunk_ns
+            i = j
+        return out
+
+    def finish(self, end_ns: Optional[int] = None) -> list[CalibrationEstimate]:
+        """End of stream: a last fit on every window (for the record and the store); it is
+        effective from ``end_ns`` (default: end of the last window), i.e. for data after it."""
+        if self._n == 0 and self._last_end is None:
+            return []
+        end = end_ns if end_ns is not None else self._last_end
+        return self._refit(end, end)
+
+    # ------------------------------------------------------------------ internals
+    def _refit(self, fit_end_ns: int, effective_ns: int) -> list[CalibrationEstimate]:
+        if self._n == self._n_at_last_fit:
+            return []  # no new windows since the last fit: nothing new to say
+        self._n_at_last_fit = self._n
+        wins = self.windows
+        est = fit_calibration(wins, select=False, data_start_ns=self.start_ns,
+                              data_end_ns=fit_end_ns, device_key=self.device_key,
+                              window_s=self.window_s, sd_threshold=self.sd_threshold,
+                              max_abs_mean=self.max_abs_mean, **self.fit_options)
+        est.effective_from_ns = int(effective_ns)
+        est.extra["windows_offered"] = self._offered
+        est.extra["mode"] = "online"
+        if est.status in APPLICABLE and len(wins):
+            new_err, _ = estimate_error_mg(est, wins)
+            cur_err, _ = estimate_error_mg(self.current, wins)
+            est.extra["in_force_error_mg"] = cur_err
+            if new_err < cur_err:
+                est.extra["accepted"] = True
+                est.reason = "accepted: " + est.reason
+                self.current = est
+            else:
+                est.extra["accepted"] = False
+                est.reason = (f"not applied: error {new_err:.2f} mg is not below the "
+                              f"{cur_err:.2f} mg of the estimate in force; " + est.reason)
+        else:
+            est.extra["accepted"] = False
+            est.reason = "not applied: " + est.reason
+        self.estimates.append(est)
+        return [est]

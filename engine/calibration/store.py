@@ -1,0 +1,214 @@
+"""Per-device calibration store: every estimate a device has had, as JSON files in a directory.
+
+Layout: ``<root>/calibration/<device file>.json``, one file per device (type + serial, the
+``DeviceInfo.device_key`` "AX3-39434"), holding ``{"device_key", "records": [...]}``. A record is
+one estimate with its provenance: when it was stored, the source file, the data range it was
+fitted on, method, status and quality (errors before/after, windows, hours), plus the full
+estimate. Root: ``$STILLPOINT_HOME`` or ``~/.local/share/stillpoint``.
+
+Writes are atomic (temp file + rename) under a per-device lock, so parallel cohort jobs can
+share a store; storing the same fit twice (same source, data range, method and parameters)
+replaces the record instead of duplicating it. Autocalibration writes here; a static
+six-orientation calibration writes here too (``method="static-6"``).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime as _dt
+import hashlib
+import json
+import os
+import re
+import tempfile
+from pathlib import Path
+from typing import Optional
+
+from stillpoint.drivers.errors import StillpointError
+
+from .estimate import CalibrationEstimate
+
+HOME_ENV = "STILLPOINT_HOME"
+STORE_VERSION = 1
+USABLE_STATUSES = ("ok",)  # what prior_for() will hand to online mode
+
+
+class CalibrationStoreError(StillpointError):
+    """The store (or a device in it) could not be read or written."""
+
+
+def default_root() -> Path:
+    env = os.environ.get(HOME_ENV)
+    if env:
+        return Path(env).expanduser()
+    return Path("~/.local/share/stillpoint").expanduser()
+
+
+def _iso(ns: Optional[int]) -> Optional[str]:
+    if ns is None:
+        return None
+    return _dt.datetime.fromtimestamp(ns / 1e9, tz=_dt.timezone.utc).isoformat(
+        timespec="milliseconds").replace("+00:00", "Z")
+
+
+def _now_iso() -> str:
+    return _dt.datetime.now(tz=_dt.timezone.utc).isoformat(timespec="seconds").replace(
+        "+00:00", "Z")
+
+
+def device_file_name(device_key: str) -> str:
+    """A safe file name for a device key (hash suffix when characters had to be replaced)."""
+    safe = re.sub(r"[^A-Za-z0-9._-]", "_", device_key).strip(".") or "device"
+    if safe != device_key:
+        safe += "-" + hashlib.sha1(device_key.encode()).hexdigest()[:8]
+    return safe + ".json"
+
+
+@contextlib.contextmanager
+def _locked(path: Path):
+    lock = path.with_suffix(path.suffix + ".lock")
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - non-POSIX: atomic rename still protects the file
+        yield
+        return
+    with open(lock, "a") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
+
+
+class CalibrationStore:
+    """Estimates per device. ``root`` defaults to ``$STILLPOINT_HOME`` or ~/.local/share/stillpoint."""
+
+    def __init__(self, root=None):
+        self.root = Path(root).expanduser() if root is not None else default_root()
+        self.dir = self.root / "calibration"
+
+    # ------------------------------------------------------------------ files
+    def _path(self, device_key: str) -> Path:
+        return self.dir / device_file_name(device_key)
+
+    def _read(self, path: Path) -> dict:
+        try:
+            with open(path, encoding="utf-8") as f:
+                doc = json.load(f)
+        except FileNotFoundError:
+            return {}
+        except (OSError, ValueError) as e:
+            raise CalibrationStoreError(f"{path}: unreadable calibration store file: {e}") from None
+        if not isinstance(doc, dict) or not isinstance(doc.get("records"), list):
+            raise CalibrationStoreError(f"{path}: not a calibration store file (no 'records' list)")
+        return doc
+
+    def _write(self, path: Path, doc: dict) -> None:
+        self.dir.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".json", dir=self.dir)
+        try:
+            with os.fdopen(fd, "w", encoding="utf-8") as f:
+                json.dump(doc, f, indent=1, sort_keys=True)
+                f.write("\n")
+            os.replace(tmp, path)
+        except BaseException:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+            raise
+
+    # ------------------------------------------------------------------ write
+    def add(self, estimate: CalibrationEstimate, *, device_key: Optional[str] = None,
+            source: Optional[str] = None, stored_at: Optional[str] = None) -> dict:
+        """Store an estimate for its device; returns the record. Same fit twice -> one record."""
+        key = device_key or estimate.device_key
+        if not key:
+            raise CalibrationStoreError("cannot store an estimate without a device key "
+                                        "(device type + serial)")
+        est = estimate.to_dict()
+        est["device_key"] = key
+        record = {
+            "stored_at": stored_at or _now_iso(),
+            "source": str(source) if source is not None else None,
+            "data_start": _iso(estimate.fit_start_ns),
+            "data_end": _iso(estimate.fit_end_ns),
+            "method": estimate.method,
+            "status": estimate.status,
+            "reason": estimate.reason,
+            "quality": {"error_before_mg": estimate.error_before_mg,
+                        "error_after_mg": estimate.error_after_mg,
+                        "windows": estimate.windows, "hours_used": estimate.hours_used},
+            "estimate": est,
+        }
+        ident = self._identity(record)
+        path = self._path(key)
+        self.dir.mkdir(parents=True, exist_ok=True)
+        with _locked(path):
+            doc = self._read(path) or {"version": STORE_VERSION, "device_key": key, "records": []}
+            if doc.get("device_key") != key:
+                raise CalibrationStoreError(
+                    f"{path}: holds device {doc.get('device_key')!r}, not {key!r}")
+            doc["records"] = [r for r in doc["records"] if self._identity(r) != ident]
+            doc["records"].append(record)
+            doc["records"].sort(key=lambda r: (r.get("data_end") or "", r.get("stored_at") or ""))
+            self._write(path, doc)
+        return record
+
+    @staticmethod
+    def _identity(record: dict):
+        e = record.get("estimate", {})
+        return (record.get("source"), record.get("data_start"), record.get("data_end"),
+                record.get("method"), record.get("status"),
+                json.dumps([e.get("offset"), e.get("scale"), e.get("tempoffset")]))
+
+    # ------------------------------------------------------------------ read
+    def devices(self) -> list[str]:
+        """Device keys that have a file in the store."""
+        if not self.dir.is_dir():
+            return []
+        keys = []
+        for p in sorted(self.dir.glob("*.json")):
+            if p.name.startswith(".tmp-"):
+                continue
+            doc = self._read(p)
+            if doc.get("device_key"):
+                keys.append(doc["device_key"])
+        return sorted(keys)
+
+    def records(self, device_key: str) -> list[dict]:
+        """Every record of a device, oldest data first ([] for an unknown device)."""
+        return list(self._read(self._path(device_key)).get("records", []))
+
+    def estimates(self, device_key: str) -> list[CalibrationEstimate]:
+        return [CalibrationEstimate.from_dict(r["estimate"]) for r in self.records(device_key)]
+
+    def latest(self, device_key: str, statuses=USABLE_STATUSES) -> Optional[CalibrationEstimate]:
+        """The estimate fitted on the most recent data whose status is in ``statuses``."""
+        for r in reversed(self.records(device_key)):
+            if statuses is None or r.get("status") in statuses:
+                return CalibrationEstimate.from_dict(r["estimate"])
+        return None
+
+    def prior_for(self, device_key: str) -> Optional[CalibrationEstimate]:
+        """The prior for online mode: the device's latest good estimate, or None (identity)."""
+        est = self.latest(device_key)
+        if est is not None:
+            est.extra = dict(est.extra, prior_from_store=True)
+        return est
+
+    def summary(self) -> list[dict]:
+        """One row per device for ``stillpoint calibration list``."""
+        rows = []
+        for key in self.devices():
+            recs = self.records(key)
+            last = recs[-1] if recs else {}
+            good = [r for r in recs if r.get("status") in USABLE_STATUSES]
+            rows.append({"device_key": key, "records": len(recs), "good": len(good),
+                         "last_data_end": last.get("data_end"), "last_status": last.get("status"),
+                         "last_method": last.get("method"),
+                         "last_error_after_mg": (last.get("quality") or {}).get("error_after_mg")})
+        return rows
+
+    def export(self) -> dict:
+        """The whole store as one JSON-able document."""
+        return {"version": STORE_VERSION, "exported_at": _now_iso(),
+                "devices": {k: self.records(k) for k in self.devices()}}

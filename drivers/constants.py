@@ -113,3 +113,10 @@ def gna_accel_g(raw, gain, offset):
 def gna_light_lux(raw, lux, volts):
     """Light in lux: raw * Lux / Volts. [GNA] §5"""
     return np.asarray(raw, dtype=np.float64) * lux / volts
+
+
+# ----------------------------------------------------------------------------- real-time clocks
+# [ALN] /work/shared/specs/alignment.md "Clock model" (AX datasheet; tuning-fork RTC crystals)
+RTC_TOLERANCE_PPM_AX = 50.0  # [ALN] AX3/AX6 RTC: +-50 ppm typical (about +-4.3 s a day)
+RTC_CRYSTAL_TURNOVER_C = 25.0  # [ALN] crystal frequency error is parabolic around ~25 degC
+RTC_CRYSTAL_PARABOLA_PPM_PER_C2 = -0.035  # [ALN] about -0.035 ppm/degC^2 around the turnover

@@ -1,0 +1,655 @@
+"""GENEActiv ``.bin`` reader: a streaming Source of Blocks (spec: ../shared/specs/geneactiv-format.md).
+
+The file is text: a header of ``key:value`` lines in sections, then 10-line pages of 300 samples
+(each sample 12 hex characters: x, y, z 12-bit two's complement, 10-bit light, button, reserved).
+
+What the reader does, in order:
+
+* **header** parsed by section heading and key (not line numbers), CR LF or LF, NUL/space padding,
+  comma decimals; the original GENEA format (and anything else) is refused with a typed error;
+* **pages** read in batches of ``batch_pages`` from a byte stream (plain file, gzip stream, or a file
+  still being written with ``follow=True``); hex decoded with a numpy lookup table over the bytes of
+  all pages of a batch at once;
+* **times**: every page is anchored on its own ``Page Time`` (device local time minus the header
+  time zone -> UTC ns); sample times are linear between consecutive page times (so "85.7 Hz" comes
+  out as the true 600/7 Hz); the last page of a segment uses the previous step, or 300/rate;
+* **QC**: a page with bad hex, a bad time or a bad length is skipped and logged; a sequence gap,
+  a skipped page or a page-time step that disagrees with 300/rate by more than ``time_tolerance``
+  starts a new segment and is logged; lines that are not pages are skipped up to the next
+  ``Recorded Data`` line (resynchronisation) and logged; a truncated final page yields its complete
+  12-character samples and is logged; a header page count that disagrees with the file is logged.
+
+Accel counts are returned raw (int16) with ``accel_counts_per_g = gain/100`` and
+``accel_zero = offset/100`` per axis, so ``Block.accel_g()`` equals ``(raw*100 - offset)/gain``.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Iterator, Optional, Union
+
+import numpy as np
+
+from ..engine.blocks import (PER_SAMPLE_BUTTON, PER_SAMPLE_LIGHT_RAW, Block, DeviceInfo, QCEvent,
+                             QCReport)
+from .byteio import FollowingReader, open_bytes, read_exact
+from .constants import (GNA_HEX_PER_SAMPLE, GNA_LIGHT_SHIFT, GNA_PAGE_MARKER, GNA_SAMPLES_PER_PAGE,
+                        gna_rate_hz)
+from .errors import (CorruptRecordingError, RecordingError, TruncatedRecordingError,
+                     UnsupportedFormatError)
+from .geneactiv_header import (CALIBRATION_KEYS, SUBJECT_KEYS, TRIAL_KEYS, GeneactivHeader,
+                               header_range_g, header_rate_hz, parse_header_text, parse_number,
+                               parse_time_ms, parse_times_ms_fixed, parse_timezone)
+
+__all__ = ["GeneactivReader", "read_header", "decode_hex_samples", "GeneactivWriter"]
+
+PAGE_HEX_CHARS = GNA_SAMPLES_PER_PAGE * GNA_HEX_PER_SAMPLE  # 3600
+APPROX_PAGE_BYTES = 3800  # a page with its 9 text lines, for sizing reads (never for allocation)
+HEADER_LIMIT_BYTES = 1 << 20  # a header longer than this is not a GENEActiv header
+MAX_PAGE_FIELD_LINES = 24  # "key:value" lines allowed between a marker and its hex line
+_MARKER = GNA_PAGE_MARKER.encode()
+_MARKER_CR = _MARKER + b"\r"
+_MARKER_RE = re.compile(rb"(?:^|\n)Recorded Data[ \t\r\x00]*(?:\n|$)")
+_VALUE_STRIP = b" \t\r\x00"
+
+# hex digit -> value; 255 marks a character that is not a hex digit
+_HEX_LUT = np.full(256, 255, np.uint8)
+_HEX_LUT[np.frombuffer(b"0123456789", np.uint8)] = np.arange(10)
+_HEX_LUT[np.frombuffer(b"ABCDEF", np.uint8)] = np.arange(10, 16)
+_HEX_LUT[np.frombuffer(b"abcdef", np.uint8)] = np.arange(10, 16)
+
+
+def decode_hex_samples(hex_bytes: bytes, n_samples: int):
+    """Decode ``n_samples`` 12-character samples from the start of ``hex_bytes`` (vectorised).
+
+    Returns (accel (n, 3) int16 two's-complement 12-bit, light (n,) uint16 10-bit, button (n,) uint8,
+    bad (n,) bool: the sample holds a character that is not a hex digit). [GNA] §5
+    """
+    nib = _HEX_LUT[np.frombuffer(hex_bytes, np.uint8, count=n_samples * GNA_HEX_PER_SAMPLE)]
+    nib = nib.reshape(n_samples, 4, 3)
+    bad = (nib == 255).reshape(n_samples, 12).any(axis=1)
+    n16 = nib.astype(np.uint16)
+    words = (n16[:, :, 0] << 8) | (n16[:, :, 1] << 4) | n16[:, :, 2]  # (n, 4) 12-bit fields
+    xyz = words[:, :3]
+    # sign-extend 12 -> 16 bits: values >= 2048 are negative (actipy's '> 2048' is a bug)
+    accel = ((xyz << 4).view(np.int16) >> 4).astype(np.int16)
+    low = words[:, 3]
+    light = (low >> GNA_LIGHT_SHIFT).astype(np.uint16)
+    button = ((low >> 1) & 1).astype(np.uint8)
+    return accel, light, button, bad
+
+
+@dataclass
+class _Page:
+    """One page that passed the structural checks, decoded."""
+
+    index: int  # position among the pages of the file (0-based)
+    seq: int
+    t_ms: int  # Page Time, device clock, ms since 1970
+    temperature: float
+    battery: float
+    freq: Optional[float]
+    accel: np.ndarray  # (n, 3) int16
+    light: np.ndarray  # (n,) uint16
+    button: np.ndarray  # (n,) uint8
+    partial: Union[bool, str] = False  # "cut" (file ends mid-line) or "terminated" (short last page)
+
+    @property
+    def n(self) -> int:
+        return int(self.accel.shape[0])
+
+
+@dataclass
+class _Skip:
+    """A page (or stretch of text) that was dropped: forces a segment break."""
+
+    index: int
+
+
+def _open_stream(path: Path, follow: bool, follow_done, follow_idle_timeout: float):
+    if follow:
+        return FollowingReader(path, is_done=follow_done, idle_timeout=follow_idle_timeout)
+    return open_bytes(path)
+
+
+class GeneactivReader:
+    """Streaming Source over a GENEActiv ``.bin`` (or ``.bin.gz``) file.
+
+    >>> with GeneactivReader("rec.bin") as src:      # doctest: +SKIP
+    ...     for block in src: ...                    # Blocks of up to batch_pages pages
+    ...     print(src.qc.as_dict())
+
+    ``timezone`` overrides the header's ``Time Zone`` (e.g. "+01:00", "GMT -04:00", seconds).
+    ``follow=True`` keeps reading a file that is still being written until ``follow_done()``
+    returns True or no byte arrives for ``follow_idle_timeout`` seconds.
+    ``time_tolerance``: relative disagreement between a page-time step and 300/rate above which
+    the step is treated as a time jump (new segment) instead of being interpolated.
+    """
+
+    def __init__(self, path, *, batch_pages: int = 256, follow: bool = False,
+                 timezone: Union[str, int, None] = None, follow_done: Optional[Callable[[], bool]] = None,
+                 follow_idle_timeout: float = 5.0, time_tolerance: float = 0.01):
+        self.path = Path(path)
+        if batch_pages < 1:
+            raise ValueError("batch_pages must be >= 1")
+        self.batch_pages = int(batch_pages)
+        self.time_tolerance = float(time_tolerance)
+        self._check_file()
+        self._f = _open_stream(self.path, follow, follow_done, follow_idle_timeout)
+        try:
+            self.header, self._rest = _read_header(self._f, self.path)
+            self.info = _device_info(self.header, self.path, timezone, self._rest)
+        except BaseException:
+            self._f.close()
+            raise
+        self.qc = QCReport(unit="page")
+        self._iterated = False
+        self._samples = 0
+
+    # ------------------------------------------------------------------ Source protocol
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def close(self) -> None:
+        try:
+            self._f.close()
+        except Exception:  # pragma: no cover - closing must never mask the real error
+            pass
+
+    def __iter__(self) -> Iterator[Block]:
+        if self._iterated:
+            raise RuntimeError("a GeneactivReader is single-pass; open the file again")
+        self._iterated = True
+        try:
+            yield from self._blocks()
+        finally:
+            self.close()
+
+    # ------------------------------------------------------------------ internals
+    def _check_file(self) -> None:
+        p = self.path
+        if not p.exists():
+            raise RecordingError(p, "no such file")
+        if p.is_dir():
+            raise RecordingError(p, "is a directory, not a recording")
+        if p.stat().st_size == 0:
+            raise TruncatedRecordingError(p, "file is empty (0 bytes)")
+
+    def _event(self, index: int, reason: str, detail: str = "", time_ns=None, samples: int = 0):
+        self.qc.add(QCEvent(index=index, reason=reason, detail=detail, time_ns=time_ns,
+                            samples=samples))
+
+    def _blocks(self) -> Iterator[Block]:
+        info = self.info
+        tz_ns = info.timezone_offset_s * 10**9
+        nominal_rate = info.sample_rate_nominal
+        tol = self.time_tolerance
+        per_page = GNA_SAMPLES_PER_PAGE
+        header_freq_text = self.header.get("Measurement Frequency", "Configuration Info")
+        freq_warned = False
+
+        batch: list[tuple[_Page, int, int]] = []  # (page, step_ns, segment)
+        prev: Optional[_Page] = None
+        prev_step: Optional[int] = None  # step of the page before `prev`, same segment
+        broken = False  # a page was skipped since `prev`
+        segment = 0
+
+        def nominal_step(page: _Page) -> int:
+            rate = page.freq or nominal_rate
+            return int(round(per_page / rate * 1e9))
+
+        for item in self._pages():
+            if isinstance(item, _Skip):
+                broken = True
+                continue
+            page = item
+            if page.freq and nominal_rate and abs(page.freq - nominal_rate) > 1e-6 * nominal_rate \
+                    and not freq_warned:
+                freq_warned = True
+                self._event(page.index, "frequency_mismatch",
+                            f"page Measurement Frequency {page.freq:g} Hz differs from the header's "
+                            f"{header_freq_text!r}; pages are timed with their own value")
+            if prev is not None:
+                step = (page.t_ms - prev.t_ms) * 1_000_000
+                expect = nominal_step(prev)
+                reasons = []
+                if broken:
+                    reasons.append(("skipped_pages", "pages were skipped before this page"))
+                if page.seq != prev.seq + 1:
+                    reasons.append(("sequence_gap", f"Sequence Number {prev.seq} -> {page.seq}"))
+                if abs(step - expect) > max(2_000_000, tol * expect):
+                    reasons.append(("time_jump",
+                                    f"Page Time step {step / 1e9:.3f} s where {per_page} samples at "
+                                    f"{(page.freq or nominal_rate):g} Hz take {expect / 1e9:.3f} s"))
+                if reasons:
+                    batch.append((prev, prev_step if prev_step is not None else expect, segment))
+                    for reason, detail in reasons:
+                        if reason != "skipped_pages":
+                            self._event(page.index, reason, detail + "; new segment",
+                                        time_ns=page.t_ms * 1_000_000 - tz_ns)
+                    segment += 1
+                    prev_step = None
+                else:
+                    batch.append((prev, step, segment))
+                    prev_step = step
+            prev = page
+            broken = False
+            if len(batch) >= self.batch_pages:
+                yield from self._emit(batch, tz_ns)
+                batch = []
+        if prev is not None:
+            batch.append((prev, prev_step if prev_step is not None else nominal_step(prev), segment))
+        if batch:
+            yield from self._emit(batch, tz_ns)
+        self.qc.segments = segment + 1 if (prev is not None) else 0
+        n_hdr = self.info.header.get("number_of_pages")
+        if n_hdr is not None and n_hdr != self.qc.total:
+            self._event(self.qc.total, "page_count_mismatch",
+                        f"header Number of Pages is {n_hdr}, the file holds {self.qc.total}")
+
+    def _emit(self, batch, tz_ns) -> Iterator[Block]:
+        """Blocks from (page, step, segment) triples: one Block per run of one segment."""
+        start = 0
+        while start < len(batch):
+            seg = batch[start][2]
+            stop = start
+            while stop < len(batch) and batch[stop][2] == seg:
+                stop += 1
+            yield self._block(batch[start:stop], seg, tz_ns)
+            start = stop
+
+    def _block(self, run, segment: int, tz_ns: int) -> Block:
+        pages = [p for p, _, _ in run]
+        counts = np.array([p.n for p in pages], np.int64)
+        starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+        t0 = np.array([p.t_ms for p in pages], np.int64) * 1_000_000 - tz_ns
+        steps = np.array([s for _, s, _ in run], np.int64)
+        n = int(counts.sum())
+        within = np.arange(n, dtype=np.int64) - np.repeat(starts, counts)
+        # linear between page anchors: t_k + i * step_k / 300 (floor to whole ns)
+        time_ns = np.repeat(t0, counts) + (within * np.repeat(steps, counts)) // GNA_SAMPLES_PER_PAGE
+        accel = np.concatenate([p.accel for p in pages])
+        light = np.concatenate([p.light for p in pages])
+        button = np.concatenate([p.button for p in pages])
+        hdr = self.info.header
+        block = Block(
+            time_ns=time_ns,
+            accel=accel,
+            accel_counts_per_g=np.asarray(hdr["gains"], np.float64) / 100.0,
+            accel_zero=np.asarray(hdr["offsets"], np.float64) / 100.0,
+            unit_index=np.array([p.index for p in pages], np.int64),
+            unit_sequence=np.array([p.seq for p in pages], np.int64),
+            unit_start=starts,
+            temperature_c=np.array([p.temperature for p in pages], np.float64),
+            temperature_raw=np.full(len(pages), -1, np.int32),
+            light=np.array([int(p.light[0]) for p in pages], np.int32),
+            battery_v=np.array([p.battery for p in pages], np.float64),
+            events=np.zeros(len(pages), np.uint8),
+            per_sample={PER_SAMPLE_LIGHT_RAW: light, PER_SAMPLE_BUTTON: button},
+            segment=segment,
+            first_sample=self._samples,
+        )
+        self._samples += n
+        return block
+
+    # ------------------------------------------------------------------ page parsing
+    def _pages(self) -> Iterator[Union[_Page, _Skip]]:
+        """Pages in file order (decoded) and _Skip markers, from the byte stream in batches."""
+        chunk_bytes = self.batch_pages * APPROX_PAGE_BYTES
+        buf = self._rest
+        self._rest = b""
+        eof = False
+        index = 0  # page position in the file
+        while True:
+            if not eof:
+                chunk = read_exact(self._f, chunk_bytes) if not isinstance(self._f, FollowingReader) \
+                    else self._f.read(chunk_bytes)
+                if not chunk:
+                    eof = True
+                else:
+                    buf = buf + chunk if buf else chunk
+            if eof and not buf:
+                return
+            lines = buf.split(b"\n")
+            self._ends_with_newline = buf.endswith(b"\n")
+            if eof:
+                if lines and lines[-1] == b"":
+                    lines.pop()
+                tail = b""
+            else:
+                tail = lines.pop()
+            items, consumed, index = self._parse_lines(lines, index, eof)
+            yield from items
+            if eof:
+                return
+            rest = lines[consumed:]
+            rest.append(tail)
+            buf = b"\n".join(rest)
+
+    def _parse_lines(self, lines: list[bytes], index: int, eof: bool):
+        """Parse complete lines into pages. Returns (items, lines consumed, next page index).
+
+        Stops before an incomplete page unless at end of file.
+        """
+        out: list[Union[_Page, _Skip]] = []
+        cand: list[tuple] = []  # (index, fields, hex, partial, position in out)
+        L = len(lines)
+        i = 0
+        while i < L:
+            line = lines[i]
+            if not (line == _MARKER or line == _MARKER_CR or line.strip(_VALUE_STRIP) == _MARKER):
+                j = i + 1
+                while j < L and not (lines[j] == _MARKER or lines[j] == _MARKER_CR
+                                     or lines[j].strip(_VALUE_STRIP) == _MARKER):
+                    j += 1
+                if j == L and not eof:
+                    skipped_bytes = sum(len(x) + 1 for x in lines[i:j])
+                    if skipped_bytes < 4 * self.batch_pages * APPROX_PAGE_BYTES:
+                        break  # wait for more bytes: the next marker may still come
+                nbytes = sum(len(x) + 1 for x in lines[i:j])
+                if any(x.strip(_VALUE_STRIP) for x in lines[i:j]):
+                    where = "at the end of the file" if (j == L and eof) else f"before page {index}"
+                    self._event(index, "desync",
+                                f"skipped {j - i} line(s), {nbytes} bytes, that are not a page "
+                                f"{where}; resynchronised on the next '{GNA_PAGE_MARKER}' line")
+                    out.append(_Skip(index))
+                i = j
+                continue
+            # a page: key:value lines up to the hex line
+            k = i + 1
+            fields: dict[bytes, bytes] = {}
+            while k < L and k - i <= MAX_PAGE_FIELD_LINES:
+                ln = lines[k]
+                key, sep, value = ln.partition(b":")
+                if not sep or ln.strip(_VALUE_STRIP) == _MARKER:
+                    break
+                fields[key] = value
+                k += 1
+            if k >= L:
+                if not eof:
+                    break  # page not complete yet
+                self.qc.total += 1
+                self.qc.skipped += 1
+                self._event(index, "truncated_page",
+                            "the file ends inside the page's text lines, before its data line")
+                out.append(_Skip(index))
+                index += 1
+                i = k
+                continue
+            hexline = lines[k].rstrip(_VALUE_STRIP)
+            nchar = len(hexline)
+            if nchar != PAGE_HEX_CHARS and k == L - 1 and not eof:
+                break  # a short data line may be the last page: decide once the next bytes (or EOF) come
+            self.qc.total += 1
+            if hexline.strip(_VALUE_STRIP) == _MARKER or k - i > MAX_PAGE_FIELD_LINES:
+                self.qc.skipped += 1
+                self._event(index, "bad_page", "the page has no data line")
+                out.append(_Skip(index))
+                index += 1
+                i = k
+                continue
+            last_line = eof and k == L - 1
+            if nchar == PAGE_HEX_CHARS:
+                cand.append((index, fields, hexline, False, len(out)))
+                out.append(None)  # placeholder, filled after vectorised decode
+            elif last_line and GNA_HEX_PER_SAMPLE <= nchar < PAGE_HEX_CHARS:
+                cand.append((index, fields, hexline, "terminated" if self._ends_with_newline else "cut",
+                             len(out)))
+                out.append(None)
+            else:
+                self.qc.skipped += 1
+                self._event(index, "bad_page_length",
+                            f"data line has {nchar} characters, expected {PAGE_HEX_CHARS}",
+                            samples=min(nchar // GNA_HEX_PER_SAMPLE, GNA_SAMPLES_PER_PAGE))
+                out.append(_Skip(index))
+            index += 1
+            i = k + 1
+        self._decode_candidates(cand, out)
+        return [x for x in out if x is not None], i, index
+
+    def _decode_candidates(self, cand, out) -> None:
+        if not cand:
+            return
+        full = [c for c in cand if not c[3]]
+        decoded: dict[int, tuple] = {}
+        if full:
+            acc, light, button, bad = decode_hex_samples(b"".join(c[2] for c in full),
+                                                         len(full) * GNA_SAMPLES_PER_PAGE)
+            P = len(full)
+            acc = acc.reshape(P, GNA_SAMPLES_PER_PAGE, 3)
+            light = light.reshape(P, GNA_SAMPLES_PER_PAGE)
+            button = button.reshape(P, GNA_SAMPLES_PER_PAGE)
+            bad_page = bad.reshape(P, GNA_SAMPLES_PER_PAGE).any(axis=1)
+            for j, c in enumerate(full):
+                decoded[c[0]] = (acc[j], light[j], button[j], bool(bad_page[j]))
+        for c in cand:
+            if c[3]:
+                n = len(c[2]) // GNA_HEX_PER_SAMPLE
+                acc, light, button, bad = decode_hex_samples(c[2], n)
+                decoded[c[0]] = (acc, light, button, bool(bad.any()))
+        # page times: vectorised for the standard fixed-width form, per page otherwise
+        tvals = [c[1].get(b"Page Time", b"").strip(_VALUE_STRIP) for c in cand]
+        parsed = parse_times_ms_fixed(tvals)
+        if parsed is None:
+            tms = [parse_time_ms(v.decode("latin-1")) for v in tvals]
+        else:
+            tms = [int(t) if ok else None for t, ok in zip(parsed[0].tolist(), parsed[1].tolist())]
+        freq_cache: dict[bytes, Optional[float]] = {}
+        for c, t in zip(cand, tms):
+            index, fields, hexline, partial, pos = c
+            acc, light, button, bad = decoded[index]
+            n = acc.shape[0]
+            reason = detail = None
+            if bad:
+                reason, detail = "bad_hex", "data line holds characters that are not hex digits"
+            elif t is None:
+                v = fields.get(b"Page Time")
+                reason = "bad_page_time"
+                detail = ("no Page Time line" if v is None
+                          else f"Page Time {v.strip(_VALUE_STRIP).decode('latin-1')!r} is not a valid time")
+            else:
+                try:
+                    seq = int(fields[b"Sequence Number"].strip(_VALUE_STRIP))
+                except (KeyError, ValueError):
+                    reason, detail = "bad_page_header", "Sequence Number missing or not an integer"
+            if reason:
+                self.qc.skipped += 1
+                self._event(index, reason, detail, samples=n)
+                out[pos] = _Skip(index)
+                continue
+            fv = fields.get(b"Measurement Frequency")
+            if fv not in freq_cache:
+                try:
+                    freq_cache[fv] = gna_rate_hz(fv.strip(_VALUE_STRIP).decode("latin-1")) if fv else None
+                except (ValueError, IndexError):
+                    freq_cache[fv] = None
+            self.qc.valid += 1
+            if partial == "cut":
+                self._event(index, "truncated_page",
+                            f"the file ends inside the data line: {n} of {GNA_SAMPLES_PER_PAGE} samples "
+                            f"({len(hexline)} of {PAGE_HEX_CHARS} hex characters); "
+                            "the complete samples are returned")
+            elif partial:
+                self._event(index, "partial_page",
+                            f"the last page holds {n} of {GNA_SAMPLES_PER_PAGE} samples "
+                            f"({len(hexline)} hex characters); they are returned")
+            out[pos] = _Page(index=index, seq=seq, t_ms=t, temperature=_num(fields.get(b"Temperature")),
+                             battery=_num(fields.get(b"Battery voltage")), freq=freq_cache[fv],
+                             accel=acc, light=light, button=button, partial=partial)
+
+
+def _num(v: Optional[bytes]) -> float:
+    if v is None:
+        return float("nan")
+    try:
+        return parse_number(v.decode("latin-1"))
+    except (ValueError, IndexError):
+        return float("nan")
+
+
+# ---------------------------------------------------------------------- header
+def _read_header(f, path: Path) -> tuple[GeneactivHeader, bytes]:
+    """Read up to the first "Recorded Data" line. Returns (header, bytes from that line on)."""
+    buf = read_exact(f, 4096)
+    if not buf:
+        raise TruncatedRecordingError(path, "file is empty")
+    head = buf.lstrip(b"\xef\xbb\xbf")
+    if not head.startswith(b"Device Identity"):
+        if head.startswith(b"GENEA"):
+            raise UnsupportedFormatError(
+                path, "this is an original GENEA (2010) file, not GENEActiv .bin; it is not supported")
+        raise UnsupportedFormatError(
+            path, f"not a GENEActiv .bin file: it must start with 'Device Identity', first bytes are "
+                  f"{head[:16]!r}")
+    buf = head
+    while True:
+        m = _MARKER_RE.search(buf)
+        if m:
+            start = m.start() + (1 if buf[m.start():m.start() + 1] == b"\n" else 0)
+            text, rest = buf[:start], buf[start:]
+            break
+        if len(buf) > HEADER_LIMIT_BYTES:
+            raise CorruptRecordingError(
+                path, f"no '{GNA_PAGE_MARKER}' line in the first {HEADER_LIMIT_BYTES} bytes: "
+                      "the header never ends")
+        more = f.read(65536)
+        if not more:
+            text, rest = buf, b""
+            break
+        buf += more
+    try:
+        decoded = text.decode("utf-8")
+    except UnicodeDecodeError:
+        decoded = text.decode("latin-1")
+    hdr = parse_header_text(decoded)
+    missing = [k for k in CALIBRATION_KEYS if hdr.get(k, "Calibration Data") in (None, "")]
+    if missing:
+        n_lines = decoded.count("\n") + 1
+        if not rest:
+            raise TruncatedRecordingError(
+                path, f"header ends early after {n_lines} line(s): missing {', '.join(missing)} "
+                      "(Calibration Data)", where="header")
+        raise CorruptRecordingError(path, f"header lacks {', '.join(missing)} (Calibration Data)",
+                                    where="header")
+    if not rest and "Memory Status" not in hdr.sections:
+        n_lines = decoded.count("\n") + 1
+        raise TruncatedRecordingError(
+            path, f"header ends early after {n_lines} line(s): no 'Memory Status' section and no pages",
+            where="header")
+    return hdr, rest
+
+
+def _device_info(hdr: GeneactivHeader, path: Path, timezone, rest: bytes = b"") -> DeviceInfo:
+    warnings = hdr.warnings
+    gains, offsets = [], []
+    for axis in "xyz":
+        try:
+            g = int(round(parse_number(hdr.get(f"{axis} gain", "Calibration Data"))))
+            o = int(round(parse_number(hdr.get(f"{axis} offset", "Calibration Data"))))
+        except (ValueError, IndexError, AttributeError):
+            raise CorruptRecordingError(path, f"Calibration Data: {axis} gain/offset is not a number",
+                                        where="header") from None
+        if g <= 0:
+            raise CorruptRecordingError(path, f"Calibration Data: {axis} gain is {g}, must be > 0",
+                                        where="header")
+        gains.append(g)
+        offsets.append(o)
+    volts = lux = None
+    try:
+        volts = parse_number(hdr.get("Volts", "Calibration Data"))
+        lux = parse_number(hdr.get("Lux", "Calibration Data"))
+    except (ValueError, IndexError, AttributeError):
+        warnings.append("Calibration Data: Volts/Lux missing or unreadable; light in lux unavailable")
+    if timezone is not None:
+        try:
+            tz = parse_timezone(timezone)
+        except ValueError as e:
+            raise ValueError(f"timezone override: {e}") from None
+    else:
+        tzv = hdr.get("Time Zone", "Configuration Info")
+        try:
+            tz = parse_timezone(tzv)
+        except ValueError as e:
+            raise CorruptRecordingError(
+                path, f"Configuration Info: {e}; pass timezone= (CLI --timezone) to set it",
+                where="header") from None
+    rate = header_rate_hz(hdr)
+    if rate is None or not rate > 0:
+        rate = None
+        m = re.search(rb"Measurement Frequency:([^\r\n]*)", rest[:8192])
+        try:
+            rate = gna_rate_hz(m.group(1).strip(_VALUE_STRIP).decode("latin-1")) if m else None
+        except (ValueError, IndexError):
+            rate = None
+        if rate is None or not rate > 0:
+            raise CorruptRecordingError(path, "no readable Measurement Frequency in the header or "
+                                              "the first page", where="header")
+        warnings.append("Configuration Info: Measurement Frequency missing; taken from the first page")
+    start_text = hdr.get("Start Time", "Configuration Info")
+    start_ms = parse_time_ms(start_text) if start_text else None
+    if start_text and start_ms is None:
+        warnings.append(f"Configuration Info: Start Time {start_text!r} is not a valid time "
+                        "(sample times come from the pages' Page Time)")
+    n_pages = None
+    npv = hdr.get("Number of Pages", "Memory Status")
+    if npv:
+        try:
+            n_pages = int(npv.split()[0])
+        except ValueError:
+            warnings.append(f"Memory Status: Number of Pages {npv!r} is not an integer")
+    header = hdr.flat()
+    header.update({
+        "gains": tuple(gains), "offsets": tuple(offsets), "volts": volts, "lux": lux,
+        "model": hdr.get("Device Model", "Device Identity", ""),
+        "number_of_pages": n_pages,
+        "start_time_ns": None if start_ms is None else (start_ms * 1_000_000 - tz * 10**9),
+        "header_lines": hdr.lines,
+        "warnings": warnings,
+    })
+    metadata = {}
+    for k in TRIAL_KEYS + SUBJECT_KEYS:
+        v = hdr.get(k)
+        if v:
+            metadata[k] = v
+    return DeviceInfo(
+        device_type="GENEActiv",
+        device_id=hdr.get("Device Unique Serial Code", "Device Identity", "") or "",
+        session_id=None,
+        firmware=hdr.get("Device Firmware Version", "Device Identity", "") or "",
+        sample_rate_nominal=rate,
+        accel_range_g=header_range_g(hdr),
+        channels=("accel_x", "accel_y", "accel_z"),
+        timezone_offset_s=tz,
+        metadata=metadata,
+        header=header,
+        path=str(path),
+    )
+
+
+def read_header(path, *, timezone=None) -> DeviceInfo:
+    """DeviceInfo from the header only (fast: reads no pages)."""
+    p = Path(path)
+    if not p.exists():
+        raise RecordingError(p, "no such file")
+    if p.stat().st_size == 0:
+        raise TruncatedRecordingError(p, "file is empty (0 bytes)")
+    with open_bytes(p) as f:
+        hdr, rest = _read_header(f, p)
+        return _device_info(hdr, p, timezone, rest)
+
+
+def _late_import_writer():
+    from .geneactiv_writer import GeneactivWriter as W
+    return W
+
+
+def __getattr__(name):  # lazy re-export keeps the reader importable on its own
+    if name == "GeneactivWriter":
+        return _late_import_writer()
+    raise AttributeError(name)
+

@@ -1,0 +1,173 @@
+"""Window-level simulation of a wrist recording for the discrepancy workflow's hidden-effect tests.
+
+Simulating raw samples for a week takes seconds per seed; the workflow only sees 10 s window
+features, so for many seeds we simulate at that level: a wearer timeline (sleep with posture changes,
+daytime still bouts, nonwear on a table), the device temperature (skin-coupled when worn, a daily
+cycle, cooling towards ambient in nonwear, the temperature sensor lagging the accelerometer die by a
+first-order lag), the true orientation of every still window, then the sensor model's deterministic
+part (``sensor_fit.forward`` with the truth's parameters) plus window-level noise (white noise of the
+mean and micro-movements within the 13 mg still criterion). Moving windows are emitted too (large SD)
+so that still selection and dT/dt estimation run exactly as on a recording.
+
+``simulate_windows(truth, days, seed)`` -> (WindowFeatures, truth SensorModel).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.signal import lfilter
+
+from ..features import WindowFeatures
+from .sensor_fit import SensorModel, forward, WindowData
+
+WINDOW_S = 10.0
+PER_DAY = int(86400 / WINDOW_S)
+
+
+@dataclass
+class WearerSettings:
+    """Defaults give an adult wrist; temperatures in degC, times in minutes unless stated."""
+
+    sleep_start_h: float = 23.0
+    sleep_hours: float = 8.0
+    posture_change_min: float = 40.0  # mean time between posture changes in sleep
+    day_still_fraction: float = 0.25  # fraction of waking time in still bouts
+    day_still_bout_min: float = 4.0  # median still bout during the day
+    nonwear_per_day: float = 0.5  # expected nonwear bouts (device on a table) per day
+    nonwear_hours: float = 2.0
+    skin_c: float = 32.5  # worn, at rest, mean
+    skin_daily_amp_c: float = 1.5  # warmer at night
+    active_cooling_c: float = 2.0  # worn while moving: cooler
+    ambient_c: float = 22.0
+    device_tau_min: float = 12.0  # device housing follows skin/ambient with this time constant
+    micro_motion_mg: float = 1.5  # SD of a still window's mean from micro-movements, per axis
+    noise_mg: float = 4.5  # SD of white noise of single samples (for the window SD feature)
+    samples_per_window: int = 1000
+
+
+def _random_unit(rng, n):
+    v = rng.normal(size=(n, 3))
+    return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+
+def _wrist_orientation(rng, n):
+    """Mostly uniform on the sphere, part clustered around resting forearm postures."""
+    u = _random_unit(rng, n)
+    rest = np.array([[-0.9, 0.1, 0.4], [0.2, -0.2, -0.95], [0.1, 0.95, 0.2], [0.6, 0.0, 0.8]])
+    pick = rng.random(n) < 0.35
+    k = rng.integers(0, len(rest), n)
+    c = rest[k] + rng.normal(scale=0.25, size=(n, 3))
+    c /= np.linalg.norm(c, axis=1, keepdims=True)
+    u[pick] = c[pick]
+    return u
+
+
+def _timeline(rng, days, s: WearerSettings):
+    """Per-window state: 0 moving (worn), 1 still (worn), 2 nonwear (still, on a table), bout ids."""
+    n = int(days * PER_DAY)
+    hour = (np.arange(n) * WINDOW_S / 3600.0) % 24.0
+    state = np.zeros(n, np.int8)
+    bout = np.zeros(n, np.int64)
+    bid = 0
+    i = 0
+    while i < n:
+        h = hour[i]
+        asleep = ((h - s.sleep_start_h) % 24.0) < s.sleep_hours
+        if asleep:
+            dur = max(1, int(rng.exponential(s.posture_change_min) * 6))
+            state[i:i + dur] = 1
+            bid += 1
+            bout[i:i + dur] = bid
+            i += dur
+            mv = int(rng.integers(3, 12))  # turning over: 30-120 s of movement
+            i += mv
+            continue
+        if rng.random() < s.nonwear_per_day * 5.0 / (16 * 60):  # one check per ~5 min of waking
+            dur = int(rng.uniform(0.5, 1.5) * s.nonwear_hours * 360)
+            state[i:i + dur] = 2
+            bid += 1
+            bout[i:i + dur] = bid
+            i += dur
+            continue
+        if rng.random() < s.day_still_fraction:
+            dur = max(1, int(rng.lognormal(np.log(s.day_still_bout_min * 6), 0.8)))
+            state[i:i + dur] = 1
+            bid += 1
+            bout[i:i + dur] = bid
+            i += dur
+        else:
+            i += int(rng.integers(6, 60))
+    return state[:n], bout[:n], hour
+
+
+def _temperatures(rng, state, hour, s: WearerSettings, lag_s: float):
+    """Accelerometer die temperature and the (lagging) temperature sensor's reading."""
+    night = np.cos(2 * np.pi * (hour - 3.0) / 24.0)
+    target = s.skin_c + s.skin_daily_amp_c * night
+    target = np.where(state == 0, target - s.active_cooling_c, target)
+    amb = s.ambient_c + 1.0 * np.cos(2 * np.pi * (hour - 15.0) / 24.0)
+    target = np.where(state == 2, amb, target)
+    target = target + np.cumsum(rng.normal(scale=0.02, size=state.shape))  # slow wander
+    a = WINDOW_S / (s.device_tau_min * 60.0)
+    die = lfilter([a], [1.0, -(1.0 - a)], target, zi=[target[0] * (1 - a)])[0]
+    if lag_s > 0:
+        b = WINDOW_S / (lag_s + WINDOW_S)
+        sensor = lfilter([b], [1.0, -(1.0 - b)], die, zi=[die[0] * (1 - b)])[0]
+    else:
+        sensor = die.copy()
+    sensor = sensor + rng.normal(scale=0.03, size=sensor.shape)
+    return die, sensor
+
+
+def simulate_windows(truth: SensorModel, days: float = 7.0, seed: int = 0,
+                     settings: WearerSettings | None = None):
+    """Window features of a simulated wrist recording read through the sensor model ``truth``.
+
+    ``truth.values['thermal_lag']`` is the time constant (s) of the temperature sensor behind the
+    accelerometer die; all other effects are applied as in ``sensor_fit.forward``.
+    Returns (WindowFeatures of every window, moving and still; boolean mask of truly still windows).
+    """
+    s = settings or WearerSettings()
+    rng = np.random.default_rng(seed)
+    state, bout, hour = _timeline(rng, days, s)
+    n = state.shape[0]
+    lag = float(truth.values["thermal_lag"][0])
+    die, sensor = _temperatures(rng, state, hour, s, lag)
+
+    still = state > 0
+    nb = int(bout.max()) + 1
+    ub = _wrist_orientation(rng, nb)
+    table = np.array([0.0, 0.0, 1.0]) * rng.choice([-1.0, 1.0], nb)[:, None] \
+        + rng.normal(scale=0.03, size=(nb, 3))
+    table /= np.linalg.norm(table, axis=1, keepdims=True)
+    is_nonwear_bout = np.zeros(nb, bool)
+    is_nonwear_bout[bout[state == 2]] = True
+    ub[is_nonwear_bout] = table[is_nonwear_bout]
+    u = ub[bout]
+    jit = np.where(state[:, None] == 1, rng.normal(scale=0.01, size=(n, 3)), 0.0)  # ~0.5 deg
+    u = u + jit
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+
+    t_days = np.arange(n) * WINDOW_S / 86400.0
+    # the die temperature drives the sensor: evaluate the forward model with the lag switched off
+    # and the die temperature, which is what T + lag * dT/dt of the sensor estimates.
+    die_model = truth.copy()
+    die_model.values["thermal_lag"][:] = 0.0
+    data = WindowData(np.zeros((n, 3)), die, np.zeros(n), t_days)
+    mean = forward(die_model, u, data)
+    mm = s.micro_motion_mg / 1000.0
+    mean = mean + np.where(state[:, None] == 1, rng.normal(scale=mm, size=(n, 3)),
+                           rng.normal(scale=0.2 * mm, size=(n, 3)))
+    white = s.noise_mg / 1000.0
+    sd = np.sqrt(white ** 2 + np.where(state[:, None] == 1, (3 * mm) ** 2, 0.0)
+                 ) * rng.uniform(0.9, 1.1, size=(n, 3))
+    # moving windows: dynamic acceleration, large SD, mean somewhere near 1 g
+    moving = ~still
+    mean[moving] = _random_unit(rng, int(moving.sum())) * rng.uniform(0.7, 1.3, (int(moving.sum()), 1))
+    sd[moving] = rng.uniform(0.05, 0.5, size=(int(moving.sum()), 3))
+    start_ns = (np.arange(n) * int(WINDOW_S * 1e9)).astype(np.int64)
+    feats = WindowFeatures.from_arrays(mean, sd, sensor, start_ns=start_ns,
+                                       n=np.full(n, s.samples_per_window))
+    return feats, still

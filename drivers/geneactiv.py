@@ -602,8 +602,12 @@ def _device_info(hdr: GeneactivHeader, path: Path, timezone, rest: bytes = b"") 
             n_pages = int(npv.split()[0])
         except ValueError:
             warnings.append(f"Memory Status: Number of Pages {npv!r} is not an integer")
+    drift = re.search(r"clock drift\s*([-+]?\d+(?:[.,]\d+)?)\s*s", hdr.get("Extract Notes", "Trial Info") or "")
     header = hdr.flat()
     header.update({
+        # the vendor software notes the device clock's drift at extraction, e.g. "(device clock drift
+        # -1.459s)"; reported here, not applied
+        "clock_drift_s": float(drift.group(1).replace(",", ".")) if drift else None,
         "gains": tuple(gains), "offsets": tuple(offsets), "volts": volts, "lux": lux,
         "model": hdr.get("Device Model", "Device Identity", ""),
         "number_of_pages": n_pages,

@@ -115,6 +115,10 @@ class GeneactivWriter:
         self.eol = line_ending.encode()
         self.header_fields = dict(header_fields or {})
         self.partial_page = partial_page
+        known = {k for _, kv in _header_layout(self, "") for k, _ in kv}
+        unknown = set(self.header_fields) - known
+        if unknown:
+            raise ValueError(f"unknown header field(s) {sorted(unknown)}; known: {sorted(known)}")
         self.pages_written = 0
         self.samples_written = 0
         self._gz = self.path.suffix == ".gz"
@@ -190,10 +194,6 @@ class GeneactivWriter:
         start_text = format_time_ms(int(self._local_ms(np.array([t]))[0])) if t is not None \
             else "0000-00-00 00:00:00:000"
         layout = _header_layout(self, start_text)
-        known = {k for _, kv in layout for k, _ in kv}
-        unknown = set(self.header_fields) - known
-        if unknown:
-            raise ValueError(f"unknown header field(s) {sorted(unknown)}; known: {sorted(known)}")
         eol = self.eol
         out = bytearray()
         npages_pos = None

@@ -392,3 +392,18 @@ def estimate_error_mg(estimate: CalibrationEstimate, features: WindowFeatures) -
     else:
         cal = estimate.apply(mean)
     return calibration_error_g(cal) * 1000.0, int(mean.shape[0])
+
+
+def rereference(estimate: CalibrationEstimate, temperature_ref: float) -> CalibrationEstimate:
+    """The same calibration expressed with another reference temperature.
+
+    (raw + o) s + (T - R) t = (raw + o + (R' - R) t / s) s + (T - R') t, so only the offset moves.
+    Needed to compare estimates fitted at different mean temperatures.
+    """
+    import copy
+
+    est = copy.deepcopy(estimate)
+    est.offset = estimate.offset + (temperature_ref - estimate.temperature_ref) * \
+        estimate.tempoffset / estimate.scale
+    est.temperature_ref = float(temperature_ref)
+    return est

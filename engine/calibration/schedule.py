@@ -37,6 +37,108 @@ def recording_range(features: WindowFeatures, window_s: float = WINDOW_S):
             int(features.start_ns.max()) + int(round(window_s * 1e9)))
 
 
+class BatchSchedule:
+    """The schedule in incremental form, for a reader pass that stops as soon as it is satisfied.
+
+    Feed nonmovement windows in time order with :meth:`add` (``now_ns``: the data time reached,
+    so that a boundary passes even when no selected window follows it); it fits at each load
+    boundary (``start + first_hours``, then every ``chunk_hours``) and returns the final
+    estimate once the fit is ``ok`` (error below target, sphere covered), else None. At the end of
+    the data call :meth:`finish`. Keyword arguments go to :func:`fit_calibration`.
+    """
+
+    def __init__(self, start_ns: int, *, first_hours: float = FIRST_HOURS,
+                 chunk_hours: float = CHUNK_HOURS, window_s: float = WINDOW_S, **fit_kw):
+        if first_hours <= 0 or chunk_hours <= 0:
+            raise ValueError("first_hours and chunk_hours must be positive")
+        self.start_ns = int(start_ns)
+        self.first_hours = float(first_hours)
+        self.chunk_hours = float(chunk_hours)
+        self.boundary_ns = self.start_ns + int(round(first_hours * _NS_PER_HOUR))
+        self.chunk_ns = int(round(chunk_hours * _NS_PER_HOUR))
+        self.window_s = window_s
+        self.fit_kw = dict(fit_kw, select=False, window_s=window_s)
+        self.attempts: list[dict] = []
+        self.result: Optional[CalibrationEstimate] = None
+        self.done = False
+        self._parts: list[WindowFeatures] = []
+        self._n = 0
+        self._n_fitted = -1
+
+    @property
+    def windows(self) -> WindowFeatures:
+        if len(self._parts) > 1:
+            self._parts = [WindowFeatures.concat(self._parts)]
+        return self._parts[0] if self._parts else WindowFeatures.empty()
+
+    def _append(self, w: WindowFeatures) -> None:
+        if len(w):
+            self._parts.append(w)
+            self._n += len(w)
+
+    def _fit(self, end_ns: int) -> CalibrationEstimate:
+        if self._n == self._n_fitted and self.result is not None:
+            est = self.result  # same windows: same fit; only the loaded range grew
+            est.fit_end_ns = int(end_ns)
+            est.hours_used = (int(end_ns) - self.start_ns) / _NS_PER_HOUR
+            return est
+        est = fit_calibration(self.windows, data_start_ns=self.start_ns, data_end_ns=int(end_ns),
+                              **self.fit_kw)
+        self._n_fitted = self._n
+        self.attempts.append({"hours": round((int(end_ns) - self.start_ns) / _NS_PER_HOUR, 6),
+                              "windows": est.windows, "status": est.status,
+                              "error_before_mg": est.error_before_mg,
+                              "error_after_mg": est.error_after_mg})
+        self.result = est
+        return est
+
+    def add(self, windows: WindowFeatures, now_ns: Optional[int] = None
+            ) -> Optional[CalibrationEstimate]:
+        """Take selected windows (time order); return the final estimate once satisfied."""
+        if self.done:
+            return self.result
+        starts = windows.start_ns
+        i = 0
+        while True:
+            j = i + int(np.searchsorted(starts[i:], self.boundary_ns, side="left"))
+            self._append(windows.select(slice(i, j)))
+            reached = j < len(windows) or (now_ns is not None and now_ns >= self.boundary_ns)
+            if not reached:
+                return None
+            if self._n != self._n_fitted:
+                est = self._fit(self.boundary_ns)
+                if est.status == "ok":
+                    return self._finalise(recording_end_ns=None)
+            self.boundary_ns += self.chunk_ns
+            i = j
+
+    def finish(self, end_ns: int) -> CalibrationEstimate:
+        """End of data at ``end_ns``: the last fit on every window (if not already satisfied)."""
+        if self.done:
+            return self.result
+        self._fit(end_ns)
+        return self._finalise(recording_end_ns=int(end_ns))
+
+    def _finalise(self, recording_end_ns: Optional[int]) -> CalibrationEstimate:
+        self.done = True
+        est = self.result
+        est.extra.update(schedule=list(self.attempts), first_hours=self.first_hours,
+                         chunk_hours=self.chunk_hours)
+        if recording_end_ns is not None:
+            total_h = (recording_end_ns - self.start_ns) / _NS_PER_HOUR
+            est.extra["recording_hours"] = round(total_h, 6)
+            if total_h < self.first_hours:
+                est.extra["flags"].append("short")
+                est.reason += (f"; recording only {total_h:.1f} h (< {self.first_hours:g} h "
+                               "first load): flagged short")
+                if total_h < SHORT_RECORDING_HOURS:
+                    est.extra["flags"].append("under_24h")
+                return est
+        if len(self.attempts) > 1:
+            est.reason += f"; used {est.hours_used:.1f} h after {len(self.attempts)} fits"
+        return est
+
+
 def fit_batch_schedule(features: WindowFeatures, *, first_hours: float = FIRST_HOURS,
                        chunk_hours: float = CHUNK_HOURS, temperature: bool = True,
                        ggir_compatible: bool = False, variant: str = "auto", select: bool = True,
@@ -65,46 +167,19 @@ def fit_batch_schedule(features: WindowFeatures, *, first_hours: float = FIRST_H
     else:
         windows, n_in, repeats = features, len(features), 0
     fit_kw = dict(temperature=temperature, ggir_compatible=ggir_compatible, variant=variant,
-                  select=False, target_error_mg=target_error_mg, sd_threshold=sd_threshold,
-                  max_abs_mean=max_abs_mean, device_key=device_key, window_s=window_s,
-                  **fit_options)
+                  target_error_mg=target_error_mg, sd_threshold=sd_threshold,
+                  max_abs_mean=max_abs_mean, device_key=device_key, **fit_options)
     if t0 is None:  # no windows at all
-        est = fit_calibration(windows, **fit_kw)
+        est = fit_calibration(windows, select=False, window_s=window_s, **fit_kw)
         est.extra.update(windows_offered=n_in, schedule=[], first_hours=first_hours,
                          chunk_hours=chunk_hours)
         return est
-
-    total_h = (t_end - t0) / _NS_PER_HOUR
     if len(windows) > 1 and np.any(np.diff(windows.start_ns) < 0):
         windows = windows.select(np.argsort(windows.start_ns, kind="stable"))
-    starts = windows.start_ns
-    load_end = t0 + int(round(first_hours * _NS_PER_HOUR))
-    chunk_ns = int(round(chunk_hours * _NS_PER_HOUR))
-    attempts, est, n_prev = [], None, -1
-    while True:
-        stop_at = min(load_end, t_end)
-        n_use = int(np.searchsorted(starts, stop_at, side="left"))
-        last = load_end >= t_end
-        if n_use != n_prev or last:
-            est = fit_calibration(windows.select(slice(0, n_use)), data_start_ns=t0,
-                                  data_end_ns=stop_at, **fit_kw)
-            attempts.append({"hours": round((stop_at - t0) / _NS_PER_HOUR, 6),
-                             "windows": est.windows, "status": est.status,
-                             "error_before_mg": est.error_before_mg,
-                             "error_after_mg": est.error_after_mg})
-            n_prev = n_use
-            if est.status == "ok" or last:
-                break
-        load_end += chunk_ns
-    est.extra.update(windows_offered=n_in, repeats_collapsed=repeats, schedule=attempts,
-                     first_hours=first_hours, chunk_hours=chunk_hours,
-                     recording_hours=round(total_h, 6))
-    if total_h < first_hours:
-        est.extra["flags"].append("short")
-        est.reason += (f"; recording only {total_h:.1f} h (< {first_hours:g} h first load): "
-                       "flagged short")
-        if total_h < SHORT_RECORDING_HOURS:
-            est.extra["flags"].append("under_24h")
-    elif len(attempts) > 1:
-        est.reason += f"; used {est.hours_used:.1f} h after {len(attempts)} fits"
+    sched = BatchSchedule(t0, first_hours=first_hours, chunk_hours=chunk_hours,
+                          window_s=window_s, **fit_kw)
+    est = sched.add(windows)
+    if est is None:
+        est = sched.finish(t_end)
+    est.extra.update(windows_offered=n_in, repeats_collapsed=repeats)
     return est

@@ -245,7 +245,8 @@ def fit_calibration(features: WindowFeatures, *, temperature: bool = True,
                     max_abs_mean: float = MAX_ABS_MEAN_G, max_iter: int = MAX_ITER,
                     param_tol: float = PARAM_TOL, device_key: Optional[str] = None,
                     data_start_ns: Optional[int] = None, data_end_ns: Optional[int] = None,
-                    window_s: float = WINDOW_S) -> CalibrationEstimate:
+                    window_s: float = WINDOW_S,
+                    windows_offered: Optional[int] = None) -> CalibrationEstimate:
     """Fit the calibration on a table of window features and judge the result.
 
     ``features``: all windows of a recording (``select=True`` picks the nonmovement windows) or
@@ -262,10 +263,10 @@ def fit_calibration(features: WindowFeatures, *, temperature: bool = True,
         raise ValueError(f"unknown variant {variant!r}; expected one of {', '.join(VARIANTS)}")
     if ggir_compatible and variant in ("offset", "scale"):
         raise ValueError("ggir_compatible fits offset and scale (variant auto, c1 or c2)")
-    n_in = len(features)
-    if data_start_ns is None and n_in:
+    n_in = len(features) if windows_offered is None or select else int(windows_offered)
+    if data_start_ns is None and len(features):
         data_start_ns = int(features.start_ns.min())
-    if data_end_ns is None and n_in:
+    if data_end_ns is None and len(features):
         data_end_ns = int(features.start_ns.max()) + int(round(window_s * 1e9))
     extra: dict = {"variant": variant, "ggir_compatible": bool(ggir_compatible),
                    "windows_offered": n_in, "flags": []}

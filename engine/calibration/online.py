@@ -130,9 +130,9 @@ class OnlineCalibrator:
         est = fit_calibration(wins, select=False, data_start_ns=self.start_ns,
                               data_end_ns=fit_end_ns, device_key=self.device_key,
                               window_s=self.window_s, sd_threshold=self.sd_threshold,
-                              max_abs_mean=self.max_abs_mean, **self.fit_options)
+                              max_abs_mean=self.max_abs_mean, windows_offered=self._offered,
+                              **self.fit_options)
         est.effective_from_ns = int(effective_ns)
-        est.extra["windows_offered"] = self._offered
         est.extra["mode"] = "online"
         if est.status in APPLICABLE and len(wins):
             new_err, _ = estimate_error_mg(est, wins)

@@ -45,10 +45,14 @@ class BatchSchedule:
     boundary (``start + first_hours``, then every ``chunk_hours``) and returns the final
     estimate once the fit is ``ok`` (error below target, sphere covered), else None. At the end of
     the data call :meth:`finish`. Keyword arguments go to :func:`fit_calibration`.
+
+    How many windows (selected or not) the data held, for reasons and ``extra``: either the
+    sorted start times of every window (``all_starts``) or, in a stream, set ``offered``.
     """
 
     def __init__(self, start_ns: int, *, first_hours: float = FIRST_HOURS,
-                 chunk_hours: float = CHUNK_HOURS, window_s: float = WINDOW_S, **fit_kw):
+                 chunk_hours: float = CHUNK_HOURS, window_s: float = WINDOW_S,
+                 all_starts: Optional[np.ndarray] = None, **fit_kw):
         if first_hours <= 0 or chunk_hours <= 0:
             raise ValueError("first_hours and chunk_hours must be positive")
         self.start_ns = int(start_ns)
@@ -64,6 +68,8 @@ class BatchSchedule:
         self._parts: list[WindowFeatures] = []
         self._n = 0
         self._n_fitted = -1
+        self._all_starts = all_starts
+        self.offered: Optional[int] = None
 
     @property
     def windows(self) -> WindowFeatures:
@@ -82,8 +88,11 @@ class BatchSchedule:
             est.fit_end_ns = int(end_ns)
             est.hours_used = (int(end_ns) - self.start_ns) / _NS_PER_HOUR
             return est
+        offered = self.offered
+        if self._all_starts is not None:
+            offered = int(np.searchsorted(self._all_starts, int(end_ns), side="left"))
         est = fit_calibration(self.windows, data_start_ns=self.start_ns, data_end_ns=int(end_ns),
-                              **self.fit_kw)
+                              windows_offered=offered, **self.fit_kw)
         self._n_fitted = self._n
         self.attempts.append({"hours": round((int(end_ns) - self.start_ns) / _NS_PER_HOUR, 6),
                               "windows": est.windows, "status": est.status,
@@ -176,10 +185,11 @@ def fit_batch_schedule(features: WindowFeatures, *, first_hours: float = FIRST_H
         return est
     if len(windows) > 1 and np.any(np.diff(windows.start_ns) < 0):
         windows = windows.select(np.argsort(windows.start_ns, kind="stable"))
+    all_starts = np.sort(features.start_ns) if select else None
     sched = BatchSchedule(t0, first_hours=first_hours, chunk_hours=chunk_hours,
-                          window_s=window_s, **fit_kw)
+                          window_s=window_s, all_starts=all_starts, **fit_kw)
     est = sched.add(windows)
     if est is None:
         est = sched.finish(t_end)
-    est.extra.update(windows_offered=n_in, repeats_collapsed=repeats)
+    est.extra["repeats_collapsed"] = repeats
     return est

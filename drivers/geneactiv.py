@@ -106,6 +106,7 @@ class _Skip:
     """A page (or stretch of text) that was dropped: forces a segment break."""
 
     index: int
+    desync: bool = False  # text that was not a page (how many pages it held is unknown)
 
 
 def _open_stream(path: Path, follow: bool, follow_done, follow_idle_timeout: float):
@@ -196,7 +197,8 @@ class GeneactivReader:
         batch: list[tuple[_Page, int, int]] = []  # (page, step_ns, segment)
         prev: Optional[_Page] = None
         prev_step: Optional[int] = None  # step of the page before `prev`, same segment
-        broken = False  # a page was skipped since `prev`
+        skipped = 0  # pages skipped since `prev`
+        desynced = False  # non-page text skipped since `prev`
         segment = 0
 
         def nominal_step(page: _Page) -> int:
@@ -205,7 +207,10 @@ class GeneactivReader:
 
         for item in self._pages():
             if isinstance(item, _Skip):
-                broken = True
+                if item.desync:
+                    desynced = True
+                else:
+                    skipped += 1
                 continue
             page = item
             if page.freq and nominal_rate and abs(page.freq - nominal_rate) > 1e-6 * nominal_rate \
@@ -218,27 +223,26 @@ class GeneactivReader:
                 step = (page.t_ms - prev.t_ms) * 1_000_000
                 expect = nominal_step(prev)
                 reasons = []
-                if broken:
-                    reasons.append(("skipped_pages", "pages were skipped before this page"))
-                if page.seq != prev.seq + 1:
+                # after skipped pages, expect the sequence and the time to have moved on by as many
+                # pages; after a desync nothing is known (the desync event explains the break)
+                if not desynced and page.seq != prev.seq + 1 + skipped:
                     reasons.append(("sequence_gap", f"Sequence Number {prev.seq} -> {page.seq}"))
-                if abs(step - expect) > max(2_000_000, tol * expect):
+                if not desynced and abs(step - (1 + skipped) * expect) > max(2_000_000, tol * expect):
                     reasons.append(("time_jump",
                                     f"Page Time step {step / 1e9:.3f} s where {per_page} samples at "
                                     f"{(page.freq or nominal_rate):g} Hz take {expect / 1e9:.3f} s"))
-                if reasons:
+                if reasons or skipped or desynced:
                     batch.append((prev, prev_step if prev_step is not None else expect, segment))
                     for reason, detail in reasons:
-                        if reason != "skipped_pages":
-                            self._event(page.index, reason, detail + "; new segment",
-                                        time_ns=page.t_ms * 1_000_000 - tz_ns)
+                        self._event(page.index, reason, detail + "; new segment",
+                                    time_ns=page.t_ms * 1_000_000 - tz_ns)
                     segment += 1
                     prev_step = None
                 else:
                     batch.append((prev, step, segment))
                     prev_step = step
             prev = page
-            broken = False
+            skipped, desynced = 0, False
             if len(batch) >= self.batch_pages:
                 yield from self._emit(batch, tz_ns)
                 batch = []
@@ -357,7 +361,7 @@ class GeneactivReader:
                     self._event(index, "desync",
                                 f"skipped {j - i} line(s), {nbytes} bytes, that are not a page "
                                 f"{where}; resynchronised on the next '{GNA_PAGE_MARKER}' line")
-                    out.append(_Skip(index))
+                    out.append(_Skip(index, desync=True))
                 i = j
                 continue
             # a page: key:value lines up to the hex line

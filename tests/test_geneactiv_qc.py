@@ -1,0 +1,292 @@
+"""GENEActiv reader on damaged and unusual files: every problem is a typed error naming the file,
+or a QC event at the right page with everything readable still returned."""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+
+from stillpoint.drivers.errors import (CorruptRecordingError, RecordingError, TruncatedRecordingError,
+                                       UnsupportedFormatError)
+from stillpoint.drivers.geneactiv import GeneactivReader, GeneactivWriter, read_header
+from stillpoint.engine.blocks import Block
+
+T0 = 1_600_000_000_000_000_000
+
+
+def write(path, pages=6, rate=50.0, eol="\r\n", tz="+01:00"):
+    n = pages * 300
+    rng = np.random.default_rng(1)
+    t = T0 + np.round(np.arange(n) * 1e9 / rate).astype(np.int64)
+    a = rng.integers(-2048, 2048, (n, 3))
+    w = GeneactivWriter(path, rate_hz=rate, line_ending=eol, timezone=tz)
+    w.write(t, a, temperature_c=np.repeat(20 + np.arange(pages) / 10, 300))
+    w.close()
+    return t, a
+
+
+def pages_of(data: bytes):
+    """Byte offsets of every 'Recorded Data' line."""
+    out, i = [], 0
+    while True:
+        i = data.find(b"Recorded Data", i)
+        if i < 0:
+            return out
+        out.append(i)
+        i += 1
+
+
+def read(path, **kw):
+    r = GeneactivReader(path, **kw)
+    blocks = list(r)
+    return r, blocks, (Block.concat(blocks) if blocks else None)
+
+
+def events(r):
+    return [(e.index, e.reason) for e in r.qc.events]
+
+
+def test_desync_resynchronises_on_next_marker(tmp_path):
+    p = tmp_path / "r.bin"
+    t, a = write(p)
+    data = p.read_bytes()
+    pos = pages_of(data)
+    data = data[:pos[3]] + b"garbage line\r\nmore: junk\r\n" + data[pos[3]:]
+    p.write_bytes(data)
+    r, blocks, b = read(p)
+    assert events(r) == [(3, "desync")]
+    assert "2 line(s)" in r.qc.events[0].detail
+    assert b.n == 1800
+    np.testing.assert_array_equal(b.accel, a)
+    assert r.qc.segments == 2 and [bl.segment for bl in blocks] == [0, 1]
+
+
+def test_page_with_broken_marker_is_skipped(tmp_path):
+    p = tmp_path / "r.bin"
+    t, a = write(p)
+    data = p.read_bytes()
+    pos = pages_of(data)
+    data = data[:pos[2]] + b"Recorded Dat4" + data[pos[2] + 13:]
+    p.write_bytes(data)
+    r, blocks, b = read(p)
+    assert events(r) == [(2, "desync"), (5, "page_count_mismatch")]
+    assert b.n == 1500  # pages 0, 1, 3, 4, 5
+    np.testing.assert_array_equal(b.accel, np.concatenate([a[:600], a[900:]]))
+    # page positions: the lost page is not counted as a page (its marker is gone)
+    assert r.qc.total == 5 and r.info.header["number_of_pages"] == 6
+
+
+def test_bad_hex_page_is_skipped_and_logged(tmp_path):
+    p = tmp_path / "r.bin"
+    t, a = write(p)
+    data = bytearray(p.read_bytes())
+    pos = pages_of(bytes(data))
+    hexstart = data.find(b"Frequency:50.0", pos[1]) + len(b"Frequency:50.0\r\n")
+    data[hexstart + 100] = ord("G")
+    p.write_bytes(bytes(data))
+    r, blocks, b = read(p)
+    assert events(r) == [(1, "bad_hex")]
+    assert r.qc.events[0].samples == 300
+    assert (r.qc.total, r.qc.valid, r.qc.skipped, r.qc.segments) == (6, 5, 1, 2)
+    np.testing.assert_array_equal(b.accel, np.concatenate([a[:300], a[600:]]))
+    # the page before the skipped one keeps the nominal step (6 s at 50 Hz), never zero-filled
+    assert np.all(np.diff(blocks[0].time_ns) == 20_000_000)
+
+
+def test_bad_page_time_is_skipped(tmp_path):
+    p = tmp_path / "r.bin"
+    write(p)
+    data = p.read_bytes()
+    pos = pages_of(data)
+    i = data.find(b"Page Time:", pos[4]) + len(b"Page Time:")
+    data = data[:i] + b"2020-13-45 99:00:00:000" + data[i + 23:]
+    p.write_bytes(data)
+    r, _, b = read(p)
+    assert events(r) == [(4, "bad_page_time")]
+    assert "2020-13-45" in r.qc.events[0].detail
+    assert b.n == 1500
+
+
+def test_sequence_gap_starts_a_segment(tmp_path):
+    p = tmp_path / "r.bin"
+    write(p)
+    data = p.read_bytes()
+    data = data.replace(b"Sequence Number:3\r\n", b"Sequence Number:7\r\n")
+    data = data.replace(b"Sequence Number:4\r\n", b"Sequence Number:8\r\n")
+    data = data.replace(b"Sequence Number:5\r\n", b"Sequence Number:9\r\n")
+    p.write_bytes(data)
+    r, blocks, b = read(p)
+    assert events(r) == [(3, "sequence_gap")]
+    assert "2 -> 7" in r.qc.events[0].detail
+    assert b.n == 1800 and r.qc.segments == 2
+    assert blocks[1].unit_sequence.tolist() == [7, 8, 9]
+
+
+def test_time_jump_starts_a_segment_but_drift_is_interpolated(tmp_path):
+    p = tmp_path / "r.bin"
+    write(p)
+    data = p.read_bytes()
+    # page 3 one hour later: a jump; page 5 +3 ms: clock drift within tolerance, interpolated
+    for k, extra_ms in ((3, 0), (4, 0), (5, 3)):
+        pos = pages_of(data)
+        i = data.find(b"Page Time:", pos[k]) + len(b"Page Time:")
+        old = data[i:i + 23].decode()
+        hh = int(old[11:13]) + 1
+        ms = int(old[20:23]) + extra_ms
+        data = data[:i] + f"{old[:11]}{hh:02d}{old[13:20]}{ms:03d}".encode() + data[i + 23:]
+    p.write_bytes(data)
+    r, blocks, b = read(p)
+    assert events(r) == [(3, "time_jump")]
+    assert r.qc.segments == 2
+    st = b.time_ns[b.unit_start]
+    assert st[3] - st[2] == 3600 * 10**9 + 6 * 10**9
+    assert st[5] - st[4] == 6 * 10**9 + 3_000_000
+
+
+@pytest.mark.parametrize("cut", [1, 11, 12, 13, 1799, 3599, 3600, 3601, 3650])
+def test_truncation_anywhere_in_the_last_page(tmp_path, cut):
+    p = tmp_path / "r.bin"
+    t, a = write(p, pages=3)
+    data = p.read_bytes()
+    hexstart = data.find(b"Frequency:50.0", pages_of(data)[2]) + len(b"Frequency:50.0\r\n")
+    p.write_bytes(data[:hexstart + cut])
+    r, _, b = read(p)
+    whole = min(cut, 3600) // 12
+    assert b.n == 600 + whole
+    np.testing.assert_array_equal(b.accel, a[:600 + whole])
+    if cut >= 3600:
+        assert events(r) == []
+    elif cut < 12:
+        assert events(r) == [(2, "bad_page_length")]
+    else:
+        assert events(r) == [(2, "truncated_page")]
+        assert f"{whole} of 300" in r.qc.events[0].detail
+
+
+def test_truncated_inside_page_text(tmp_path):
+    p = tmp_path / "r.bin"
+    t, a = write(p, pages=3)
+    data = p.read_bytes()
+    cut = data.find(b"Temperature:", pages_of(data)[2])
+    p.write_bytes(data[:cut])
+    r, _, b = read(p)
+    assert b.n == 600
+    assert events(r)[0] == (2, "truncated_page")
+    assert r.qc.skipped == 1
+
+
+def test_header_ends_early(tmp_path):
+    p = tmp_path / "r.bin"
+    write(p)
+    data = p.read_bytes()
+    p.write_bytes(data[:data.find(b"y gain")])
+    with pytest.raises(TruncatedRecordingError, match="header ends early") as e:
+        GeneactivReader(p)
+    assert str(p) in str(e.value) and "y gain" in str(e.value)
+    with pytest.raises(TruncatedRecordingError):
+        read_header(p)
+
+
+def test_header_only_file_has_no_samples(tmp_path):
+    p = tmp_path / "r.bin"
+    write(p)
+    data = p.read_bytes()
+    p.write_bytes(data[:pages_of(data)[0]])
+    r, blocks, _ = read(p)
+    assert blocks == [] and r.qc.total == 0
+    assert events(r) == [(0, "page_count_mismatch")]
+
+
+@pytest.mark.parametrize("content,err,msg", [
+    (b"", TruncatedRecordingError, "empty"),
+    (bytes(range(256)) * 8, UnsupportedFormatError, "not a GENEActiv"),
+    (b"GENEA/1.00\r\nSerial:01275\r\n", UnsupportedFormatError, "original GENEA"),
+    (b"Device Identity\r\n" + b"x" * (1 << 21), CorruptRecordingError, "never ends"),
+])
+def test_bad_files_raise_typed_errors(tmp_path, content, err, msg):
+    p = tmp_path / "bad.bin"
+    p.write_bytes(content)
+    with pytest.raises(err, match=msg) as e:
+        GeneactivReader(p)
+    assert str(p) in str(e.value)
+
+
+def test_missing_file_and_directory(tmp_path):
+    with pytest.raises(RecordingError, match="no such file"):
+        GeneactivReader(tmp_path / "nope.bin")
+    with pytest.raises(RecordingError, match="directory"):
+        GeneactivReader(tmp_path)
+
+
+def test_unreadable_time_zone_needs_override(tmp_path):
+    p = tmp_path / "r.bin"
+    write(p)
+    p.write_bytes(p.read_bytes().replace(b"Time Zone:GMT +01:00", b"Time Zone:somewhere"))
+    with pytest.raises(CorruptRecordingError, match="time zone"):
+        GeneactivReader(p)
+    r, _, b = read(p, timezone="+01:00")
+    assert b.n == 1800
+
+
+def test_comma_decimals(tmp_path):
+    p = tmp_path / "r.bin"
+    write(p, rate=600 / 7)
+    data = p.read_bytes()
+    data = data.replace(b"Frequency:85.7", b"Frequency:85,7")
+    data = data.replace(b"Temperature:20.3", b"Temperature:20,3")
+    data = data.replace(b"Battery voltage:4.0000", b"Battery voltage:4,0000")
+    p.write_bytes(data)
+    r, _, b = read(p)
+    assert r.info.sample_rate_nominal == 600 / 7
+    assert b.temperature_c[3] == 20.3 and np.all(b.battery_v == 4.0)
+    assert events(r) == []
+
+
+def test_header_parsed_by_section_not_line_number(tmp_path):
+    p = tmp_path / "r.bin"
+    write(p)
+    data = p.read_bytes()
+    data = data.replace(b"Config Notes:\r\n", b"Config Notes:first line\r\nsecond line of notes\r\n"
+                                                b"third line\r\n")
+    data = data.replace(b"Device Capabilities\r\n", b"Device Capabilities\r\nNew Capability:42\r\n")
+    p.write_bytes(data)
+    info = read_header(p)
+    assert info.header["gains"] == (25600, 25600, 25600)
+    assert info.metadata["Config Notes"] == "first line\nsecond line of notes\nthird line"
+    assert info.header["New Capability"] == "42"
+    assert info.timezone_offset_s == 3600
+
+
+def test_page_frequency_mismatch_logged_once(tmp_path):
+    p = tmp_path / "r.bin"
+    write(p)
+    p.write_bytes(p.read_bytes().replace(b"Measurement Frequency:50 Hz", b"Measurement Frequency:100 Hz"))
+    r, _, b = read(p)
+    assert events(r) == [(0, "frequency_mismatch")]
+    assert b.n == 1800 and r.qc.segments == 1  # pages are timed with their own 50 Hz
+
+
+def test_reader_is_single_pass_and_closes(tmp_path):
+    p = tmp_path / "r.bin"
+    write(p)
+    r = GeneactivReader(p)
+    list(r)
+    with pytest.raises(RuntimeError, match="single-pass"):
+        list(r)
+    with GeneactivReader(p) as r2:
+        next(iter(r2))
+    assert r2._f.closed
+
+
+def test_random_garbage_inside_data_keeps_earlier_pages(tmp_path):
+    p = tmp_path / "r.bin"
+    t, a = write(p, pages=4)
+    data = p.read_bytes()
+    pos = pages_of(data)
+    p.write_bytes(data[:pos[2]] + os.urandom(5000).replace(b"\n", b"x"))
+    r, _, b = read(p)
+    assert b.n == 600
+    np.testing.assert_array_equal(b.accel, a[:600])
+    assert events(r)[0][1] == "desync"

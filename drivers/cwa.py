@@ -8,6 +8,7 @@
 
 from __future__ import annotations
 
+from .cwa_reader import CwaReader, read_header
 from .cwa_writer import CwaWriter, corrupt_sector, fix_checksum, patch_sector, read_sector
 
-__all__ = ["CwaWriter", "corrupt_sector", "fix_checksum", "patch_sector", "read_sector"]
+__all__ = ["CwaReader", "read_header", "CwaWriter", "corrupt_sector", "fix_checksum", "patch_sector", "read_sector"]

@@ -1,0 +1,305 @@
+"""``stillpoint export FILE -o OUT.csv|OUT.csv.gz|OUT.npz``: per-sample values of a recording.
+
+Columns (what users of cwa-convert / OMGui expect, in SI-ish units):
+
+* ``time``: UTC. CSV ``--time iso`` (default) writes ISO 8601 with microseconds and a ``Z``
+  (``2019-02-26T10:55:06.000500Z``; the sub-microsecond part is truncated), ``--time epoch`` writes
+  Unix seconds with 9 decimals (exact), ``--time ns`` integer nanoseconds (exact). NPZ always holds
+  ``time_ns`` (int64).
+* ``x, y, z``: acceleration in g (6 decimals in CSV; float64 in NPZ as ``accel`` (n, 3)).
+* ``gx, gy, gz``: angular rate in deg/s (AX6 only; ``gyro`` (n, 3) in NPZ).
+* ``temperature``: degC, the sector/page value held over its samples (no interpolation).
+* ``light``: lux (AX: 10^((raw+512)*6/1024); GENEActiv: raw * Lux / Volts of the header).
+* ``battery``: volts, per sector/page, held.
+* ``button`` (GENEActiv only): the per-sample button bit.
+NPZ also holds ``segment`` (int32: continuous-logging stretch of each sample) and ``info`` (a JSON
+string: device, header fields, QC log).
+
+Streaming: CSV text is formatted with numpy block by block (no per-sample Python) and written as it
+goes; NPZ columns are streamed to temporary files next to the output and then copied into the zip,
+so memory stays flat however long the recording. The output appears under its name only when
+complete (written as ``OUT.partial`` and renamed).
+
+An MCAP input (a run's log) is exported by ``stillpoint.engine.mcap_export.export_mcap`` with
+``--topic`` selecting channels.
+
+API: ``export_recording(path, out, *, time_format="iso", timezone=None, compress=False) -> dict``.
+"""
+
+from __future__ import annotations
+
+import gzip
+import json
+import os
+import shutil
+import tempfile
+import zipfile
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+
+from stillpoint.drivers import open_recording, sniff_format
+from stillpoint.drivers.constants import cwa_light_lux, gna_light_lux
+from stillpoint.drivers.errors import StillpointError, UnsupportedFormatError
+from stillpoint.engine.blocks import PER_SAMPLE_BUTTON, PER_SAMPLE_LIGHT_RAW
+
+NAME = "export"
+HELP = "write per-sample time, accel (g), gyro (dps), temperature, light, battery to CSV or NPZ"
+
+TIME_FORMATS = ("iso", "epoch", "ns")
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("file", help="recording (.cwa, .bin, optionally .gz) or a run's .mcap")
+    parser.add_argument("-o", "--output", required=True, help="OUT.csv, OUT.csv.gz or OUT.npz")
+    parser.add_argument("--time", choices=TIME_FORMATS, default="iso",
+                        help="CSV time column: iso (UTC, microseconds; default), epoch (seconds, 9 "
+                             "decimals) or ns (integer nanoseconds)")
+    parser.add_argument("--timezone", default=None,
+                        help="device clock time zone, e.g. +01:00 (GENEActiv: overrides the header)")
+    parser.add_argument("--compress", action="store_true", help="NPZ: deflate the columns")
+    parser.add_argument("--topic", action="append", default=None,
+                        help="MCAP input only: topic(s) to export (repeatable)")
+
+
+# ---------------------------------------------------------------------------- per-sample columns
+def block_columns(block, info) -> dict[str, np.ndarray]:
+    """Per-sample export columns of one Block (float64 physical units)."""
+    unit = block.unit_of_sample()
+    cols = {"time_ns": block.time_ns, "accel": block.accel_g()}
+    if block.gyro is not None:
+        cols["gyro"] = block.gyro_dps()
+    cols["temperature"] = block.temperature_c[unit].astype(np.float64)
+    if PER_SAMPLE_LIGHT_RAW in block.per_sample and info.device_type == "GENEActiv":
+        volts, lux = info.header.get("volts"), info.header.get("lux")
+        raw = block.per_sample[PER_SAMPLE_LIGHT_RAW]
+        cols["light"] = gna_light_lux(raw, lux, volts) if volts and lux else np.full(block.n, np.nan)
+    else:
+        cols["light"] = cwa_light_lux(block.light)[unit]
+    cols["battery"] = block.battery_v[unit].astype(np.float64)
+    if PER_SAMPLE_BUTTON in block.per_sample:
+        cols["button"] = block.per_sample[PER_SAMPLE_BUTTON].astype(np.uint8)
+    cols["segment"] = np.full(block.n, block.segment, np.int32)
+    return cols
+
+
+# ---------------------------------------------------------------------------- vectorised text
+_DIGITS = np.arange(48, 58, dtype=np.uint8)
+
+
+def format_fixed(v: np.ndarray, decimals: int) -> np.ndarray:
+    """Numbers -> (n, w) uint8 ASCII with fixed decimals; 0 bytes mark unused cells (the caller
+    drops them, so the text has no padding). NaN becomes an empty field."""
+    v = np.asarray(v, np.float64)
+    finite = np.isfinite(v)
+    x = np.rint(np.where(finite, v, 0.0) * 10 ** decimals).astype(np.int64)
+    m = format_scaled(x, decimals)
+    m[~finite] = 0
+    return m
+
+
+def format_scaled(x: np.ndarray, decimals: int = 0) -> np.ndarray:
+    """Integers x -> text of x / 10**decimals (exact, int64 arithmetic), as in ``format_fixed``."""
+    x = np.asarray(x, np.int64)
+    n = x.shape[0]
+    neg = x < 0
+    a = np.abs(x)
+    scale = 10 ** decimals
+    ip, fp = np.divmod(a, scale)
+    k = max(1, len(str(int(ip.max())))) if n else 1
+    width = 1 + k + (1 + decimals if decimals else 0)
+    m = np.zeros((n, width), np.uint8)
+    m[:, 0] = np.where(neg, ord("-"), 0)
+    for j in range(k):
+        p = 10 ** (k - 1 - j)
+        m[:, 1 + j] = np.where((ip >= p) | (j == k - 1), _DIGITS[(ip // p) % 10], 0)
+    if decimals:
+        m[:, 1 + k] = ord(".")
+        for j in range(decimals):
+            m[:, 2 + k + j] = _DIGITS[(fp // 10 ** (decimals - 1 - j)) % 10]
+    return m
+
+
+def format_time(t_ns: np.ndarray, mode: str) -> np.ndarray:
+    t_ns = np.asarray(t_ns, np.int64)
+    if mode == "iso":
+        s = np.datetime_as_string(t_ns.astype("datetime64[ns]"), unit="us").astype("S26")
+        m = s.view(np.uint8).reshape(-1, 26)
+        return np.concatenate([m, np.full((m.shape[0], 1), ord("Z"), np.uint8)], axis=1)
+    if mode == "epoch":
+        return format_scaled(t_ns, 9)
+    if mode == "ns":
+        return format_scaled(t_ns, 0)
+    raise ValueError(f"time format must be one of {TIME_FORMATS}")
+
+
+class CsvSink:
+    """CSV text written block by block (gzip when the name ends with .gz)."""
+
+    DECIMALS = {"accel": 6, "gyro": 5, "temperature": 4, "light": 3, "battery": 4}
+
+    def __init__(self, path: Path, time_format: str, gz: bool = False):
+        self.path = path
+        self.time_format = time_format
+        self._f = gzip.open(path, "wb", compresslevel=6) if gz else open(path, "wb")
+        self._header_written = False
+        self.rows = 0
+
+    def write(self, cols: dict) -> None:
+        n = cols["time_ns"].shape[0]
+        if not self._header_written:
+            names = ["time", "x", "y", "z"]
+            if "gyro" in cols:
+                names += ["gx", "gy", "gz"]
+            names += ["temperature", "light", "battery"]
+            if "button" in cols:
+                names.append("button")
+            self._f.write((",".join(names) + "\n").encode())
+            self._header_written = True
+            self._names = names
+        if n == 0:
+            return
+        parts = [format_time(cols["time_ns"], self.time_format)]
+        for j in range(3):
+            parts.append(format_fixed(cols["accel"][:, j], self.DECIMALS["accel"]))
+        if "gyro" in cols:
+            for j in range(3):
+                parts.append(format_fixed(cols["gyro"][:, j], self.DECIMALS["gyro"]))
+        for key in ("temperature", "light", "battery"):
+            parts.append(format_fixed(cols[key], self.DECIMALS[key]))
+        if "button" in cols:
+            parts.append(format_fixed(cols["button"], 0))
+        comma = np.full((n, 1), ord(","), np.uint8)
+        pieces = []
+        for i, p in enumerate(parts):
+            if i:
+                pieces.append(comma)
+            pieces.append(p)
+        pieces.append(np.full((n, 1), ord("\n"), np.uint8))
+        text = np.concatenate(pieces, axis=1).ravel()
+        self._f.write(text[text != 0].tobytes())
+        self.rows += n
+
+    def close(self, info_dict: Optional[dict] = None) -> None:
+        if not self._header_written:
+            self.write({"time_ns": np.zeros(0, np.int64), "accel": np.zeros((0, 3))})
+        self._f.close()
+
+
+class NpzSink:
+    """Columns streamed to temporary raw files, then packed as .npy members of a zip (np.load-able)."""
+
+    def __init__(self, path: Path, compress: bool):
+        self.path = path
+        self.compress = compress
+        self._dir = tempfile.mkdtemp(prefix=".export-", dir=str(path.parent))
+        self._files: dict[str, tuple] = {}  # name -> (file, dtype, trailing shape)
+        self.rows = 0
+
+    def write(self, cols: dict) -> None:
+        for name, arr in cols.items():
+            arr = np.ascontiguousarray(arr)
+            if name not in self._files:
+                f = open(os.path.join(self._dir, name + ".raw"), "wb")
+                self._files[name] = (f, arr.dtype, arr.shape[1:])
+            f, dtype, tail = self._files[name]
+            if arr.dtype != dtype or arr.shape[1:] != tail:
+                raise ValueError(f"column {name} changed dtype/shape between blocks")
+            f.write(arr.tobytes())
+        self.rows += cols["time_ns"].shape[0]
+
+    def close(self, info_dict: Optional[dict] = None) -> None:
+        comp = zipfile.ZIP_DEFLATED if self.compress else zipfile.ZIP_STORED
+        try:
+            with zipfile.ZipFile(self.path, "w", compression=comp, allowZip64=True) as zf:
+                for name, (f, dtype, tail) in self._files.items():
+                    f.close()
+                    header = {"descr": np.lib.format.dtype_to_descr(dtype), "fortran_order": False,
+                              "shape": (self.rows,) + tuple(tail)}
+                    with zf.open(name + ".npy", "w", force_zip64=True) as dst:
+                        np.lib.format.write_array_header_1_0(dst, header)
+                        with open(f.name, "rb") as src:
+                            shutil.copyfileobj(src, dst, 1 << 20)
+                if info_dict is not None:
+                    with zf.open("info.npy", "w") as dst:
+                        np.lib.format.write_array(dst, np.array(json.dumps(info_dict, default=str)))
+        finally:
+            for f, _, _ in self._files.values():
+                f.close()
+            shutil.rmtree(self._dir, ignore_errors=True)
+
+
+# ---------------------------------------------------------------------------- the job
+def _output_kind(out: Path) -> str:
+    name = out.name.lower()
+    if name.endswith(".csv") or name.endswith(".csv.gz"):
+        return "csv"
+    if name.endswith(".npz"):
+        return "npz"
+    raise StillpointError(f"{out}: output must end with .csv, .csv.gz or .npz")
+
+
+def export_mcap(path, out, topics):
+    """Hand an MCAP input to the engine's exporter (imported lazily: it may not be installed)."""
+    try:
+        from stillpoint.engine.mcap_export import export_mcap as _export
+    except ImportError:
+        raise UnsupportedFormatError(
+            path, "exporting an MCAP log needs stillpoint.engine.mcap_export, which this installation "
+                  "does not have yet") from None
+    return _export(path, out, topics)
+
+
+def export_recording(path, out, *, time_format: str = "iso", timezone=None, compress: bool = False,
+                     topics=None) -> dict:
+    """Export a recording to CSV or NPZ (see the module docstring). Returns a small report."""
+    out = Path(out)
+    fmt = sniff_format(path)
+    if fmt == "mcap":
+        result = export_mcap(path, out, topics)
+        return {"format": "mcap", "output": str(out), "result": result}
+    kind = _output_kind(out)
+    if time_format not in TIME_FORMATS:
+        raise StillpointError(f"--time must be one of {', '.join(TIME_FORMATS)}")
+    opts = {}
+    if timezone is not None:
+        from .inspect import _tz_option
+        opts["timezone"] = _tz_option(timezone, fmt)
+    src = open_recording(path, **opts)
+    partial = out.with_name(out.name + ".partial")
+    sink = (CsvSink(partial, time_format, gz=out.name.lower().endswith(".gz")) if kind == "csv"
+            else NpzSink(partial, compress))
+    ok = False
+    try:
+        for block in src:
+            sink.write(block_columns(block, src.info))
+        info = src.info
+        info_dict = {"device_type": info.device_type, "device_id": info.device_id,
+                     "session_id": info.session_id, "firmware": info.firmware,
+                     "sample_rate_nominal": info.sample_rate_nominal,
+                     "timezone_offset_s": info.timezone_offset_s, "metadata": info.metadata,
+                     "header": {k: v for k, v in info.header.items()}, "qc": src.qc.as_dict()}
+        sink.close(info_dict)
+        os.replace(partial, out)
+        ok = True
+    finally:
+        src.close()
+        if not ok:
+            try:
+                sink.close()
+            except Exception:
+                pass
+            if partial.exists():
+                partial.unlink()
+    return {"format": fmt, "output": str(out), "samples": sink.rows, "qc": src.qc.as_dict()}
+
+
+def run(args) -> int:
+    rep = export_recording(args.file, args.output, time_format=args.time, timezone=args.timezone,
+                           compress=args.compress, topics=args.topic)
+    if rep.get("format") != "mcap":
+        q = rep["qc"]
+        print(f"wrote {rep['samples']} samples to {rep['output']} "
+              f"({q['valid']} of {q['total']} {q['unit']}s valid, {len(q['events'])} QC event(s))")
+    return 0

@@ -1,0 +1,258 @@
+"""``stillpoint inspect FILE``: what is in a recording (AX3/AX6 .cwa, GENEActiv .bin, gzipped or not).
+
+A full streaming pass (bounded memory) reports device, samples, nominal and measured rate, start/end
+(ISO 8601 UTC, nanoseconds), duration, channels, sectors/pages {total, valid, skipped}, segments, the
+QC log and the temperature/battery ranges. ``--header-only`` reads the header alone (fast).
+
+API: ``inspect_recording(path, header_only=False, timezone=None) -> dict`` (the same dict as --json).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from typing import Optional
+
+import numpy as np
+
+from stillpoint.drivers import open_recording, sniff_format
+
+NAME = "inspect"
+HELP = "summarise a recording (device, samples, rate, times, QC); --json for machine-readable output"
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("file", help="recording: .cwa, .bin (GENEActiv), optionally .gz")
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+    parser.add_argument("--header-only", action="store_true",
+                        help="read the header only (fast; no sample counts or QC)")
+    parser.add_argument("--timezone", default=None,
+                        help="device clock time zone, e.g. +01:00 (GENEActiv: overrides the header's "
+                             "Time Zone; AX: the clock's offset from UTC, default +00:00)")
+
+
+def iso_utc(t_ns: Optional[int]) -> Optional[str]:
+    """int ns since 1970 (UTC) -> '2013-05-30T09:12:54.500000000Z' (ISO 8601, nanoseconds)."""
+    if t_ns is None:
+        return None
+    return str(np.datetime64(int(t_ns), "ns")) + "Z"
+
+
+def _open(path, fmt: str, timezone):
+    opts = {}
+    if timezone is not None:
+        opts["timezone"] = _tz_option(timezone, fmt)
+    return open_recording(path, **opts)
+
+
+def _tz_option(timezone, fmt: str):
+    """The CLI's time zone string as the reader wants it (GENEActiv parses text; AX takes seconds)."""
+    if fmt == "geneactiv":
+        return timezone
+    from stillpoint.drivers.geneactiv_header import parse_timezone
+    try:
+        return parse_timezone(timezone)
+    except ValueError as e:
+        from stillpoint.drivers.errors import StillpointError
+        raise StillpointError(f"--timezone: {e}") from None
+
+
+def _header_info(path, fmt: str, timezone):
+    if fmt == "geneactiv":
+        from stillpoint.drivers.geneactiv import read_header
+        return read_header(path, **({"timezone": timezone} if timezone is not None else {}))
+    if fmt == "cwa":
+        from stillpoint.drivers.cwa import read_header
+        return read_header(path, **({"timezone": _tz_option(timezone, fmt)} if timezone is not None
+                                    else {}))
+    src = _open(path, fmt, timezone)
+    try:
+        return src.info
+    finally:
+        src.close()
+
+
+def _info_dict(info, fmt: str) -> dict:
+    return {
+        "path": info.path,
+        "format": fmt,
+        "device_type": info.device_type,
+        "device_id": info.device_id,
+        "session_id": info.session_id,
+        "firmware": info.firmware,
+        "sample_rate_nominal": info.sample_rate_nominal,
+        "accel_range_g": info.accel_range_g,
+        "gyro_range_dps": info.gyro_range_dps,
+        "timezone_offset_s": info.timezone_offset_s,
+        "metadata": dict(info.metadata),
+    }
+
+
+class _Summary:
+    """Streaming accumulator over Blocks: counts, per-segment time spans, value ranges."""
+
+    def __init__(self):
+        self.samples = 0
+        self.start: Optional[int] = None
+        self.end: Optional[int] = None
+        self.seg_first: dict[int, int] = {}
+        self.seg_last: dict[int, int] = {}
+        self.seg_n: dict[int, int] = {}
+        self.tmin = math.inf
+        self.tmax = -math.inf
+        self.bmin = math.inf
+        self.bmax = -math.inf
+        self.per_sample: set[str] = set()
+
+    def add(self, b) -> None:
+        if b.n == 0:
+            return
+        t0, t1 = int(b.time_ns[0]), int(b.time_ns[-1])
+        self.samples += b.n
+        self.start = t0 if self.start is None else min(self.start, t0)
+        self.end = t1 if self.end is None else max(self.end, t1)
+        s = int(b.segment)
+        self.seg_first.setdefault(s, t0)
+        self.seg_last[s] = t1
+        self.seg_n[s] = self.seg_n.get(s, 0) + b.n
+        if b.temperature_c.size and np.isfinite(b.temperature_c).any():
+            self.tmin = min(self.tmin, float(np.nanmin(b.temperature_c)))
+            self.tmax = max(self.tmax, float(np.nanmax(b.temperature_c)))
+        if b.battery_v.size and np.isfinite(b.battery_v).any():
+            self.bmin = min(self.bmin, float(np.nanmin(b.battery_v)))
+            self.bmax = max(self.bmax, float(np.nanmax(b.battery_v)))
+        self.per_sample.update(b.per_sample)
+
+    def measured_rate(self) -> Optional[float]:
+        """Sample intervals over time spans, summed within segments (gaps between segments excluded)."""
+        intervals = sum(n - 1 for n in self.seg_n.values())
+        span = sum(self.seg_last[s] - self.seg_first[s] for s in self.seg_n)
+        return intervals / (span / 1e9) if span > 0 else None
+
+
+def inspect_recording(path, *, header_only: bool = False, timezone=None) -> dict:
+    """Summary of a recording as a plain dict (see the module docstring)."""
+    fmt = sniff_format(path)
+    if header_only:
+        info = _header_info(path, fmt, timezone)
+        out = _info_dict(info, fmt)
+        out["header"] = dict(info.header)
+        return out
+    src = _open(path, fmt, timezone)
+    acc = _Summary()
+    try:
+        for block in src:
+            acc.add(block)
+    finally:
+        src.close()
+    info, qc = src.info, src.qc
+    out = _info_dict(info, fmt)
+    aux = ["temperature", "light", "battery"] + sorted(k for k in acc.per_sample if k == "button")
+    unit = "pages" if qc.unit == "page" else "sectors"
+    rate = acc.measured_rate()
+    out.update({
+        "samples": acc.samples,
+        "sample_rate_measured": rate,
+        "start": iso_utc(acc.start),
+        "end": iso_utc(acc.end),
+        "start_ns": acc.start,
+        "end_ns": acc.end,
+        "duration_s": (acc.end - acc.start) / 1e9 if acc.start is not None else 0.0,
+        "channels": list(info.channels) + aux,
+        unit: {"total": qc.total, "valid": qc.valid, "skipped": qc.skipped},
+        "segments": qc.segments,
+        "qc": [e.as_dict() for e in qc.events],
+        "temperature_range_c": [acc.tmin, acc.tmax] if acc.tmin <= acc.tmax else None,
+        "battery_range_v": [acc.bmin, acc.bmax] if acc.bmin <= acc.bmax else None,
+    })
+    warnings = info.header.get("warnings") if isinstance(info.header, dict) else None
+    if warnings:
+        out["header_warnings"] = list(warnings)
+    return out
+
+
+def _jsonable(o):
+    if isinstance(o, (np.integer,)):
+        return int(o)
+    if isinstance(o, (np.floating,)):
+        return float(o)
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, (bytes, bytearray)):
+        return o.decode("latin-1")
+    if isinstance(o, (set, frozenset)):
+        return sorted(o)
+    return str(o)
+
+
+def _finite(x):
+    """JSON has no NaN/inf: write null."""
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    if isinstance(x, dict):
+        return {k: _finite(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_finite(v) for v in x]
+    return x
+
+
+def format_text(d: dict) -> str:
+    """A readable summary (the --json dict, laid out for people)."""
+    lines = []
+    add = lines.append
+    add(f"{d.get('path')}")
+    add(f"  device      {d['device_type']} {d['device_id']}"
+        + (f"  session {d['session_id']}" if d.get("session_id") is not None else "")
+        + (f"  firmware {d['firmware']}" if d.get("firmware") else ""))
+    rng = f"+-{d['accel_range_g']:g} g" if d.get("accel_range_g") else ""
+    if d.get("gyro_range_dps"):
+        rng += f", gyro +-{d['gyro_range_dps']:g} dps"
+    add(f"  rate        {d['sample_rate_nominal']:.6g} Hz nominal"
+        + (f", {d['sample_rate_measured']:.6f} Hz measured" if d.get("sample_rate_measured") else "")
+        + (f"   range {rng}" if rng else ""))
+    tz = d.get("timezone_offset_s") or 0
+    add(f"  clock       UTC{'+' if tz >= 0 else '-'}{abs(tz) // 3600:02d}:{abs(tz) % 3600 // 60:02d}")
+    if "samples" in d:
+        add(f"  samples     {d['samples']}  ({', '.join(d['channels'])})")
+        add(f"  start       {d['start']}")
+        add(f"  end         {d['end']}")
+        dur = d["duration_s"]
+        add(f"  duration    {dur:.3f} s ({dur / 3600:.3f} h, {dur / 86400:.4f} days)")
+        for unit in ("pages", "sectors"):
+            if unit in d:
+                u = d[unit]
+                add(f"  {unit:<11} {u['total']} total, {u['valid']} valid, {u['skipped']} skipped; "
+                    f"{d['segments']} segment(s)")
+        if d.get("temperature_range_c"):
+            lo, hi = d["temperature_range_c"]
+            add(f"  temperature {lo:.2f} .. {hi:.2f} degC")
+        if d.get("battery_range_v"):
+            lo, hi = d["battery_range_v"]
+            add(f"  battery     {lo:.3f} .. {hi:.3f} V")
+        for w in d.get("header_warnings", []):
+            add(f"  warning     {w}")
+        qc = d.get("qc", [])
+        add(f"  qc          {len(qc)} event(s)")
+        for e in qc[:50]:
+            add(f"    {e['index']:>8}  {e['reason']:<20} {e.get('detail', '')}")
+        if len(qc) > 50:
+            add(f"    ... {len(qc) - 50} more (see --json)")
+    else:
+        for k, v in d.get("metadata", {}).items():
+            add(f"  {k:<28}{v}")
+        hdr = d.get("header", {})
+        for k, v in hdr.items():
+            if isinstance(v, (str, int, float)) and k not in d.get("metadata", {}):
+                add(f"  {k:<28}{v}")
+    return "\n".join(lines)
+
+
+def run(args) -> int:
+    d = inspect_recording(args.file, header_only=args.header_only, timezone=args.timezone)
+    if args.json:
+        json.dump(_finite(d), sys.stdout, default=_jsonable)
+        sys.stdout.write("\n")
+    else:
+        print(format_text(d))
+    return 0

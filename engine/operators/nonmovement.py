@@ -29,6 +29,7 @@ class NonmovementOperator:
         self._parts: list[WindowFeatures] = []
         self.windows_in = 0
         self.repeats_dropped = 0
+        self.selected_total = 0
 
     def push(self, features: WindowFeatures) -> WindowFeatures:
         if len(features) == 0:
@@ -38,6 +39,7 @@ class NonmovementOperator:
         self._prev = np.array(features.mean[-1])
         self.windows_in += sel.windows_in
         self.repeats_dropped += sel.repeats_dropped
+        self.selected_total += len(sel.features)
         if self.keep and len(sel.features):
             self._parts.append(sel.features)
         return sel.features
@@ -53,4 +55,4 @@ class NonmovementOperator:
 
     @property
     def count(self) -> int:
-        return sum(len(p) for p in self._parts)
+        return self.selected_total

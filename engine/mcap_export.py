@@ -1,0 +1,199 @@
+"""Export topics of a stillpoint MCAP log to tables: ``export_mcap(path, out, topics)``.
+
+``out`` ending in ``.csv`` / ``.csv.gz``: one topic (default ``/metrics/epoch``), one row per
+sample or epoch. ``.npz``: every selected topic (default: corrected stream, epoch metrics,
+temperature, calibration), arrays named ``<topic>/<column>`` (e.g. ``corrected/accel/x``).
+
+Columns per topic: ``time_ns`` (int64, exact) and, in CSV, ``time`` (ISO 8601 UTC, µs), then
+
+* ``/corrected/accel``: ``x, y, z`` (g), ``segment``;
+* ``/raw/accel``: ``x, y, z`` (g, from counts and the logged scale), ``cx, cy, cz`` (counts), ``segment``;
+* ``/raw/gyro``: ``gx, gy, gz`` (dps);
+* ``/metrics/epoch``: ``n, enmo_mg, bfen_mg, mad_mg, x, y, z, temperature_c``;
+* ``/temperature``: ``celsius``;
+* ``/calibration``, ``/qc``: ``json`` (the message text).
+
+Streaming: messages are decoded one at a time and written as they come (CSV text formatted with
+numpy per message; NPZ columns streamed into temporary files, then copied into the zip), so memory
+stays flat. The output appears under its name only when complete.
+"""
+
+from __future__ import annotations
+
+import gzip
+import io
+import json
+import os
+import shutil
+import tempfile
+import zipfile
+from pathlib import Path
+
+import numpy as np
+from mcap.reader import make_reader
+
+from stillpoint.drivers.errors import CorruptRecordingError, StillpointError
+
+from .mcap_schemas import (ACCEL_BATCH, ACCEL_BATCH_RAW, EPOCH_METRICS, GYRO_BATCH_RAW, TEMPERATURE,
+                           times_from_deltas)
+
+DEFAULT_NPZ_TOPICS = ("/corrected/accel", "/metrics/epoch", "/temperature", "/calibration")
+DEFAULT_CSV_TOPIC = "/metrics/epoch"
+
+
+class ExportError(StillpointError):
+    pass
+
+
+def _rows(topic: str, data: bytes, log_time: int) -> dict:
+    """Columns of one message (numpy arrays of equal length)."""
+    if topic == "/corrected/accel":
+        m = ACCEL_BATCH.decode(data)
+        t = times_from_deltas(m["t0_ns"], m["dt_ns"])
+        return {"time_ns": t, "x": m["x"], "y": m["y"], "z": m["z"],
+                "segment": np.full(t.shape[0], m["segment"], np.int64)}
+    if topic == "/raw/accel":
+        m = ACCEL_BATCH_RAW.decode(data)
+        t = times_from_deltas(m["t0_ns"], m["dt_ns"])
+        c = np.stack([m["x"], m["y"], m["z"]], axis=1).astype(np.float64)
+        g = (c - m["zero_counts"]) / m["counts_per_g"]
+        return {"time_ns": t, "x": g[:, 0], "y": g[:, 1], "z": g[:, 2], "cx": m["x"], "cy": m["y"],
+                "cz": m["z"], "segment": np.full(t.shape[0], m["segment"], np.int64)}
+    if topic == "/raw/gyro":
+        m = GYRO_BATCH_RAW.decode(data)
+        t = times_from_deltas(m["t0_ns"], m["dt_ns"])
+        k = m["dps_per_count"]
+        return {"time_ns": t, "gx": m["x"] * k, "gy": m["y"] * k, "gz": m["z"] * k}
+    if topic == "/metrics/epoch":
+        m = EPOCH_METRICS.decode(data)
+        return {"time_ns": np.array([m["stamp"]], np.int64),
+                **{k: np.array([m[k]]) for k in ("n", "enmo_mg", "bfen_mg", "mad_mg", "x", "y", "z",
+                                                 "temperature_c")}}
+    if topic == "/temperature":
+        m = TEMPERATURE.decode(data)
+        return {"time_ns": np.array([m["stamp"]], np.int64), "celsius": np.array([m["celsius"]])}
+    if topic in ("/calibration", "/qc"):
+        return {"time_ns": np.array([log_time], np.int64),
+                "json": np.array([bytes(data).decode()], object)}
+    raise ExportError(f"topic {topic} cannot be exported (known: /corrected/accel, /raw/accel, "
+                      f"/raw/gyro, /metrics/epoch, /temperature, /calibration, /qc)")
+
+
+def _iso(t: np.ndarray) -> np.ndarray:
+    return np.char.add(np.datetime_as_string(t.astype("datetime64[ns]"), unit="us"), "Z")
+
+
+def _fmt(col: np.ndarray) -> np.ndarray:
+    if col.dtype == object:
+        return np.array([json.dumps(s) if ("," in s or '"' in s) else s for s in col])
+    if col.dtype.kind in "iu":
+        return col.astype(str)
+    return np.char.mod("%.9g", col)
+
+
+def _messages(path, topics):
+    with open(path, "rb") as f:
+        try:
+            reader = make_reader(f)
+            for _s, ch, msg in reader.iter_messages(topics=list(topics), log_time_order=False):
+                yield ch.topic, msg
+        except StillpointError:
+            raise
+        except Exception as e:
+            raise CorruptRecordingError(path, f"cannot read the MCAP ({type(e).__name__}: {e}); if the "
+                                              f"run was interrupted, run `stillpoint recover` first") from None
+
+
+def _export_csv(path, out: Path, topic: str) -> int:
+    opener = gzip.open if out.name.lower().endswith(".gz") else open
+    rows = 0
+    header = None
+    with opener(out, "wt", newline="") as f:
+        for _t, msg in _messages(path, [topic]):
+            cols = _rows(topic, msg.data, msg.log_time)
+            if header is None:
+                header = ["time"] + list(cols)
+                f.write(",".join(header) + "\n")
+            parts = [_iso(cols["time_ns"])] + [_fmt(np.asarray(cols[k])) for k in header[1:]]
+            lines = parts[0]
+            for p in parts[1:]:
+                lines = np.char.add(np.char.add(lines, ","), p)
+            f.write("\n".join(lines.tolist()) + "\n")
+            rows += len(cols["time_ns"])
+    return rows
+
+
+def _export_npz(path, out: Path, topics) -> dict:
+    tmpdir = Path(tempfile.mkdtemp(prefix=".export-", dir=out.parent))
+    files: dict[str, tuple] = {}  # name -> (file, dtype, count)
+    counts: dict[str, int] = {}
+    try:
+        for topic, msg in _messages(path, topics):
+            cols = _rows(topic, msg.data, msg.log_time)
+            counts[topic] = counts.get(topic, 0) + len(cols["time_ns"])
+            for k, v in cols.items():
+                name = f"{topic.strip('/')}/{k}"
+                if v.dtype == object:
+                    v = np.array([s.encode() for s in v], object)
+                    ent = files.setdefault(name, [open(tmpdir / f"{len(files)}.bin", "wb"), "json", 0])
+                    for s in v:
+                        ent[0].write(len(s).to_bytes(4, "little") + s)
+                    ent[2] += len(v)
+                    continue
+                ent = files.setdefault(name, [open(tmpdir / f"{len(files)}.bin", "wb"), v.dtype, 0])
+                ent[0].write(np.ascontiguousarray(v, ent[1]).tobytes())
+                ent[2] += len(v)
+        partial = out.with_name(out.name + ".partial")
+        with zipfile.ZipFile(partial, "w", zipfile.ZIP_STORED, allowZip64=True) as z:
+            for name, (fh, dtype, n) in files.items():
+                fh.close()
+                if dtype == "json":
+                    raw = Path(fh.name).read_bytes()
+                    items, pos = [], 0
+                    while pos < len(raw):
+                        k = int.from_bytes(raw[pos:pos + 4], "little")
+                        items.append(raw[pos + 4:pos + 4 + k].decode())
+                        pos += 4 + k
+                    buf = io.BytesIO()
+                    np.save(buf, np.array(items, dtype=str))
+                    z.writestr(name + ".npy", buf.getvalue())
+                    continue
+                with z.open(name + ".npy", "w", force_zip64=True) as dst:
+                    hdr = io.BytesIO()
+                    np.lib.format.write_array_header_1_0(
+                        hdr, {"descr": np.lib.format.dtype_to_descr(np.dtype(dtype)),
+                              "fortran_order": False, "shape": (n,)})
+                    dst.write(hdr.getvalue())
+                    with open(fh.name, "rb") as src:
+                        shutil.copyfileobj(src, dst, 1 << 20)
+        os.replace(partial, out)
+    finally:
+        for fh, _d, _n in files.values():
+            fh.close()
+        shutil.rmtree(tmpdir, ignore_errors=True)
+    return counts
+
+
+def export_mcap(path, out, topics=None) -> dict:
+    """Export topics of a stillpoint MCAP to CSV or NPZ; returns rows per topic."""
+    out = Path(out)
+    name = out.name.lower()
+    topics = [t if t.startswith("/") else "/" + t for t in (topics or [])]
+    if name.endswith(".csv") or name.endswith(".csv.gz"):
+        if len(topics) > 1:
+            raise ExportError("CSV export takes one --topic (use .npz for several)")
+        topic = topics[0] if topics else DEFAULT_CSV_TOPIC
+        _rows(topic, b"", 0) if topic not in ("/corrected/accel", "/raw/accel", "/raw/gyro",
+                                              "/metrics/epoch", "/temperature", "/calibration",
+                                              "/qc") else None
+        partial = out.with_name(out.name + ".partial")
+        n = _export_csv(path, partial, topic)
+        os.replace(partial, out)
+        return {topic: n}
+    if name.endswith(".npz"):
+        for t in topics:
+            if t not in ("/corrected/accel", "/raw/accel", "/raw/gyro", "/metrics/epoch",
+                         "/temperature", "/calibration", "/qc"):
+                _rows(t, b"", 0)
+        return _export_npz(path, out, topics or DEFAULT_NPZ_TOPICS)
+    raise ExportError(f"{out}: output must end with .csv, .csv.gz or .npz")

@@ -1,0 +1,349 @@
+"""The MCAP log of record: raw stream (lossless), corrected stream, temperature, epoch metrics,
+calibration estimates, QC events, device metadata and the run's settings.
+
+Topics (see engine/mcap_schemas.py for the CDR layouts; ``json`` topics carry a JSON object):
+
+==================== ============================ =============================================
+topic                encoding / schema            one message per
+==================== ============================ =============================================
+/raw/accel           cdr AccelBatchRaw            block handed through the pipeline (<= 10 s)
+/raw/gyro            cdr GyroBatchRaw (AX6 only)  same block
+/corrected/accel     cdr AccelBatch (float32 g)   corrected batch
+/temperature         cdr Temperature              raw block (mean of its units)
+/metrics/epoch       cdr EpochMetrics             epoch (plot-friendly preview, one value each)
+/calibration         json                         estimate published (with fit range, effect)
+/qc                  json                         QC event (reader and engine)
+==================== ============================ =============================================
+
+Metadata records: ``device`` (DeviceInfo fields), ``settings`` (the run's settings, JSON in the
+value ``json``), and at the end ``summary`` and ``calibration`` (the estimate applied).
+
+Durability: the sink flushes the chunk in progress whenever data time has advanced by
+``flush_every_s`` (default 10 s) since the last flush, so a killed process loses at most that
+much; the file is fsynced at those flushes at most once per ``fsync_every_wall_s`` of wall time
+(SIGKILL only loses what Python had not handed to the OS; fsync protects against power loss).
+``recover`` salvages every complete chunk of a file that was never finished.
+
+Writing happens on a background thread (``threaded=True``): compression (zstd releases the GIL)
+overlaps with the pipeline's numeric work. Order of records is the order of calls, so the file
+is deterministic.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import queue
+import threading
+import time
+from dataclasses import asdict, is_dataclass
+from typing import Optional
+
+import numpy as np
+from mcap.writer import CompressionType, Writer
+
+from .blocks import Block, DeviceInfo, PER_SAMPLE_BUTTON, PER_SAMPLE_LIGHT_RAW
+from .calibration.estimate import CalibrationEstimate
+from .mcap_schemas import (ACCEL_BATCH, ACCEL_BATCH_RAW, ALL_TYPES, EPOCH_METRICS, GYRO_BATCH_RAW,
+                           TEMPERATURE, max_step_ok, time_deltas)
+from .operators.correction import CorrectedBatch
+from .operators.metrics import EpochMetrics
+
+TOPIC_RAW = "/raw/accel"
+TOPIC_GYRO = "/raw/gyro"
+TOPIC_CORRECTED = "/corrected/accel"
+TOPIC_TEMPERATURE = "/temperature"
+TOPIC_METRICS = "/metrics/epoch"
+TOPIC_CALIBRATION = "/calibration"
+TOPIC_QC = "/qc"
+
+LIBRARY = "stillpoint"
+CHUNK_SIZE = 4 << 20  # 4 MiB uncompressed chunks (specs/mcap-python.md §7.1)
+
+_COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
+
+
+def _jsonable(x):
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    if isinstance(x, (np.integer,)):
+        return int(x)
+    if isinstance(x, (np.floating,)):
+        return None if not np.isfinite(x) else float(x)
+    if isinstance(x, float) and not np.isfinite(x):
+        return None
+    if is_dataclass(x):
+        return _jsonable(asdict(x))
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    return x
+
+
+def dumps(obj) -> str:
+    return json.dumps(_jsonable(obj), sort_keys=True, allow_nan=False)
+
+
+def device_metadata(info: DeviceInfo) -> dict[str, str]:
+    """DeviceInfo as an MCAP metadata record (string values; full JSON under ``json``)."""
+    d = _jsonable(asdict(info))
+    rec = {k: (v if isinstance(v, str) else json.dumps(v, sort_keys=True)) for k, v in d.items()}
+    rec["json"] = json.dumps(d, sort_keys=True)
+    return rec
+
+
+def raw_message(block: Block) -> bytes:
+    n = block.n
+    z = np.zeros(0)
+    ps = block.per_sample
+    return ACCEL_BATCH_RAW.encode({
+        "stamp": int(block.time_ns[0]), "t0_ns": int(block.time_ns[0]), "segment": block.segment,
+        "first_sample": block.first_sample, "counts_per_g": block.accel_counts_per_g,
+        "zero_counts": block.accel_zero, "dt_ns": time_deltas(block.time_ns),
+        "x": block.accel[:, 0], "y": block.accel[:, 1], "z": block.accel[:, 2],
+        "unit_index": block.unit_index, "unit_sequence": block.unit_sequence,
+        "unit_start": block.unit_start, "temperature_c": block.temperature_c,
+        "temperature_raw": block.temperature_raw, "light": block.light,
+        "battery_v": block.battery_v, "events": block.events,
+        "light_raw": ps.get(PER_SAMPLE_LIGHT_RAW, z), "button": ps.get(PER_SAMPLE_BUTTON, z),
+    }) if n else b""
+
+
+def gyro_message(block: Block) -> bytes:
+    return GYRO_BATCH_RAW.encode({
+        "stamp": int(block.time_ns[0]), "t0_ns": int(block.time_ns[0]),
+        "dps_per_count": float(block.gyro_dps_per_count), "dt_ns": time_deltas(block.time_ns),
+        "x": block.gyro[:, 0], "y": block.gyro[:, 1], "z": block.gyro[:, 2]})
+
+
+def quantize(accel: np.ndarray, quantum_g: float) -> np.ndarray:
+    """float32 of ``accel`` rounded to a multiple of ``quantum_g`` (0: plain float32)."""
+    if quantum_g:
+        return (np.round(accel * (1.0 / quantum_g)) * quantum_g).astype(np.float32)
+    return accel.astype(np.float32)
+
+
+def corrected_message(batch: CorrectedBatch, quantum_g: float) -> bytes:
+    a = quantize(batch.accel, quantum_g)
+    return ACCEL_BATCH.encode({
+        "stamp": int(batch.time_ns[0]), "t0_ns": int(batch.time_ns[0]), "segment": batch.segment,
+        "dt_ns": time_deltas(batch.time_ns), "x": a[:, 0], "y": a[:, 1], "z": a[:, 2]})
+
+
+_EPOCH_DTYPE = np.dtype([("hdr", "V4"), ("sec", "<i4"), ("nsec", "<u4"), ("n", "<i4"),
+                         ("enmo", "<f4"), ("bfen", "<f4"), ("mad", "<f4"), ("x", "<f4"),
+                         ("y", "<f4"), ("z", "<f4"), ("temp", "<f4")])  # packed, all 4-aligned
+
+
+def epoch_messages(m: EpochMetrics) -> list[bytes]:
+    """EPOCH_METRICS payloads for every row, encoded in one vectorised pass (fixed layout)."""
+    k = len(m)
+    a = np.zeros(k, _EPOCH_DTYPE)
+    a["hdr"] = np.void(b"\x00\x01\x00\x00")
+    a["sec"], a["nsec"] = np.divmod(m.start_ns, 10**9)
+    a["n"] = m.n
+    a["enmo"], a["bfen"], a["mad"] = m.enmo_mg, m.bfen_mg, m.mad_mg
+    a["x"], a["y"], a["z"] = m.mean[:, 0], m.mean[:, 1], m.mean[:, 2]
+    a["temp"] = m.temperature
+    buf = a.tobytes()
+    w = _EPOCH_DTYPE.itemsize
+    return [buf[i * w:(i + 1) * w] for i in range(k)]
+
+
+def estimate_message(est: CalibrationEstimate, applied: bool) -> dict:
+    d = est.to_dict()
+    d["applied"] = bool(applied)
+    return d
+
+
+class McapSink:
+    """Writes one run's MCAP (see module docstring). Use as a context manager or call close()."""
+
+    def __init__(self, path, info: DeviceInfo, settings: dict, *, flush_every_s: float = 10.0,
+                 fsync_every_wall_s: float = 1.0, compression: str = "zstd",
+                 chunk_size: int = CHUNK_SIZE, corrected_quantum_g: float = 2.0 ** -16,
+                 threaded: bool = True):
+        self.path = str(path)
+        self.flush_every_ns = int(flush_every_s * 1e9) if flush_every_s else None
+        self.fsync_every_wall_s = fsync_every_wall_s
+        self.quantum = corrected_quantum_g
+        self._f = open(self.path, "wb")
+        self._w = Writer(self._f, chunk_size=chunk_size, compression=_COMPRESSION[compression])
+        self._w.start(profile="", library=LIBRARY)
+        self._schemas = {t.name: self._w.register_schema(t.name, "ros2msg", t.schema_text().encode())
+                         for t in ALL_TYPES}
+        self._channels: dict[str, int] = {}
+        self._seq: dict[str, int] = {}
+        self._last_flush_ns: Optional[int] = None
+        self._last_fsync = time.monotonic()
+        self.flushes = 0
+        self.messages = 0
+        self._error: Optional[BaseException] = None
+        self._q: Optional[queue.Queue] = None
+        self._thread = None
+        self._do("metadata", "device", device_metadata(info))
+        self._do("metadata", "settings", {"json": dumps(settings)})
+        if threaded:
+            self._q = queue.Queue(maxsize=64)
+            self._thread = threading.Thread(target=self._worker, name="mcap-writer", daemon=True)
+            self._thread.start()
+
+    # ------------------------------------------------------------------ plumbing
+    def _channel(self, topic: str, encoding: str, schema: Optional[str]) -> int:
+        cid = self._channels.get(topic)
+        if cid is None:
+            sid = self._schemas[schema] if schema else 0
+            cid = self._w.register_channel(topic, encoding, sid)
+            self._channels[topic] = cid
+            self._seq[topic] = 0
+        return cid
+
+    def _execute(self, op, *args):
+        if op == "msg":
+            topic, encoding, schema, log_time, data = args
+            cid = self._channel(topic, encoding, schema)
+            seq = self._seq[topic]
+            self._seq[topic] = seq + 1
+            t = max(0, int(log_time))
+            self._w.add_message(cid, t, data, t, seq)
+            self.messages += 1
+        elif op == "msgs":
+            topic, encoding, schema, items = args
+            cid = self._channel(topic, encoding, schema)
+            seq = self._seq[topic]
+            for t, data in items:
+                t = max(0, int(t))
+                self._w.add_message(cid, t, data, t, seq)
+                seq += 1
+            self._seq[topic] = seq
+            self.messages += len(items)
+        elif op == "metadata":
+            self._w.add_metadata(args[0], args[1])
+        elif op == "flush":
+            self._w.flush()
+            self.flushes += 1
+            now = time.monotonic()
+            if args[0] or now - self._last_fsync >= self.fsync_every_wall_s:
+                os.fsync(self._f.fileno())
+                self._last_fsync = now
+        elif op == "finish":
+            self._w.finish()
+            self._f.flush()
+            os.fsync(self._f.fileno())
+            self._f.close()
+
+    def _worker(self):
+        while True:
+            item = self._q.get()
+            if item is None:
+                return
+            if self._error is None:
+                try:
+                    self._execute(*item)
+                except BaseException as e:  # reported on the caller's next call
+                    self._error = e
+
+    def _do(self, *item):
+        if self._error is not None:
+            raise RuntimeError(f"writing {self.path} failed: {self._error}") from self._error
+        if self._q is None:
+            self._execute(*item)
+        else:
+            self._q.put(item)
+
+    def _msg(self, topic, encoding, schema, log_time, data):
+        self._do("msg", topic, encoding, schema, log_time, data)
+
+    # ------------------------------------------------------------------ API
+    def write_raw(self, block: Block) -> None:
+        """Log one Block losslessly (split further if a time step does not fit int32 ns)."""
+        if block.n == 0:
+            return
+        if not max_step_ok(block.time_ns):
+            d = np.abs(np.diff(block.time_ns))
+            cut = int(np.argmax(d > 2**31 - 1)) + 1
+            self.write_raw(block.slice(0, cut))
+            self.write_raw(block.slice(cut, block.n))
+            return
+        t0 = int(block.time_ns[0])
+        self._msg(TOPIC_RAW, "cdr", ACCEL_BATCH_RAW.name, t0, raw_message(block))
+        if block.gyro is not None:
+            self._msg(TOPIC_GYRO, "cdr", GYRO_BATCH_RAW.name, t0, gyro_message(block))
+        if block.m:
+            tc = block.temperature_c
+            ok = np.isfinite(tc)
+            if ok.any():
+                self._msg(TOPIC_TEMPERATURE, "cdr", TEMPERATURE.name, t0,
+                          TEMPERATURE.encode({"stamp": t0, "celsius": float(tc[ok].mean())}))
+
+    def write_corrected(self, batch: CorrectedBatch) -> None:
+        if batch.n == 0:
+            return
+        if not max_step_ok(batch.time_ns):
+            d = np.abs(np.diff(batch.time_ns))
+            cut = int(np.argmax(d > 2**31 - 1)) + 1
+            for a, b in ((0, cut), (cut, batch.n)):
+                self.write_corrected(CorrectedBatch(batch.time_ns[a:b], batch.accel[a:b],
+                                                    batch.temperature[a:b], batch.segment))
+            return
+        self._msg(TOPIC_CORRECTED, "cdr", ACCEL_BATCH.name, int(batch.time_ns[0]),
+                  corrected_message(batch, self.quantum))
+
+    def write_epochs(self, m: EpochMetrics) -> None:
+        if len(m):
+            self._do("msgs", TOPIC_METRICS, "cdr", EPOCH_METRICS.name,
+                     list(zip(m.start_ns.tolist(), epoch_messages(m))))
+
+    def write_estimate(self, est: CalibrationEstimate, applied: bool, log_time_ns: int) -> None:
+        self._msg(TOPIC_CALIBRATION, "json", None, log_time_ns,
+                  dumps(estimate_message(est, applied)).encode())
+
+    def write_qc(self, event: dict, log_time_ns: int) -> None:
+        self._msg(TOPIC_QC, "json", None, log_time_ns, dumps(event).encode())
+
+    def write_metadata(self, name: str, values: dict) -> None:
+        self._do("metadata", name, {k: (v if isinstance(v, str) else dumps(v)) for k, v in values.items()})
+
+    def data_time(self, t_ns: int) -> None:
+        """Tell the sink how far data time has advanced; flushes every ``flush_every_s``."""
+        if self.flush_every_ns is None:
+            return
+        if self._last_flush_ns is None:
+            self._last_flush_ns = t_ns
+        elif t_ns - self._last_flush_ns >= self.flush_every_ns:
+            self._do("flush", False)
+            self._last_flush_ns = t_ns
+
+    def flush(self, fsync: bool = True) -> None:
+        self._do("flush", fsync)
+
+    def close(self) -> None:
+        """Finish the file (summary, index, footer) and wait for the writer thread."""
+        self._do("finish")
+        self._stop()
+        if self._error is not None:
+            raise RuntimeError(f"writing {self.path} failed: {self._error}") from self._error
+
+    def abort(self) -> None:
+        """Stop writing without finishing (the file stays recoverable up to the last flush)."""
+        self._stop()
+        try:
+            self._f.close()
+        except Exception:
+            pass
+
+    def _stop(self):
+        if self._thread is not None:
+            self._q.put(None)
+            self._thread.join()
+            self._thread = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, exc_type, exc, tb):
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()

@@ -1,0 +1,358 @@
+"""The per-file job: ``process_file(input, out, settings) -> summary``.
+
+A pure function of (input path, settings): it reads the recording (any Source: .cwa, .bin or a
+stillpoint MCAP, which is how ``replay`` works), writes one MCAP and returns a summary dict;
+running it twice gives the same MCAP content, so it can run under any scheduler (a process pool,
+Dask, Ray) and be re-run after a failure.
+
+Modes (same operators, different schedules):
+
+* ``batch``: pass 1 streams window features and nonmovement windows, then fits by the
+  72 h + 12 h schedule (engine.calibration.fit_batch_schedule); pass 2 streams the file again and
+  logs raw, corrected (final estimate from the first sample), temperature and epoch metrics.
+* ``online``: one pass. Window features feed ``OnlineCalibrator`` (refit at each 12 h boundary);
+  every published estimate is logged; accepted ones take effect from their boundary. The
+  correction waits (a few seconds of data at most) until the estimate schedule is final for
+  the samples it corrects, so the output does not depend on block cuts.
+
+Both passes hold only bounded state: ring buffers of one window/epoch, the nonmovement windows
+(~60k rows a week) and the writer's current chunk.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+from typing import Callable, Optional
+
+import numpy as np
+
+from stillpoint.drivers import open_recording
+
+from .blocks import Block
+from .calibration import OnlineCalibrator, fit_batch_schedule
+from .calibration.estimate import CalibrationEstimate
+from .calibration.schedule import CHUNK_HOURS, FIRST_HOURS
+from .calibration.select import MAX_ABS_MEAN_G, SD_THRESHOLD_G
+from .features import WindowFeatures
+from .mcap_sink import CHUNK_SIZE, McapSink
+from .operators.correction import CorrectionOperator
+from .operators.filters import BFEN_BAND_GGIR, band_used
+from .operators.metrics import EPOCH_S, EpochMetrics, MetricsOperator
+from .operators.nonmovement import NonmovementOperator
+from .operators.windows import WINDOW_S, WindowFeaturesOperator
+from .pipeline import Pipeline, PipelineStats
+
+APPLIED_STATUSES = ("ok", "high_error")  # fit outcomes whose parameters are applied (H5's rule)
+
+
+@dataclass
+class RunSettings:
+    """Everything that determines a run's output (logged as the MCAP ``settings`` record)."""
+
+    mode: str = "batch"  # "batch" | "online"
+    window_s: float = WINDOW_S
+    min_fill: float = 0.9  # a window needs this fraction of its nominal samples
+    sd_threshold_g: float = SD_THRESHOLD_G
+    max_abs_mean_g: float = MAX_ABS_MEAN_G
+    epoch_s: float = EPOCH_S
+    bfen_band_hz: tuple = BFEN_BAND_GGIR
+    first_hours: float = FIRST_HOURS
+    chunk_hours: float = CHUNK_HOURS
+    temperature: bool = True  # fit the temperature term when the channel allows it
+    ggir_compatible: bool = False
+    calibrate: bool = True  # False: identity (raw g) on /corrected/accel
+    prior: Optional[dict] = None  # online: estimate in force before the first accepted refit
+    corrected_quantum_g: float = 2.0 ** -16  # /corrected/accel rounding before float32 (0: none)
+    max_block_s: float = 10.0  # pipeline block bound (data time)
+    flush_every_s: float = 10.0  # MCAP flush cadence (data time)
+    compression: str = "zstd"
+    chunk_size: int = CHUNK_SIZE
+
+    def __post_init__(self):
+        if self.mode not in ("batch", "online"):
+            raise ValueError(f"mode must be 'batch' or 'online', not {self.mode!r}")
+        self.bfen_band_hz = tuple(float(x) for x in self.bfen_band_hz)
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["bfen_band_hz"] = list(self.bfen_band_hz)
+        return d
+
+    @staticmethod
+    def from_dict(d: dict, **overrides) -> "RunSettings":
+        known = {f.name for f in fields(RunSettings)}
+        kw = {k: v for k, v in d.items() if k in known}
+        kw.update({k: v for k, v in overrides.items() if v is not None})
+        return RunSettings(**kw)
+
+
+# ---------------------------------------------------------------------------- stages
+class FeatureStage:
+    """Block -> window features -> nonmovement windows (and, online, the calibrator)."""
+
+    def __init__(self, s: RunSettings, rate_hz: float,
+                 on_features: Optional[Callable[[WindowFeatures], None]] = None):
+        self.windows = WindowFeaturesOperator(rate_hz, s.window_s, s.min_fill)
+        self.nonmovement = NonmovementOperator(s.sd_threshold_g, s.max_abs_mean_g, keep=False)
+        self.on_features = on_features
+        self.keep_all = on_features is None  # batch: keep every window for the fit (~60k rows/week)
+        self._all: list[WindowFeatures] = []
+        self.last_block_ns: Optional[int] = None
+
+    @property
+    def all_windows(self) -> WindowFeatures:
+        if len(self._all) > 1:
+            self._all = [WindowFeatures.concat(self._all)]
+        return self._all[0] if self._all else WindowFeatures.empty()
+
+    def _take(self, f: WindowFeatures) -> None:
+        if self.keep_all and len(f):
+            self._all.append(f)
+        self.nonmovement.push(f)
+        if self.on_features is not None:
+            self.on_features(f)
+
+    def push(self, block: Block) -> None:
+        self.last_block_ns = int(block.time_ns[0])
+        self._take(self.windows.push(block))
+
+    def flush(self) -> None:
+        self._take(self.windows.flush())
+
+
+class OutputStage:
+    """Block -> MCAP raw + correction -> MCAP corrected -> epoch metrics -> MCAP metrics."""
+
+    def __init__(self, s: RunSettings, rate_hz: float, sink: McapSink, source,
+                 initial: CalibrationEstimate, gate=None):
+        self.sink = sink
+        self.source = source
+        self.correction = CorrectionOperator(initial, rate_hz=rate_hz, gate=gate)
+        self.metrics = MetricsOperator(rate_hz, s.epoch_s, s.bfen_band_hz)
+        self.epochs = 0
+        self.enmo_weighted = 0.0
+        self.samples_metrics = 0
+        self._qc_logged = 0
+        self._last_ns = 0
+
+    def _log_reader_qc(self) -> None:
+        events = getattr(getattr(self.source, "qc", None), "events", [])
+        while self._qc_logged < len(events):
+            e = events[self._qc_logged]
+            d = dict(e.as_dict(), source="reader")
+            self.sink.write_qc(d, e.time_ns if e.time_ns is not None else self._last_ns)
+            self._qc_logged += 1
+
+    def _metrics(self, m: EpochMetrics) -> None:
+        if len(m):
+            self.sink.write_epochs(m)
+            self.epochs += len(m)
+            self.enmo_weighted += float(np.dot(m.enmo_mg, m.n))
+            self.samples_metrics += int(m.n.sum())
+
+    def _corrected(self, batches) -> None:
+        for b in batches:
+            self.sink.write_corrected(b)
+            self._metrics(self.metrics.push(b))
+
+    def push(self, block: Block) -> None:
+        self._last_ns = int(block.time_ns[0])
+        self._log_reader_qc()
+        self.sink.write_raw(block)
+        self._corrected(self.correction.push(block))
+        self.sink.data_time(int(block.time_ns[-1]))
+
+    def flush(self) -> None:
+        self._log_reader_qc()
+        self._corrected(self.correction.flush())
+        self._metrics(self.metrics.flush())
+
+    @property
+    def enmo_mean_mg(self) -> Optional[float]:
+        return self.enmo_weighted / self.samples_metrics if self.samples_metrics else None
+
+
+# ---------------------------------------------------------------------------- helpers
+def _rate(info) -> float:
+    r = float(info.sample_rate_nominal or 0.0)
+    if r <= 0:
+        raise ValueError(f"{info.path}: the header gives no sample rate")
+    return r
+
+
+def _calibration_summary(est: CalibrationEstimate) -> dict:
+    return {"offset": est.offset.tolist(), "scale": est.scale.tolist(),
+            "tempoffset": est.tempoffset.tolist(), "temperature_ref": est.temperature_ref,
+            "error_before_mg": est.error_before_mg, "error_after_mg": est.error_after_mg,
+            "hours_used": est.hours_used, "status": est.status, "reason": est.reason,
+            "method": est.method, "windows": est.windows,
+            "fit_start_ns": est.fit_start_ns, "fit_end_ns": est.fit_end_ns}
+
+
+def _progress_wrapper(progress, label):
+    if progress is None:
+        return None
+    return lambda st: progress(label, st)
+
+
+def _qc_summary(source) -> dict:
+    qc = getattr(source, "qc", None)
+    if qc is None:
+        return {}
+    d = qc.as_dict()
+    events = d.pop("events")
+    d["events"] = len(events)
+    reasons: dict[str, int] = {}
+    for e in events:
+        reasons[e["reason"]] = reasons.get(e["reason"], 0) + 1
+    d["reasons"] = reasons
+    return d
+
+
+# ---------------------------------------------------------------------------- the job
+def process_file(path, out, settings: Optional[RunSettings] = None, *,
+                 progress: Optional[Callable[[str, PipelineStats], None]] = None,
+                 threaded: bool = True, source_options: Optional[dict] = None) -> dict:
+    """Process one recording into ``out`` (MCAP); return the run summary (see module docstring).
+
+    ``progress(label, stats)`` is called as the passes advance (label "pass 1/2", "pass 2/2",
+    or "online").
+    """
+    s = settings or RunSettings()
+    path, out = Path(path), Path(out)
+    opts = source_options or {}
+    t_start = time.perf_counter()
+    src = open_recording(path, **opts)  # raises a StillpointError (exit 2) on unreadable input
+    info = src.info
+    rate = _rate(info)
+    summary: dict = {"input": str(path), "mode": s.mode,
+                     "device": {"type": info.device_type, "id": info.device_id,
+                                "session": info.session_id, "rate_hz": rate,
+                                "range_g": info.accel_range_g}}
+    band = band_used(rate, s.bfen_band_hz)
+    meta_settings = dict(s.to_dict(), bfen_band_used_hz=list(band))
+    estimates_log: list[dict] = []
+
+    if s.mode == "batch":
+        # ---------------------------------------------------------------- pass 1
+        feat = FeatureStage(s, rate)
+        try:
+            st1 = Pipeline(src, [feat], rate_hz=rate, max_block_s=s.max_block_s).run(
+                _progress_wrapper(progress, "pass 1/2"))
+        finally:
+            src.close()
+        if not s.calibrate:
+            est = CalibrationEstimate.identity("calibration switched off (--no-calibrate)")
+        elif st1.samples == 0:
+            est = CalibrationEstimate.identity("no samples: not calibrated")
+        else:
+            est = fit_batch_schedule(
+                feat.all_windows, select=True, recording_start_ns=st1.first_ns, recording_end_ns=st1.last_ns,
+                first_hours=s.first_hours, chunk_hours=s.chunk_hours, temperature=s.temperature,
+                ggir_compatible=s.ggir_compatible, sd_threshold=s.sd_threshold_g,
+                max_abs_mean=s.max_abs_mean_g, device_key=info.device_key, window_s=s.window_s)
+            if est.windows == 0 and feat.nonmovement.count:
+                raise AssertionError("nonmovement operator and calibration selection disagree")
+        est.effective_from_ns = None
+        windows, nonmove = feat.windows.windows, feat.nonmovement.count
+        # ---------------------------------------------------------------- pass 2
+        src = open_recording(path, **opts)
+        sink = McapSink(out, src.info, meta_settings, flush_every_s=s.flush_every_s,
+                        compression=s.compression, chunk_size=s.chunk_size,
+                        corrected_quantum_g=s.corrected_quantum_g, threaded=threaded)
+        try:
+            applied = est.status in APPLIED_STATUSES
+            initial = est if applied else CalibrationEstimate.identity(est.reason)
+            sink.write_estimate(est, applied, st1.first_ns or 0)
+            estimates_log.append({"status": est.status, "applied": applied})
+            outst = OutputStage(s, rate, sink, src, initial)
+            st = Pipeline(src, [outst], rate_hz=rate, max_block_s=s.max_block_s).run(
+                _progress_wrapper(progress, "pass 2/2"))
+            final = est
+        except BaseException:
+            sink.abort()
+            src.close()
+            raise
+    else:
+        # ---------------------------------------------------------------- online
+        prior = CalibrationEstimate.from_dict(s.prior) if s.prior else None
+        cal = OnlineCalibrator(prior, s.chunk_hours, device_key=info.device_key,
+                               sd_threshold=s.sd_threshold_g, max_abs_mean=s.max_abs_mean_g,
+                               window_s=s.window_s, temperature=s.temperature)
+        sink = McapSink(out, info, meta_settings, flush_every_s=s.flush_every_s,
+                        compression=s.compression, chunk_size=s.chunk_size,
+                        corrected_quantum_g=s.corrected_quantum_g, threaded=threaded)
+        window_ns = int(round(s.window_s * 1e9))
+        outst = None
+
+        def publish(ests):
+            for e in ests:
+                accepted = bool(e.extra.get("accepted")) and s.calibrate
+                sink.write_estimate(e, accepted, e.effective_from_ns or 0)
+                estimates_log.append({"status": e.status, "applied": accepted,
+                                      "effective_from_ns": e.effective_from_ns})
+                if accepted:
+                    outst.correction.add_estimate(e)
+
+        feat = FeatureStage(s, rate, on_features=lambda f: publish(cal.add(f)))
+
+        def gate():
+            nb = cal._next_boundary
+            if nb is None:  # no window yet: the first boundary is at least a chunk away
+                return (feat.last_block_ns or 0) - window_ns + cal.chunk_ns
+            return nb
+
+        initial = (prior if (prior is not None and s.calibrate)
+                   else CalibrationEstimate.identity("online: no estimate accepted yet"))
+        outst = OutputStage(s, rate, sink, src, initial, gate=gate)
+        if prior is not None:
+            sink.write_estimate(prior, s.calibrate, 0)
+        try:
+            st = Pipeline(src, [feat, _FinishCalibrator(cal, publish, feat), outst], rate_hz=rate,
+                          max_block_s=s.max_block_s).run(_progress_wrapper(progress, "online"))
+        except BaseException:
+            sink.abort()
+            src.close()
+            raise
+        windows, nonmove = feat.windows.windows, feat.nonmovement.count
+        final = outst.correction.schedule.current
+        summary["estimates"] = estimates_log
+    # ---------------------------------------------------------------- wrap up
+    src.close()
+    summary.update({
+        "samples": st.samples,
+        "duration_s": st.data_s,
+        "segments": len(st.segments),
+        "windows": windows,
+        "nonmovement_windows": nonmove,
+        "epochs": outst.epochs,
+        "calibration": _calibration_summary(final),
+        "enmo_mean_mg": outst.enmo_mean_mg,
+        "qc": _qc_summary(src),
+        "outputs": {"mcap": str(out)},
+        "estimates_logged": len(estimates_log),
+        "wall_s": round(time.perf_counter() - t_start, 3),
+    })
+    if st.first_ns is not None:
+        summary["start_ns"], summary["end_ns"] = st.first_ns, st.last_ns
+    sink.write_metadata("calibration", {"json": final.to_json()})
+    sink.write_metadata("summary", {k: v for k, v in summary.items() if k != "wall_s"})
+    sink.close()
+    summary["mcap_messages"] = sink.messages
+    summary["mcap_flushes"] = sink.flushes
+    return summary
+
+
+class _FinishCalibrator:
+    """Online only: at the end of the stream, after the last windows, ask for the final fit."""
+
+    def __init__(self, cal: OnlineCalibrator, publish, feat: FeatureStage):
+        self.cal, self.publish, self.feat = cal, publish, feat
+
+    def push(self, block) -> None:
+        pass
+
+    def flush(self) -> None:
+        self.publish(self.cal.finish())

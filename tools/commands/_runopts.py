@@ -1,0 +1,122 @@
+"""Shared options and output for `process`, `replay` and `demo` (settings, progress, summary)."""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+
+from stillpoint.drivers.errors import StillpointError
+
+
+class OptionError(StillpointError):
+    """A command-line option value is unusable."""
+
+
+def add_setting_arguments(p, *, defaults_from_input: bool = False) -> None:
+    """Options that map to RunSettings. With ``defaults_from_input`` every default is None
+    (meaning: keep the value logged in the input MCAP)."""
+    d = (lambda v: None) if defaults_from_input else (lambda v: v)
+    g = p.add_argument_group("processing settings")
+    g.add_argument("--mode", choices=("batch", "online"), default=d("batch"),
+                   help="batch: two passes, final estimate applied from the start; online: one pass, "
+                        "refit every 12 h of data, each estimate applied from its boundary")
+    g.add_argument("--no-calibrate", dest="calibrate", action="store_const", const=False,
+                   default=d(None), help="write raw g as the corrected stream (no autocalibration)")
+    g.add_argument("--no-temperature", dest="temperature", action="store_const", const=False,
+                   default=d(None), help="fit offset and scale only (no temperature term)")
+    g.add_argument("--ggir-compatible", dest="ggir_compatible", action="store_const", const=True,
+                   default=d(None), help="GGIR's stopping rule and error rounding (batch only)")
+    g.add_argument("--first-hours", type=float, default=None,
+                   help="batch schedule: hours of data in the first fit (default 72; GGIR>=3.0 uses 168)")
+    g.add_argument("--chunk-hours", type=float, default=None,
+                   help="hours added per refit (batch) / between refits (online); default 12")
+    g.add_argument("--sd-threshold-mg", type=float, default=None,
+                   help="nonmovement: window SD below this on all axes (default 13 mg)")
+    g.add_argument("--epoch-s", type=float, default=None, help="metric epoch length (default 5 s)")
+    g.add_argument("--bfen-band", choices=("ggir", "vanhees"), default=None,
+                   help="BFEN band-pass: ggir = 0.2-15 Hz (default), vanhees = 0.5-15 Hz")
+    g.add_argument("--flush-every-s", type=float, default=None,
+                   help="flush the MCAP every N s of data time (default 10: a kill loses <= 10 s)")
+    g.add_argument("--compression", choices=("zstd", "lz4", "none"), default=None,
+                   help="MCAP chunk compression (default zstd)")
+
+
+def settings_overrides(args) -> dict:
+    o = {
+        "mode": args.mode, "calibrate": args.calibrate, "temperature": args.temperature,
+        "ggir_compatible": args.ggir_compatible, "first_hours": args.first_hours,
+        "chunk_hours": args.chunk_hours, "epoch_s": args.epoch_s,
+        "flush_every_s": args.flush_every_s, "compression": args.compression,
+        "sd_threshold_g": None if args.sd_threshold_mg is None else args.sd_threshold_mg / 1000.0,
+        "bfen_band_hz": {None: None, "ggir": (0.2, 15.0), "vanhees": (0.5, 15.0)}[args.bfen_band],
+    }
+    for k in ("first_hours", "chunk_hours", "epoch_s", "sd_threshold_g"):
+        if o[k] is not None and o[k] <= 0:
+            raise OptionError(f"--{k.replace('_', '-')} must be positive")
+    return {k: v for k, v in o.items() if v is not None}
+
+
+class Progress:
+    """A one-line progress bar on a terminal (stderr); silent otherwise."""
+
+    def __init__(self, enabled=None, stream=sys.stderr):
+        self.stream = stream
+        self.enabled = stream.isatty() if enabled is None else enabled
+        self._last = 0.0
+        self._shown = False
+
+    def __call__(self, label, st) -> None:
+        if not self.enabled:
+            return
+        now = time.monotonic()
+        if now - self._last < 0.2:
+            return
+        self._last = now
+        hours = st.data_s / 3600
+        if st.fraction is not None:
+            k = int(30 * min(1.0, st.fraction))
+            bar = f"[{'#' * k}{'.' * (30 - k)}] {100 * st.fraction:5.1f}%"
+        else:
+            bar = f"{st.samples:,} samples"
+        self.stream.write(f"\r{label}: {bar}  {hours:7.1f} h of data  {st.wall_s:6.1f} s")
+        self.stream.flush()
+        self._shown = True
+
+    def done(self) -> None:
+        if self._shown:
+            self.stream.write("\r" + " " * 79 + "\r")
+            self.stream.flush()
+
+
+def _f(x, fmt="{:.2f}"):
+    return "n/a" if x is None else fmt.format(x)
+
+
+def human_summary(s: dict) -> str:
+    c = s["calibration"]
+    dev = s.get("device", {})
+    lines = [
+        f"{dev.get('type', '?')} {dev.get('id', '?')}: {s['samples']:,} samples, "
+        f"{s['duration_s'] / 3600:.2f} h, {s.get('segments', 1)} segment(s), mode {s['mode']}",
+        f"windows {s['windows']:,} (nonmovement {s['nonmovement_windows']:,}), epochs {s['epochs']:,}",
+        f"calibration: {c['status']} - {c.get('reason', '')}",
+        f"  error {_f(c['error_before_mg'])} -> {_f(c['error_after_mg'])} mg"
+        f" (hours used {_f(c['hours_used'], '{:.1f}')})",
+        "  offset " + " ".join(f"{v:+.5f}" for v in c["offset"]) +
+        "  scale " + " ".join(f"{v:.5f}" for v in c["scale"]) +
+        "  tempoffset " + " ".join(f"{v:+.6f}" for v in c["tempoffset"]),
+        f"ENMO mean {_f(s['enmo_mean_mg'])} mg",
+    ]
+    qc = s.get("qc") or {}
+    if qc.get("skipped") or qc.get("events"):
+        lines.append(f"QC: {qc.get('skipped', 0)} {qc.get('unit', 'unit')}(s) skipped, "
+                     f"{qc.get('events', 0)} event(s) {qc.get('reasons', {})}")
+    lines.append("outputs: " + ", ".join(f"{k} {v}" for k, v in s["outputs"].items()))
+    return "\n".join(lines)
+
+
+def write_summary(summary: dict, path) -> None:
+    from stillpoint.engine.mcap_sink import dumps
+    with open(path, "w") as f:
+        f.write(json.dumps(json.loads(dumps(summary)), indent=2, sort_keys=True) + "\n")

@@ -1,0 +1,95 @@
+"""`stillpoint process FILE`: calibrate a recording and log everything to MCAP."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from stillpoint.engine.calibration.estimate import CalibrationEstimate
+from stillpoint.engine.run import RunSettings, process_file
+
+from ._runopts import (OptionError, Progress, add_setting_arguments, human_summary,
+                       settings_overrides, write_summary)
+
+NAME = "process"
+HELP = "autocalibrate a .cwa/.bin recording; write raw, corrected, metrics and estimates to MCAP"
+DESCRIPTION = (HELP + ". Batch mode reads the file twice (features + fit, then corrected "
+               "output); online mode refits every 12 h of data in one pass.")
+
+
+def default_output(path: Path) -> Path:
+    name = path.name
+    for suffix in (".gz",):
+        if name.endswith(suffix):
+            name = name[: -len(suffix)]
+    stem = name.rsplit(".", 1)[0] if "." in name else name
+    if name.endswith(".mcap"):
+        stem += ".replay"
+    return path.with_name(stem + ".mcap")
+
+
+def add_arguments(p) -> None:
+    p.add_argument("file", type=Path, help="recording (.cwa, .cwa.gz, .bin) or a stillpoint MCAP")
+    p.add_argument("-o", "--output", type=Path, help="output MCAP (default: FILE with .mcap)")
+    p.add_argument("--summary", type=Path, help="write the run summary as JSON here")
+    p.add_argument("--json", action="store_true", help="print the summary JSON instead of text")
+    p.add_argument("--prior", type=Path,
+                   help="online: JSON estimate in force before the first accepted refit")
+    p.add_argument("--store", nargs="?", const="", default=None, metavar="DIR",
+                   help="use the calibration store (default location, or DIR): online takes its "
+                        "prior from it; the final estimate is added to it")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar and no text summary")
+    add_setting_arguments(p)
+
+
+def _store(arg):
+    from stillpoint.engine.calibration import CalibrationStore
+    return CalibrationStore(arg or None)
+
+
+def build_settings(args, base: dict | None = None) -> RunSettings:
+    over = settings_overrides(args)
+    if getattr(args, "prior", None):
+        try:
+            over["prior"] = CalibrationEstimate.from_dict(json.loads(args.prior.read_text())).to_dict()
+        except (OSError, ValueError, TypeError) as e:
+            raise OptionError(f"--prior {args.prior}: not a calibration estimate JSON ({e})") from None
+    return RunSettings.from_dict(base or {}, **over)
+
+
+def execute(args, settings: RunSettings, out: Path) -> int:
+    progress = Progress(enabled=False if args.quiet else None)
+    if getattr(args, "store", None) is not None and settings.mode == "online" and settings.prior is None:
+        from stillpoint.drivers import open_recording
+        src = open_recording(args.file)
+        key = src.info.device_key
+        src.close()
+        prior = _store(args.store).prior_for(key)
+        if prior is not None:
+            settings.prior = prior.to_dict()
+    try:
+        summary = process_file(args.file, out, settings, progress=progress)
+    finally:
+        progress.done()
+    if getattr(args, "store", None) is not None:
+        est = CalibrationEstimate.from_dict(dict(summary["calibration"]))
+        if est.status in ("ok", "high_error") and summary.get("device"):
+            d = summary["device"]
+            rec = _store(args.store).add(est, device_key=f"{d['type']}-{d['id']}", source=str(args.file))
+            summary["outputs"]["store"] = rec.get("source") and str(_store(args.store).dir)
+    if args.summary:
+        write_summary(summary, args.summary)
+        summary["outputs"]["summary"] = str(args.summary)
+    if args.json:
+        from stillpoint.engine.mcap_sink import dumps
+        print(json.dumps(json.loads(dumps(summary)), indent=2, sort_keys=True))
+    elif not args.quiet:
+        print(human_summary(summary))
+    return 0
+
+
+def run(args) -> int:
+    out = args.output or default_output(args.file)
+    if out.resolve() == args.file.resolve():
+        raise OptionError(f"output {out} would overwrite the input")
+    return execute(args, build_settings(args), out)

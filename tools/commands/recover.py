@@ -1,0 +1,39 @@
+"""`stillpoint recover BROKEN.mcap -o FIXED.mcap`: salvage an interrupted run's log."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from stillpoint.engine.recover import recover
+
+NAME = "recover"
+HELP = "salvage every complete chunk of an unfinished MCAP into a valid, indexed file"
+
+
+def add_arguments(p) -> None:
+    p.add_argument("file", type=Path, help="an MCAP whose writer was killed")
+    p.add_argument("-o", "--output", type=Path, help="output (default: FILE with .recovered.mcap)")
+    p.add_argument("--json", action="store_true", help="print the report as JSON")
+
+
+def run(args) -> int:
+    out = args.output or args.file.with_name(args.file.name.rsplit(".", 1)[0] + ".recovered.mcap")
+    if out.resolve() == args.file.resolve():
+        from ._runopts import OptionError
+        raise OptionError("recover never overwrites its input: choose another -o")
+    rep = recover(args.file, out)
+    if args.json:
+        print(json.dumps(rep.as_dict(), indent=2, sort_keys=True))
+        return 0
+    state = "was finished (copied)" if rep.finished else "was not finished"
+    print(f"{args.file} {state}: recovered {rep.messages:,} messages on {rep.channels} channels, "
+          f"{rep.metadata} metadata records -> {out}")
+    if rep.last_log_time_ns:
+        import datetime as dt
+        t = dt.datetime.fromtimestamp(rep.last_log_time_ns / 1e9, dt.timezone.utc)
+        print(f"data up to {t.isoformat(timespec='seconds')}; per topic: "
+              + ", ".join(f"{k} {v:,}" for k, v in sorted(rep.per_topic.items())))
+    if rep.stopped_at:
+        print(f"reading stopped at the torn tail: {rep.stopped_at}")
+    return 0

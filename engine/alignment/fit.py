@@ -1,0 +1,465 @@
+"""Clock-model fits of per-block lags: the Brønd iterative-exclusion regression and a robust
+method (trimmed least squares, confidence intervals, step detection with a piecewise model,
+optional crystal-temperature term chosen by ΔBIC and held-out blocks).
+
+Pure functions on small arrays (one row per 1 h block). The model, in grid samples, is
+
+    lag(t) = b0 + b1 * t + sum_j s_j * [t >= tau_j] + g * X(t)
+
+with t seconds since the reference's first sample on the reference clock, and X(t) the integral
+of ``(T_other - T0)^2 - (T_ref - T0)^2`` (°C²·s): a tuning-fork crystal's rate error is parabolic in
+temperature around its turnover T0, so two devices at different temperatures drift apart by that
+integral times the parabola coefficient.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Optional, Sequence
+
+import numpy as np
+from scipy import stats
+
+from stillpoint.drivers.constants import RTC_CRYSTAL_TURNOVER_C
+
+from .lags import BlockLag
+from .signal import MIN_BLOCKS
+
+DAY_S = 86400.0
+TRIM_K = 4.0  # robust fit: points beyond 4 robust SDs are excluded
+MIN_SCALE = 0.02  # samples: floor of the robust residual scale (sub-sample lags are not exact)
+STEP_MIN_SIDE = 2  # valid blocks needed on each side of a step
+STEP_DBIC = 10.0  # a step must lower BIC by at least this ("very strong" evidence)
+STEP_MIN_SAMPLES = 0.5  # and be at least half a grid sample (and 4 robust SDs)
+MAX_STEPS = 3
+TEMP_DBIC = 6.0  # the temperature term must lower BIC by this ("strong") ...
+HELDOUT_FOLDS = 5  # ... and lower the held-out RMSE over contiguous folds of blocks
+
+
+class CannotAlign(Exception):
+    """Not enough information to align; ``reason`` says why (the CLI prints it)."""
+
+    def __init__(self, reason: str):
+        super().__init__(reason)
+        self.reason = reason
+
+
+@dataclass
+class Step:
+    """A step in the lag (a sampling halt or a restart of one device's clock)."""
+
+    time_s: float  # best estimate, s since the reference's first sample
+    window_s: tuple[float, float]  # the step lies in this interval
+    size: float  # grid samples (positive: the other device's clock jumped ahead)
+    after_block: int  # index of the last block before the step
+    before_block: int  # index of the first block after the step
+
+    def as_dict(self, rate: float, t0_ns: int) -> dict:
+        return {"time_s": round(self.time_s, 3),
+                "time_ns": int(t0_ns + round(self.time_s * 1e9)),
+                "window_s": [round(self.window_s[0], 3), round(self.window_s[1], 3)],
+                "size_samples": round(self.size, 4), "size_s": round(self.size / rate, 6),
+                "after_block": self.after_block, "before_block": self.before_block}
+
+
+@dataclass
+class TemperatureRegressor:
+    """X(t) table: cumulative integral of the devices' parabolic crystal-error difference."""
+
+    time_s: np.ndarray
+    x: np.ndarray  # °C²·s
+
+    def __call__(self, t) -> np.ndarray:
+        t = np.asarray(t, dtype=np.float64)
+        out = np.interp(t, self.time_s, self.x)
+        if self.time_s.size >= 2:  # linear extrapolation at the recording's mean rate
+            span = self.time_s[-1] - self.time_s[0]
+            rate = (self.x[-1] - self.x[0]) / span if span > 0 else 0.0
+            out = np.where(t > self.time_s[-1], self.x[-1] + rate * (t - self.time_s[-1]), out)
+            out = np.where(t < self.time_s[0], self.x[0] + rate * (t - self.time_s[0]), out)
+        return out
+
+    @staticmethod
+    def from_temperatures(time_s: np.ndarray, t_ref: np.ndarray, t_other: np.ndarray,
+                          turnover_c: float = RTC_CRYSTAL_TURNOVER_C
+                          ) -> Optional["TemperatureRegressor"]:
+        ok = np.isfinite(t_ref) & np.isfinite(t_other)
+        if ok.sum() < 2:
+            return None
+        time_s, t_ref, t_other = time_s[ok], t_ref[ok], t_other[ok]
+        h = (t_other - turnover_c) ** 2 - (t_ref - turnover_c) ** 2
+        dt = np.diff(time_s)
+        x = np.concatenate([[0.0], np.cumsum(0.5 * (h[1:] + h[:-1]) * dt)])
+        return TemperatureRegressor(time_s.astype(np.float64), x)
+
+
+@dataclass
+class ClockFit:
+    """A fitted clock model plus its diagnostics (all lags in grid samples)."""
+
+    method: str  # "brond" or "robust"
+    model: str  # "linear", "piecewise", "linear+temperature", "piecewise+temperature"
+    rate: float
+    b0: float
+    b1: float
+    steps: list[Step] = field(default_factory=list)
+    temp_coef: float = 0.0
+    temperature: Optional[TemperatureRegressor] = None
+    included: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))  # over valid blocks
+    block_index: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    t: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    y: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    rmse: float = np.nan  # of included residuals
+    iterations: int = 0
+    thresholds: list[float] = field(default_factory=list)
+    cov: Optional[np.ndarray] = None  # covariance of (b0, b1) in samples, samples/s
+    dof: int = 0
+    diagnostics: dict = field(default_factory=dict)
+
+    # ------------------------------------------------------------ evaluation
+    def lag(self, t) -> np.ndarray:
+        """Model lag (grid samples) at reference-clock times t (s since t0)."""
+        t = np.asarray(t, dtype=np.float64)
+        y = self.b0 + self.b1 * t
+        for s in self.steps:
+            y = y + s.size * (t >= s.time_s)
+        if self.temperature is not None and self.temp_coef:
+            y = y + self.temp_coef * self.temperature(t)
+        return y
+
+    def offset_s(self, t) -> np.ndarray:
+        """Other-device clock minus reference clock (s) at reference times t (s since t0)."""
+        return self.lag(t) / self.rate
+
+    @property
+    def initial_offset_s(self) -> float:
+        return float(self.offset_s(0.0))
+
+    @property
+    def drift_s_per_day(self) -> float:
+        """Crystal drift rate (linear part), s per day."""
+        return self.b1 / self.rate * DAY_S
+
+    @property
+    def drift_day7_s(self) -> float:
+        """Accumulated change of the offset after 7 days (steps and temperature term included)."""
+        return float(self.offset_s(7 * DAY_S) - self.offset_s(0.0))
+
+    def ci(self, level: float = 0.95) -> dict:
+        if self.cov is None or self.dof <= 0:
+            return {}
+        q = float(stats.t.ppf(0.5 + level / 2, self.dof))
+        se0 = math.sqrt(max(self.cov[0, 0], 0.0)) / self.rate
+        se1 = math.sqrt(max(self.cov[1, 1], 0.0)) / self.rate * DAY_S
+        o, d = self.initial_offset_s, self.drift_s_per_day
+        return {"level": level,
+                "initial_offset_s": [o - q * se0, o + q * se0],
+                "drift_s_per_day": [d - q * se1, d + q * se1],
+                "drift_day7_s": [self.drift_day7_s - 7 * q * se1, self.drift_day7_s + 7 * q * se1]}
+
+
+# ---------------------------------------------------------------- design matrix and fits
+def _design(t: np.ndarray, steps: Sequence[float], xtemp: Optional[np.ndarray]) -> np.ndarray:
+    cols = [np.ones_like(t), t]
+    cols += [(t >= tau).astype(np.float64) for tau in steps]
+    if xtemp is not None:
+        cols.append(xtemp)
+    return np.column_stack(cols)
+
+
+def _lstsq(A: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Least squares with column scaling (t is ~1e5 s, X ~1e8 °C²·s)."""
+    scale = np.sqrt((A * A).sum(axis=0))
+    scale[scale == 0] = 1.0
+    coef, *_ = np.linalg.lstsq(A / scale, y, rcond=None)
+    return coef / scale
+
+
+def _robust_scale(r: np.ndarray) -> float:
+    if r.size == 0:
+        return MIN_SCALE
+    return max(1.4826 * float(np.median(np.abs(r - np.median(r)))), MIN_SCALE)
+
+
+def trimmed_fit(A: np.ndarray, y: np.ndarray, k: float = TRIM_K, iters: int = 30
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Least squares that repeatedly excludes points beyond k robust SDs of the residuals.
+
+    Starts from a least-absolute-deviation-like fit (iteratively reweighted) so that gross
+    outliers cannot drag the first pass. Returns (coef, included mask, residuals)."""
+    n, p = A.shape
+    w = np.ones(n)
+    coef = _lstsq(A, y)
+    for _ in range(10):  # IRLS towards L1 for a robust start
+        r = y - A @ coef
+        w = 1.0 / np.maximum(np.abs(r), MIN_SCALE)
+        sw = np.sqrt(w)
+        coef = _lstsq(A * sw[:, None], y * sw)
+    inc = np.ones(n, bool)
+    for _ in range(iters):
+        r = y - A @ coef
+        new = np.abs(r) <= k * _robust_scale(r[inc] if inc.sum() > p else r)
+        if new.sum() <= p:
+            break
+        if np.array_equal(new, inc):
+            break
+        inc = new
+        coef = _lstsq(A[inc], y[inc])
+    r = y - A @ coef
+    return coef, inc, r
+
+
+def brond_fit(t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[float]]:
+    """Brønd 2021: OLS of lag on time; exclude |standardised residual| > 1, refit, then raise the
+    threshold to e, e^e, ... until an iteration excludes nothing. Returns (coef, included,
+    thresholds used)."""
+    A = _design(t, (), None)
+    inc = np.ones(t.size, bool)
+    thr = 1.0
+    used = []
+    while True:
+        coef = _lstsq(A[inc], y[inc])
+        r = y - A @ coef
+        sd = float(np.std(r[inc], ddof=1)) if inc.sum() > 2 else 0.0
+        used.append(thr)
+        if sd <= 0:
+            break
+        drop = inc & (np.abs(r / sd) > thr)
+        if not drop.any() or inc.sum() - drop.sum() < 2:
+            break
+        inc &= ~drop
+        thr = math.exp(thr)
+    coef = _lstsq(A[inc], y[inc])
+    return coef, inc, used
+
+
+def _truncated_loss(r: np.ndarray, cap: float) -> float:
+    return float(np.minimum(r * r, cap * cap).sum())
+
+
+def _bic(loss: float, n: int, p: int) -> float:
+    return n * math.log(max(loss, 1e-300) / n) + p * math.log(n)
+
+
+def _covariance(A: np.ndarray, r: np.ndarray) -> tuple[Optional[np.ndarray], int]:
+    n, p = A.shape
+    dof = n - p
+    if dof <= 0:
+        return None, 0
+    s2 = float(r @ r) / dof
+    try:
+        cov = s2 * np.linalg.inv(A.T @ A)
+    except np.linalg.LinAlgError:
+        return None, 0
+    return cov, dof
+
+
+def heldout_rmse(t: np.ndarray, y: np.ndarray, steps: Sequence[float],
+                 xtemp: Optional[np.ndarray], folds: int = HELDOUT_FOLDS) -> float:
+    """RMSE of lags predicted for contiguous held-out groups of blocks (time-ordered folds)."""
+    n = t.size
+    order = np.argsort(t)
+    groups = np.array_split(order, min(folds, n))
+    errs = []
+    for g in groups:
+        train = np.ones(n, bool)
+        train[g] = False
+        A = _design(t, steps, xtemp)
+        keep = np.abs(A[train]).sum(axis=0) > 0  # a step with no training point on one side
+        if train.sum() <= keep.sum():
+            continue
+        coef = _lstsq(A[train][:, keep], y[train])
+        errs.append(y[g] - A[g][:, keep] @ coef)
+    if not errs:
+        return np.nan
+    e = np.concatenate(errs)
+    return float(np.sqrt(np.mean(e * e)))
+
+
+# ---------------------------------------------------------------- the two methods
+def _valid_arrays(blocks: Sequence[BlockLag], block_time: str):
+    v = [b for b in blocks if b.valid and np.isfinite(b.lag)]
+    idx = np.array([b.index for b in v], dtype=np.int64)
+    if block_time == "start":
+        t = np.array([b.start_s for b in v], dtype=np.float64)
+    elif block_time == "centroid":
+        t = np.array([b.centroid_s if np.isfinite(b.centroid_s) else b.centre_s for b in v],
+                     dtype=np.float64)
+    else:
+        t = np.array([b.centre_s for b in v], dtype=np.float64)
+    y = np.array([b.lag for b in v], dtype=np.float64)
+    return v, idx, t, y
+
+
+def _count_reasons(blocks: Sequence[BlockLag]) -> dict:
+    out: dict[str, int] = {}
+    for b in blocks:
+        if not b.valid:
+            out[b.reason or "invalid"] = out.get(b.reason or "invalid", 0) + 1
+    return out
+
+
+def _check_enough(blocks: Sequence[BlockLag], n_valid: int, min_blocks: int) -> None:
+    if n_valid >= min_blocks:
+        return
+    reasons = _count_reasons(blocks)
+    detail = ", ".join(f"{v} {k}" for k, v in sorted(reasons.items())) or "no blocks"
+    raise CannotAlign(
+        f"too few blocks: {n_valid} usable 1 h block(s) where at least {min_blocks} are needed "
+        f"(of {len(blocks)} blocks: {detail}); the recordings overlap too little or were worn "
+        f"while sedentary, so the second recording is left unaligned")
+
+
+def fit_brond(blocks: Sequence[BlockLag], rate: float, block_time: str = "centre",
+              min_blocks: int = MIN_BLOCKS) -> ClockFit:
+    """The paper's regression with iterative exclusion (lags at integer or sub-sample precision,
+    as the LagEstimator produced them)."""
+    v, idx, t, y = _valid_arrays(blocks, block_time)
+    _check_enough(blocks, len(v), min_blocks)
+    coef, inc, used = brond_fit(t, y)
+    A = _design(t, (), None)
+    r = y - A @ coef
+    cov, dof = _covariance(A[inc], r[inc])
+    return ClockFit(method="brond", model="linear", rate=rate, b0=float(coef[0]),
+                    b1=float(coef[1]), included=inc, block_index=idx, t=t, y=y,
+                    rmse=float(np.sqrt(np.mean(r[inc] ** 2))), iterations=len(used),
+                    thresholds=used, cov=cov, dof=dof,
+                    diagnostics={"block_time": block_time, "n_valid": int(len(v)),
+                                 "n_included": int(inc.sum()), "invalid": _count_reasons(blocks)})
+
+
+def _fit_model(t, y, steps, xtemp, cap):
+    A = _design(t, steps, xtemp)
+    coef, inc, r = trimmed_fit(A, y)
+    loss = _truncated_loss(r, cap)
+    return coef, inc, r, _bic(loss, t.size, A.shape[1])
+
+
+def _locate_step(blocks_by_index: dict, v: Sequence[BlockLag], j: int, pre, post,
+                 lo: float, hi: float) -> tuple[float, tuple[float, float]]:
+    """Step between valid blocks v[j-1] and v[j]: locate it with the sub-block lags of the blocks
+    from v[j-1] to v[j]. ``pre``/``post`` predict the lag before/after the step."""
+    cands = []
+    for bi in range(v[j - 1].index, v[j].index + 1):
+        b = blocks_by_index.get(bi)
+        if b is None or b.sub_lags.size == 0:
+            continue
+        m = b.sub_lags.size
+        for i in range(m):
+            if not np.isfinite(b.sub_lags[i]):
+                continue
+            c = b.start_s + (i + 0.5) * b.duration_s / m
+            cands.append((c, b.start_s + i * b.duration_s / m, b.start_s + (i + 1) * b.duration_s / m,
+                          abs(b.sub_lags[i] - pre(c)) <= abs(b.sub_lags[i] - post(c))))
+    if cands:
+        cands.sort()
+        # a mixed sub-block takes the lag of whichever side holds most of its movement, so the
+        # step lies after the start of the last pre-side sub-block and before the end of the
+        # first post-side one; the best estimate is the boundary between them
+        first_post = next((k for k, c in enumerate(cands) if not c[3]), None)
+        if first_post is not None:
+            hi = min(hi, cands[first_post][2])
+            mid = cands[first_post][1]
+            pre_before = [c for c in cands[:first_post] if c[3]]
+            if pre_before:
+                lo = max(lo, pre_before[-1][1])
+                mid = 0.5 * (pre_before[-1][2] + cands[first_post][1])
+            return min(max(mid, lo), hi), (lo, hi)
+    return 0.5 * (lo + hi), (lo, hi)
+
+
+def fit_robust(blocks: Sequence[BlockLag], rate: float,
+               temperature: Optional[TemperatureRegressor] = None,
+               min_blocks: int = MIN_BLOCKS, detect_steps: bool = True,
+               max_steps: int = MAX_STEPS) -> ClockFit:
+    """Trimmed least squares with step detection (greedy, ΔBIC) and an optional temperature term
+    (kept only if ΔBIC and the held-out RMSE both favour it). Block times are block centres."""
+    v, idx, t, y = _valid_arrays(blocks, "centroid")
+    _check_enough(blocks, len(v), min_blocks)
+    n = t.size
+    # noise scale shared by every candidate model (truncated loss makes their BICs comparable)
+    coef0, inc0, r0 = trimmed_fit(_design(t, (), None), y)
+    cap = TRIM_K * _robust_scale(r0[inc0])
+    best = _fit_model(t, y, (), None, cap)
+    bic_linear = best[3]
+    steps: list[float] = []
+    step_pos: list[int] = []
+    cand_pos = list(range(STEP_MIN_SIDE, n - STEP_MIN_SIDE + 1)) if detect_steps else []
+    diag_steps = []
+    while detect_steps and len(steps) < max_steps:
+        trial = None
+        for j in cand_pos:
+            if j in step_pos:
+                continue
+            tau = 0.5 * (t[j - 1] + t[j])
+            st = sorted(steps + [tau])
+            res = _fit_model(t, y, st, None, cap)
+            if trial is None or res[3] < trial[1][3]:
+                trial = (j, res, st, tau)
+        if trial is None:
+            break
+        j, res, st, tau = trial
+        size = float(res[0][2 + st.index(tau)])
+        scale = _robust_scale(res[2][res[1]])
+        dbic = res[3] - best[3]
+        diag_steps.append({"position": int(j), "dbic": round(dbic, 3), "size": round(size, 4)})
+        if dbic < -STEP_DBIC and abs(size) >= max(STEP_MIN_SAMPLES, TRIM_K * scale):
+            steps, step_pos, best = st, sorted(step_pos + [j]), res
+            # the new step's neighbours can no longer host a step
+        else:
+            break
+    # temperature term
+    xtemp = temperature(t) if temperature is not None else None
+    temp_diag = {}
+    use_temp = False
+    if xtemp is not None and np.ptp(xtemp) > 0 and n >= min_blocks + 2:
+        with_t = _fit_model(t, y, steps, xtemp, cap)
+        inc_b = best[1]
+        h_lin = heldout_rmse(t[inc_b], y[inc_b], steps, None)
+        inc_t = with_t[1]
+        h_tmp = heldout_rmse(t[inc_t], y[inc_t], steps, xtemp[inc_t])
+        dbic = with_t[3] - best[3]
+        use_temp = bool(dbic < -TEMP_DBIC and np.isfinite(h_tmp) and h_tmp < h_lin)
+        temp_diag = {"dbic": round(dbic, 3), "heldout_rmse_without": h_lin,
+                     "heldout_rmse_with": h_tmp, "chosen": use_temp}
+        if use_temp:
+            best = with_t
+    coef, inc, r, bic = best
+    A = _design(t, steps, xtemp if use_temp else None)
+    cov, dof = _covariance(A[inc], r[inc])
+    # step objects, located with the sub-block lags
+    by_index = {b.index: b for b in blocks}
+    step_objs = []
+    for k, (tau, j) in enumerate(zip(steps, step_pos)):
+        size = float(coef[2 + k])
+        others = [(s2, float(coef[2 + kk])) for kk, s2 in enumerate(steps) if kk != k]
+
+        def pre(tc, k=k):
+            base = coef[0] + coef[1] * tc + sum(sz * (tc >= s2) for s2, sz in others)
+            if use_temp:
+                base = base + coef[-1] * temperature(tc)
+            return float(base)
+
+        def post(tc, size=size, pre=pre):
+            return pre(tc) + size
+
+        tm, win = _locate_step(by_index, v, j, pre, post, float(v[j - 1].start_s),
+                               float(v[j].start_s + v[j].duration_s))
+        step_objs.append(Step(time_s=tm, window_s=win, size=size, after_block=int(v[j - 1].index),
+                              before_block=int(v[j].index)))
+    # the fitted steps were placed between block centres; re-express the model with the located
+    # times (the lag is only observed at block centres, so the fit is unchanged)
+    model = ("piecewise" if steps else "linear") + ("+temperature" if use_temp else "")
+    heldout_final = heldout_rmse(t[inc], y[inc], steps, xtemp[inc] if use_temp else None)
+    return ClockFit(method="robust", model=model, rate=rate, b0=float(coef[0]), b1=float(coef[1]),
+                    steps=step_objs, temp_coef=float(coef[-1]) if use_temp else 0.0,
+                    temperature=temperature if use_temp else None, included=inc,
+                    block_index=idx, t=t, y=y, rmse=float(np.sqrt(np.mean(r[inc] ** 2))),
+                    iterations=1, cov=cov, dof=dof,
+                    diagnostics={"block_time": "centroid", "n_valid": int(n),
+                                 "n_included": int(inc.sum()), "invalid": _count_reasons(blocks),
+                                 "bic_linear": round(bic_linear, 3), "bic_final": round(bic, 3),
+                                 "step_search": diag_steps, "temperature": temp_diag,
+                                 "heldout_rmse_samples": heldout_final,
+                                 "residual_scale_samples": cap / TRIM_K})

@@ -1,0 +1,296 @@
+"""Per-block lag between two devices: normalised cross-correlation of the Brønd activity signal
+in non-overlapping blocks, with sub-sample refinement, computed incrementally.
+
+``LagEstimator`` receives both devices' grid pieces (from ``signal.GridResampler``) in any
+interleaving and emits a ``BlockLag`` as soon as a block and its margins are complete; it holds at
+most one block plus margins per device. The lag of a block is the shift ``k`` (grid samples) that
+maximises ``corr(ref[n], other[n + k])``: an event at reference-clock time t appears in the other
+device's clock at ``t + k / rate``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Optional
+
+import numpy as np
+from scipy import signal as _sig
+
+from .signal import (ACTIVITY_MIN_G, BLOCK_S, COMMON_RATE_HZ, FILTER_PAD_S, MAX_LAG_SAMPLES,
+                     brond_filter)
+
+MIN_COVERAGE = 0.5  # a block needs samples on at least half its grid points in both devices
+SUB_BLOCKS = 6  # each block is also correlated in 6 sub-blocks (10 min) to locate steps
+
+
+def normalized_xcorr(ref: np.ndarray, other_ext: np.ndarray, max_lag: int,
+                     centred: bool = True) -> np.ndarray:
+    """Normalised cross-correlation for lags -max_lag..max_lag.
+
+    ``other_ext`` is the other device's signal over the reference window extended by ``max_lag``
+    samples on both sides, so every lag is computed on a full window (no zero padding).
+    ``centred=False`` gives Matlab's ``xcorr(..., 'coeff')`` normalisation (no mean removal),
+    ``centred=True`` the Pearson correlation of each shifted window.
+    """
+    n = ref.size
+    L = 2 * max_lag + 1
+    if other_ext.size != n + 2 * max_lag:
+        raise ValueError("other_ext must be len(ref) + 2*max_lag long")
+    r = ref - ref.mean() if centred else ref
+    num = _sig.correlate(other_ext, r, mode="valid", method="fft")
+    c2 = np.concatenate([[0.0], np.cumsum(other_ext * other_ext)])
+    ss = c2[n:n + L] - c2[:L]
+    if centred:
+        c1 = np.concatenate([[0.0], np.cumsum(other_ext)])
+        s1 = c1[n:n + L] - c1[:L]
+        ss = ss - s1 * s1 / n
+    den = np.sqrt(np.maximum(ss, 0.0) * float(np.dot(r, r)))
+    out = np.zeros(L)
+    ok = den > 1e-12 * max(1.0, float(den.max()) if den.size else 1.0)
+    out[ok] = num[ok] / den[ok]
+    return out
+
+
+def peak_lag(corr: np.ndarray, max_lag: int, subsample: bool = True) -> tuple[float, float, bool]:
+    """(lag, peak correlation, at_edge): lag of the maximum, refined by a parabola through the
+    peak and its neighbours when ``subsample``. ``at_edge`` when the maximum is at +-max_lag."""
+    j = int(np.argmax(corr))
+    peak = float(corr[j])
+    at_edge = j == 0 or j == corr.size - 1
+    lag = float(j - max_lag)
+    if subsample and not at_edge:
+        a, b, c = corr[j - 1], corr[j], corr[j + 1]
+        den = a - 2.0 * b + c
+        if den < 0:
+            d = 0.5 * (a - c) / den
+            if abs(d) <= 0.5:
+                lag += d
+                peak = float(b - 0.25 * (a - c) * d)
+    return lag, peak, at_edge
+
+
+@dataclass
+class BlockLag:
+    """One block's result. Times are seconds since the reference's first sample (its clock)."""
+
+    index: int
+    start_s: float
+    duration_s: float
+    lag: float = np.nan  # grid samples (other minus reference)
+    corr: float = np.nan  # peak normalised cross-correlation
+    activity_ref: float = np.nan  # mean |‖a‖-1|, g
+    activity_other: float = np.nan
+    coverage_ref: float = 0.0
+    coverage_other: float = 0.0
+    valid: bool = False
+    reason: str = ""  # why not valid: no_overlap, gap, inactive, edge
+    centroid_s: float = np.nan  # activity-weighted time of the block (where its lag applies)
+    sub_lags: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    sub_corr: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    correlogram: Optional[np.ndarray] = None  # float32 (2*max_lag+1,), when kept
+
+    @property
+    def centre_s(self) -> float:
+        return self.start_s + 0.5 * self.duration_s
+
+    def as_dict(self, rate: float) -> dict:
+        d = {"index": self.index, "start_s": round(self.start_s, 6),
+             "centroid_s": None if not np.isfinite(self.centroid_s) else round(self.centroid_s, 3),
+             "duration_s": round(self.duration_s, 6), "valid": self.valid,
+             "coverage_ref": round(self.coverage_ref, 4),
+             "coverage_other": round(self.coverage_other, 4)}
+        for k in ("lag", "corr", "activity_ref", "activity_other"):
+            v = getattr(self, k)
+            d[k] = None if not np.isfinite(v) else round(float(v), 6)
+        d["lag_s"] = None if not np.isfinite(self.lag) else round(float(self.lag) / rate, 6)
+        if self.reason:
+            d["reason"] = self.reason
+        if self.sub_lags.size:
+            d["sub_lags"] = [None if not np.isfinite(x) else round(float(x), 4)
+                             for x in self.sub_lags]
+        return d
+
+
+class _GridBuffer:
+    """Contiguous grid samples [k_start, k_end) of one device; NaN where there was no data."""
+
+    def __init__(self, k_start: int):
+        self.k_start = k_start
+        self.data = np.zeros(0)
+        self.finished = False
+
+    @property
+    def k_end(self) -> int:
+        return self.k_start + self.data.size
+
+    def extend_nan(self, k: int) -> None:
+        if k > self.k_end:
+            self.data = np.concatenate([self.data, np.full(k - self.k_end, np.nan)])
+
+    def append(self, k0: int, values: np.ndarray) -> None:
+        if k0 < self.k_end:  # overlap with what we have (or before the start): drop it
+            values = values[self.k_end - k0:]
+            k0 = self.k_end
+        if values.size == 0:
+            return
+        self.extend_nan(k0)
+        self.data = np.concatenate([self.data, values])
+
+    def get(self, k0: int, k1: int) -> np.ndarray:
+        out = np.full(k1 - k0, np.nan)
+        a, b = max(k0, self.k_start), min(k1, self.k_end)
+        if b > a:
+            out[a - k0:b - k0] = self.data[a - self.k_start:b - self.k_start]
+        return out
+
+    def trim(self, k: int) -> None:
+        if k > self.k_start:
+            drop = min(k - self.k_start, self.data.size)
+            self.data = self.data[drop:].copy() if drop else self.data
+            self.k_start += drop
+            if self.k_start < k:  # trimmed past the data
+                self.k_start = k
+
+
+class LagEstimator:
+    """Incremental per-block lags between a reference and another device (see module doc)."""
+
+    def __init__(self, rate: float = COMMON_RATE_HZ, block_s: float = BLOCK_S,
+                 max_lag: int = MAX_LAG_SAMPLES, centred: bool = True, subsample: bool = True,
+                 activity_min_g: float = ACTIVITY_MIN_G, sub_blocks: int = SUB_BLOCKS,
+                 keep_correlograms: bool = False, pad_s: float = FILTER_PAD_S):
+        self.rate = float(rate)
+        self.B = int(round(block_s * rate))
+        self.M = int(max_lag)
+        self.P = int(round(pad_s * rate))
+        self.centred = centred
+        self.subsample = subsample
+        self.activity_min_g = activity_min_g
+        self.sub_blocks = int(sub_blocks)
+        self.keep_correlograms = keep_correlograms
+        self.next_block = 0
+        self.ref = _GridBuffer(-self.P)
+        self.other = _GridBuffer(-self.M - self.P)
+        self.ref_end_k: Optional[int] = None  # grid extent once a stream has finished
+        self.other_end_k: Optional[int] = None
+
+    # ------------------------------------------------------------------ feeding
+    def feed(self, which: str, k0: int, values: np.ndarray) -> list[BlockLag]:
+        buf = self.ref if which == "ref" else self.other
+        out: list[BlockLag] = []
+        # bounded memory across long gaps: fill NaN one block at a time and process as we go
+        while k0 - buf.k_end > self.B:
+            buf.extend_nan(buf.k_end + self.B)
+            out += self._process_ready()
+        buf.append(k0, values)
+        out += self._process_ready()
+        return out
+
+    def finish(self, which: str) -> list[BlockLag]:
+        """Mark one stream as finished (its extent is final)."""
+        if which == "ref":
+            self.ref.finished = True
+            self.ref_end_k = self.ref.k_end
+        else:
+            self.other.finished = True
+            self.other_end_k = self.other.k_end
+        return self._process_ready()
+
+    @property
+    def done(self) -> bool:
+        return self.ref.finished and self.other.finished
+
+    def wants(self) -> str:
+        """Which stream the driver should read next (the one whose grid is behind)."""
+        if self.ref.finished:
+            return "other"
+        if self.other.finished:
+            return "ref"
+        return "ref" if self.ref.k_end <= self.other.k_end else "other"
+
+    # ------------------------------------------------------------------ processing
+    def _last_block_end(self) -> Optional[int]:
+        """Grid end of the usable time span once it is known (both streams' extents)."""
+        ends = []
+        if self.ref.finished:
+            ends.append(self.ref_end_k)
+        if self.other.finished:
+            ends.append(self.other_end_k)
+        return min(ends) if ends else None
+
+    def _process_ready(self) -> list[BlockLag]:
+        out = []
+        while True:
+            s = self.next_block * self.B
+            e = s + self.B
+            limit = self._last_block_end()
+            if limit is not None and e > limit:
+                if limit - s >= self.B // 2:  # a partial last block of at least half a block
+                    e = limit
+                else:
+                    break
+            ref_ok = self.ref.finished or self.ref.k_end >= e + self.P
+            oth_ok = self.other.finished or self.other.k_end >= e + self.M + self.P
+            if not (ref_ok and oth_ok):
+                break
+            out.append(self._block(self.next_block, s, e))
+            self.next_block += 1
+            if e < self.next_block * self.B:  # partial block was the last one
+                break
+            nxt = self.next_block * self.B
+            self.ref.trim(nxt - self.P)
+            self.other.trim(nxt - self.M - self.P)
+        return out
+
+    def _block(self, index: int, s: int, e: int) -> BlockLag:
+        n, M, P = e - s, self.M, self.P
+        bl = BlockLag(index=index, start_s=s / self.rate, duration_s=n / self.rate)
+        r_raw = self.ref.get(s - P, e + P)
+        o_raw = self.other.get(s - M - P, e + M + P)
+        r_in = r_raw[P:P + n]
+        o_in = o_raw[M + P:M + P + n]
+        bl.coverage_ref = float(np.isfinite(r_in).mean())
+        bl.coverage_other = float(np.isfinite(o_in).mean())
+        if bl.coverage_ref == 0 or bl.coverage_other == 0:
+            bl.reason = "no_overlap"
+            return bl
+        bl.activity_ref = float(np.nanmean(np.abs(r_in)))
+        bl.activity_other = float(np.nanmean(np.abs(o_in)))
+        if bl.coverage_ref < MIN_COVERAGE or bl.coverage_other < MIN_COVERAGE:
+            bl.reason = "gap"
+            return bl
+        if not (bl.activity_ref > self.activity_min_g and bl.activity_other > self.activity_min_g):
+            bl.reason = "inactive"
+            return bl
+        rf = brond_filter(r_raw, self.rate)[P:P + n]
+        of = brond_filter(o_raw, self.rate)[P:P + n + 2 * M]
+        if not rf.any() or not of.any():
+            bl.reason = "inactive"
+            return bl
+        # the lag of a block is the lag where its movement is: with drift, that is the
+        # activity-weighted time, not the block's start or centre
+        w = rf * rf
+        bl.centroid_s = (s + float(np.dot(np.arange(n), w) / w.sum())) / self.rate
+        corr = normalized_xcorr(rf, of, M, self.centred)
+        bl.lag, bl.corr, edge = peak_lag(corr, M, self.subsample)
+        if self.keep_correlograms:
+            bl.correlogram = corr.astype(np.float32)
+        if edge:
+            bl.reason = "edge"
+        else:
+            bl.valid = True
+        if self.sub_blocks > 1:
+            edges = np.linspace(0, n, self.sub_blocks + 1).astype(int)
+            sl = np.full(self.sub_blocks, np.nan)
+            sc = np.full(self.sub_blocks, np.nan)
+            for i in range(self.sub_blocks):
+                a, b = edges[i], edges[i + 1]
+                seg = rf[a:b]
+                if not seg.any() or b - a < 4 * M // 10:
+                    continue
+                c = normalized_xcorr(seg, of[a:b + 2 * M], M, self.centred)
+                lag, pk, ed = peak_lag(c, M, self.subsample)
+                if not ed:
+                    sl[i], sc[i] = lag, pk
+            bl.sub_lags, bl.sub_corr = sl, sc
+        return bl

@@ -1,0 +1,141 @@
+"""MCAP log of an alignment run: estimates, per-block lags and the aligned second stream.
+
+==================== ============================ ==========================================
+topic                encoding / schema            one message per
+==================== ============================ ==========================================
+/alignment/block_lag json                         1 h block (lag, correlation, validity)
+/alignment/estimate  json                         estimate (online: after every valid block;
+                                                  the final one has ``"final": true``)
+/aligned/accel       cdr stillpoint/msg/AccelBatch up to ``MESSAGE_SAMPLES`` aligned samples
+==================== ============================ ==========================================
+
+The aligned stream uses the engine's AccelBatch layout (engine/mcap_schemas.py): times are on the
+*reference* clock; points with no data (gaps, step windows) are left out rather than NaN-filled.
+Metadata records: ``reference`` and ``other`` (device info) and ``alignment`` (final result, JSON
+under ``json``). Written with the ``mcap`` package directly (zstd chunks); the run's sink
+(engine/mcap_sink.py) has no generic JSON topic API, so this small writer keeps the alignment
+topics separate from the engine's calibration log.
+"""
+
+from __future__ import annotations
+
+import json
+import numpy as np
+from mcap.writer import CompressionType, Writer
+
+from stillpoint.engine.mcap_schemas import ACCEL_BATCH, max_step_ok, time_deltas
+
+TOPIC_BLOCK_LAG = "/alignment/block_lag"
+TOPIC_ESTIMATE = "/alignment/estimate"
+TOPIC_ALIGNED = "/aligned/accel"
+MESSAGE_SAMPLES = 1000
+
+
+def _dumps(obj) -> bytes:
+    return json.dumps(obj, sort_keys=True, allow_nan=False, default=_default).encode()
+
+
+def _default(x):
+    if isinstance(x, np.integer):
+        return int(x)
+    if isinstance(x, np.floating):
+        return float(x) if np.isfinite(x) else None
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    raise TypeError(f"not JSON serialisable: {type(x)}")
+
+
+def _clean(obj):
+    """Replace non-finite floats by None (JSON has no NaN)."""
+    if isinstance(obj, dict):
+        return {k: _clean(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_clean(v) for v in obj]
+    if isinstance(obj, (float, np.floating)):
+        return float(obj) if np.isfinite(obj) else None
+    return obj
+
+
+class AlignmentMcap:
+    """Writer for the topics above. Use as a context manager."""
+
+    def __init__(self, path, compression: str = "zstd"):
+        self.path = str(path)
+        self._f = open(self.path, "wb")
+        comp = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
+                "none": CompressionType.NONE}[compression]
+        self._w = Writer(self._f, chunk_size=4 << 20, compression=comp)
+        self._w.start(profile="", library="stillpoint")
+        sid = self._w.register_schema(ACCEL_BATCH.name, "ros2msg",
+                                      ACCEL_BATCH.schema_text().encode())
+        self._ch = {TOPIC_BLOCK_LAG: self._w.register_channel(TOPIC_BLOCK_LAG, "json", 0),
+                    TOPIC_ESTIMATE: self._w.register_channel(TOPIC_ESTIMATE, "json", 0),
+                    TOPIC_ALIGNED: self._w.register_channel(TOPIC_ALIGNED, "cdr", sid)}
+        self._seq = {k: 0 for k in self._ch}
+        self.samples_written = 0
+        self.messages = 0
+        self._closed = False
+
+    def _add(self, topic: str, t_ns: int, data: bytes) -> None:
+        t = max(0, int(t_ns))
+        self._w.add_message(self._ch[topic], t, data, t, self._seq[topic])
+        self._seq[topic] += 1
+        self.messages += 1
+
+    def write_json(self, topic: str, t_ns: int, obj: dict) -> None:
+        self._add(topic, t_ns, _dumps(_clean(obj)))
+
+    def write_metadata(self, name: str, obj: dict) -> None:
+        self._w.add_metadata(name, {"json": _dumps(_clean(obj)).decode()})
+
+    def write_aligned(self, time_ns: np.ndarray, accel_g: np.ndarray, segment: int = 0) -> None:
+        ok = np.isfinite(accel_g).all(axis=1)
+        if not ok.all():
+            time_ns, accel_g = time_ns[ok], accel_g[ok]
+        for a in range(0, time_ns.size, MESSAGE_SAMPLES):
+            t = time_ns[a:a + MESSAGE_SAMPLES]
+            x = accel_g[a:a + MESSAGE_SAMPLES].astype(np.float32)
+            if not max_step_ok(t):  # a gap longer than int32 ns: split there
+                cut = int(np.argmax(np.diff(t) > 2**31 - 1)) + 1
+                self.write_aligned(t[:cut], x[:cut].astype(np.float64), segment)
+                self.write_aligned(t[cut:], x[cut:].astype(np.float64), segment)
+                continue
+            self._add(TOPIC_ALIGNED, int(t[0]), ACCEL_BATCH.encode({
+                "stamp": int(t[0]), "t0_ns": int(t[0]), "segment": segment,
+                "dt_ns": time_deltas(t), "x": x[:, 0], "y": x[:, 1], "z": x[:, 2]}))
+            self.samples_written += t.size
+
+    def close(self) -> None:
+        if not self._closed:
+            self._w.finish()
+            self._f.close()
+            self._closed = True
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def read_topic_json(path, topic: str) -> list[dict]:
+    """All JSON messages of a topic (for tests and tools)."""
+    from mcap.reader import make_reader
+    with open(path, "rb") as f:
+        return [json.loads(m.data) for _, _, m in make_reader(f).iter_messages(topics=[topic])]
+
+
+def read_aligned(path) -> tuple[np.ndarray, np.ndarray]:
+    """(time_ns, accel_g (n, 3)) of the aligned stream."""
+    from mcap.reader import make_reader
+    from stillpoint.engine.mcap_schemas import times_from_deltas
+    ts, xs = [], []
+    with open(path, "rb") as f:
+        for _, _, m in make_reader(f).iter_messages(topics=[TOPIC_ALIGNED]):
+            d = ACCEL_BATCH.decode(m.data)
+            ts.append(times_from_deltas(d["t0_ns"], d["dt_ns"]))
+            xs.append(np.column_stack([d["x"], d["y"], d["z"]]))
+    if not ts:
+        return np.zeros(0, np.int64), np.zeros((0, 3))
+    return np.concatenate(ts), np.concatenate(xs).astype(np.float64)
+

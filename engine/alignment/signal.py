@@ -1,0 +1,208 @@
+"""The alignment signal: each device's stream put on a common-rate time grid and turned into
+the Brønd et al. (2021) activity signal, incrementally.
+
+Two stages, both streaming:
+
+* ``GridResampler`` takes a device's Blocks one at a time and yields ‖a‖ − 1 (g) on the uniform
+  grid ``t0 + k / rate`` of the device's own clock (linear interpolation between samples; grid
+  points in a gap between samples, or across a segment boundary, are NaN: nothing is imputed).
+  It carries the last sample across Blocks, so the output does not depend on how the input was cut.
+* ``brond_filter`` turns a stretch of that grid signal into the correlation signal: dead band
+  (|x| < 0.068 g -> 0), 4th-order Butterworth band-pass 0.1-7 Hz run forward and backward, absolute
+  value. The lag estimator filters each 1 h block together with a few minutes of its neighbours
+  (``FILTER_PAD_S``), which reproduces a whole-recording forward-backward pass to far below the
+  correlation noise while holding only one block in memory.
+
+Per-unit temperatures are binned into 60 s bins (``TemperatureTrack``) for the optional
+crystal-temperature drift term.
+
+Method constants are the paper's (Brønd JC, Pedersen NH, Froberg A, Aadland E, Grøntved A,
+Sensors 21:4777, 2021; see /work/shared/specs/alignment.md); they are not device constants.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+from typing import Iterator, Optional
+
+import numpy as np
+from scipy import signal as _sig
+
+from stillpoint.engine.blocks import Block
+
+# ---------------------------------------------------------------- Brønd 2021 method constants
+COMMON_RATE_HZ = 30.0  # both recordings resampled to 30 Hz before anything else
+DEAD_BAND_G = 0.068  # |‖a‖-1| below this is set to zero
+BAND_HZ = (0.1, 7.0)  # Butterworth band-pass edges
+BUTTER_ORDER = 4  # Butterworth order (Matlab butter(4, [..], 'bandpass'): 8 poles)
+ACTIVITY_MIN_G = 0.01  # a block is used only if mean |‖a‖-1| exceeds this in both devices
+BLOCK_S = 3600.0  # non-overlapping 1 h blocks
+MAX_LAG_SAMPLES = 1000  # cross-correlation search +-1000 samples (33.3 s at 30 Hz)
+MIN_BLOCKS = 4  # fewer valid blocks -> the second recording is not aligned
+
+# ---------------------------------------------------------------- our choices (documented)
+FILTER_PAD_S = 180.0  # neighbouring signal filtered with each block (0.1 Hz high-pass settles)
+GAP_FACTOR = 4.0  # samples further apart than GAP_FACTOR nominal periods form a gap
+MAX_PIECE = 1 << 16  # grid samples per yielded piece (bounded memory across long gaps)
+TEMP_BIN_S = 60.0  # temperature track resolution
+
+
+def magnitude_minus_one(block: Block) -> np.ndarray:
+    """‖a‖ − 1 in g per sample, float64."""
+    a = block.accel_g()
+    return np.sqrt(np.einsum("ij,ij->i", a, a)) - 1.0
+
+
+@lru_cache(maxsize=8)
+def band_pass_sos(rate: float, order: int = BUTTER_ORDER, band: tuple = BAND_HZ) -> np.ndarray:
+    return _sig.butter(order, band, btype="bandpass", fs=rate, output="sos")
+
+
+def brond_filter(x: np.ndarray, rate: float, dead_band: float = DEAD_BAND_G) -> np.ndarray:
+    """Dead band, zero-phase band-pass, absolute value (NaN = no data, treated as 0 g)."""
+    y = np.nan_to_num(np.asarray(x, dtype=np.float64), nan=0.0, copy=True)
+    y[np.abs(y) < dead_band] = 0.0
+    sos = band_pass_sos(float(rate))
+    if y.size > 3 * (2 * sos.shape[0] + 1):
+        y = _sig.sosfiltfilt(sos, y)
+    else:  # too short to filter: no usable signal
+        y[:] = 0.0
+    return np.abs(y)
+
+
+class GridResampler:
+    """Streaming resampling of one device's ‖a‖ − 1 onto the grid ``t0_ns + k / rate``.
+
+    ``push(block)`` yields ``(k0, values)`` pieces in increasing, contiguous k (the first piece
+    starts at the first grid point after the device's first sample). ``nominal_rate`` sets the gap
+    tolerance: consecutive samples further apart than ``GAP_FACTOR / nominal_rate`` seconds (or in
+    different segments) leave the grid points between them NaN.
+    """
+
+    def __init__(self, t0_ns: int, rate: float = COMMON_RATE_HZ, nominal_rate: float = 100.0,
+                 gap_s: Optional[float] = None):
+        self.t0_ns = int(t0_ns)
+        self.rate = float(rate)
+        self.gap_s = float(gap_s) if gap_s is not None else GAP_FACTOR / float(nominal_rate)
+        self.k_next: Optional[int] = None  # next grid index to emit
+        self._last_t: Optional[float] = None  # carried last sample (s since t0)
+        self._last_v: float = np.nan
+        self._last_segment: Optional[int] = None
+        self.samples_in = 0
+        self.samples_dropped = 0  # non-increasing timestamps
+        self.first_time_s: Optional[float] = None
+        self.last_time_s: Optional[float] = None
+
+    def push(self, block: Block) -> Iterator[tuple[int, np.ndarray]]:
+        if block.n == 0:
+            return
+        t = (block.time_ns - self.t0_ns).astype(np.float64) * 1e-9
+        v = magnitude_minus_one(block)
+        yield from self.push_arrays(t, v, segment=block.segment)
+
+    def push_arrays(self, t: np.ndarray, v: np.ndarray, segment: int = 0
+                    ) -> Iterator[tuple[int, np.ndarray]]:
+        """Same as ``push`` from times (s since t0, increasing) and values."""
+        t = np.asarray(t, np.float64)
+        v = np.asarray(v, np.float64)
+        self.samples_in += t.size
+        # drop samples that do not advance the clock (they cannot be placed on the grid)
+        if t.size > 1:
+            ok = np.empty(t.size, bool)
+            ok[0] = True
+            ok[1:] = np.diff(t) > 0
+            if not ok.all():
+                run_max = np.maximum.accumulate(t)
+                ok = np.concatenate([[True], t[1:] > run_max[:-1]])
+                self.samples_dropped += int((~ok).sum())
+                t, v = t[ok], v[ok]
+        break_before = self._last_segment is not None and segment != self._last_segment
+        if self._last_t is not None:
+            if t[0] <= self._last_t:
+                keep = t > self._last_t
+                self.samples_dropped += int((~keep).sum())
+                t, v = t[keep], v[keep]
+                if t.size == 0:
+                    return
+            if not break_before:
+                t = np.concatenate([[self._last_t], t])
+                v = np.concatenate([[self._last_v], v])
+        if self.first_time_s is None:
+            self.first_time_s = float(t[0])
+        self._last_segment = segment
+        self.last_time_s = float(t[-1])
+        k_first = int(np.ceil(t[0] * self.rate - 1e-9))
+        if self.k_next is None:
+            self.k_next = k_first
+        k_last = int(np.floor(t[-1] * self.rate + 1e-9))
+        # grid points between the previous segment's last sample and this one's first: NaN
+        if self.k_next < k_first:
+            yield from self._nan_pieces(self.k_next, k_first)
+            self.k_next = k_first
+        self._last_t, self._last_v = float(t[-1]), float(v[-1])
+        if k_last < self.k_next:
+            return
+        big_gap = np.diff(t) > self.gap_s
+        for k0 in range(self.k_next, k_last + 1, MAX_PIECE):
+            k1 = min(k_last + 1, k0 + MAX_PIECE)
+            tk = np.arange(k0, k1, dtype=np.float64) / self.rate
+            out = np.interp(tk, t, v)
+            if big_gap.any():
+                j = np.clip(np.searchsorted(t, tk, side="right") - 1, 0, max(t.size - 2, 0))
+                exact = np.isclose(t[j], tk, rtol=0, atol=1e-9)
+                if t.size > 1:
+                    out[big_gap[j] & ~exact] = np.nan
+            yield k0, out
+        self.k_next = k_last + 1
+
+    def _nan_pieces(self, k0: int, k1: int) -> Iterator[tuple[int, np.ndarray]]:
+        for a in range(k0, k1, MAX_PIECE):
+            yield a, np.full(min(k1, a + MAX_PIECE) - a, np.nan)
+
+
+@dataclass
+class TemperatureTrack:
+    """Mean device temperature per ``TEMP_BIN_S`` bin of the grid time axis (s since t0)."""
+
+    bin_s: float = TEMP_BIN_S
+
+    def __post_init__(self):
+        self._sum: dict[int, float] = {}
+        self._cnt: dict[int, int] = {}
+
+    def push(self, time_s: np.ndarray, temperature_c: np.ndarray) -> None:
+        ok = np.isfinite(temperature_c) & np.isfinite(time_s)
+        if not ok.any():
+            return
+        b = np.floor(np.asarray(time_s)[ok] / self.bin_s).astype(np.int64)
+        ub, inv = np.unique(b, return_inverse=True)
+        s = np.bincount(inv, weights=np.asarray(temperature_c)[ok])
+        c = np.bincount(inv)
+        for key, ss, cc in zip(ub.tolist(), s.tolist(), c.tolist()):
+            self._sum[key] = self._sum.get(key, 0.0) + ss
+            self._cnt[key] = self._cnt.get(key, 0) + cc
+
+    def push_block(self, block: Block, t0_ns: int) -> None:
+        if block.m == 0 or block.temperature_c.size == 0:
+            return
+        idx = np.clip(block.unit_start, 0, block.n - 1)
+        self.push((block.time_ns[idx] - t0_ns).astype(np.float64) * 1e-9, block.temperature_c)
+
+    def __len__(self) -> int:
+        return len(self._sum)
+
+    def series(self, b0: int, b1: int) -> np.ndarray:
+        """Temperature for bins [b0, b1), gaps filled with the nearest known value (NaN if none)."""
+        n = b1 - b0
+        out = np.full(n, np.nan)
+        if not self._sum:
+            return out
+        keys = np.array(sorted(self._sum))
+        vals = np.array([self._sum[k] / self._cnt[k] for k in keys])
+        idx = np.arange(b0, b1)
+        pos = np.clip(np.searchsorted(keys, idx), 0, keys.size - 1)
+        prev = np.clip(pos - 1, 0, keys.size - 1)
+        use_prev = np.abs(keys[prev] - idx) < np.abs(keys[pos] - idx)
+        out[:] = np.where(use_prev, vals[prev], vals[pos])
+        return out

@@ -12,6 +12,7 @@ gain                   k       1                    u_k^2                 % (gai
 temperature_offset     k       T - T_ref            u_k                   mg/degC
 temperature_gain       k       T - T_ref            u_k^2                 %/degC
 misalignment           a,b     1                    2 u_a u_b             % coupling
+nonlinearity           k       1                    u_k^3                 mg/g^2
 thermal_lag            all     dT/dt                sum_k u_k dread_k/dT  s
 offset_drift           k       t since start        u_k                   mg/day
 =====================  ======  ===================  ====================  ================
@@ -25,6 +26,10 @@ from typing import Callable, List, Optional, Tuple
 import numpy as np
 
 from .sensor_fit import AXES, PAIR_INDEX, PAIRS, SensorModel, WindowData
+
+
+LIBRARY = ("temperature_offset", "temperature_gain", "misalignment", "thermal_lag", "offset_drift",
+           "nonlinearity", "offset", "gain")
 
 
 @dataclass(frozen=True)
@@ -46,6 +51,7 @@ UNITS = {
     "temperature_offset": Unit("mg/degC", 1000.0),
     "temperature_gain": Unit("%/degC", 100.0),
     "misalignment": Unit("%", 100.0),
+    "nonlinearity": Unit("mg/g^2", 1000.0),
     "thermal_lag": Unit("s", 1.0),
     "offset_drift": Unit("mg/day", 1000.0),
 }
@@ -56,6 +62,7 @@ DESCRIPTION = {
     "temperature_offset": "temperature-dependent offset",
     "temperature_gain": "temperature-dependent gain",
     "misalignment": "cross-axis misalignment (non-orthogonality)",
+    "nonlinearity": "quadratic nonlinearity",
     "thermal_lag": "thermal lag of the temperature sensor behind the accelerometer",
     "offset_drift": "slow offset drift over the recording",
 }
@@ -66,6 +73,7 @@ COVARIATE_NAME = {
     "temperature_offset": "temperature (degC)",
     "temperature_gain": "temperature (degC)",
     "misalignment": "orientation u_{a}*u_{b}",
+    "nonlinearity": "orientation u_{axis}^3",
     "thermal_lag": "dT/dt (degC/min)",
     "offset_drift": "time since start (days)",
 }
@@ -111,6 +119,9 @@ class Candidate:
         """(x, sign-and-weight w) per window so that r * sign(w) against x shows the effect
         where |w| is large; see the module table."""
         e, c = self.effect, self.component
+        if e == "nonlinearity":
+            k = AXES.index(c)
+            return u[:, k] ** 3, np.ones(u.shape[0])
         if e in ("offset", "gain", "temperature_offset", "temperature_gain", "offset_drift"):
             k = AXES.index(c)
             w = u[:, k] if e in ("offset", "temperature_offset", "offset_drift") else u[:, k] ** 2
@@ -133,7 +144,7 @@ class Candidate:
         """Linearised response of r to this parameter (for the locate table)."""
         x, w = self.covariate(model, data, u)
         e = self.effect
-        if e in ("offset", "gain", "misalignment"):
+        if e in ("offset", "gain", "misalignment", "nonlinearity"):
             return x
         if e in ("temperature_offset", "temperature_gain"):
             return w * np.nan_to_num(x - model.temperature_ref)
@@ -143,8 +154,7 @@ class Candidate:
 def library(model: SensorModel, data: WindowData, effects: Optional[List[str]] = None
             ) -> Tuple[List[Candidate], List[Tuple[Candidate, str]]]:
     """Every candidate (effect, component) not yet in the model: (applicable, [(skipped, why)])."""
-    names = effects or ["temperature_offset", "temperature_gain", "misalignment", "thermal_lag",
-                        "offset_drift", "offset", "gain"]
+    names = effects or list(LIBRARY)
     comps = {"misalignment": PAIRS, "thermal_lag": ("all",)}
     ok, skipped = [], []
     for e in names:

@@ -10,7 +10,7 @@ with the model fitted on the others, so every window is held out once.
 A candidate is selected only if (1) dBIC < -10 on all windows, with n counted as independent windows
 (AR(1) effective sample size of the residual within still bouts, see ``sensor_fit.effective_n``), and
 (2) the held-out gap with the candidate is lower than without it. Among those that pass, the one with
-the lowest dBIC is named. A term that makes the held-out gap worse is never kept.
+the lowest dBIC is named (candidates are scored on held-out data in dBIC order until one passes). A term that makes the held-out gap worse is never kept.
 
 ``run(prepared, start_model=None, truth=None) -> DiscrepancyResult`` (pure; I/O in report.py).
 """
@@ -155,7 +155,7 @@ def _curve(cand: Candidate, model: SensorModel, data: WindowData, r: np.ndarray,
     u = invert(model, data)
     u = u / np.linalg.norm(u, axis=1, keepdims=True)
     x, w = cand.covariate(model, data, u)
-    if cand.effect in ("offset", "gain", "misalignment"):
+    if cand.effect in ("offset", "gain", "misalignment", "nonlinearity"):
         sel = np.ones(len(data), bool)
         y = r
     else:
@@ -169,7 +169,8 @@ def _curve(cand: Candidate, model: SensorModel, data: WindowData, r: np.ndarray,
         xs, ys = xs[pick], ys[pick]
     return curve, {"x": xs, "y": ys, "xlabel": cand.covariate_name(),
                    "ylabel": "residual ||a||-1 (mg)" + ("" if cand.effect in
-                                                        ("offset", "gain", "misalignment") else
+                                                        ("offset", "gain", "misalignment",
+                                                         "nonlinearity") else
                                                         " x sign of orientation weight")}
 
 
@@ -210,13 +211,18 @@ def run(prepared: PreparedInput, start_model: Optional[SensorModel] = None,
             e_i = trial.active.index((cand.effect, cand.component))
             val = cand.unit.show(fr.model.theta()[e_i])
             se = cand.unit.show_se(fr.stderr.get((cand.effect, cand.component), np.nan))
-            sc = CandidateScore(cand, db, None, False, val, se)
-            if db < bic_threshold:
-                sc.gap_heldout_mg = _gap(heldout_residual(fr.model, data, fid))
-                sc.passed = sc.gap_heldout_mg < gap_now
             fits[cand] = fr
-            scores.append(sc)
+            scores.append(CandidateScore(cand, db, None, False, val, se))
         scores.sort(key=lambda s: s.delta_bic)
+        # in dBIC order, the first candidate whose held-out gap falls is the best passing one;
+        # held-out scores of the ones after it are not needed
+        for sc in scores:
+            if sc.delta_bic >= bic_threshold:
+                break
+            sc.gap_heldout_mg = _gap(heldout_residual(fits[sc.candidate].model, data, fid))
+            sc.passed = sc.gap_heldout_mg < gap_now
+            if sc.passed:
+                break
         passing = [s for s in scores if s.passed]
         if not passing:
             break

@@ -97,10 +97,17 @@ def prepare(features: WindowFeatures, source: str = "features", sd_threshold: fl
         dup[1:] = same
     keep = idx[~dup]
     temp_ok = bool(np.all(np.isfinite(temp[keep]))) and keep.size > 0 and float(np.std(temp[keep])) > 0.01
+    series_temp = None
+    if temp_ok:
+        fin = np.isfinite(temp)
+        series_temp = np.interp(t_s, t_s[fin], temp[fin]) if not fin.all() else temp
     data = WindowData(mean=f.mean[keep].copy(),
                       temperature=temp[keep] if temp_ok else np.full(keep.size, np.nan),
                       dtdt=dtdt[keep] if temp_ok else np.zeros(keep.size),
-                      t_days=t_s[keep] / 86400.0, sd=f.sd[keep].copy())
+                      t_days=t_s[keep] / 86400.0, sd=f.sd[keep].copy(),
+                      series_t_s=t_s if temp_ok else None,
+                      series_temp=series_temp,
+                      series_index=keep if temp_ok else None)
     return PreparedInput(data, k, int(idx.size), int(dup.sum()), float(t_s[-1] + WINDOW_S / 2) / 3600,
                          temp_ok, not already_still, source)
 

@@ -1,22 +1,22 @@
 """Fit a sensor model of named effects to the means of nonmovement windows (robust least squares).
 
-Forward model (what the sensor reads, in g, for true acceleration ``u`` in g, temperature T in degC,
-time t in days since the start of the recording):
+The model is the deterministic part of the simulator's sensor model (engine.sim.model, steps 1-8,
+same order, same effect names), for true acceleration u (g), temperature-sensor reading T (degC)
+and time t since the start of the recording:
 
-    T_eff = T + thermal_lag * dT/dt                      (accelerometer die leads the temperature sensor)
-    read  = (I + S) @ diag(gain * (1 + temperature_gain * (T_eff - T_ref))) @ u
-            + offset + temperature_offset * (T_eff - T_ref) + offset_drift * t
+    T_a = first-order lag of T with time constant thermal_lag   (T itself when the lag is off)
+    a = M u                          misalignment: M = I + S, S symmetric, S[a,b] = coupling(ab)
+    a *= gain * (1 + temperature_gain * (T_a - T_ref))
+    a += offset + temperature_offset * (T_a - T_ref)
+    a += nonlinearity * a^2
+    a += offset_drift * t_days
 
-``S`` is symmetric with zero diagonal, ``S[a, b] = misalignment[ab]``: the part of a cross-axis
-coupling that the norm of gravity can see (a common rotation cannot be seen by a norm and is not
-modelled). Every term is affine in ``u``, so the model inverts exactly:
-
-    a = diag(1 / gain(T)) @ (I + S)^-1 @ (read - offset(T, t))
-
-For a still window ``u`` is 1 g in an unknown direction, so the residual of window i is
-``r_i = ||a_i|| - 1`` (g). The fit minimises a soft-L1 (Huber-like) loss of r with a 10 mg scale over
-the free parameters, so a few windows that were not quite still do not steer it. Parameters of
-inactive terms stay fixed at their values (normally zero).
+Only the symmetric part of the cross-axis terms changes the norm of gravity (a common rotation does
+not), so misalignment is fitted as one coupling per axis pair. Every step inverts exactly, so for a
+still window (u = 1 g in an unknown direction) the residual is r = ||a^-1(read)|| - 1 (g), the
+calibration error of van Hees 2014. The fit minimises a soft-L1 (Huber-like) loss of r with a 10 mg
+scale over the free parameters, so a few windows that were not quite still do not steer it.
+Parameters of components not switched on stay fixed (normally at their neutral value).
 
 Pure functions on plain arrays; no I/O. Units inside: g, degC, seconds, days.
 """
@@ -27,19 +27,20 @@ from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Tuple
 
 import numpy as np
-from scipy.optimize import least_squares
+
+from stillpoint.engine.sim.model import first_order_lag
 
 AXES = ("x", "y", "z")
 PAIRS = ("xy", "xz", "yz")
 PAIR_INDEX = {"xy": (0, 1), "xz": (0, 2), "yz": (1, 2)}
 
-# effect -> (component labels, neutral value, shape)
 EFFECT_COMPONENTS: Dict[str, Tuple[str, ...]] = {
     "offset": AXES,
     "gain": AXES,
     "temperature_offset": AXES,
     "temperature_gain": AXES,
     "misalignment": PAIRS,
+    "nonlinearity": AXES,
     "thermal_lag": ("all",),
     "offset_drift": AXES,
 }
@@ -54,29 +55,60 @@ def component_index(effect: str, comp: str) -> int:
 
 @dataclass
 class WindowData:
-    """Nonmovement windows as the fit sees them (plain arrays, one row per window)."""
+    """Nonmovement windows as the fit sees them (plain arrays, one row per window).
+
+    ``series_t_s``/``series_temp`` hold the temperature of every window of the recording (moving
+    ones too, when the input has them) in time order and ``series_index`` the position of each row
+    in it: the thermal lag is a filter over that whole series.
+    """
 
     mean: np.ndarray  # (n, 3) g
     temperature: np.ndarray  # (n,) degC (NaN when unknown)
     dtdt: np.ndarray  # (n,) degC / s of the temperature sensor
     t_days: np.ndarray  # (n,) days since the start of the recording
     sd: Optional[np.ndarray] = None  # (n, 3) g, for the distribution checks
+    series_t_s: Optional[np.ndarray] = None
+    series_temp: Optional[np.ndarray] = None
+    series_index: Optional[np.ndarray] = None
+    _lag_cache: dict = field(default_factory=dict, repr=False, compare=False)
+
+    def __post_init__(self):
+        if self.series_t_s is None:
+            self.series_t_s = self.t_days * 86400.0
+            self.series_temp = np.nan_to_num(self.temperature, nan=25.0)
+            self.series_index = np.arange(self.t_days.shape[0])
 
     def __len__(self):
         return int(self.mean.shape[0])
 
     def take(self, idx) -> "WindowData":
-        return WindowData(self.mean[idx], self.temperature[idx], self.dtdt[idx], self.t_days[idx],
-                          None if self.sd is None else self.sd[idx])
+        d = WindowData(self.mean[idx], self.temperature[idx], self.dtdt[idx], self.t_days[idx],
+                       None if self.sd is None else self.sd[idx], self.series_t_s, self.series_temp,
+                       self.series_index[idx])
+        d._lag_cache = self._lag_cache  # shared: keyed by tau over the whole series
+        return d
 
     @property
     def has_temperature(self) -> bool:
-        return bool(np.all(np.isfinite(self.temperature))) and float(np.std(self.temperature)) > 0.01
+        return bool(len(self)) and bool(np.all(np.isfinite(self.temperature))) \
+            and float(np.std(self.temperature)) > 0.01
+
+    def accel_temperature(self, tau_s: float) -> np.ndarray:
+        """T_a at the rows: the temperature series through a first-order lag of ``tau_s``."""
+        if tau_s <= 0:
+            return self.temperature
+        full = self._lag_cache.get(tau_s)
+        if full is None:
+            full = first_order_lag(self.series_temp, self.series_t_s, float(tau_s))
+            if len(self._lag_cache) > 64:
+                self._lag_cache.clear()
+            self._lag_cache[tau_s] = full
+        return full[self.series_index]
 
 
 @dataclass
 class SensorModel:
-    """Parameter values of every effect plus the set of free (switched-on) components."""
+    """Parameter values of every effect (internal units) plus the free (switched-on) components."""
 
     values: Dict[str, np.ndarray] = field(default_factory=dict)
     active: List[Tuple[str, str]] = field(default_factory=list)  # [(effect, component)]
@@ -115,6 +147,9 @@ class SensorModel:
     def has_temperature_terms(self) -> bool:
         return any(e in TEMPERATURE_EFFECTS for e, _ in self.active)
 
+    def uses_temperature(self) -> bool:
+        return bool(np.any(self.values["temperature_offset"]) or np.any(self.values["temperature_gain"]))
+
     # -- packing of the free parameters ------------------------------------------------------
     def theta(self) -> np.ndarray:
         return np.array([self.values[e][component_index(e, c)] for e, c in self.active])
@@ -140,44 +175,119 @@ class SensorModel:
         return m
 
 
-def _coupling(values) -> np.ndarray:
+def coupling_matrix(values) -> np.ndarray:
     s = np.eye(3)
     for p, (a, b) in PAIR_INDEX.items():
         s[a, b] = s[b, a] = values["misalignment"][PAIRS.index(p)]
     return s
 
 
-def _temperature_term(model: SensorModel, data: WindowData) -> np.ndarray:
-    """T_eff - T_ref per window (0 where temperature is unknown)."""
-    t = np.nan_to_num(data.temperature - model.temperature_ref)
-    lag = model.values["thermal_lag"][0]
-    if lag:
-        t = t + lag * np.nan_to_num(data.dtdt)
-    return t
+def _rowmat(a: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """a @ m.T for (n, 3) rows and a 3x3 matrix, without BLAS (whose threads stall on a busy
+    2-core machine for such thin products)."""
+    return a[:, 0:1] * m[:, 0] + a[:, 1:2] * m[:, 1] + a[:, 2:3] * m[:, 2]
+
+
+def _dot(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.sum(a * b))
+
+
+def _dtemp(model: SensorModel, data: WindowData) -> np.ndarray:
+    """(T_a - T_ref) per window, 0 where temperature is unknown or unused."""
+    if not model.uses_temperature() and not model.has_temperature_terms():
+        return np.zeros(len(data))
+    ta = data.accel_temperature(float(model.values["thermal_lag"][0]))
+    return np.nan_to_num(ta - model.temperature_ref)
 
 
 def forward(model: SensorModel, u: np.ndarray, data: WindowData) -> np.ndarray:
     """What the sensor reads (n, 3) for true acceleration u (n, 3) under the model."""
     v = model.values
-    dt = _temperature_term(model, data)[:, None]
-    g = v["gain"] * (1.0 + v["temperature_gain"] * dt)
-    return (g * u) @ _coupling(v).T + v["offset"] + v["temperature_offset"] * dt \
-        + v["offset_drift"] * data.t_days[:, None]
+    dt = _dtemp(model, data)[:, None]
+    a = _rowmat(u, coupling_matrix(v))
+    a = a * (v["gain"] * (1.0 + v["temperature_gain"] * dt))
+    a = a + v["offset"] + v["temperature_offset"] * dt
+    a = a + v["nonlinearity"] * a * a
+    return a + v["offset_drift"] * data.t_days[:, None]
+
+
+def _invert_parts(model: SensorModel, data: WindowData):
+    """Intermediate values of the inversion (for the residual and its analytic Jacobian)."""
+    v = model.values
+    y = data.mean
+    if np.any(v["offset_drift"]):
+        y = y - v["offset_drift"] * data.t_days[:, None]
+    nl = v["nonlinearity"]
+    if np.any(nl):
+        # a + k a^2 = y  ->  a = 2 y / (1 + sqrt(1 + 4 k y))  (the root near y; stable for k -> 0)
+        y = 2.0 * y / (1.0 + np.sqrt(np.maximum(1.0 + 4.0 * nl * y, 1e-12)))
+    dt = _dtemp(model, data)[:, None]
+    q = 1.0 + v["temperature_gain"] * dt
+    G = v["gain"] * q
+    a = (y - v["offset"] - v["temperature_offset"] * dt) / G
+    minv = np.linalg.inv(coupling_matrix(v))
+    u = _rowmat(a, minv) if np.any(v["misalignment"]) else a
+    return y, dt, q, G, a, minv, u
 
 
 def invert(model: SensorModel, data: WindowData, mean: Optional[np.ndarray] = None) -> np.ndarray:
     """Corrected acceleration (n, 3): the model solved for u given what was read."""
+    if mean is not None:
+        data = WindowData(mean, data.temperature, data.dtdt, data.t_days, None, data.series_t_s,
+                          data.series_temp, data.series_index)
+    return _invert_parts(model, data)[-1]
+
+
+def residual_and_jacobian(model: SensorModel, data: WindowData, want_jac: bool = True):
+    """r = ||u|| - 1 and dr/dtheta (n, k) for the free components (analytic; thermal lag by a
+    finite difference, as it acts through a filter)."""
+    y, dt, q, G, a, minv, u = _invert_parts(model, data)
+    nu = np.sqrt(np.sum(u * u, axis=1))
+    r = nu - 1.0
+    if not want_jac:
+        return r, None
     v = model.values
-    m = data.mean if mean is None else mean
-    dt = _temperature_term(model, data)[:, None]
-    b = v["offset"] + v["temperature_offset"] * dt + v["offset_drift"] * data.t_days[:, None]
-    w = (m - b) @ np.linalg.inv(_coupling(v)).T
-    return w / (v["gain"] * (1.0 + v["temperature_gain"] * dt))
+    nhat = u / nu[:, None]
+    p = _rowmat(nhat, minv.T)  # dr/da
+    pg = p / G
+    J = np.empty((r.shape[0], len(model.active)))
+    dt1 = dt[:, 0]
+    for i, (e, c) in enumerate(model.active):
+        if e == "misalignment":
+            ia, ib = PAIR_INDEX[c]
+            J[:, i] = -(p[:, ia] * u[:, ib] + p[:, ib] * u[:, ia])
+            continue
+        if e == "thermal_lag":
+            h = 1e-3 * max(1.0, abs(v["thermal_lag"][0]))
+            m2 = model.copy()
+            m2.values["thermal_lag"][0] += h
+            r2 = np.sqrt(np.sum(_invert_parts(m2, data)[-1] ** 2, axis=1)) - 1.0
+            J[:, i] = (r2 - r) / h
+            continue
+        k = AXES.index(c)
+        if e == "offset":
+            J[:, i] = -pg[:, k]
+        elif e == "temperature_offset":
+            J[:, i] = -pg[:, k] * dt1
+        elif e == "gain":
+            J[:, i] = -p[:, k] * a[:, k] / v["gain"][k]
+        elif e == "temperature_gain":
+            J[:, i] = -p[:, k] * a[:, k] * dt1 / q[:, k]
+        elif e == "nonlinearity":
+            nl = v["nonlinearity"][k]
+            J[:, i] = -pg[:, k] * y[:, k] ** 2 / (1.0 + 2.0 * nl * y[:, k])
+        elif e == "offset_drift":
+            nl = v["nonlinearity"][k]
+            J[:, i] = -pg[:, k] * data.t_days / (1.0 + 2.0 * nl * y[:, k])
+        else:  # pragma: no cover
+            raise KeyError(e)
+    return r, J
 
 
 def norm_residual(model: SensorModel, data: WindowData) -> np.ndarray:
     """r = ||corrected|| - 1 per window (g)."""
-    return np.linalg.norm(invert(model, data), axis=1) - 1.0
+    u = invert(model, data)
+    return np.sqrt(np.sum(u * u, axis=1)) - 1.0
 
 
 def soft_l1(r: np.ndarray, scale: float = LOSS_SCALE_G) -> np.ndarray:
@@ -202,11 +312,6 @@ class FitResult:
     def gap_mg(self) -> float:
         return float(np.mean(np.abs(self.residual)) * 1000.0)
 
-    def bic(self, n_eff: Optional[float] = None) -> float:
-        """BIC with n counted as independent windows: n_eff * ln(loss / n) + k * ln(n_eff)."""
-        ne = self.n_eff if n_eff is None else n_eff
-        return ne * np.log(max(self.loss, 1e-300) / self.n) + self.k * np.log(ne)
-
 
 def effective_n(residual: np.ndarray, t_days: np.ndarray, max_gap_s: float = 60.0) -> float:
     """Number of independent windows: n (1 - rho) / (1 + rho), rho the lag-1 autocorrelation of the
@@ -214,19 +319,81 @@ def effective_n(residual: np.ndarray, t_days: np.ndarray, max_gap_s: float = 60.
     n = residual.shape[0]
     if n < 3:
         return float(max(n, 1))
-    order = np.argsort(t_days, kind="stable")
-    r = residual[order] - np.mean(residual)
-    adj = np.diff(t_days[order]) * 86400.0 <= max_gap_s
-    if adj.sum() < 10 or np.dot(r, r) == 0:
+    dtt = np.diff(t_days)
+    if np.any(dtt < 0):
+        order = np.argsort(t_days, kind="stable")
+        residual, dtt = residual[order], np.diff(t_days[order])
+    r = residual - np.mean(residual)
+    adj = dtt * 86400.0 <= max_gap_s
+    if adj.sum() < 10 or _dot(r, r) == 0:
         return float(n)
     a, b = r[:-1][adj], r[1:][adj]
-    rho = float(np.dot(a, b) / np.sqrt(np.dot(a, a) * np.dot(b, b)))
+    den = np.sqrt(_dot(a, a) * _dot(b, b))
+    rho = _dot(a, b) / den if den > 0 else 0.0
     rho = min(max(rho, 0.0), 0.99)
     return float(max(n * (1.0 - rho) / (1.0 + rho), min(n, 10)))
 
 
+def _bounds(model: SensorModel):
+    lo = np.full(len(model.active), -np.inf)
+    hi = np.full(len(model.active), np.inf)
+    for i, (e, _) in enumerate(model.active):
+        if e == "thermal_lag":
+            lo[i], hi[i] = 0.0, 6 * 3600.0  # the accelerometer lags the sensor (simulator's model)
+        elif e == "gain":
+            lo[i], hi[i] = 0.5, 1.5
+    return lo, hi
+
+
+def levenberg_marquardt(fun, jac, x0, lo, hi, loss_scale, max_iter=60, tol=1e-10):
+    """Robust (soft-L1, by iteratively reweighted normal equations) Levenberg-Marquardt with
+    projection onto box bounds. ``fun(x) -> r``, ``jac(x) -> (r, J)``.
+    Returns (x, r, J, weights, iterations, converged)."""
+    x = np.clip(np.asarray(x0, np.float64), lo, hi)
+    r, J = jac(x)
+    cost = float(np.sum(soft_l1(r, loss_scale)))
+    lam = 1e-4
+    converged = False
+    it = 0
+    for it in range(1, max_iter + 1):
+        w = 1.0 / np.sqrt(1.0 + (r / loss_scale) ** 2)
+        A = np.einsum("ij,ik->jk", J, w[:, None] * J)
+        g = np.einsum("ij,i->j", J, w * r)
+        d = np.diag(A).copy()
+        d[d <= 0] = 1e-30
+        accepted = False
+        while lam < 1e10:
+            try:
+                delta = np.linalg.solve(A + lam * np.diag(d), -g)
+            except np.linalg.LinAlgError:
+                lam *= 10
+                continue
+            xn = np.clip(x + delta, lo, hi)
+            rn = fun(xn)
+            cn = float(np.sum(soft_l1(rn, loss_scale)))
+            if cn <= cost:
+                accepted = True
+                break
+            lam *= 10
+        if not accepted:
+            converged = True  # no descent left at machine precision
+            break
+        # predicted change of each parameter relative to its 1-sigma scale from the normal matrix
+        sig = 1.0 / np.sqrt(d)
+        small = np.all(np.abs(xn - x) <= 1e-6 * sig)
+        rel = (cost - cn) <= tol * max(cost, 1e-300)
+        x, cost = xn, cn
+        lam = max(lam / 10, 1e-9)
+        r, J = jac(x)
+        if small or rel:
+            converged = True
+            break
+    w = 1.0 / np.sqrt(1.0 + (r / loss_scale) ** 2)
+    return x, r, J, w, it, converged
+
+
 def fit(model: SensorModel, data: WindowData, loss_scale: float = LOSS_SCALE_G,
-        max_nfev: int = 200) -> FitResult:
+        max_iter: int = 60) -> FitResult:
     """Fit the free components of ``model`` to the windows; returns a new model and diagnostics."""
     if len(data) < max(10, 2 * len(model.active)):
         raise ValueError(f"too few nonmovement windows to fit ({len(data)})")
@@ -236,22 +403,28 @@ def fit(model: SensorModel, data: WindowData, loss_scale: float = LOSS_SCALE_G,
         work.set_theta(theta)
         return norm_residual(work, data)
 
+    def jac(theta):
+        work.set_theta(theta)
+        return residual_and_jacobian(work, data)
+
+    lo, hi = _bounds(model)
     x0 = model.theta()
-    res = least_squares(fun, x0, loss="soft_l1", f_scale=loss_scale, x_scale="jac",
-                        method="trf", max_nfev=max_nfev, xtol=1e-12, ftol=1e-12, gtol=1e-12)
-    out = model.with_theta(res.x)
-    r = norm_residual(out, data)
+    for i, (e, _) in enumerate(model.active):
+        if e == "thermal_lag" and x0[i] == 0.0:
+            x0[i] = 300.0  # tau acts through a filter: start inside the range, not on the bound
+    x, r, J, w, iters, ok = levenberg_marquardt(fun, jac, x0, lo, hi, loss_scale, max_iter)
+    out = model.with_theta(x)
     n = r.shape[0]
     n_eff = effective_n(r, data.t_days)
     stderr = {}
     try:
-        jtj = res.jac.T @ res.jac
-        dof = max(n - len(x0), 1)
-        s2 = float(np.sum(soft_l1(r, loss_scale))) / dof
-        cov = np.linalg.pinv(jtj) * s2 * (n / n_eff)
+        A = np.einsum("ij,ik->jk", J, w[:, None] * J)
+        dof = max(n - len(x), 1)
+        s2 = float(np.sum(w * r * r)) / dof
+        cov = np.linalg.pinv(A) * s2 * (n / n_eff)
         for i, key in enumerate(out.active):
             stderr[key] = float(np.sqrt(max(cov[i, i], 0.0)))
     except (np.linalg.LinAlgError, ValueError):
         pass
-    return FitResult(out, r, float(np.sum(soft_l1(r, loss_scale))), n, n_eff, len(x0), stderr,
-                     bool(res.success), str(res.message))
+    return FitResult(out, r, float(np.sum(soft_l1(r, loss_scale))), n, n_eff, len(x), stderr,
+                     ok, f"{iters} iterations")

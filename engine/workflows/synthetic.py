@@ -3,13 +3,12 @@
 Simulating raw samples for a week takes seconds per seed; the workflow only sees 10 s window
 features, so for many seeds we simulate at that level: a wearer timeline (sleep with posture changes,
 daytime still bouts, nonwear on a table), the device temperature (skin-coupled when worn, a daily
-cycle, cooling towards ambient in nonwear, the temperature sensor lagging the accelerometer die by a
-first-order lag), the true orientation of every still window, then the sensor model's deterministic
-part (``sensor_fit.forward`` with the truth's parameters) plus window-level noise (white noise of the
+cycle, cooling towards ambient in nonwear), the true orientation of every still window, then the simulator's sensor model's
+deterministic part (``engine.sim.model.apply_deterministic``) plus window-level noise (white noise of the
 mean and micro-movements within the 13 mg still criterion). Moving windows are emitted too (large SD)
 so that still selection and dT/dt estimation run exactly as on a recording.
 
-``simulate_windows(truth, days, seed)`` -> (WindowFeatures, truth SensorModel).
+``simulate_windows(truth, days, seed)`` -> (WindowFeatures, still mask); truth is an engine.sim SensorModel.
 """
 
 from __future__ import annotations
@@ -20,7 +19,7 @@ import numpy as np
 from scipy.signal import lfilter
 
 from ..features import WindowFeatures
-from .sensor_fit import SensorModel, forward, WindowData
+from stillpoint.engine.sim import model as sim
 
 WINDOW_S = 10.0
 PER_DAY = int(86400 / WINDOW_S)
@@ -102,8 +101,8 @@ def _timeline(rng, days, s: WearerSettings):
     return state[:n], bout[:n], hour
 
 
-def _temperatures(rng, state, hour, s: WearerSettings, lag_s: float):
-    """Accelerometer die temperature and the (lagging) temperature sensor's reading."""
+def _temperatures(rng, state, hour, s: WearerSettings):
+    """The device temperature (what the temperature sensor reads, before its own noise)."""
     night = np.cos(2 * np.pi * (hour - 3.0) / 24.0)
     target = s.skin_c + s.skin_daily_amp_c * night
     target = np.where(state == 0, target - s.active_cooling_c, target)
@@ -111,30 +110,23 @@ def _temperatures(rng, state, hour, s: WearerSettings, lag_s: float):
     target = np.where(state == 2, amb, target)
     target = target + np.cumsum(rng.normal(scale=0.02, size=state.shape))  # slow wander
     a = WINDOW_S / (s.device_tau_min * 60.0)
-    die = lfilter([a], [1.0, -(1.0 - a)], target, zi=[target[0] * (1 - a)])[0]
-    if lag_s > 0:
-        b = WINDOW_S / (lag_s + WINDOW_S)
-        sensor = lfilter([b], [1.0, -(1.0 - b)], die, zi=[die[0] * (1 - b)])[0]
-    else:
-        sensor = die.copy()
-    sensor = sensor + rng.normal(scale=0.03, size=sensor.shape)
-    return die, sensor
+    return lfilter([a], [1.0, -(1.0 - a)], target, zi=[target[0] * (1 - a)])[0]
 
 
-def simulate_windows(truth: SensorModel, days: float = 7.0, seed: int = 0,
+def simulate_windows(truth: sim.SensorModel, days: float = 7.0, seed: int = 0,
                      settings: WearerSettings | None = None):
-    """Window features of a simulated wrist recording read through the sensor model ``truth``.
+    """Window features of a simulated wrist recording read through the simulator's sensor model.
 
-    ``truth.values['thermal_lag']`` is the time constant (s) of the temperature sensor behind the
-    accelerometer die; all other effects are applied as in ``sensor_fit.forward``.
-    Returns (WindowFeatures of every window, moving and still; boolean mask of truly still windows).
+    The deterministic part of ``truth`` (engine.sim.model.apply_deterministic, thermal lag
+    included, computed over the whole window series) is applied to each window's true
+    orientation; then window-level noise. Returns (WindowFeatures of every window, moving and
+    still; boolean mask of the truly still windows).
     """
     s = settings or WearerSettings()
     rng = np.random.default_rng(seed)
     state, bout, hour = _timeline(rng, days, s)
     n = state.shape[0]
-    lag = float(truth.values["thermal_lag"][0])
-    die, sensor = _temperatures(rng, state, hour, s, lag)
+    temp = _temperatures(rng, state, hour, s)
 
     still = state > 0
     nb = int(bout.max()) + 1
@@ -150,13 +142,8 @@ def simulate_windows(truth: SensorModel, days: float = 7.0, seed: int = 0,
     u = u + jit
     u /= np.linalg.norm(u, axis=1, keepdims=True)
 
-    t_days = np.arange(n) * WINDOW_S / 86400.0
-    # the die temperature drives the sensor: evaluate the forward model with the lag switched off
-    # and the die temperature, which is what T + lag * dT/dt of the sensor estimates.
-    die_model = truth.copy()
-    die_model.values["thermal_lag"][:] = 0.0
-    data = WindowData(np.zeros((n, 3)), die, np.zeros(n), t_days)
-    mean = forward(die_model, u, data)
+    t_s = np.arange(n) * WINDOW_S + WINDOW_S / 2
+    mean = sim.apply_deterministic(u, truth, temperature_c=temp, time_s=t_s)
     mm = s.micro_motion_mg / 1000.0
     mean = mean + np.where(state[:, None] == 1, rng.normal(scale=mm, size=(n, 3)),
                            rng.normal(scale=0.2 * mm, size=(n, 3)))
@@ -165,9 +152,11 @@ def simulate_windows(truth: SensorModel, days: float = 7.0, seed: int = 0,
                  ) * rng.uniform(0.9, 1.1, size=(n, 3))
     # moving windows: dynamic acceleration, large SD, mean somewhere near 1 g
     moving = ~still
-    mean[moving] = _random_unit(rng, int(moving.sum())) * rng.uniform(0.7, 1.3, (int(moving.sum()), 1))
-    sd[moving] = rng.uniform(0.05, 0.5, size=(int(moving.sum()), 3))
+    k = int(moving.sum())
+    mean[moving] = _random_unit(rng, k) * rng.uniform(0.7, 1.3, (k, 1))
+    sd[moving] = rng.uniform(0.05, 0.5, size=(k, 3))
     start_ns = (np.arange(n) * int(WINDOW_S * 1e9)).astype(np.int64)
-    feats = WindowFeatures.from_arrays(mean, sd, sensor, start_ns=start_ns,
+    reading = temp + rng.normal(scale=0.03, size=n)  # the sensor's window-mean temperature
+    feats = WindowFeatures.from_arrays(mean, sd, reading, start_ns=start_ns,
                                        n=np.full(n, s.samples_per_window))
     return feats, still

@@ -255,6 +255,15 @@ class GeneactivReader:
         if n_hdr is not None and n_hdr != self.qc.total:
             self._event(self.qc.total, "page_count_mismatch",
                         f"header Number of Pages is {n_hdr}, the file holds {self.qc.total}")
+        if self.qc.valid == 0 and self.qc.events and any(
+                e.reason != "page_count_mismatch" for e in self.qc.events):
+            counts: dict[str, int] = {}
+            for e in self.qc.events:
+                if e.reason != "page_count_mismatch":
+                    counts[e.reason] = counts.get(e.reason, 0) + 1
+            why = ", ".join(f"{k} x{v}" for k, v in counts.items())
+            raise CorruptRecordingError(
+                self.path, f"none of the {self.qc.total} page(s) after the header is readable ({why})")
 
     def _emit(self, batch, tz_ns) -> Iterator[Block]:
         """Blocks from (page, step, segment) triples: one Block per run of one segment."""

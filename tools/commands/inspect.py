@@ -215,8 +215,8 @@ def format_text(d: dict) -> str:
     add(f"  clock       UTC{'+' if tz >= 0 else '-'}{abs(tz) // 3600:02d}:{abs(tz) % 3600 // 60:02d}")
     if "samples" in d:
         add(f"  samples     {d['samples']}  ({', '.join(d['channels'])})")
-        add(f"  start       {d['start']}")
-        add(f"  end         {d['end']}")
+        add(f"  start       {d['start'] or '-'}")
+        add(f"  end         {d['end'] or '-'}")
         dur = d["duration_s"]
         add(f"  duration    {dur:.3f} s ({dur / 3600:.3f} h, {dur / 86400:.4f} days)")
         for unit in ("pages", "sectors"):

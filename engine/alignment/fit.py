@@ -206,6 +206,7 @@ def trimmed_fit(A: np.ndarray, y: np.ndarray, k: float = TRIM_K, iters: int = 30
             break
         inc = new
         coef = _lstsq(A[inc], y[inc])
+    coef = _lstsq(A[inc], y[inc])  # least squares on the final inliers (not the L1 start)
     r = y - A @ coef
     return coef, inc, r
 
@@ -304,11 +305,13 @@ def _check_enough(blocks: Sequence[BlockLag], n_valid: int, min_blocks: int) -> 
     if n_valid >= min_blocks:
         return
     reasons = _count_reasons(blocks)
-    detail = ", ".join(f"{v} {k}" for k, v in sorted(reasons.items())) or "no blocks"
+    detail = ", ".join(f"{v} {k}" for k, v in sorted(reasons.items()))
+    minutes = blocks[0].duration_s / 60 if blocks else 60.0
     raise CannotAlign(
-        f"too few blocks: {n_valid} usable 1 h block(s) where at least {min_blocks} are needed "
-        f"(of {len(blocks)} blocks: {detail}); the recordings overlap too little or were worn "
-        f"while sedentary, so the second recording is left unaligned")
+        f"too few blocks: {n_valid} usable {minutes:g} min block(s) where at least {min_blocks} "
+        f"are needed ({len(blocks)} block(s) in the overlap"
+        + (f"; not usable: {detail}" if detail else "") + "); the recordings overlap too little "
+        "or were worn while sedentary, so the second recording is left unaligned")
 
 
 def fit_brond(blocks: Sequence[BlockLag], rate: float, block_time: str = "centre",

@@ -44,12 +44,12 @@ class ActivityPlan:
 
     @staticmethod
     def random(rng: np.random.Generator, duration_s: float, active_fraction: float = 0.3,
-               sedentary_days: Optional[list] = None) -> "ActivityPlan":
+               sedentary_days: Optional[list] = None, start_hour: float = 8.0) -> "ActivityPlan":
         rows = []
         t = float(rng.uniform(0, 120))
         while t < duration_s:
             day = int(t // 86400)
-            hour = (t % 86400) / 3600
+            hour = ((t + start_hour * 3600) % 86400) / 3600
             asleep = hour < 6 or hour >= 23
             sedentary = sedentary_days is not None and day in sedentary_days
             dur = float(rng.lognormal(np.log(90), 1.0))
@@ -123,11 +123,12 @@ class SyntheticPair:
     active_fraction: float = 0.3
     sedentary_days: Optional[list] = None
     chunk_s: float = 900.0
+    start_hour: float = 8.0  # local time of day at the start (nights are sedentary)
 
     def __post_init__(self):
         rng = np.random.default_rng(self.seed)
         self.plan = ActivityPlan.random(rng, self.duration_s + 600, self.active_fraction,
-                                        self.sedentary_days)
+                                        self.sedentary_days, self.start_hour)
         # clock tables on a coarse true-time grid (temperature integral, halts)
         self._tau = np.arange(-600.0, max(self.duration_s, 7 * 86400.0) + 3600.0, 30.0)
         self._clock = [self._clock_table(c, s) for s, c in enumerate((self.clock_ref,

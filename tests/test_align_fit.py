@@ -1,0 +1,139 @@
+"""Clock-model fits on lag tables with known answers: Brønd iterative exclusion, robust fit,
+confidence intervals, step detection and location, temperature term selection."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from stillpoint.engine.alignment.fit import (CannotAlign, TemperatureRegressor, brond_fit,
+                                             fit_brond, fit_robust, heldout_rmse)
+from stillpoint.engine.alignment.lags import BlockLag
+
+RATE = 30.0
+
+
+def table(lags, start_s=None, sub=None, valid=None):
+    n = len(lags)
+    start_s = np.arange(n) * 3600.0 if start_s is None else start_s
+    out = []
+    for i in range(n):
+        b = BlockLag(index=i, start_s=float(start_s[i]), duration_s=3600.0, lag=float(lags[i]),
+                     corr=0.9, valid=True if valid is None else bool(valid[i]))
+        b.centroid_s = b.centre_s
+        if sub is not None:
+            b.sub_lags = sub[i]
+        out.append(b)
+    return out
+
+
+def test_brond_thresholds_follow_1_e_ee():
+    rng = np.random.default_rng(0)
+    t = np.arange(200) * 3600.0
+    y = 5 + 1e-4 * t + rng.normal(0, 1, t.size)
+    y[[10, 50, 120]] += [40, -60, 80]
+    coef, inc, used = brond_fit(t, y)
+    assert used[0] == 1.0 and len(used) >= 2
+    for a, b in zip(used, used[1:]):  # 1, e, e^e, ...
+        assert b == pytest.approx(math.exp(a))
+    assert not inc[[10, 50, 120]].any()
+    assert abs(coef[1] - 1e-4) < 2e-5
+    # without outliers, the first 1-SD pass drops about a third of normal residuals (a known
+    # property of the method, spec "Known gaps in the code")
+    _, inc2, _ = brond_fit(t, 5 + 1e-4 * t + rng.normal(0, 1, t.size))
+    assert 0.2 < 1 - inc2.mean() < 0.45
+
+
+def test_fit_brond_recovers_line_and_reports_exclusions():
+    rng = np.random.default_rng(1)
+    t = np.arange(100) * 3600.0
+    y = np.round(-30 + 2.5e-4 * t + rng.normal(0, 0.3, t.size))
+    y[7] = 400
+    fit = fit_brond(table(y), RATE, block_time="start")
+    assert fit.model == "linear" and fit.method == "brond"
+    assert not fit.included[7]
+    assert abs(fit.initial_offset_s - (-1.0)) < 0.5 / RATE
+    assert abs(fit.drift_s_per_day - 2.5e-4 / RATE * 86400) < 0.01
+
+
+def test_too_few_blocks_is_a_clear_cannot_align():
+    blocks = table([1.0, 2.0, 3.0, 4.0, 5.0], valid=[True, True, True, False, False])
+    blocks[3].reason = blocks[4].reason = "inactive"
+    for f in (fit_brond, fit_robust):
+        with pytest.raises(CannotAlign, match="too few blocks: 3 usable .*2 inactive"):
+            f(blocks, RATE)
+
+
+def test_robust_confidence_intervals_cover_the_truth():
+    rng = np.random.default_rng(2)
+    hits = 0
+    for _ in range(60):
+        t = np.arange(60) * 3600.0
+        b0, b1 = rng.uniform(-300, 300), rng.uniform(-2e-3, 2e-3)
+        y = b0 + b1 * (t + 1800) + rng.normal(0, 0.3, t.size)
+        fit = fit_robust(table(y), RATE, detect_steps=False)
+        lo, hi = fit.ci()["initial_offset_s"]
+        lo2, hi2 = fit.ci()["drift_s_per_day"]
+        hits += (lo <= b0 / RATE <= hi) and (lo2 <= b1 / RATE * 86400 <= hi2)
+    assert hits >= 48  # 95 % intervals, both must cover: expect ~54 of 60
+
+
+def test_robust_ignores_gross_outliers_and_finds_no_step_in_a_line():
+    rng = np.random.default_rng(3)
+    t = np.arange(80) * 3600.0 + 1800
+    y = 12 + 4e-4 * t + rng.normal(0, 0.2, t.size)
+    bad = rng.choice(80, 12, replace=False)
+    y[bad] += rng.uniform(-5000, 5000, 12)
+    fit = fit_robust(table(y), RATE)
+    assert fit.model == "linear" and not fit.steps
+    assert set(np.nonzero(~fit.included)[0]) >= set(bad[np.abs(y[bad] - 12 - 4e-4 * t[bad]) > 2])
+    assert abs(fit.b0 - 12) < 0.3 and abs(fit.b1 - 4e-4) < 5e-6
+
+
+@pytest.mark.parametrize("halt_s", [2.0, 37.5, 400.0])
+def test_step_detected_and_located_with_sub_blocks(halt_s):
+    rng = np.random.default_rng(int(halt_s))
+    n = 72
+    start = np.arange(n) * 3600.0
+    tau = 30.3 * 3600.0  # the halt happens 18 min into block 30
+    true = lambda tt: 40 + 3e-4 * tt - halt_s * RATE * (tt >= tau)  # noqa: E731
+    sub_t = start[:, None] + (np.arange(6) + 0.5)[None, :] * 600
+    sub = true(sub_t) + rng.normal(0, 0.3, sub_t.shape)
+    sub[30, 1] = true(tau + 1)  # the sub-block containing the halt: mostly after it
+    y = np.array([np.mean(s) for s in sub])
+    y[30] = true(start[30] + 3000)  # the mixed block takes the post-halt lag
+    fit = fit_robust(table(y + rng.normal(0, 0.2, n), sub=sub), RATE)
+    assert fit.model.startswith("piecewise") and len(fit.steps) == 1
+    s = fit.steps[0]
+    assert abs(s.size / RATE + halt_s) < 0.05
+    assert s.window_s[0] <= tau <= s.window_s[1]
+    assert s.window_s[1] - s.window_s[0] <= 3600.0  # within one block
+    assert abs(fit.drift_day7_s - (true(7 * 86400.0) - true(0.0)) / RATE) < 0.5
+
+
+def test_temperature_term_chosen_only_when_the_data_have_it():
+    rng = np.random.default_rng(4)
+    grid = np.arange(0, 7 * 86400.0, 60.0)
+    t_ref = 31 + 3 * np.sin(2 * np.pi * grid / 86400)
+    t_oth = 26 + 8 * np.sin(2 * np.pi * grid / 86400 + 1)
+    reg = TemperatureRegressor.from_temperatures(grid, t_ref, t_oth)
+    t = np.arange(140) * 3600.0 + 1800
+    gamma = -0.035e-6 * RATE  # samples per (degC^2 s)
+    y_temp = 5 + 2e-4 * t + gamma * reg(t) + rng.normal(0, 0.15, t.size)
+    fit = fit_robust(table(y_temp), RATE, temperature=reg)
+    assert fit.model == "linear+temperature"
+    assert abs(fit.temp_coef - gamma) < 0.2 * abs(gamma)
+    d = fit.diagnostics["temperature"]
+    assert d["heldout_rmse_with"] < d["heldout_rmse_without"]
+    y_lin = 5 + 2e-4 * t + rng.normal(0, 0.15, t.size)
+    fit2 = fit_robust(table(y_lin), RATE, temperature=reg)
+    assert fit2.model == "linear"
+
+
+def test_heldout_rmse_prefers_the_true_model():
+    rng = np.random.default_rng(5)
+    t = np.arange(50) * 3600.0
+    y = 2 + 1e-3 * t + 5 * (t >= 25 * 3600) + rng.normal(0, 0.1, t.size)
+    assert heldout_rmse(t, y, [24.5 * 3600], None) < heldout_rmse(t, y, [], None)

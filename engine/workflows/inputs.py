@@ -38,13 +38,16 @@ class PreparedInput:
     temperature_available: bool
     dtdt_from_all_windows: bool
     source: str
+    rate_hz: Optional[float] = None  # sample rate when known (recordings, MCAP logs)
+    device: Optional[str] = None
 
     def describe(self) -> dict:
         return {"source": self.source, "windows_total": self.windows_total,
                 "windows_nonmovement": self.windows_still,
                 "duplicates_dropped": self.duplicates_dropped, "hours": round(self.hours, 3),
                 "temperature_available": self.temperature_available,
-                "dtdt_from_all_windows": self.dtdt_from_all_windows}
+                "dtdt_from_all_windows": self.dtdt_from_all_windows,
+                "rate_hz": self.rate_hz, "device": self.device}
 
 
 def temperature_rate(t_s: np.ndarray, temp: np.ndarray, half_span_s: float = DTDT_HALF_SPAN_S,
@@ -109,7 +112,7 @@ def prepare(features: WindowFeatures, source: str = "features", sd_threshold: fl
                       series_temp=series_temp,
                       series_index=keep if temp_ok else None)
     return PreparedInput(data, k, int(idx.size), int(dup.sum()), float(t_s[-1] + WINDOW_S / 2) / 3600,
-                         temp_ok, not already_still, source)
+                         temp_ok, bool(idx.size < k), source)
 
 
 def read_feature_table(path) -> WindowFeatures:
@@ -177,13 +180,11 @@ def load(path, sd_threshold: float = SD_THRESHOLD_G) -> PreparedInput:
     kind = sniff_input(path)
     if kind == "table":
         f = read_feature_table(path)
-        # a table whose windows all meet the criterion is a set of nonmovement windows already
-        # (GGIR's sphere data): keep every row, the SD test is then a no-op
+        # GGIR's sphere data are nonmovement windows already: the SD test then keeps every row
         return prepare(f, source=f"feature table {Path(path).name}", sd_threshold=sd_threshold)
-    if kind == "mcap":
-        from .sources import features_from_mcap
-        return prepare(features_from_mcap(path), source=f"MCAP log {Path(path).name}",
-                       sd_threshold=sd_threshold)
-    from .sources import features_from_recording
-    return prepare(features_from_recording(path), source=f"recording {Path(path).name}",
-                   sd_threshold=sd_threshold)
+    from .sources import stream_features
+    sf = stream_features(path)
+    what = "MCAP log" if kind == "mcap" else "recording"
+    p = prepare(sf.features, source=f"{what} {Path(path).name}", sd_threshold=sd_threshold)
+    p.rate_hz, p.device = sf.rate_hz, sf.device
+    return p

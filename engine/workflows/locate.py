@@ -74,7 +74,7 @@ def locate(model: SensorModel, data: WindowData, residual: np.ndarray) -> list:
 
 
 def distributions(base: SensorModel, final: SensorModel, data: WindowData,
-                  noise_model_mg: Optional[float] = None) -> dict:
+                  noise_model_mg=None) -> dict:
     """Distribution checks: SD of still windows per axis vs the model's noise; the measured norm
     against the model's prediction (1 g exactly for a perfect deterministic model)."""
     out = {}
@@ -83,13 +83,15 @@ def distributions(base: SensorModel, final: SensorModel, data: WindowData,
         per_axis = {}
         for k, ax in enumerate("xyz"):
             q = np.percentile(sd[:, k], [5, 25, 50, 75, 95])
+            q = [float(v) for v in q]
             entry = {"p5": round(q[0], 3), "p25": round(q[1], 3), "median": round(q[2], 3),
                      "p75": round(q[3], 3), "p95": round(q[4], 3),
                      "zero_fraction": round(float(np.mean(sd[:, k] == 0)), 5)}
-            if noise_model_mg:
-                entry["model_noise_mg"] = round(float(noise_model_mg), 3)
-                entry["ratio_p5_to_model"] = round(q[0] / noise_model_mg, 3)
-                entry["agrees"] = bool(0.8 <= q[0] / noise_model_mg <= 1.25)
+            if noise_model_mg is not None:
+                nm = float(np.broadcast_to(np.asarray(noise_model_mg, float), (3,))[k])
+                entry["model_noise_mg"] = round(nm, 3)
+                entry["ratio_p5_to_model"] = round(q[0] / nm, 3) if nm > 0 else None
+                entry["agrees"] = bool(nm > 0 and 0.8 <= q[0] / nm <= 1.25)
             per_axis[ax] = entry
         out["still_window_sd_mg"] = per_axis
         out["still_window_sd_note"] = (

@@ -372,7 +372,8 @@ def apply_deterministic(accel_g, model: SensorModel, *, temperature_c=None, time
                         accel_temperature_c=None) -> np.ndarray:
     """What the sensor reads (g, before noise/clipping/quantisation) for true specific force.
 
-    accel_g: (n, 3) true specific force in the device frame, g (e.g. the 1 g gravity vector of a
+    accel_g: (n, 3) true specific force in the device frame, g, float64 (float32 is kept as
+    float32) (e.g. the 1 g gravity vector of a
     still window). temperature_c: (n,) temperature-sensor reading, degC (needed when a
     temperature effect is on). time_s: (n,) seconds since the start of the recording (needed for
     offset_drift, and for thermal_lag when ``accel_temperature_c`` is not given; then the rows must
@@ -381,11 +382,14 @@ def apply_deterministic(accel_g, model: SensorModel, *, temperature_c=None, time
 
     Steps 1-8 of the module docstring, in that order. Pure: no randomness, no state.
     """
-    f = np.asarray(accel_g, np.float64)
+    f = np.asarray(accel_g)
+    if f.dtype not in (np.float32, np.float64):
+        f = f.astype(np.float64)
     if f.ndim != 2 or f.shape[1] != 3:
         raise ValueError(f"accel_g must be (n, 3), got {f.shape}")
+    dt = f.dtype  # float32 input stays float32 (the simulator's fast path)
     eff = model.effects
-    a = f @ model.misalignment_matrix().T if "misalignment" in eff else f.copy()
+    a = f @ model.misalignment_matrix().T.astype(dt) if "misalignment" in eff else f.copy()
     needs_T = any(k in eff for k in ("temperature_gain", "temperature_offset"))
     Ta = None
     if needs_T:
@@ -403,22 +407,22 @@ def apply_deterministic(accel_g, model: SensorModel, *, temperature_c=None, time
         if Ta.shape[0] != a.shape[0]:
             raise ValueError("temperature must have one value per row of accel_g")
     if "gain" in eff:
-        a *= 1.0 + model.axis_vector("gain", "pct") / 100.0
+        a *= (1.0 + model.axis_vector("gain", "pct") / 100.0).astype(dt)
     if "temperature_gain" in eff:
         ref = float(eff["temperature_gain"].get("reference_c", DEFAULT_REFERENCE_C))
-        a *= 1.0 + (Ta - ref)[:, None] * (model.axis_vector("temperature_gain", "pct_per_c") / 100.0)
+        a *= 1.0 + (Ta - ref).astype(dt)[:, None] * (model.axis_vector("temperature_gain", "pct_per_c") / 100.0).astype(dt)
     if "offset" in eff:
-        a += model.axis_vector("offset", "mg") / 1000.0
+        a += (model.axis_vector("offset", "mg") / 1000.0).astype(dt)
     if "temperature_offset" in eff:
         ref = float(eff["temperature_offset"].get("reference_c", DEFAULT_REFERENCE_C))
-        a += (Ta - ref)[:, None] * (model.axis_vector("temperature_offset", "mg_per_c") / 1000.0)
+        a += (Ta - ref).astype(dt)[:, None] * (model.axis_vector("temperature_offset", "mg_per_c") / 1000.0).astype(dt)
     if "nonlinearity" in eff:
-        a += (model.axis_vector("nonlinearity", "mg_per_g2") / 1000.0) * (a * a)
+        a += (model.axis_vector("nonlinearity", "mg_per_g2") / 1000.0).astype(dt) * (a * a)
     if "offset_drift" in eff:
         if time_s is None:
             raise ValueError("offset_drift is on: time_s is required")
         t = np.asarray(time_s, np.float64).reshape(-1)
-        a += (t / 86400.0)[:, None] * (model.axis_vector("offset_drift", "mg_per_day") / 1000.0)
+        a += (t / 86400.0).astype(dt)[:, None] * (model.axis_vector("offset_drift", "mg_per_day") / 1000.0).astype(dt)
     return a
 
 

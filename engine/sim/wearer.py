@@ -1,0 +1,648 @@
+"""The wearer: a multi-day free-living schedule (sleep with posture changes, lying, sitting,
+standing, walking, running, nonwear on a table or in a drawer) and the true specific force (and
+angular rate) it produces at a body site (wrist, hip, thigh, ankle), in the device frame.
+
+Two layers:
+
+* ``make_schedule(params, duration_s, seed)`` -> ``Schedule``: the body-level plan, shared by
+  every device on the body: segments (start, end, activity, posture, motion kind, transition
+  length) and, for walking/running, the step (heel-strike) times. Small (a few thousand segments
+  and ~10^5 step times a week); built once.
+* ``SiteModel(schedule, site, seed)``: per-site rendering. ``render(t)`` evaluates, for true
+  times t (s since the start, increasing), the specific force in the device frame (g) and the
+  angular rate (deg/s). Orientations are drawn per segment from the site's own random stream;
+  motion is a deterministic function of time, so two devices sampled at different instants see
+  the same movement (same heel strikes), and the result does not depend on how t is chunked.
+
+Frames: world X forward, Y left, Z up; the accelerometer reads the specific force
+f = a - g_vec = a + (0, 0, 1) g, rotated into the device frame: f_dev = R^T f_world where the
+columns of R are the device axes in world coordinates. Each segment's orientation is
+R(t) = Rot(axis, angle(t)) @ R_ref: during the segment's opening transition R_ref is the previous
+segment's final orientation and the rotation carries it to the segment's base orientation;
+afterwards R_ref is the base orientation and angle(t) is the segment's oscillation (fidgeting,
+arm swing, leg swing, pelvic rotation).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import Optional
+
+import numpy as np
+
+G = 9.80665  # m/s^2 per g
+
+ACTIVITIES = ("nonwear_table", "nonwear_drawer", "sleep", "lying", "sitting", "standing",
+              "walking", "running")
+POSTURES = ("none", "supine", "prone", "left_side", "right_side", "sitting", "upright")
+MOTIONS = ("still", "fidget", "gait")
+SITES = ("wrist", "hip", "thigh", "ankle")
+A = {n: i for i, n in enumerate(ACTIVITIES)}
+P = {n: i for i, n in enumerate(POSTURES)}
+M = {n: i for i, n in enumerate(MOTIONS)}
+
+
+@dataclass
+class WearerParams:
+    """Behaviour of the simulated adult (defaults: a typical adult wearing the device on the
+    wrist; times of day in hours, local time = UTC of the recording's start)."""
+
+    wake_h: float = 7.0  # mean wake-up time
+    wake_sd_h: float = 0.6
+    sleep_h: float = 23.0  # mean sleep onset
+    sleep_sd_h: float = 0.6
+    sleep_posture_min: float = 35.0  # mean time between posture changes in bed (min)
+    sleep_twitch_per_h: float = 4.0  # brief movements in bed (5-20 s) per hour
+    sit_share: float = 0.52  # shares of awake bouts (by count) for sitting / standing /
+    stand_share: float = 0.18  # walking / lying awake; the rest (of the remaining share) is walking
+    lying_share: float = 0.02
+    sit_bout_min: float = 20.0  # median bout durations (min), lognormal
+    stand_bout_min: float = 4.0
+    walk_bout_min: float = 3.0
+    lying_bout_min: float = 15.0
+    long_walk_per_day: float = 1.5  # 15-45 min walks per day (on average)
+    still_share_sitting: float = 0.15  # share of sitting time with the wrist truly still
+    still_share_standing: float = 0.1
+    walk_step_hz: float = 1.85  # walking step (heel-strike) frequency, mean; range 1.6-2.2 Hz
+    walk_step_hz_sd: float = 0.12
+    run_step_hz: float = 2.75  # running 2.5-3.0 Hz
+    run_step_hz_sd: float = 0.12
+    step_cv: float = 0.025  # step-to-step variability of the interval
+    runs_per_week: float = 2.0  # 20-45 min runs
+    shower_per_day: float = 1.0  # device off on a table, 15-30 min (morning)
+    drawer_per_day: float = 0.15  # device off in a drawer, 1-4 h
+    first_hour_nonwear: bool = False  # start with the device on a table for 1 h (set-up)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass
+class Schedule:
+    """Body-level segments (arrays of equal length) and step times."""
+
+    start: np.ndarray  # (k,) s since the start of the recording
+    end: np.ndarray
+    activity: np.ndarray  # (k,) int8 index into ACTIVITIES
+    posture: np.ndarray  # (k,) int8 index into POSTURES
+    motion: np.ndarray  # (k,) int8 index into MOTIONS
+    trans_s: np.ndarray  # (k,) opening transition length (s), 0 = no transition
+    step_hz: np.ndarray  # (k,) step frequency of gait segments (0 otherwise)
+    group: np.ndarray  # (k,) orientation group: segments of one group share a base orientation
+    steps: np.ndarray  # (m,) sorted heel-strike times (s), all gait segments
+    start_hour: float  # time of day (h) at t = 0
+    duration_s: float
+    params: WearerParams = field(default_factory=WearerParams)
+
+    def __len__(self) -> int:
+        return int(self.start.shape[0])
+
+    def segment_at(self, t) -> np.ndarray:
+        return np.clip(np.searchsorted(self.start, t, side="right") - 1, 0, len(self) - 1)
+
+
+# ----------------------------------------------------------------------------- the schedule
+def make_schedule(params: WearerParams, duration_s: float, seed: int,
+                  start_hour: float = 10.0) -> Schedule:
+    """The body-level plan for ``duration_s`` seconds starting at ``start_hour`` (local)."""
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0]))
+    p = params
+    bouts: list[tuple[float, float, str]] = []  # (start, end, activity), contiguous
+    t = 0.0
+    end_all = duration_s + 60.0
+    if p.first_hour_nonwear:
+        bouts.append((0.0, 3600.0, "nonwear_table"))
+        t = 3600.0
+    day0 = -start_hour * 3600.0  # midnight before the start
+    d = 0
+    while t < end_all:
+        midnight = day0 + d * 86400.0
+        wake = midnight + 3600.0 * (p.wake_h + rng.normal(0, p.wake_sd_h))
+        sleep = midnight + 3600.0 * (p.sleep_h + rng.normal(0, p.sleep_sd_h))
+        if t < wake:  # asleep until wake (the first night is cut at t = 0)
+            bouts.append((t, wake, "sleep"))
+            t = wake
+        if t < sleep:
+            t = _awake_day(bouts, rng, p, t, sleep, wake)
+        d += 1
+        # the night continues into the next day's wake; handled by the loop above
+        if t >= end_all:
+            break
+    bouts = [(s, min(e, end_all), a) for s, e, a in bouts if s < end_all and e > s]
+
+    # ---- split bouts into segments with motion kinds and postures
+    seg = {k: [] for k in ("start", "end", "activity", "posture", "motion", "trans", "hz", "group")}
+    steps: list[np.ndarray] = []
+    group = [0]
+
+    def add(s, e, act, post, mot, trans, hz=0.0, new_group=True):
+        if e - s <= 0.05:
+            return
+        if new_group:
+            group[0] += 1
+        seg["group"].append(group[0])
+        seg["start"].append(s)
+        seg["end"].append(e)
+        seg["activity"].append(A[act])
+        seg["posture"].append(P[post])
+        seg["motion"].append(M[mot])
+        seg["trans"].append(min(trans, 0.4 * (e - s)))
+        seg["hz"].append(hz)
+
+    prev_act = None
+    for s, e, act in bouts:
+        big = act != prev_act  # posture change between bouts: longer transition
+        prev_act = act
+        if act in ("nonwear_table", "nonwear_drawer"):
+            add(s, e, act, "none", "still", 3.0)
+        elif act in ("sleep", "lying"):
+            t = s
+            while t < e:
+                dur = rng.exponential(p.sleep_posture_min * 60.0) + 120.0
+                u = min(e, t + dur)
+                post = ("supine", "prone", "left_side", "right_side")[
+                    rng.choice(4, p=(0.4, 0.1, 0.25, 0.25))]
+                tw = min(u - t, rng.uniform(8.0, 25.0))  # turning over into the new posture
+                add(t, t + tw, act, post, "fidget", 4.0 if big else 2.0)
+                big = False
+                # brief twitches within the posture: still pieces separated by short fidgets,
+                # all sharing the posture's orientation (same group)
+                v = t + tw
+                while v < u:
+                    gap = rng.exponential(3600.0 / max(p.sleep_twitch_per_h, 1e-6))
+                    w = min(u, v + gap)
+                    add(v, w, act, post, "still", 0.5, new_group=False)
+                    if w < u:
+                        tl = min(u, w + rng.uniform(3.0, 15.0))
+                        add(w, tl, act, post, "fidget", 0.5, new_group=False)
+                        w = tl
+                    v = w
+                t = u
+        elif act in ("sitting", "standing"):
+            post = "sitting" if act == "sitting" else "upright"
+            still_share = p.still_share_sitting if act == "sitting" else p.still_share_standing
+            t = s
+            first = True
+            while t < e:
+                if rng.random() < still_share:
+                    dur = rng.lognormal(np.log(90.0), 0.9)
+                    mot = "still"
+                else:
+                    dur = rng.lognormal(np.log(60.0), 0.9)
+                    mot = "fidget"
+                u = min(e, t + dur)
+                add(t, u, act, post, mot, (3.0 if big else 1.5) if first else rng.uniform(0.8, 2.0))
+                t = u
+                first = False
+        else:  # walking / running
+            if act == "walking":
+                hz = float(np.clip(rng.normal(p.walk_step_hz, p.walk_step_hz_sd), 1.6, 2.2))
+            else:
+                hz = float(np.clip(rng.normal(p.run_step_hz, p.run_step_hz_sd), 2.5, 3.0))
+            add(s, e, act, "upright", "gait", 1.5, hz)
+            n = int((e - s) * hz) + 3
+            iv = rng.normal(1.0 / hz, p.step_cv / hz, n).clip(0.5 / hz, 2.0 / hz)
+            st = s - rng.uniform(0.0, 1.0 / hz) + np.cumsum(iv) - iv[0]
+            steps.append(st[st < e + 2.0 / hz])
+    steps_arr = np.sort(np.concatenate(steps)) if steps else np.zeros(0)
+    return Schedule(start=np.asarray(seg["start"]), end=np.asarray(seg["end"]),
+                    activity=np.asarray(seg["activity"], np.int8),
+                    posture=np.asarray(seg["posture"], np.int8),
+                    motion=np.asarray(seg["motion"], np.int8),
+                    trans_s=np.asarray(seg["trans"]), step_hz=np.asarray(seg["hz"]),
+                    group=np.asarray(seg["group"], np.int64),
+                    steps=steps_arr, start_hour=float(start_hour), duration_s=float(duration_s),
+                    params=params)
+
+
+def _awake_day(bouts, rng, p: WearerParams, t: float, sleep: float, wake: float) -> float:
+    """Fill [t, sleep) with awake bouts; returns sleep."""
+    # fixed events of the day: shower (table), drawer nonwear, a run
+    events = []
+    if rng.random() < p.shower_per_day:
+        s = wake + rng.uniform(0.2, 1.5) * 3600.0
+        events.append((s, s + rng.uniform(15, 30) * 60.0, "nonwear_table"))
+    if rng.random() < p.drawer_per_day:
+        s = wake + rng.uniform(3, 12) * 3600.0
+        events.append((s, s + rng.uniform(1, 4) * 3600.0, "nonwear_drawer"))
+    if rng.random() < p.runs_per_week / 7.0:
+        s = wake + rng.uniform(1, 12) * 3600.0
+        events.append((s, s + rng.uniform(20, 45) * 60.0, "running"))
+    for _ in range(rng.poisson(p.long_walk_per_day)):
+        s = wake + rng.uniform(0.5, 14) * 3600.0
+        events.append((s, s + rng.uniform(15, 45) * 60.0, "walking"))
+    events = sorted(e for e in events if e[0] >= t and e[1] <= sleep)
+    kept = []
+    for e in events:  # drop overlaps
+        if not kept or e[0] >= kept[-1][1] + 60.0:
+            kept.append(e)
+    shares = np.array([p.sit_share, p.stand_share, p.lying_share])
+    shares = np.append(shares, max(0.0, 1.0 - shares.sum()))
+    shares /= shares.sum()
+    prev = None
+    for ev in kept + [(sleep, sleep, None)]:
+        while t < ev[0] - 1.0:
+            while True:
+                k = rng.choice(4, p=shares)
+                if k != prev:
+                    break
+            prev = k
+            act, med = (("sitting", p.sit_bout_min), ("standing", p.stand_bout_min),
+                        ("lying", p.lying_bout_min), ("walking", p.walk_bout_min))[k]
+            dur = max(20.0, rng.lognormal(np.log(med * 60.0), 0.8))
+            u = min(ev[0], t + dur)
+            bouts.append((t, u, act))
+            t = u
+        if ev[2] is not None:
+            t = max(t, ev[0])
+            bouts.append((t, ev[1], ev[2]))
+            t = ev[1]
+            prev = None
+    return max(t, sleep)
+
+
+# ----------------------------------------------------------------------------- fast trig
+_TWO_PI = 2.0 * np.pi
+
+
+def _sin(x: np.ndarray) -> np.ndarray:
+    """sin in float32 after an exact float64 range reduction (numpy's float64 sin is not
+    vectorised on every CPU: ~30x slower; float32 keeps 1e-7 relative precision here)."""
+    x = np.asarray(x, np.float64)
+    r = x - np.rint(x * (1.0 / _TWO_PI)) * _TWO_PI
+    return np.sin(r.astype(np.float32))
+
+
+def _cos(x: np.ndarray) -> np.ndarray:
+    x = np.asarray(x, np.float64)
+    r = x - np.rint(x * (1.0 / _TWO_PI)) * _TWO_PI
+    return np.cos(r.astype(np.float32))
+
+
+def _outer(a: np.ndarray, b) -> np.ndarray:
+    """(n,) x (3,) -> (n, 3) by broadcasting (np.outer has per-call overhead)."""
+    return np.asarray(a)[:, None] * np.asarray(b)
+
+
+# ----------------------------------------------------------------------------- rotations
+def _rot(axis, angle) -> np.ndarray:
+    axis = np.asarray(axis, np.float64)
+    axis = axis / np.linalg.norm(axis)
+    x, y, z = axis
+    c, s = np.cos(angle), np.sin(angle)
+    C = 1 - c
+    return np.array([[c + x * x * C, x * y * C - z * s, x * z * C + y * s],
+                     [y * x * C + z * s, c + y * y * C, y * z * C - x * s],
+                     [z * x * C - y * s, z * y * C + x * s, c + z * z * C]])
+
+
+def _random_rotation(rng) -> np.ndarray:
+    q = rng.normal(size=4)
+    q /= np.linalg.norm(q)
+    w, x, y, z = q
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+def _axis_angle(R) -> tuple[np.ndarray, float]:
+    """Axis and angle of a rotation matrix (angle in [0, pi])."""
+    c = np.clip((np.trace(R) - 1) / 2, -1.0, 1.0)
+    ang = float(np.arccos(c))
+    v = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    nv = np.linalg.norm(v)
+    if ang < 1e-9:
+        return np.array([0.0, 0.0, 1.0]), 0.0
+    if nv < 1e-9:  # angle ~ pi: axis from the symmetric part
+        B = (R + np.eye(3)) / 2
+        i = int(np.argmax(np.diag(B)))
+        ax = B[:, i] / np.sqrt(max(B[i, i], 1e-12))
+        return ax / np.linalg.norm(ax), ang
+    return v / nv, ang
+
+
+# Body postures: columns = body axes (front, left, head) in world coordinates.
+_BODY = {
+    "upright": np.eye(3),
+    "sitting": np.eye(3),
+    "supine": np.array([[0, 0, 1], [0, -1, 0], [1, 0, 0]], float),  # front up, head forward
+    "prone": np.array([[0, 0, 1], [0, 1, 0], [-1, 0, 0]], float),  # front down
+    "left_side": np.array([[0, 0, 1], [-1, 0, 0], [0, -1, 0]], float),  # left side down
+    "right_side": np.array([[0, 0, 1], [1, 0, 0], [0, 1, 0]], float),  # left side up
+    "none": np.eye(3),
+}
+
+# Device mounting on the body segment (columns = device x, y, z in segment axes front/left/up).
+_MOUNT = {
+    "hip": np.array([[0, 0, -1], [0, 1, 0], [1, 0, 0]], float),  # x up, y left, z back
+    "thigh": np.array([[0, 0, 1], [0, 1, 0], [-1, 0, 0]], float),  # x down the thigh, z front
+    "ankle": np.array([[0, 0, 1], [0, 1, 0], [-1, 0, 0]], float),
+}
+_SITE_CODE = {s: i for i, s in enumerate(SITES)}
+
+# Gait dynamics per site: (scale of the trunk's periodic acceleration, heel-strike scale,
+# swing amplitude walk/run in degrees, pendulum radius in m, swing axis)
+_GAIT = {
+    "wrist": dict(body=0.6, heel=0.35, swing=(22.0, 40.0), radius=0.6),
+    "hip": dict(body=1.0, heel=1.0, swing=(3.0, 5.0), radius=0.0),
+    "thigh": dict(body=1.0, heel=1.1, swing=(20.0, 35.0), radius=0.25),
+    "ankle": dict(body=1.1, heel=3.0, swing=(25.0, 45.0), radius=0.42),
+}
+# Fidget amplitude (deg) and linear acceleration (g) per site
+_FIDGET = {"wrist": (6.0, 0.03), "hip": (1.2, 0.012), "thigh": (2.5, 0.02), "ankle": (3.0, 0.02)}
+
+
+# ----------------------------------------------------------------------------- per-site rendering
+@dataclass
+class _SegParams:
+    R_base: np.ndarray
+    axis: np.ndarray  # oscillation axis (world)
+    amp: np.ndarray  # fidget: angle amplitudes (rad) of 3 sines; gait: [swing amplitude]
+    freq: np.ndarray
+    phase: np.ndarray
+    lin_dir: np.ndarray  # (3, 3) directions of fidget linear accelerations (rows)
+    lin_amp: np.ndarray  # (3,) g
+    gait_amp: np.ndarray  # (3,) vertical, forward, lateral trunk acceleration amplitudes (g)
+    heel: float  # heel-strike peak (g)
+    radius: float  # pendulum radius (m)
+
+
+class SiteModel:
+    """Renders the schedule at one body site (see the module docstring)."""
+
+    def __init__(self, schedule: Schedule, site: str = "wrist", seed: int = 1):
+        if site not in SITES:
+            raise ValueError(f"site must be one of {', '.join(SITES)}, got {site!r}")
+        self.schedule = schedule
+        self.site = site
+        self.seed = int(seed)
+        # one mounting error per recording (device strapped slightly rotated)
+        r = np.random.default_rng(np.random.SeedSequence([self.seed, 10, _SITE_CODE[site]]))
+        self._mount_err = _rot(r.normal(size=3), np.deg2rad(r.uniform(2.0, 10.0)))
+        self._cache: dict[int, _SegParams] = {}
+        self._end_cache: dict[int, np.ndarray] = {}
+
+    # --------------------------------------------------------------- per-segment parameters
+    def _rng(self, i: int) -> np.random.Generator:
+        return np.random.default_rng(np.random.SeedSequence([self.seed, 11, _SITE_CODE[self.site], int(i)]))
+
+    def params(self, i: int) -> _SegParams:
+        sp = self._cache.get(i)
+        if sp is not None:
+            return sp
+        if len(self._cache) > 64:
+            self._cache.clear()
+        sch = self.schedule
+        r = np.random.default_rng(np.random.SeedSequence(
+            [self.seed, 12, _SITE_CODE[self.site], int(sch.group[i])]))  # orientation
+        act = ACTIVITIES[sch.activity[i]]
+        post = POSTURES[sch.posture[i]]
+        mot = MOTIONS[sch.motion[i]]
+        site = self.site
+        if act == "nonwear_table":
+            u = r.random()
+            if u < 0.65:
+                R = _rot([0, 0, 1], r.uniform(0, 2 * np.pi))  # flat, face up
+            elif u < 0.9:
+                R = _rot([1, 0, 0], np.pi) @ _rot([0, 0, 1], r.uniform(0, 2 * np.pi))  # face down
+            else:
+                R = _rot([1, 0, 0], np.pi / 2) @ _rot([0, 0, 1], r.uniform(0, 2 * np.pi))  # on its side
+            R = _rot(r.normal(size=3), np.deg2rad(r.uniform(0, 3))) @ R
+        elif act == "nonwear_drawer":
+            R = _random_rotation(r)
+        elif site == "wrist":
+            if mot == "gait":  # arm hanging: forearm (device x) down, random roll about it
+                R = (_rot([0, 0, 1], r.uniform(-0.4, 0.4)) @ _rot([0, 1, 0], np.pi / 2)
+                     @ _rot([1, 0, 0], r.uniform(-np.pi, np.pi)))
+                R = _rot(r.normal(size=3), np.deg2rad(r.uniform(0, 15))) @ R
+            elif act in ("sleep", "lying") or r.random() < 0.5:
+                R = _random_rotation(r)  # wrists take every orientation over a week
+            else:  # forearm on a desk / lap: palm down-ish, with large spread
+                R = _rot(r.normal(size=3), np.deg2rad(r.uniform(0, 70))) @ _rot([0, 0, 1], r.uniform(-np.pi, np.pi))
+        else:
+            body = _BODY[post]
+            seg = np.eye(3)
+            if site in ("thigh",) and post == "sitting":
+                seg = _rot([0, 1, 0], -np.pi / 2 + r.normal(0, 0.15))  # thigh horizontal, knee forward
+            elif site == "ankle" and post == "sitting":
+                seg = _rot([0, 1, 0], r.normal(0.2, 0.25))
+            elif site == "hip" and post == "sitting":
+                seg = _rot([0, 1, 0], -r.uniform(0.1, 0.45))  # reclined pelvis
+            tilt = _rot(r.normal(size=3), np.deg2rad(r.uniform(0, 6)))
+            R = body @ seg @ tilt @ _MOUNT[site] @ self._mount_err
+        # oscillation
+        r = self._rng(i)
+        gait = _GAIT[site]
+        if mot == "gait":
+            running = act == "running"
+            amp_deg = gait["swing"][1 if running else 0] * r.uniform(0.7, 1.3)
+            axis = np.array([0.0, 0.0, 1.0]) if site == "hip" else np.array([0.0, 1.0, 0.0])
+            amp = np.array([np.deg2rad(amp_deg)])
+            freq = np.array([0.0])
+            phase = np.array([r.uniform(0, 2 * np.pi)])
+            base = (0.9, 0.45, 0.15) if running else (0.28, 0.15, 0.06)
+            gait_amp = np.array(base) * gait["body"] * r.uniform(0.8, 1.2, 3)
+            heel = (1.6 if running else 0.5) * gait["heel"] * r.uniform(0.7, 1.3)
+            lin_dir = np.zeros((3, 3))
+            lin_amp = np.zeros(3)
+            radius = gait["radius"]
+        else:
+            fa, la = _FIDGET[site]
+            if act in ("sleep", "lying"):
+                fa, la = fa * 0.7, la * 0.7
+            axis = r.normal(size=3)
+            axis /= np.linalg.norm(axis)
+            amp = np.deg2rad(fa) * r.uniform(0.3, 1.0, 3) if mot == "fidget" else np.zeros(3)
+            freq = r.uniform(0.15, 2.5, 3)
+            phase = r.uniform(0, 2 * np.pi, 3)
+            lin_dir = r.normal(size=(3, 3))
+            lin_dir /= np.linalg.norm(lin_dir, axis=1, keepdims=True)
+            lin_amp = la * r.uniform(0.2, 1.0, 3) if mot == "fidget" else np.zeros(3)
+            gait_amp = np.zeros(3)
+            heel = 0.0
+            radius = 0.0
+        sp = _SegParams(R, axis, amp, freq, phase, lin_dir, lin_amp, gait_amp, heel, radius)
+        self._cache[i] = sp
+        return sp
+
+    def _angle(self, i: int, sp: _SegParams, t: np.ndarray):
+        """Oscillation angle (rad) and its first and second derivatives at times t."""
+        mot = MOTIONS[self.schedule.motion[i]]
+        if mot == "still":
+            z = np.zeros_like(t)
+            return z, z, z
+        if mot == "fidget":
+            w = 2 * np.pi * sp.freq
+            arg = w[None, :] * t[:, None] + sp.phase[None, :]
+            s, c = np.sin(arg), np.cos(arg)
+            return s @ sp.amp, c @ (sp.amp * w), -(s @ (sp.amp * w * w))
+        # gait: swing at the stride frequency (half the step frequency), locked to the steps
+        ph, dph = self._step_phase(i, t)
+        arg = np.pi * ph + sp.phase[0]
+        w = np.pi * dph
+        return sp.amp[0] * np.sin(arg), sp.amp[0] * w * np.cos(arg), -sp.amp[0] * w * w * np.sin(arg)
+
+    def _step_phase(self, i: int, t: np.ndarray):
+        """Continuous step count (phase) at t and its rate (steps/s), from the heel strikes."""
+        st = self.schedule.steps
+        hz = self.schedule.step_hz[i]
+        k = np.searchsorted(st, t, side="right") - 1
+        k0 = np.clip(k, 0, max(st.size - 2, 0))
+        t0 = st[k0]
+        t1 = st[k0 + 1] if st.size > 1 else t0 + 1.0 / hz
+        iv = np.where(t1 > t0, t1 - t0, 1.0 / hz)
+        iv = np.where(iv > 2.5 / hz, 1.0 / hz, iv)  # across gaps between gait segments
+        ph = k0 + (t - t0) / iv
+        return ph, 1.0 / iv
+
+    def _heel(self, t: np.ndarray) -> np.ndarray:
+        """Heel-strike transient: peak 1 at 25 ms after each step, decaying (shared by all sites)."""
+        st = self.schedule.steps
+        if st.size == 0:
+            return np.zeros_like(t)
+        k = np.searchsorted(st, t, side="right") - 1
+        dt = np.where(k >= 0, t - st[np.maximum(k, 0)], 1.0)
+        tau = 0.025
+        return (dt / tau) * np.exp(1.0 - dt / tau)
+
+    def orientation_at_end(self, i: int) -> np.ndarray:
+        """Device orientation at the end of segment i."""
+        R = self._end_cache.get(i)
+        if R is not None:
+            return R
+        sp = self.params(i)
+        t1 = np.array([self.schedule.end[i]])
+        ang, _, _ = self._angle(i, sp, t1)
+        env = self._envelope(i, t1)
+        R = _rot(sp.axis, float(ang[0] * env[0])) @ sp.R_base
+        if len(self._end_cache) > 64:
+            self._end_cache.clear()
+        self._end_cache[i] = R
+        return R
+
+    def _envelope(self, i: int, t: np.ndarray) -> np.ndarray:
+        """Oscillation fades in over 1 s after the transition and out over 1 s before the end."""
+        s0 = self.schedule.start[i] + self.schedule.trans_s[i]
+        s1 = self.schedule.end[i]
+        return np.clip(np.minimum(t - s0, s1 - t), 0.0, 1.0)
+
+    # --------------------------------------------------------------- rendering
+    BLOCK = 16384  # samples per inner block (keeps temporaries in cache)
+
+    def render(self, t: np.ndarray, gyro: bool = False, dtype=np.float64):
+        """Specific force (n, 3) in g in the device frame at true times t (s, increasing), and the
+        angular rate (n, 3) in deg/s when ``gyro`` (else None). ``dtype`` of the force array
+        (float32 halves the memory traffic of the simulator's hot path)."""
+        t = np.asarray(t, np.float64)
+        n = t.shape[0]
+        f = np.empty((n, 3), dtype)
+        w = np.zeros((n, 3)) if gyro else None
+        if n == 0:
+            return f, w
+        sch = self.schedule
+        i0 = int(sch.segment_at(t[0]))
+        i1 = int(sch.segment_at(t[-1]))
+        bounds = np.searchsorted(t, sch.start[i0 + 1:i1 + 1], side="left")
+        edges = np.concatenate([[0], bounds, [n]])
+        for j, i in enumerate(range(i0, i1 + 1)):
+            a, b = int(edges[j]), int(edges[j + 1])
+            for c in range(a, b, self.BLOCK):
+                d = min(b, c + self.BLOCK)
+                self._render_segment(i, t[c:d], f[c:d], None if w is None else w[c:d])
+        return f, w
+
+    def _render_segment(self, i: int, t: np.ndarray, f: np.ndarray, w: Optional[np.ndarray]) -> None:
+        sch = self.schedule
+        sp = self.params(i)
+        s0 = sch.start[i]
+        tr = sch.trans_s[i]
+        nt = int(np.searchsorted(t, s0 + tr, side="left")) if tr > 0 else 0
+        if nt:  # opening transition from the previous segment's final orientation
+            R_prev = self.orientation_at_end(i - 1) if i > 0 else sp.R_base
+            ax, phi = _axis_angle(sp.R_base @ R_prev.T)
+            u = np.clip((t[:nt] - s0) / tr, 0.0, 1.0)
+            ang = phi * (u * u * (3 - 2 * u))
+            push = _outer(_sin(np.pi * u) * (0.15 * min(phi, 1.0)), ax)  # a small push/pull
+            f[:nt] = _device_force(ang, ax, R_prev, push)
+            if w is not None:
+                w[:nt] = _outer(phi * 6 * u * (1 - u) / tr, R_prev.T @ ax) * (180 / np.pi)
+        if nt == t.shape[0]:
+            return
+        tm = t[nt:]
+        mot = MOTIONS[sch.motion[i]]
+        if mot == "still":
+            f[nt:] = sp.R_base[2, :]  # R^T (0, 0, 1): the third row of R
+            if w is not None:
+                w[nt:] = 0.0
+            return
+        env = self._envelope(i, tm)
+        if mot == "fidget":
+            wf = 2 * np.pi * sp.freq
+            arg = (tm - s0)[:, None] * wf + (sp.phase + wf * s0)
+            S, Cc = _sin(arg), _cos(arg)
+            ang = (S @ sp.amp) * env
+            c1, s1 = np.cos(1.0), np.sin(1.0)  # scalars
+            L = (S @ ((sp.lin_amp * c1)[:, None] * sp.lin_dir)
+                 + Cc @ ((sp.lin_amp * s1)[:, None] * sp.lin_dir)) * env[:, None]
+            f[nt:] = _device_force(ang, sp.axis, sp.R_base, L)
+            if w is not None:
+                w[nt:] = _outer((Cc @ (sp.amp * wf)) * env, sp.R_base.T @ sp.axis) * (180 / np.pi)
+            return
+        # gait: trunk acceleration locked to the steps, heel strikes, swing at stride frequency
+        st = sch.steps
+        hz = sch.step_hz[i]
+        k = np.searchsorted(st, tm, side="right") - 1
+        k0 = np.clip(k, 0, max(st.size - 2, 0))
+        t0 = st[k0]
+        iv = st[k0 + 1] - t0
+        iv = np.where((iv > 0) & (iv < 2.5 / hz), iv, 1.0 / hz)
+        dt = tm - t0
+        ph = k0 + dt / iv
+        x = np.minimum(dt * 40.0, 60.0).astype(np.float32)
+        heel = np.where(k >= 0, x * np.exp(1.0 - x), 0.0)  # peak 1 at 25 ms
+        two = 2 * np.pi * ph
+        ga = sp.gait_amp
+        L = np.empty((tm.shape[0], 3))
+        L[:, 0] = ga[1] * _sin(two + 0.3)
+        L[:, 1] = ga[2] * _sin(0.5 * two)
+        L[:, 2] = ga[0] * _cos(two) + sp.heel * heel
+        L *= env[:, None]
+        arg = 0.5 * two + sp.phase[0]
+        wv = np.pi / iv
+        amp = sp.amp[0]
+        sa, ca = _sin(arg), _cos(arg)
+        ang = amp * sa * env
+        dang = amp * wv * ca * env
+        if sp.radius > 0:  # pendulum: device at radius r below the pivot, rotating about axis
+            ddang = -ang * wv * wv
+            u0 = np.array([0.0, 0.0, -sp.radius])  # perpendicular to the swing axis
+            u1 = np.cross(sp.axis, u0)
+            c, s = _cos(ang), _sin(ang)
+            alpha = -ddang * s - dang * dang * c
+            beta = ddang * c - dang * dang * s
+            L += (_outer(alpha, u0) + _outer(beta, u1)) / G
+        f[nt:] = _device_force(ang, sp.axis, sp.R_base, L)
+        if w is not None:
+            w[nt:] = _outer(dang, sp.R_base.T @ sp.axis) * (180 / np.pi)
+
+
+def _device_force(ang: np.ndarray, axis: np.ndarray, R_ref: np.ndarray,
+                  L: Optional[np.ndarray] = None) -> np.ndarray:
+    """Device-frame specific force R_ref^T Rot(axis, -ang) (e_z + L), L the world dynamic
+    acceleration (n, 3) in g (Rodrigues' formula, expanded with constant vectors)."""
+    c = _cos(ang).astype(np.float64)
+    s = _sin(ang).astype(np.float64)
+    oc = 1.0 - c
+    kR = axis @ R_ref
+    g0 = R_ref[2, :]
+    g1 = np.cross(axis, [0.0, 0.0, 1.0]) @ R_ref
+    g2 = axis[2] * kR
+    out = _outer(c, g0)
+    out -= _outer(s, g1)
+    out += _outer(oc, g2)
+    if L is not None:
+        Kx = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+        out += c[:, None] * (L @ R_ref)
+        out -= s[:, None] * (L @ (Kx.T @ R_ref))
+        out += _outer(oc * (L @ axis), kR)
+    return out

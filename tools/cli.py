@@ -23,21 +23,34 @@ from stillpoint.drivers.errors import StillpointError
 from . import commands as _commands
 
 
-def _command_modules():
+def _command_modules(only=None):
     for info in sorted(pkgutil.iter_modules(_commands.__path__), key=lambda i: i.name):
-        if info.name.startswith("_"):
+        if info.name.startswith("_") or (only is not None and info.name != only):
             continue
         mod = importlib.import_module(f"{_commands.__name__}.{info.name}")
         if hasattr(mod, "NAME") and hasattr(mod, "run"):
             yield mod
 
 
-def build_parser() -> argparse.ArgumentParser:
+def _only_requested(argv) -> "str | None":
+    """Module name of the requested subcommand when it can be loaded alone (fast start-up:
+    ``stillpoint inspect`` need not import the engine and scipy for the other commands)."""
+    if not argv or argv[0].startswith("-"):
+        return None
+    name = argv[0].replace("-", "_")
+    for info in pkgutil.iter_modules(_commands.__path__):
+        if info.name == name and not name.startswith("_"):
+            mod = importlib.import_module(f"{_commands.__name__}.{name}")
+            return name if getattr(mod, "NAME", None) == argv[0] and hasattr(mod, "run") else None
+    return None
+
+
+def build_parser(only=None) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="stillpoint",
         description="Streaming engine for raw wearable-accelerometer data (AX3/AX6 .cwa, GENEActiv .bin).")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for mod in _command_modules():
+    for mod in _command_modules(only):
         p = sub.add_parser(mod.NAME, help=getattr(mod, "HELP", None),
                            description=getattr(mod, "DESCRIPTION", getattr(mod, "HELP", None)))
         if hasattr(mod, "add_arguments"):
@@ -47,7 +60,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser(_only_requested(argv))
     args = parser.parse_args(argv)
     if not getattr(args, "_run", None):
         parser.print_help()

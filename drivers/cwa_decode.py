@@ -25,7 +25,9 @@ REASONS = {
 }
 # legacy / prototype sector tags that are skipped (§2): UB, SI, GY, GX, MX
 _LEGACY_TAGS = np.array([0x4255, 0x4953, 0x5947, 0x5847, 0x584D], np.uint16)
-_MAX_SAMPLES = {fmt: 480 // bps for fmt, (_, bps, _) in FORMATS.items()}
+_CAPACITY = np.zeros(256, np.int64)  # numAxesBPS -> samples per sector (0 = not decodable)
+for _fmt, (_, _bps, _) in FORMATS.items():
+    _CAPACITY[_fmt] = 480 // _bps
 
 
 def classify(sec: np.ndarray) -> np.ndarray:
@@ -44,28 +46,25 @@ def classify(sec: np.ndarray) -> np.ndarray:
         legacy = raw[:, :510].sum(axis=1, dtype=np.uint32) & 0xFFFF
         csum_ok[idx] = legacy == sec["checksum"][idx]
         reason[~csum_ok] = CHECKSUM
-    known_fmt = np.isin(fmt, np.array(list(FORMATS), np.uint8))
+    known_fmt = _CAPACITY[fmt] > 0
     rate_low = sec["rate_code"] & 0x0F
     reason[(reason == 0) & (~known_fmt | (rate_low < 6) | (sec["rate_code"] == 0))] = BAD_FORMAT
     reason[(reason == 0) & (sec["sample_count"] == 0)] = EMPTY
     # structural problems override the checksum reason (they say more)
     reason[sec["length"] != C.CWA_DATA_PACKET_LENGTH] = BAD_LENGTH
     not_ax = tag != C.CWA_TAG_DATA
-    reason[not_ax] = BAD_TAG
-    reason[not_ax & np.isin(tag, _LEGACY_TAGS)] = LEGACY
-    reason[tag == C.CWA_TAG_HEADER] = HEADER
-    erased = (tag == C.CWA_TAG_ERASED) & (words == 0xFFFF).all(axis=1) if (tag == C.CWA_TAG_ERASED).any() \
-        else np.zeros(k, bool)
-    reason[erased] = ERASED
+    if not_ax.any():
+        reason[not_ax] = BAD_TAG
+        reason[not_ax & np.isin(tag, _LEGACY_TAGS)] = LEGACY
+        reason[tag == C.CWA_TAG_HEADER] = HEADER
+        erased = (tag == C.CWA_TAG_ERASED) & (words == 0xFFFF).all(axis=1)
+        reason[erased] = ERASED
     return reason
 
 
 def max_samples(fmt: np.ndarray) -> np.ndarray:
     """Samples that fit one sector for each numAxesBPS value (§5.1)."""
-    out = np.zeros(fmt.shape, np.int64)
-    for f, m in _MAX_SAMPLES.items():
-        out[fmt == f] = m
-    return out
+    return _CAPACITY[fmt]
 
 
 def decode_samples(sec: np.ndarray, fmt: int, counts: np.ndarray):
@@ -85,8 +84,8 @@ def decode_samples(sec: np.ndarray, fmt: int, counts: np.ndarray):
         if not full:
             v = v[(np.arange(spp) < counts[:, None]).reshape(-1)]
         n = v.shape[0]
-        sh = (v >> np.uint32(30)).astype(np.int32)
-        np.subtract(22, sh, out=sh)
+        sh = (v >> np.uint32(30)).view(np.int32)  # exponent 0..3, reinterpreted in place
+        np.subtract(np.int32(22), sh, out=sh)
         accel = np.empty((n, 3), np.int16)
         tmp = np.empty(n, np.uint32)
         top10 = np.uint32(0xFFC00000)

@@ -152,7 +152,7 @@ EFFECTS: dict[str, dict] = {
                 Param("count", "", "number of random halts when events are not given"),
                 Param("min_duration_s", "s", "shortest random halt"),
                 Param("max_duration_s", "s", "longest random halt")),
-        doc="sampling halts (Bronds 2021: an AX3 halted after ~24 h; 2-400 s in the alignment tests)",
+        doc="sampling halts (Brønd et al. 2021: an AX3 halted after ~24 h; 2-400 s in the alignment tests)",
         deterministic=False),
     "restarts": dict(
         params=(Param("events", "", "list of {start_s, gap_s}: logging stops and restarts"),

@@ -118,6 +118,7 @@ class Truth:
     samples_written: int = 0
     corrupt_sectors: list = field(default_factory=list)
     labels_path: Optional[str] = None
+    truth_path: Optional[str] = None
     summary: dict = field(default_factory=dict)
     pair: Optional[dict] = None
 
@@ -527,6 +528,7 @@ def _finish(sim: DeviceSim, sink: _FileSink, corrupt: list, truth_path, labels_p
                                                                  else tp.stem + ".labels.csv")
         write_labels(lp, labels)
         truth.labels_path = str(lp)
+        truth.truth_path = str(tp)
         truth.save(tp)
     truth.labels = labels  # in-memory convenience (not in the JSON)
     return truth

@@ -54,11 +54,20 @@ _MARKER_CR = _MARKER + b"\r"
 _MARKER_RE = re.compile(rb"(?:^|\n)Recorded Data[ \t\r\x00]*(?:\n|$)")
 _VALUE_STRIP = b" \t\r\x00"
 
-# hex digit -> value; 255 marks a character that is not a hex digit
-_HEX_LUT = np.full(256, 255, np.uint8)
-_HEX_LUT[np.frombuffer(b"0123456789", np.uint8)] = np.arange(10)
-_HEX_LUT[np.frombuffer(b"ABCDEF", np.uint8)] = np.arange(10, 16)
-_HEX_LUT[np.frombuffer(b"abcdef", np.uint8)] = np.arange(10, 16)
+# Two hex characters (read as one little-endian uint16: first character in the low byte) -> the
+# byte they spell; 0x100 marks a pair holding a character that is not a hex digit. 128 KB table:
+# one gather per 2 characters.
+def _pair_table() -> np.ndarray:
+    digit = np.full(256, 255, np.uint16)
+    digit[np.frombuffer(b"0123456789", np.uint8)] = np.arange(10)
+    digit[np.frombuffer(b"ABCDEF", np.uint8)] = np.arange(10, 16)
+    digit[np.frombuffer(b"abcdef", np.uint8)] = np.arange(10, 16)
+    pair = np.arange(65536)
+    first, second = digit[pair & 0xFF], digit[pair >> 8]
+    return np.where((first == 255) | (second == 255), 0x100, (first << 4) | second).astype(np.uint16)
+
+
+_HEX_PAIR = _pair_table()
 
 
 def decode_hex_samples(hex_bytes: bytes, n_samples: int):
@@ -67,16 +76,22 @@ def decode_hex_samples(hex_bytes: bytes, n_samples: int):
     Returns (accel (n, 3) int16 two's-complement 12-bit, light (n,) uint16 10-bit, button (n,) uint8,
     bad (n,) bool: the sample holds a character that is not a hex digit). [GNA] §5
     """
-    nib = _HEX_LUT[np.frombuffer(hex_bytes, np.uint8, count=n_samples * GNA_HEX_PER_SAMPLE)]
-    nib = nib.reshape(n_samples, 4, 3)
-    bad = (nib == 255).reshape(n_samples, 12).any(axis=1)
-    n16 = nib.astype(np.uint16)
-    words = (n16[:, :, 0] << 8) | (n16[:, :, 1] << 4) | n16[:, :, 2]  # (n, 4) 12-bit fields
-    xyz = words[:, :3]
+    n = int(n_samples)
+    b = _HEX_PAIR[np.frombuffer(hex_bytes, "<u2", count=n * 6)].reshape(n, 6)  # 6 bytes per sample
+    if b.max(initial=0) > 0xFF:
+        bad = (b > 0xFF).any(axis=1)
+        b = b & 0xFF
+    else:
+        bad = np.zeros(n, bool)
+    words = np.empty((n, 4), np.uint16)  # x, y, z, low 12 bits
+    words[:, 0] = (b[:, 0] << 4) | (b[:, 1] >> 4)
+    words[:, 1] = ((b[:, 1] & 0xF) << 8) | b[:, 2]
+    words[:, 2] = (b[:, 3] << 4) | (b[:, 4] >> 4)
+    words[:, 3] = ((b[:, 4] & 0xF) << 8) | b[:, 5]
     # sign-extend 12 -> 16 bits: values >= 2048 are negative (actipy's '> 2048' is a bug)
-    accel = ((xyz << 4).view(np.int16) >> 4).astype(np.int16)
+    accel = (words[:, :3] << 4).view(np.int16) >> 4
     low = words[:, 3]
-    light = (low >> GNA_LIGHT_SHIFT).astype(np.uint16)
+    light = low >> GNA_LIGHT_SHIFT
     button = ((low >> 1) & 1).astype(np.uint8)
     return accel, light, button, bad
 
@@ -496,13 +511,23 @@ class GeneactivReader:
                              accel=acc, light=light, button=button, partial=partial)
 
 
+_NUM_CACHE: dict[bytes, float] = {}
+
+
 def _num(v: Optional[bytes]) -> float:
+    """A page's number field (comma decimals allowed); NaN when absent or unreadable. Cached: the
+    same few temperature/battery strings repeat over a recording."""
     if v is None:
         return float("nan")
-    try:
-        return parse_number(v.decode("latin-1"))
-    except (ValueError, IndexError):
-        return float("nan")
+    x = _NUM_CACHE.get(v)
+    if x is None:
+        try:
+            x = parse_number(v.decode("latin-1"))
+        except (ValueError, IndexError):
+            x = float("nan")
+        if len(_NUM_CACHE) < 100_000:
+            _NUM_CACHE[v] = x
+    return x
 
 
 # ---------------------------------------------------------------------- header

@@ -86,7 +86,8 @@ def calibrate_source(source, *, first_hours: float = FIRST_HOURS, chunk_hours: f
                                   first_hours=first_hours, chunk_hours=chunk_hours,
                                   window_s=WINDOW_S, **fit_kw)
         if est is None or read_all:
-            end_ns = (last_ns + 1) if last_ns is not None else sched.start_ns
+            period = int(round(1e9 / rate)) if rate > 0 else 1
+            end_ns = (last_ns + period) if last_ns is not None else sched.start_ns
             est = sched.finish(end_ns) if not sched.done else sched.result
     est.extra["windows_total"] = wop.windows
     est.extra["samples_read"] = samples

@@ -189,7 +189,11 @@ def write_synthetic_cwa(path, features: WindowFeatures, *, rate_hz: float = 25.0
             # degC = code * 75/256 - 50 (drivers.constants.cwa_temperature_c), inverted
             t = np.nan_to_num(b.temperature_per_sample(), nan=25.0)
             code = np.clip(np.round((t + 50.0) * 256.0 / 75.0), 0, 1023).astype(np.int64)
-            with_writer.write(b.time_ns, b.accel, temperature_raw=code)
+            accel = b.accel
+            e = int(getattr(with_writer, "exponent", 0) or 0)
+            if e:  # packed AX3 keeps multiples of 2^e: round here so the writer's shift is exact
+                accel = (np.round(accel / 2.0 ** e) * 2 ** e).astype(np.int32)
+            with_writer.write(b.time_ns, accel, temperature_raw=code)
             n += b.n
     finally:
         with_writer.close()

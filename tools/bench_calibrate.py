@@ -1,0 +1,162 @@
+"""Benchmark: ``stillpoint calibrate`` on a 7-day 100 Hz packed AX3 file vs scikit-digital-health's
+read + autocalibration of the same file, in the same run (issue 5: >= 4x faster, peak RSS < 200 MB).
+
+    /work/venv/bin/python tools/bench_calibrate.py [--days 7] [--rate 100] [--workdir DIR]
+                                                   [--peers /work/peers/bin/python] [--repeat 1]
+
+The recording is synthetic with a known calibration error (engine.calibration.synthetic: still
+runs over the sphere, daily temperature cycle, 5 mg noise) written with the project's CwaWriter,
+cached in --workdir. Every command runs in its own child process; wall time and the child's peak
+RSS (``resource.getrusage(RUSAGE_CHILDREN).ru_maxrss`` in a wrapper) are printed, plus ratios
+against skdh and against a plain decode pass (our CwaReader over the whole file) measured in the
+same run. Timings on a shared machine are noisy: compare the ratios.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+WRAPPER = r"""
+import json, resource, subprocess, sys, time
+t = time.perf_counter()
+p = subprocess.run(sys.argv[1:], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+wall = time.perf_counter() - t
+rss = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+print(json.dumps({"wall_s": wall, "maxrss_mb": rss / 1024.0, "rc": p.returncode,
+                  "stdout": p.stdout[-4000:], "stderr": p.stderr[-2000:]}))
+"""
+
+SKDH = r"""
+import sys, warnings
+warnings.simplefilter("ignore")
+from skdh.io import ReadCwa
+from skdh.preprocessing import CalibrateAccelerometer
+d = ReadCwa().predict(file=sys.argv[1])
+r = CalibrateAccelerometer().predict(time=d["time"], accel=d["accel"], fs=d.get("fs"),
+                                     temperature=d.get("temperature"))
+print({k: (v.tolist() if hasattr(v, "tolist") else v) for k, v in r.items()
+       if k in ("offset", "scale", "temperature scale", "temp_scale")})
+"""
+
+DECODE = r"""
+import sys
+from stillpoint.drivers import open_recording
+n = 0
+with open_recording(sys.argv[1]) as src:
+    for b in src:
+        n += b.n
+print(n)
+"""
+
+
+def measure(cmd) -> dict:
+    out = subprocess.run([sys.executable, "-c", WRAPPER, *cmd], stdout=subprocess.PIPE, text=True,
+                         check=True).stdout
+    return json.loads(out)
+
+
+def make_recording(path: Path, days: float, rate: float, seed: int = 7) -> dict:
+    import numpy as np
+
+    from stillpoint.engine.calibration.synthetic import (random_truth, synthetic_recording,
+                                                         write_synthetic_cwa)
+
+    truth = random_truth(np.random.default_rng(seed))
+    rec = synthetic_recording(days * 24.0, truth, seed=seed + 1)
+    tmp = path.with_suffix(".part")
+    write_synthetic_cwa(tmp, rec.features, rate_hz=rate, seed=seed + 2, packed=True)
+    os.replace(tmp, path)
+    t = {"offset": truth.offset.tolist(), "scale": truth.scale.tolist(),
+         "tempoffset": truth.tempoffset.tolist(), "temperature_ref": truth.temperature_ref}
+    path.with_suffix(".truth.json").write_text(json.dumps(t))
+    return t
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--days", type=float, default=7.0)
+    ap.add_argument("--rate", type=float, default=100.0)
+    ap.add_argument("--workdir", default=os.path.join(tempfile.gettempdir(), "stillpoint_bench"))
+    ap.add_argument("--peers", default="/work/peers/bin/python",
+                    help="python with scikit-digital-health (skipped if missing)")
+    ap.add_argument("--repeat", type=int, default=1, help="runs per command (best is reported)")
+    args = ap.parse_args(argv)
+
+    wd = Path(args.workdir)
+    wd.mkdir(parents=True, exist_ok=True)
+    path = wd / f"calib_{args.days:g}d_{args.rate:g}hz_packed.cwa"
+    if not path.is_file():
+        t = time.perf_counter()
+        truth = make_recording(path, args.days, args.rate)
+        print(f"wrote {path} ({path.stat().st_size / 1e6:.0f} MB) in {time.perf_counter() - t:.1f} s")
+    else:
+        truth = json.loads(path.with_suffix(".truth.json").read_text())
+    size_mb = path.stat().st_size / 1e6
+    stillpoint = [sys.executable, "-m", "stillpoint.tools.cli"]
+
+    def best(cmd):
+        runs = [measure(cmd) for _ in range(max(1, args.repeat))]
+        for r in runs:
+            if r["rc"] != 0:
+                print(f"command failed: {' '.join(map(str, cmd))}\n{r['stderr']}", file=sys.stderr)
+                sys.exit(1)
+        return min(runs, key=lambda r: r["wall_s"])
+
+    res = {}
+    res["calibrate"] = best(stillpoint + ["calibrate", str(path), "--json"])
+    res["calibrate --read-all"] = best(stillpoint + ["calibrate", str(path), "--json",
+                                                    "--read-all"])
+    res["decode (CwaReader, whole file)"] = best([sys.executable, "-c", DECODE, str(path)])
+    have_skdh = Path(args.peers).exists()
+    if have_skdh:
+        res["skdh read + autocal"] = best([args.peers, "-c", SKDH, str(path)])
+
+    est = json.loads(res["calibrate"]["stdout"])
+    print(f"\nfile: {path.name}, {args.days:g} days at {args.rate:g} Hz, {size_mb:.0f} MB")
+    print(f"{'command':<34} {'wall (s)':>9} {'peak RSS (MB)':>14}")
+    for k, r in res.items():
+        print(f"{k:<34} {r['wall_s']:>9.2f} {r['maxrss_mb']:>14.0f}")
+    ours = res["calibrate"]
+    print("\nratios (same run):")
+    if have_skdh:
+        sk = res["skdh read + autocal"]
+        print(f"  skdh read+autocal / stillpoint calibrate      = {sk['wall_s'] / ours['wall_s']:.1f}x"
+              "  (target >= 4x)")
+        print(f"  skdh read+autocal / calibrate --read-all      = "
+              f"{sk['wall_s'] / res['calibrate --read-all']['wall_s']:.1f}x")
+        print(f"  peak RSS skdh / stillpoint                    = "
+              f"{sk['maxrss_mb'] / ours['maxrss_mb']:.1f}x")
+    else:
+        print(f"  (skdh not found at {args.peers}: skipped)")
+    print(f"  calibrate / plain decode of the whole file    = "
+          f"{ours['wall_s'] / res['decode (CwaReader, whole file)']['wall_s']:.2f}")
+    print(f"  stillpoint calibrate peak RSS                 = {ours['maxrss_mb']:.0f} MB "
+          "(target < 200 MB)")
+    import numpy as np
+
+    from stillpoint.engine.calibration import CalibrationEstimate
+    from stillpoint.engine.calibration.fit import rereference
+
+    tr = rereference(CalibrationEstimate(**truth), est["temperature_ref"])
+    print(f"\nfit: {est['status']}, {est['windows']} windows, {est['hours_used']:.0f} h used, "
+          f"error {est['error_before_mg']:.2f} -> {est['error_after_mg']:.2f} mg")
+    print(f"  |offset - true| max {np.max(np.abs(np.subtract(est['offset'], tr.offset))) * 1e3:.3f} mg"
+          f", |scale/true - 1| max "
+          f"{np.max(np.abs(np.divide(est['scale'], truth['scale']) - 1)) * 100:.4f} %, "
+          f"|tempoffset - true| max "
+          f"{np.max(np.abs(np.subtract(est['tempoffset'], truth['tempoffset']))) * 1e3:.3f} mg/degC"
+          " (AX3 temperature is quantised to 0.29 degC)")
+    if have_skdh:
+        print(f"  skdh: {res['skdh read + autocal']['stdout'].strip()[:300]}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

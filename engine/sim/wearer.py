@@ -343,7 +343,7 @@ _SITE_CODE = {s: i for i, s in enumerate(SITES)}
 # Gait dynamics per site: (scale of the trunk's periodic acceleration, heel-strike scale,
 # swing amplitude walk/run in degrees, pendulum radius in m, swing axis)
 _GAIT = {
-    "wrist": dict(body=0.6, heel=0.35, swing=(22.0, 40.0), radius=0.6),
+    "wrist": dict(body=0.85, heel=0.6, swing=(25.0, 45.0), radius=0.6),
     "hip": dict(body=1.0, heel=1.0, swing=(3.0, 5.0), radius=0.0),
     "thigh": dict(body=1.0, heel=1.1, swing=(20.0, 35.0), radius=0.25),
     "ankle": dict(body=1.1, heel=3.0, swing=(25.0, 45.0), radius=0.42),

@@ -1,0 +1,103 @@
+"""Wearer schedule, site rendering, temperature and clock models."""
+
+import numpy as np
+import pytest
+
+from stillpoint.engine.sim.clock import make_clock
+from stillpoint.engine.sim.model import SensorModel, resolve_model
+from stillpoint.engine.sim.temperature import TemperatureParams, temperature_track
+from stillpoint.engine.sim.wearer import (ACTIVITIES, MOTIONS, SITES, SiteModel, WearerParams,
+                                          make_schedule)
+
+
+@pytest.fixture(scope="module")
+def week():
+    return make_schedule(WearerParams(), 7 * 86400.0, seed=3)
+
+
+def test_schedule_covers_a_week_with_plausible_behaviour(week):
+    s = week
+    assert s.start[0] == 0 and s.end[-1] >= 7 * 86400
+    assert np.all(s.end > s.start) and np.allclose(s.start[1:], s.end[:-1])
+    hours = {a: (s.end - s.start)[s.activity == i].sum() / 3600 / 7 for i, a in enumerate(ACTIVITIES)}
+    assert 6.5 < hours["sleep"] < 9.5
+    assert 0.5 < hours["walking"] < 3.5
+    assert hours["sitting"] > 6
+    # every night has posture changes
+    sleep_groups = np.unique(s.group[s.activity == ACTIVITIES.index("sleep")])
+    assert sleep_groups.size > 7 * 6
+    hz = s.step_hz[s.motion == MOTIONS.index("gait")]
+    walk = s.activity[s.motion == MOTIONS.index("gait")] == ACTIVITIES.index("walking")
+    assert np.all((hz[walk] >= 1.6) & (hz[walk] <= 2.2))
+    assert np.all((hz[~walk] >= 2.5) & (hz[~walk] <= 3.0))
+
+
+def test_wrist_orientations_cover_the_sphere_over_a_week(week):
+    site = SiteModel(week, "wrist", seed=3)
+    still = np.nonzero((week.motion == 0) & (week.end - week.start > 20))[0]
+    g = np.array([site.params(i).R_base[2, :] for i in still])  # gravity in the device frame
+    assert np.allclose(np.linalg.norm(g, axis=1), 1.0)
+    for k in range(3):
+        assert g[:, k].min() < -0.3 and g[:, k].max() > 0.3
+
+
+@pytest.mark.parametrize("site", SITES)
+def test_render_is_chunk_invariant_and_physical(week, site):
+    sm = SiteModel(week, site, seed=3)
+    t = np.arange(0, 6 * 3600 * 25) / 25.0 + 8 * 3600  # 6 h at 25 Hz
+    f, w = sm.render(t, gyro=True)
+    parts = [SiteModel(week, site, seed=3).render(t[a:a + 77777], gyro=True) for a in range(0, t.size, 77777)]
+    assert np.array_equal(np.concatenate([p[0] for p in parts]), f)
+    assert np.array_equal(np.concatenate([p[1] for p in parts]), w)
+    seg = week.segment_at(t)
+    still = week.motion[seg] == 0
+    after = t - week.start[seg] > week.trans_s[seg]
+    assert np.allclose(np.linalg.norm(f[still & after], axis=1), 1.0, atol=1e-6)
+    assert np.all(w[still & after] == 0)
+    assert np.abs(f).max() < 8.5  # within a plausible range at every site
+    gait = week.motion[seg] == 2
+    if gait.any():
+        assert np.std(np.linalg.norm(f[gait], axis=1)) > 0.1  # walking moves the device
+
+
+def test_hip_is_upright_when_standing_still(week):
+    sm = SiteModel(week, "hip", seed=3)
+    stand = np.nonzero((week.activity == ACTIVITIES.index("standing")) & (week.motion == 0))[0]
+    g = np.array([sm.params(i).R_base[2, :] for i in stand])
+    assert np.all(g[:, 0] > 0.9)  # device x points up on a belt-worn device
+
+
+def test_temperature_plausible_per_site_and_cools_off_body(week):
+    p = TemperatureParams()
+    for site, (lo, hi) in {"wrist": (25, 36), "hip": (28, 37), "thigh": (27, 36), "ankle": (25, 36)}.items():
+        t, T = temperature_track(week, site, p, 3, 7 * 86400.0)
+        seg = week.segment_at(t)
+        worn = week.activity[seg] > 1
+        settled = worn & (t - week.start[seg] > 1800)
+        assert lo <= np.percentile(T[settled], 1) and np.percentile(T[settled], 99) <= hi
+        off = (week.activity[seg] <= 1) & (t - week.start[seg] > 3 * p.tau_nonwear_s)
+        if off.any():
+            assert np.all(np.abs(T[off] - p.ambient_c) < 2.5)
+
+
+def test_clock_skew_parabola_halts_and_rate_error():
+    t = np.arange(0, 2 * 86400 + 10, 10.0)
+    T = np.full_like(t, 35.0)
+    m = SensorModel({"clock": {"offset_s": 2.0, "skew_ppm": 20.0, "curvature_ppm_per_c2": -0.035,
+                               "turnover_c": 25.0},
+                     "rate_error": {"pct": -1.1},
+                     "halts": {"events": [{"start_s": 100.0, "duration_s": 50.0}]}})
+    c = make_clock(m, t, T, 100.0)
+    ppm = 20.0 - 0.035 * 100
+    assert c.device_time(86400.0) - 86400.0 == pytest.approx(2.0 + ppm * 1e-6 * 86400, abs=1e-9)
+    assert c.true_time(c.device_time(1234.5)) == pytest.approx(1234.5, abs=1e-6)
+    assert c.rate_true_hz == pytest.approx(98.9)
+    tt, keep = c.sample_times(0, int(300 * c.rate_true_hz))
+    assert np.count_nonzero(~keep) == pytest.approx(50 * 98.9, abs=2)
+    assert not np.any(keep & (tt >= 100) & (tt < 150))
+
+
+def test_resolved_random_halts_start_after_day_one():
+    m = resolve_model(SensorModel({"halts": {"count": 3}}), seed=1, duration_s=7 * 86400.0)
+    ev = m.effects["halts"]["events"]
+    assert len(ev) == 3 and all(e["start_s"] >= 86400 and 2 <= e["duration_s"] <= 400 for e in ev)

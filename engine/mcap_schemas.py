@@ -22,7 +22,12 @@ Types
 
 from __future__ import annotations
 
+import struct
+
 import numpy as np
+
+_TIME_STRUCT = struct.Struct("<iI")
+_U32 = struct.Struct("<I")
 
 ENCAPSULATION = b"\x00\x01\x00\x00"  # CDR_LE
 
@@ -63,42 +68,57 @@ class CdrType:
         return text
 
     # ------------------------------------------------------------------ encode
-    def encode(self, values: dict) -> bytes:
-        parts = [ENCAPSULATION]
-        pos = 0
-
-        def pad(align):
-            nonlocal pos
-            p = (-pos) % align
-            if p:
-                parts.append(b"\x00" * p)
-                pos += p
-
+    def _make_plan(self):
+        plan = []
         for f, t in self.fields:
-            v = values[f]
             if t == "time":
-                pad(4)
-                ns = int(v)
-                parts.append(np.array([ns // 10**9, ns % 10**9], "<i4").tobytes()
-                             if -2**31 <= ns // 10**9 < 2**31 else b"\x00" * 8)
-                pos += 8
+                plan.append((f, "time", None, 0))
                 continue
             base, k = _parse(t)
-            dt = np.dtype(_PRIM[base])
-            if k == 0:
-                pad(dt.itemsize)
-                parts.append(np.array(v, dt).tobytes())
-                pos += dt.itemsize
+            plan.append((f, "seq" if k is None else ("arr" if k else "prim"), np.dtype(_PRIM[base]), k))
+        return plan
+
+    def encode(self, values: dict) -> bytes:
+        plan = self.__dict__.get("_plan") or self.__dict__.setdefault("_plan", self._make_plan())
+        parts = [ENCAPSULATION]
+        pos = 0
+        zeros = b"\x00" * 8
+        for f, kind, dt, k in plan:
+            v = values[f]
+            if kind == "time":
+                p = (-pos) & 3
+                if p:
+                    parts.append(zeros[:p])
+                    pos += p
+                sec, nsec = divmod(int(v), 10**9)
+                parts.append(_TIME_STRUCT.pack(sec, nsec) if -2**31 <= sec < 2**31 else zeros)
+                pos += 8
                 continue
-            arr = np.ascontiguousarray(v, dtype=dt)
-            if k is None:
-                pad(4)
-                parts.append(np.uint32(arr.size).tobytes())
+            size = dt.itemsize
+            if kind == "prim":
+                p = (-pos) % size
+                if p:
+                    parts.append(zeros[:p])
+                    pos += p
+                parts.append(np.array(v, dt).tobytes())
+                pos += size
+                continue
+            arr = v if (type(v) is np.ndarray and v.dtype == dt and v.flags.c_contiguous) \
+                else np.ascontiguousarray(v, dtype=dt)
+            if kind == "seq":
+                p = (-pos) & 3
+                if p:
+                    parts.append(zeros[:p])
+                    pos += p
+                parts.append(_U32.pack(arr.size))
                 pos += 4
             elif arr.size != k:
                 raise ValueError(f"{self.name}.{f}: expected {k} values, got {arr.size}")
             if arr.size:
-                pad(dt.itemsize)
+                p = (-pos) % size
+                if p:
+                    parts.append(zeros[:p])
+                    pos += p
                 b = arr.tobytes()
                 parts.append(b)
                 pos += len(b)

@@ -163,7 +163,7 @@ class McapSink:
     def __init__(self, path, info: DeviceInfo, settings: dict, *, flush_every_s: float = 10.0,
                  fsync_every_wall_s: float = 1.0, compression: str = "zstd",
                  chunk_size: int = CHUNK_SIZE, corrected_quantum_g: float = 2.0 ** -16,
-                 threaded: bool = True):
+                 message_s: float = 60.0, threaded: bool = True):
         self.path = str(path)
         self.flush_every_ns = int(flush_every_s * 1e9) if flush_every_s else None
         self.fsync_every_wall_s = fsync_every_wall_s
@@ -175,7 +175,10 @@ class McapSink:
                          for t in ALL_TYPES}
         self._channels: dict[str, int] = {}
         self._seq: dict[str, int] = {}
-        self._last_flush_ns: Optional[int] = None
+        self._cell: Optional[int] = None  # data-time cell (flush_every_s) being written
+        self.cell_ns = self.flush_every_ns or int(message_s * 1e9)
+        self._pending_corr: list[CorrectedBatch] = []
+        self._corr_cell: Optional[int] = None
         self._last_fsync = time.monotonic()
         self.flushes = 0
         self.messages = 0
@@ -305,21 +308,66 @@ class McapSink:
     def write_metadata(self, name: str, values: dict) -> None:
         self._do("metadata", name, {k: (v if isinstance(v, str) else dumps(v)) for k, v in values.items()})
 
-    def data_time(self, t_ns: int) -> None:
-        """Tell the sink how far data time has advanced; flushes every ``flush_every_s``."""
-        if self.flush_every_ns is None:
-            return
-        if self._last_flush_ns is None:
-            self._last_flush_ns = t_ns
-        elif t_ns - self._last_flush_ns >= self.flush_every_ns:
-            self._do("flush", False)
-            self._last_flush_ns = t_ns
+    def write_slices(self, block: Optional[Block], corrected: list, epochs: EpochMetrics) -> None:
+        """Write what one pipeline step produced, by data time in cells of ``flush_every_s``
+        (``message_s`` when flushing is off): the raw samples and epochs of a cell are written
+        together and the MCAP is flushed each time a new cell begins, so a killed run loses at
+        most the cell in progress (plus the correction's lag of one unit). Corrected samples are
+        gathered per cell (and segment) into one message, driven by the corrected stream's own
+        time, so the message layout does not depend on how the pipeline was cut (replay
+        reproduces it exactly)."""
+        w = self.cell_ns
+        cells = []
+        if block is not None and block.n:
+            cells.append(np.unique(block.time_ns // w))
+        if len(epochs):
+            cells.append(epochs.start_ns // w)
+        todo = np.unique(np.concatenate(cells)) if cells else np.zeros(0, np.int64)
+        for cell in todo.tolist():
+            if self._cell is None or cell > self._cell:
+                if self._cell is not None and self.flush_every_ns is not None:
+                    self._do("flush", False)
+                self._cell = cell
+            lo, hi = cell * w, (cell + 1) * w
+            if block is not None and block.n:
+                a, b = np.searchsorted(block.time_ns, [lo, hi])
+                if b > a:
+                    self.write_raw(block.slice(int(a), int(b)))
+            if len(epochs):
+                a, b = np.searchsorted(epochs.start_ns, [lo, hi])
+                if b > a:
+                    self.write_epochs(EpochMetrics(**{k: getattr(epochs, k)[a:b] for k in (
+                        "start_ns", "n", "enmo_mg", "bfen_mg", "mad_mg", "mean", "temperature",
+                        "segment")}))
+        for c in corrected:
+            if c.n == 0:
+                continue
+            cc = c.time_ns // w
+            edges = np.concatenate([[0], np.flatnonzero(cc[1:] != cc[:-1]) + 1, [c.n]])
+            for a, b in zip(edges[:-1].tolist(), edges[1:].tolist()):
+                cell = int(cc[a])
+                if self._corr_cell is not None and cell != self._corr_cell:
+                    self._emit_corrected()
+                self._corr_cell = cell
+                self._pending_corr.append(c if (a == 0 and b == c.n) else CorrectedBatch(
+                    c.time_ns[a:b], c.accel[a:b], c.temperature[a:b], c.segment))
+
+    def _emit_corrected(self) -> None:
+        parts, self._pending_corr = self._pending_corr, []
+        i = 0
+        while i < len(parts):
+            j = i + 1
+            while j < len(parts) and parts[j].segment == parts[i].segment:
+                j += 1
+            self.write_corrected(parts[i] if j == i + 1 else CorrectedBatch.concat(parts[i:j]))
+            i = j
 
     def flush(self, fsync: bool = True) -> None:
         self._do("flush", fsync)
 
     def close(self) -> None:
         """Finish the file (summary, index, footer) and wait for the writer thread."""
+        self._emit_corrected()
         self._do("finish")
         self._stop()
         if self._error is not None:

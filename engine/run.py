@@ -65,7 +65,7 @@ class RunSettings:
     calibrate: bool = True  # False: identity (raw g) on /corrected/accel
     prior: Optional[dict] = None  # online: estimate in force before the first accepted refit
     corrected_quantum_g: float = 2.0 ** -16  # /corrected/accel rounding before float32 (0: none)
-    max_block_s: float = 10.0  # pipeline block bound (data time)
+    max_block_s: float = 600.0  # pipeline block bound (data time): memory vs per-block overhead
     flush_every_s: float = 10.0  # MCAP flush cadence (data time)
     compression: str = "zstd"
     chunk_size: int = CHUNK_SIZE
@@ -145,29 +145,29 @@ class OutputStage:
             self.sink.write_qc(d, e.time_ns if e.time_ns is not None else self._last_ns)
             self._qc_logged += 1
 
-    def _metrics(self, m: EpochMetrics) -> None:
+    def _step(self, block: Optional[Block], batches) -> None:
+        ms = [self.metrics.push(b) for b in batches]
+        m = EpochMetrics.concat(ms) if len(ms) != 1 else ms[0]
         if len(m):
-            self.sink.write_epochs(m)
             self.epochs += len(m)
             self.enmo_weighted += float(np.dot(m.enmo_mg, m.n))
             self.samples_metrics += int(m.n.sum())
-
-    def _corrected(self, batches) -> None:
-        for b in batches:
-            self.sink.write_corrected(b)
-            self._metrics(self.metrics.push(b))
+        self.sink.write_slices(block, batches, m)
 
     def push(self, block: Block) -> None:
         self._last_ns = int(block.time_ns[0])
         self._log_reader_qc()
-        self.sink.write_raw(block)
-        self._corrected(self.correction.push(block))
-        self.sink.data_time(int(block.time_ns[-1]))
+        self._step(block, self.correction.push(block))
 
     def flush(self) -> None:
         self._log_reader_qc()
-        self._corrected(self.correction.flush())
-        self._metrics(self.metrics.flush())
+        self._step(None, self.correction.flush())
+        m = self.metrics.flush()
+        if len(m):
+            self.epochs += len(m)
+            self.enmo_weighted += float(np.dot(m.enmo_mg, m.n))
+            self.samples_metrics += int(m.n.sum())
+            self.sink.write_slices(None, [], m)
 
     @property
     def enmo_mean_mg(self) -> Optional[float]:

@@ -34,7 +34,7 @@ import numpy as np
 
 from ..engine.blocks import (PER_SAMPLE_BUTTON, PER_SAMPLE_LIGHT_RAW, Block, DeviceInfo, QCEvent,
                              QCReport)
-from .byteio import FollowingReader, open_bytes, read_exact
+from .byteio import FollowingReader, is_gzip, open_bytes, read_exact
 from .constants import (GNA_HEX_PER_SAMPLE, GNA_LIGHT_SHIFT, GNA_PAGE_MARKER, GNA_SAMPLES_PER_PAGE,
                         gna_rate_hz)
 from .errors import (CorruptRecordingError, RecordingError, TruncatedRecordingError,
@@ -48,6 +48,7 @@ __all__ = ["GeneactivReader", "read_header", "decode_hex_samples", "GeneactivWri
 PAGE_HEX_CHARS = GNA_SAMPLES_PER_PAGE * GNA_HEX_PER_SAMPLE  # 3600
 APPROX_PAGE_BYTES = 3800  # a page with its 9 text lines, for sizing reads (never for allocation)
 HEADER_LIMIT_BYTES = 1 << 20  # a header longer than this is not a GENEActiv header
+MAX_LINE_BYTES = 1 << 20  # a "line" longer than this is garbage (a data line is 3600 characters)
 MAX_PAGE_FIELD_LINES = 24  # "key:value" lines allowed between a marker and its hex line
 _MARKER = GNA_PAGE_MARKER.encode()
 _MARKER_CR = _MARKER + b"\r"
@@ -126,6 +127,8 @@ class _Skip:
 
 def _open_stream(path: Path, follow: bool, follow_done, follow_idle_timeout: float):
     if follow:
+        if is_gzip(path):
+            raise ValueError(f"{path}: follow mode reads a plain .bin being written, not a gzip file")
         return FollowingReader(path, is_done=follow_done, idle_timeout=follow_idle_timeout)
     return open_bytes(path)
 
@@ -163,6 +166,7 @@ class GeneactivReader:
         self.qc = QCReport(unit="page")
         self._iterated = False
         self._samples = 0
+        self._desync_open = None  # (lines, bytes) of a desync stretch still being skipped
 
     # ------------------------------------------------------------------ Source protocol
     def __enter__(self):
@@ -351,12 +355,18 @@ class GeneactivReader:
                 tail = b""
             else:
                 tail = lines.pop()
+                if len(tail) > MAX_LINE_BYTES:
+                    # no line break for far longer than any page line: parse it now as a (bad) line
+                    # so the buffer stays bounded; the desync scan skips and logs it
+                    lines.append(tail)
+                    tail = None
             items, consumed, index = self._parse_lines(lines, index, eof)
             yield from items
             if eof:
                 return
             rest = lines[consumed:]
-            rest.append(tail)
+            if tail is not None:
+                rest.append(tail)
             buf = b"\n".join(rest)
 
     def _parse_lines(self, lines: list[bytes], index: int, eof: bool):
@@ -381,14 +391,24 @@ class GeneactivReader:
                         break  # wait for more bytes: the next marker may still come
                 nbytes = sum(len(x) + 1 for x in lines[i:j])
                 if any(x.strip(_VALUE_STRIP) for x in lines[i:j]):
+                    nlines = j - i
+                    last = self.qc.events[-1] if self.qc.events else None
+                    if last is not None and last.reason == "desync" and last.index == index \
+                            and self._desync_open:
+                        # the same stretch of non-page text, seen over several reads: one event
+                        self.qc.events.pop()
+                        nlines += self._desync_open[0]
+                        nbytes += self._desync_open[1]
+                    self._desync_open = (nlines, nbytes)
                     where = "at the end of the file" if (j == L and eof) else f"before page {index}"
                     self._event(index, "desync",
-                                f"skipped {j - i} line(s), {nbytes} bytes, that are not a page "
+                                f"skipped {nlines} line(s), {nbytes} bytes, that are not a page "
                                 f"{where}; resynchronised on the next '{GNA_PAGE_MARKER}' line")
                     out.append(_Skip(index, desync=True))
                 i = j
                 continue
             # a page: key:value lines up to the hex line
+            self._desync_open = None
             k = i + 1
             fields: dict[bytes, bytes] = {}
             while k < L and k - i <= MAX_PAGE_FIELD_LINES:
@@ -411,7 +431,7 @@ class GeneactivReader:
                 continue
             hexline = lines[k].rstrip(_VALUE_STRIP)
             nchar = len(hexline)
-            if nchar != PAGE_HEX_CHARS and k == L - 1 and not eof:
+            if nchar < PAGE_HEX_CHARS and k == L - 1 and not eof:
                 break  # a short data line may be the last page: decide once the next bytes (or EOF) come
             self.qc.total += 1
             if hexline.strip(_VALUE_STRIP) == _MARKER or k - i > MAX_PAGE_FIELD_LINES:

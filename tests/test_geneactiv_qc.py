@@ -290,3 +290,23 @@ def test_random_garbage_inside_data_keeps_earlier_pages(tmp_path):
     assert b.n == 600
     np.testing.assert_array_equal(b.accel, a[:600])
     assert events(r)[0][1] == "desync"
+
+
+def test_long_garbage_without_line_breaks_is_bounded_and_skipped(tmp_path):
+    p = tmp_path / "r.bin"
+    t, a = write(p, pages=4)
+    data = p.read_bytes()
+    pos = pages_of(data)
+    junk = b"Z" * (6 << 20)  # 6 MB without a newline, then the rest of the file
+    p.write_bytes(data[:pos[2]] + junk + b"\r\n" + data[pos[2]:])
+    r, blocks, b = read(p, batch_pages=4)
+    assert b.n == 1200
+    np.testing.assert_array_equal(b.accel, a)
+    assert [e.reason for e in r.qc.events] == ["desync"] and r.qc.segments == 2
+
+
+def test_follow_refuses_gzip(tmp_path):
+    p = tmp_path / "r.bin.gz"
+    write(p)
+    with pytest.raises(ValueError, match="follow"):
+        GeneactivReader(p, follow=True)

@@ -224,7 +224,8 @@ class DeviceSim:
         self.n_chunks = int(np.ceil(duration_s / CHUNK_S))
 
     # --------------------------------------------------------------- chunks
-    def chunk(self, k: int) -> Optional[SimChunk]:
+    def _render(self, k: int):
+        """Stage 1 of chunk k (pure, thread-safe): sample times and the true motion."""
         rate = self.clock.rate_true_hz
         i0 = int(np.ceil(k * CHUNK_S * rate))
         i1 = min(self.n_slots, int(np.ceil((k + 1) * CHUNK_S * rate)))
@@ -240,28 +241,56 @@ class DeviceSim:
         t = t[keep]
         gyro = self.spec.kind == "ax6" and self.spec.gyro_range_dps is not None
         f, w = self.site_model.render(t, gyro=gyro, dtype=np.float32)
+        return t, f, w, sorted(set(restarts))
+
+    def _measure(self, k: int, rendered) -> SimChunk:
+        """Stage 2 of chunk k: the sensor (noise from chunk k's own seed) and the device clock."""
+        t, f, w, restarts = rendered
         gi, fr = _grid_pos(t, self.t_grid.shape[0])
         T = _lerp(self.T_grid, gi, fr)
         Ta = _lerp(self.Ta_grid, gi, fr) if self.Ta_grid is not self.T_grid else T
         bias = None
         if self.model.on("bias_instability"):
-            bias = np.column_stack([_lerp(self.bias_grid[:, j], gi, fr) for j in range(3)]).astype(np.float32)
+            b0 = self.bias_grid[gi]
+            bias = (b0 + fr[:, None] * (self.bias_grid[gi + 1] - b0)).astype(np.float32)
         rng = np.random.default_rng(np.random.SeedSequence([self.seed, 3, self.dev_index, k]))
         meas, counts = measure(f, self.model, self.spec, temperature_c=T, time_s=t,
                                accel_temperature_c=Ta, bias_g=bias, rng=rng, rate_hz=self.hz)
         gcounts = None
-        if gyro:
+        if w is not None:
             w = w + self.gyro_bias + rng.standard_normal(w.shape) * (GYRO_NOISE_DPS_RTHZ * np.sqrt(self.hz / 2))
             gcounts = self.spec.gyro_to_counts(w)
         d = t + _lerp(self.clock.offset_s, gi, fr)
         time_ns = self.start_ns + np.round(d * 1e9).astype(np.int64)
-        return SimChunk(k, t, time_ns, f, meas, counts, gcounts, T, sorted(set(restarts)))
+        return SimChunk(k, t, time_ns, f, meas, counts, gcounts, T, restarts)
 
-    def chunks(self) -> Iterator[SimChunk]:
-        for k in range(self.n_chunks):
-            c = self.chunk(k)
-            if c is not None and c.n:
-                yield c
+    def chunk(self, k: int) -> Optional[SimChunk]:
+        """Chunk k (one hour of true time), or None past the end."""
+        r = self._render(k)
+        return None if r is None else self._measure(k, r)
+
+    def chunks(self, prefetch: bool = True) -> Iterator[SimChunk]:
+        """All chunks in order. With ``prefetch`` the motion of chunk k+1 is rendered in a
+        worker thread while chunk k is measured and consumed (numpy releases the GIL; the
+        output is identical either way)."""
+        if not prefetch or self.n_chunks < 2:
+            for k in range(self.n_chunks):
+                c = self.chunk(k)
+                if c is not None and c.n:
+                    yield c
+            return
+        from concurrent.futures import ThreadPoolExecutor
+        with ThreadPoolExecutor(max_workers=1) as ex:
+            fut = ex.submit(self._render, 0)
+            for k in range(self.n_chunks):
+                r = fut.result()
+                if k + 1 < self.n_chunks:
+                    fut = ex.submit(self._render, k + 1)
+                if r is None:
+                    continue
+                c = self._measure(k, r)
+                if c.n:
+                    yield c
 
     # --------------------------------------------------------------- aux channels
     def light_raw(self, t: np.ndarray) -> np.ndarray:

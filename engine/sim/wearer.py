@@ -521,10 +521,13 @@ class SiteModel:
         return R
 
     def _envelope(self, i: int, t: np.ndarray) -> np.ndarray:
-        """Oscillation fades in over 1 s after the transition and out over 1 s before the end."""
+        """Oscillation fades in over 1 s after the transition and out over 1 s before the end
+        (float32; all ones in the middle of a segment)."""
         s0 = self.schedule.start[i] + self.schedule.trans_s[i]
         s1 = self.schedule.end[i]
-        return np.clip(np.minimum(t - s0, s1 - t), 0.0, 1.0)
+        if t.shape[0] and t[0] - s0 >= 1.0 and s1 - t[-1] >= 1.0:
+            return np.ones(t.shape[0], np.float32)
+        return np.clip(np.minimum(t - s0, s1 - t), 0.0, 1.0).astype(np.float32)
 
     # --------------------------------------------------------------- rendering
     BLOCK = 16384  # samples per inner block (keeps temporaries in cache)
@@ -629,20 +632,22 @@ class SiteModel:
 def _device_force(ang: np.ndarray, axis: np.ndarray, R_ref: np.ndarray,
                   L: Optional[np.ndarray] = None) -> np.ndarray:
     """Device-frame specific force R_ref^T Rot(axis, -ang) (e_z + L), L the world dynamic
-    acceleration (n, 3) in g (Rodrigues' formula, expanded with constant vectors)."""
-    c = _cos(ang).astype(np.float64)
-    s = _sin(ang).astype(np.float64)
-    oc = 1.0 - c
-    kR = axis @ R_ref
-    g0 = R_ref[2, :]
-    g1 = np.cross(axis, [0.0, 0.0, 1.0]) @ R_ref
-    g2 = axis[2] * kR
+    acceleration (n, 3) in g (Rodrigues' formula, expanded with constant vectors); float32."""
+    f32 = np.float32
+    c = _cos(ang)
+    s = _sin(ang)
+    oc = f32(1.0) - c
+    kR = (axis @ R_ref).astype(f32)
+    g0 = R_ref[2, :].astype(f32)
+    g1 = (np.cross(axis, [0.0, 0.0, 1.0]) @ R_ref).astype(f32)
+    g2 = (axis[2] * kR).astype(f32)
     out = _outer(c, g0)
     out -= _outer(s, g1)
     out += _outer(oc, g2)
     if L is not None:
+        L = L.astype(f32, copy=False)
         Kx = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-        out += c[:, None] * (L @ R_ref)
-        out -= s[:, None] * (L @ (Kx.T @ R_ref))
-        out += _outer(oc * (L @ axis), kR)
+        out += c[:, None] * (L @ R_ref.astype(f32))
+        out -= s[:, None] * (L @ (Kx.T @ R_ref).astype(f32))
+        out += _outer(oc * (L @ axis.astype(f32)), kR)
     return out

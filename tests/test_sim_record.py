@@ -156,3 +156,15 @@ def test_geneactiv_refuses_restarts():
     with pytest.raises(ModelError, match="restart"):
         make_devices(sites=["wrist"], devices=["geneactiv"], days=0.01, hz=20,
                      effects=build_model("restarts"))
+
+
+def test_gzip_output_and_in_memory_generator(tmp_path):
+    from stillpoint.engine.sim import iter_chunks
+    p = tmp_path / "z.cwa.gz"
+    t = simulate_recording(p, days=0.02, hz=25, seed=6, effects="default,corrupt_sectors")
+    assert p.read_bytes()[:2] == b"\x1f\x8b" and (tmp_path / "z.truth.json").exists()
+    src, blocks = _read(p)
+    assert sum(b.n for b in blocks) == t.samples_written - 120 * len(t.corrupt_sectors)
+    mem = list(iter_chunks(days=0.02, hz=25, seed=6, effects=build_model("default,corrupt_sectors")))
+    assert sum(c.n for c in mem) == t.samples_written
+    assert all(c.true_g.shape == c.measured_g.shape == (c.n, 3) for c in mem)

@@ -10,7 +10,13 @@ Modules: ``model`` (effects, JSON model files, the pure deterministic sensor fun
 from .model import (EFFECT_ORDER, EFFECTS, ModelError, SensorModel, apply_deterministic,
                     first_order_lag, ggir_equivalent, load_model, parse_effect_option,
                     resolve_model, save_model)
+from .record import (DeviceSim, SimChunk, Truth, build_model, iter_chunks, load_labels, load_truth,
+                     make_devices, simulate_pair, simulate_recording, truth_device_time)
+from .temperature import TemperatureParams
+from .wearer import SITES, WearerParams
 
-__all__ = ["EFFECT_ORDER", "EFFECTS", "ModelError", "SensorModel", "apply_deterministic",
-           "first_order_lag", "ggir_equivalent", "load_model", "parse_effect_option",
-           "resolve_model", "save_model"]
+__all__ = ["DeviceSim", "EFFECT_ORDER", "EFFECTS", "ModelError", "SITES", "SensorModel", "SimChunk",
+           "TemperatureParams", "Truth", "WearerParams", "apply_deterministic", "build_model",
+           "first_order_lag", "ggir_equivalent", "iter_chunks", "load_labels", "load_model",
+           "load_truth", "make_devices", "parse_effect_option", "resolve_model", "save_model",
+           "simulate_pair", "simulate_recording", "truth_device_time"]

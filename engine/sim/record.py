@@ -434,17 +434,21 @@ class _FileSink:
     def __init__(self, sim: DeviceSim, path, *, session_id: int = 1):
         self.sim = sim
         self.path = Path(path)
+        # a .gz output is written plain first (corrupt sectors are applied to the plain file),
+        # then compressed on close
+        self.gz = self.path.name.endswith(".gz")
+        self.plain = self.path.with_name(self.path.name[:-3] + ".part") if self.gz else self.path
         spec = sim.spec
         if spec.kind in ("ax3", "ax6"):
             from stillpoint.drivers.cwa import CwaWriter
-            self.writer = CwaWriter(self.path, device_type=spec.kind.upper(), device_id=sim.device_id,
+            self.writer = CwaWriter(self.plain, device_type=spec.kind.upper(), device_id=sim.device_id,
                                     session_id=session_id, rate_hz=sim.hz, range_g=spec.range_g,
                                     packed=spec.packed if spec.kind == "ax3" else False,
                                     gyro_range_dps=spec.gyro_range_dps,
                                     metadata={"_p": sim.site, "_sc": f"sim-seed-{sim.seed}"})
         else:
             from stillpoint.drivers.geneactiv import GeneactivWriter
-            self.writer = GeneactivWriter(self.path, serial=f"{sim.device_id:06d}", rate_hz=sim.hz,
+            self.writer = GeneactivWriter(self.plain, serial=f"{sim.device_id:06d}", rate_hz=sim.hz,
                                           gains=spec.gains, offsets=spec.offsets,
                                           header_fields={"Device Location Code": sim.site})
         nw = int(np.ceil(sim.duration_s / WINDOW_S))
@@ -498,14 +502,20 @@ class _FileSink:
         m = self.sim.model
         if m.on("corrupt_sectors"):
             corrupt = self._corrupt(m.effects["corrupt_sectors"])
+        if self.gz:
+            import gzip
+            import shutil
+            with open(self.plain, "rb") as src, gzip.GzipFile(self.path, "wb", compresslevel=6, mtime=0) as dst:
+                shutil.copyfileobj(src, dst, 1 << 20)
+            self.plain.unlink()
         return corrupt
 
     def _corrupt(self, p: dict) -> list:
         if self.sim.spec.kind == "geneactiv":
             from .corrupt import corrupt_bin_pages
-            n_units = _count_bin_pages(self.path)
+            n_units = _count_bin_pages(self.plain)
         else:
-            n_units = (self.path.stat().st_size - 1024) // 512
+            n_units = (self.plain.stat().st_size - 1024) // 512
         if "indices" in p:
             idx = sorted(int(i) for i in p["indices"] if 0 <= int(i) < n_units)
         else:
@@ -513,11 +523,11 @@ class _FileSink:
             k = min(int(p.get("count", 3)), max(n_units - 2, 0))
             idx = sorted(int(i) for i in r.choice(np.arange(1, max(n_units - 1, 1)), k, replace=False)) if k else []
         if self.sim.spec.kind == "geneactiv":
-            corrupt_bin_pages(self.path, idx)
+            corrupt_bin_pages(self.plain, idx)
         else:
             from stillpoint.drivers.cwa import corrupt_sector
             for i in idx:
-                corrupt_sector(self.path, i, "checksum")
+                corrupt_sector(self.plain, i, "checksum")
         return idx
 
 
@@ -569,6 +579,15 @@ def _default_truth_path(path: Path) -> Path:
         if name.endswith(suf):
             return path.with_name(name[: -len(suf)] + ".truth.json")
     return path.with_name(name + ".truth.json")
+
+
+def iter_chunks(*, device: str = "ax3", site: str = "wrist", days: float = 1.0, hz: float = 100.0,
+                effects=None, seed: int = 1, **kw) -> Iterator[SimChunk]:
+    """In-memory generator (no file): the chunks of one simulated device. The DeviceSim (with
+    the resolved model, clock and tracks) is ``make_devices(...)[0]`` with the same arguments."""
+    [sim] = make_devices(sites=[site], devices=[device], days=days, hz=hz, effects=effects,
+                         seed=seed, **kw)
+    return sim.chunks()
 
 
 def simulate_recording(path, *, device: str = "ax3", site: str = "wrist", days: float = 7.0,

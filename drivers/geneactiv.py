@@ -25,6 +25,7 @@ Accel counts are returned raw (int16) with ``accel_counts_per_g = gain/100`` and
 
 from __future__ import annotations
 
+import itertools
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,8 +36,8 @@ import numpy as np
 from ..engine.blocks import (PER_SAMPLE_BUTTON, PER_SAMPLE_LIGHT_RAW, Block, DeviceInfo, QCEvent,
                              QCReport)
 from .byteio import FollowingReader, is_gzip, open_bytes, read_exact
-from .constants import (GNA_HEX_PER_SAMPLE, GNA_LIGHT_SHIFT, GNA_PAGE_MARKER, GNA_SAMPLES_PER_PAGE,
-                        gna_rate_hz)
+from .constants import (GNA_HEX_PER_SAMPLE, GNA_LIGHT_SHIFT, GNA_PAGE_MARKER, GNA_RATE_85_7,
+                        GNA_SAMPLES_PER_PAGE, gna_rate_hz)
 from .errors import (CorruptRecordingError, RecordingError, TruncatedRecordingError,
                      UnsupportedFormatError)
 from .geneactiv_header import (CALIBRATION_KEYS, SUBJECT_KEYS, TRIAL_KEYS, GeneactivHeader,
@@ -49,7 +50,11 @@ PAGE_HEX_CHARS = GNA_SAMPLES_PER_PAGE * GNA_HEX_PER_SAMPLE  # 3600
 APPROX_PAGE_BYTES = 3800  # a page with its 9 text lines, for sizing reads (never for allocation)
 HEADER_LIMIT_BYTES = 1 << 20  # a header longer than this is not a GENEActiv header
 MAX_LINE_BYTES = 1 << 20  # a "line" longer than this is garbage (a data line is 3600 characters)
-MAX_PAGE_FIELD_LINES = 24  # "key:value" lines allowed between a marker and its hex line
+MAX_PAGE_FIELD_LINES = 24
+# (line within the page, key prefix) that a standard page must have for the fast path
+_FAST_KEYS = ((1, b"Device Unique Serial Code:"), (2, b"Sequence Number:"), (3, b"Page Time:"),
+              (4, b"Unassigned:"), (5, b"Temperature:"), (6, b"Battery voltage:"),
+              (7, b"Device Status:"), (8, b"Measurement Frequency:"))  # "key:value" lines allowed between a marker and its hex line
 _MARKER = GNA_PAGE_MARKER.encode()
 _MARKER_CR = _MARKER + b"\r"
 _MARKER_RE = re.compile(rb"(?:^|\n)Recorded Data[ \t\r\x00]*(?:\n|$)")
@@ -78,7 +83,11 @@ def decode_hex_samples(hex_bytes: bytes, n_samples: int):
     bad (n,) bool: the sample holds a character that is not a hex digit). [GNA] §5
     """
     n = int(n_samples)
-    b = _HEX_PAIR[np.frombuffer(hex_bytes, "<u2", count=n * 6)].reshape(n, 6)  # 6 bytes per sample
+    if isinstance(hex_bytes, np.ndarray):
+        pairs = hex_bytes.reshape(-1)[:n * 12].view("<u2")
+    else:
+        pairs = np.frombuffer(hex_bytes, "<u2", count=n * 6)
+    b = _HEX_PAIR[pairs].reshape(n, 6)  # 6 bytes per sample
     if b.max(initial=0) > 0xFF:
         bad = (b > 0xFF).any(axis=1)
         b = b & 0xFF
@@ -409,6 +418,12 @@ class GeneactivReader:
                 continue
             # a page: key:value lines up to the hex line
             self._desync_open = None
+            if not cand:  # fast path for a run of standard 10-line pages (keeps the order of `out`)
+                n_fast = self._fast_pages(lines, i, L, index, out)
+                if n_fast:
+                    i += 10 * n_fast
+                    index += n_fast
+                    continue
             k = i + 1
             fields: dict[bytes, bytes] = {}
             while k < L and k - i <= MAX_PAGE_FIELD_LINES:
@@ -459,6 +474,74 @@ class GeneactivReader:
             i = k + 1
         self._decode_candidates(cand, out)
         return [x for x in out if x is not None], i, index
+
+    def _fast_pages(self, lines: list[bytes], i: int, L: int, index: int, out: list) -> int:
+        """Decode the run of standard pages starting at line ``i`` with whole-run numpy operations.
+
+        A standard page is exactly: marker, serial, Sequence Number, Page Time, Unassigned,
+        Temperature, Battery voltage, Device Status, Measurement Frequency, 3600 hex characters
+        (all lines ending alike). Returns how many pages were handled (0: use the general parser).
+        """
+        cr = lines[i].endswith(b"\r")
+        marker = _MARKER_CR if cr else _MARKER
+        P = (L - i) // 10
+        if P < 2:
+            return 0
+        end = i + 10 * P
+        rep = itertools.repeat
+        ok = np.fromiter(map(marker.__eq__, lines[i:end:10]), bool, P)
+        ok &= np.fromiter(map(len, lines[i + 9:end:10]), np.int64, P) == PAGE_HEX_CHARS + cr
+        for off, key in _FAST_KEYS:
+            ok &= np.fromiter(map(bytes.startswith, lines[i + off:end:10], rep(key)), bool, P)
+        bad = np.flatnonzero(~ok)
+        P = int(bad[0]) if bad.size else P
+        if P < 2:
+            return 0
+        end = i + 10 * P
+        cut = -1 if cr else None
+
+        def values(off: int, key: bytes) -> bytes:
+            return b"\n".join(lines[i + off:end:10]).replace(key, b"").replace(b"\r", b"")
+
+        try:
+            seq = np.array(values(2, b"Sequence Number:").split()).astype(np.int64)
+            temp = np.array(values(5, b"Temperature:").split()).astype(np.float64)
+            batt = np.array(values(6, b"Battery voltage:").split()).astype(np.float64)
+            freq = np.array(values(8, b"Measurement Frequency:").split()).astype(np.float64)
+            tbytes = values(3, b"Page Time:")
+            if not (seq.shape[0] == temp.shape[0] == batt.shape[0] == freq.shape[0] == P
+                    and len(tbytes) == 24 * P - 1):
+                return 0
+        except ValueError:
+            return 0  # comma decimals, empty values, ...: the general parser handles them
+        tms, tok = parse_times_ms_fixed(tbytes.split(b"\n"))
+        freq = np.where(np.abs(freq - 85.7) < 1e-6, GNA_RATE_85_7, freq)
+        hexes = np.frombuffer(b"".join(lines[i + 9:end:10]), np.uint8).reshape(P, -1)[:, :cut]
+        acc, light, button, badhex = decode_hex_samples(np.ascontiguousarray(hexes), P * GNA_SAMPLES_PER_PAGE)
+        acc = acc.reshape(P, GNA_SAMPLES_PER_PAGE, 3)
+        light = light.reshape(P, GNA_SAMPLES_PER_PAGE)
+        button = button.reshape(P, GNA_SAMPLES_PER_PAGE)
+        badpage = badhex.reshape(P, GNA_SAMPLES_PER_PAGE).any(axis=1) if badhex.any() else None
+        self.qc.total += P
+        seq_l, t_l, temp_l, batt_l, freq_l = (seq.tolist(), tms.tolist(), temp.tolist(), batt.tolist(),
+                                             freq.tolist())
+        for j in range(P):
+            if badpage is not None and badpage[j]:
+                self.qc.skipped += 1
+                self._event(index + j, "bad_hex", "data line holds characters that are not hex digits",
+                            samples=GNA_SAMPLES_PER_PAGE)
+                out.append(_Skip(index + j))
+            elif not tok[j]:
+                self.qc.skipped += 1
+                v = lines[i + 10 * j + 3].strip(_VALUE_STRIP)[10:].decode("latin-1")
+                self._event(index + j, "bad_page_time", f"Page Time {v!r} is not a valid time",
+                            samples=GNA_SAMPLES_PER_PAGE)
+                out.append(_Skip(index + j))
+            else:
+                self.qc.valid += 1
+                out.append(_Page(index + j, seq_l[j], t_l[j], temp_l[j], batt_l[j], freq_l[j],
+                                 acc[j], light[j], button[j]))
+        return P
 
     def _decode_candidates(self, cand, out) -> None:
         if not cand:

@@ -310,3 +310,46 @@ def test_follow_refuses_gzip(tmp_path):
     write(p)
     with pytest.raises(ValueError, match="follow"):
         GeneactivReader(p, follow=True)
+
+
+def _blocks_and_qc(path, slow: bool, **kw):
+    r = GeneactivReader(path, **kw)
+    if slow:
+        r._fast_pages = lambda *a: 0  # force the general per-page parser
+    blocks = list(r)
+    return blocks, r.qc.as_dict()
+
+
+@pytest.mark.parametrize("damage", ["none", "bad_hex", "bad_time", "comma", "desync", "lf"])
+def test_fast_path_equals_general_parser(tmp_path, damage):
+    p = tmp_path / "r.bin"
+    write(p, pages=9, eol="\n" if damage == "lf" else "\r\n")
+    data = p.read_bytes()
+    pos = pages_of(data)
+    if damage == "bad_hex":
+        i = data.find(b"Frequency:50.0", pos[4]) + 20
+        data = data[:i] + b"x" + data[i + 1:]
+    elif damage == "bad_time":
+        i = data.find(b"Page Time:", pos[6]) + 10
+        data = data[:i] + b"2021-02-30" + data[i + 10:]
+    elif damage == "comma":
+        data = data.replace(b"Temperature:20.5", b"Temperature:20,5")
+    elif damage == "desync":
+        data = data[:pos[5]] + b"noise\r\n" + data[pos[5]:]
+    p.write_bytes(data)
+    for bp in (2, 3, 256):
+        fast_blocks, fast_qc = _blocks_and_qc(p, False, batch_pages=bp)
+        slow_blocks, slow_qc = _blocks_and_qc(p, True, batch_pages=bp)
+        assert fast_qc == slow_qc
+        assert len(fast_blocks) == len(slow_blocks)
+        for a, b in zip(fast_blocks, slow_blocks):
+            for f in ("time_ns", "accel", "unit_index", "unit_sequence", "unit_start", "temperature_c",
+                      "battery_v", "light"):
+                np.testing.assert_array_equal(getattr(a, f), getattr(b, f))
+            assert a.segment == b.segment and a.first_sample == b.first_sample
+            for k in a.per_sample:
+                np.testing.assert_array_equal(a.per_sample[k], b.per_sample[k])
+    if damage in ("bad_hex", "bad_time", "desync"):
+        assert fast_qc["events"]
+    else:
+        assert fast_qc["events"] == [] and 20.5 in np.concatenate([b.temperature_c for b in fast_blocks])

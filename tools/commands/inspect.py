@@ -149,7 +149,7 @@ def inspect_recording(path, *, header_only: bool = False, timezone=None) -> dict
     info, qc = src.info, src.qc
     out = _info_dict(info, fmt)
     aux = ["temperature", "light", "battery"] + sorted(k for k in acc.per_sample if k == "button")
-    unit = "pages" if qc.unit == "page" else "sectors"
+    unit = f"{qc.unit}s"  # "pages" (.bin), "sectors" (.cwa)
     rate = acc.measured_rate()
     out.update({
         "samples": acc.samples,
@@ -219,9 +219,8 @@ def format_text(d: dict) -> str:
         add(f"  end         {d['end'] or '-'}")
         dur = d["duration_s"]
         add(f"  duration    {dur:.3f} s ({dur / 3600:.3f} h, {dur / 86400:.4f} days)")
-        for unit in ("pages", "sectors"):
-            if unit in d:
-                u = d[unit]
+        for unit, u in d.items():
+            if isinstance(u, dict) and set(u) == {"total", "valid", "skipped"}:
                 add(f"  {unit:<11} {u['total']} total, {u['valid']} valid, {u['skipped']} skipped; "
                     f"{d['segments']} segment(s)")
         if d.get("temperature_range_c"):

@@ -11,7 +11,8 @@ wrapper process that runs only that command):
   over everything) - the fastest simple approach, at whole-file memory;
 * skdh and actipy from /work/peers (if present; ``--no-peers`` skips them).
 
-Prints wall seconds, samples per second, peak RSS and ratios against the numpy baseline.
+Prints wall and CPU seconds (CPU time is the steadier figure on a shared machine), samples per
+second, peak RSS and ratios against our reader and the numpy baseline.
 ``--flat-check`` also writes a file twice as long and compares our peak RSS on both (bounded memory
 means the same RSS).
 """
@@ -35,8 +36,9 @@ import json, resource, subprocess, sys, time
 t = time.perf_counter()
 r = subprocess.run(sys.argv[1:], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
 wall = time.perf_counter() - t
-rss = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024.0
-print(json.dumps({"wall": wall, "rss_mb": rss, "rc": r.returncode,
+ru = resource.getrusage(resource.RUSAGE_CHILDREN)
+rss = ru.ru_maxrss / 1024.0
+print(json.dumps({"wall": wall, "cpu": ru.ru_utime + ru.ru_stime, "rss_mb": rss, "rc": r.returncode,
                   "out": r.stdout.decode()[-400:], "err": r.stderr.decode()[-400:]}))
 '''
 
@@ -122,15 +124,16 @@ def main(argv=None) -> int:
                 m = measure(cmd)
                 results[(days, name)] = m
                 ok = "ok" if m["rc"] == 0 else f"FAILED rc={m['rc']}: {m['err'].strip()[-200:]}"
-                print(f"  {name:<20} {m['wall']:7.2f} s  {n / m['wall'] / 1e6:6.2f} M samples/s  "
-                      f"peak RSS {m['rss_mb']:7.0f} MB  {ok}")
+                print(f"  {name:<20} {m['wall']:7.2f} s wall ({m['cpu']:6.2f} s CPU)  "
+                      f"{n / m['wall'] / 1e6:6.2f} M samples/s  peak RSS {m['rss_mb']:7.0f} MB  {ok}")
         base = results.get((args.days, "numpy whole-file"))
         ours = results[(args.days, "stillpoint inspect")]
         print("\nratios (same run):")
         for (days, name), m in results.items():
             if days != args.days or m["rc"] != 0:
                 continue
-            line = f"  {name:<20} wall / stillpoint wall = {m['wall'] / ours['wall']:.2f}"
+            line = (f"  {name:<20} wall / stillpoint wall = {m['wall'] / ours['wall']:.2f}, "
+                    f"CPU / stillpoint CPU = {m['cpu'] / ours['cpu']:.2f}")
             if base:
                 line += (f"; wall / numpy-baseline wall = {m['wall'] / base['wall']:.2f}, "
                          f"RSS / numpy-baseline RSS = {m['rss_mb'] / base['rss_mb']:.2f}")

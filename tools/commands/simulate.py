@@ -62,6 +62,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="also simulate a second device at this site on the same body")
     p.add_argument("--pair-output", default=None, help="second device's file (default: <stem>.<site><ext>)")
     p.add_argument("--pair-device", default=None, choices=("ax3", "ax6", "geneactiv"))
+    p.add_argument("--pair-hz", type=float, default=None, help="second device's sample rate (default --hz)")
     p.add_argument("--save-model", default=None, help="also write the resolved sensor model JSON here")
     p.add_argument("--json", action="store_true", help="print a JSON summary")
 
@@ -92,7 +93,8 @@ def run(args) -> int:
             if common["gyro_range_dps"] is None and dev_b == "ax6":
                 common["gyro_range_dps"] = args.gyro or None
             truths = simulate_pair(out, out_b, site_a=args.site, site_b=args.pair, device_a=args.device,
-                                   device_b=dev_b, effects=model, truth_a=args.truth, **common)
+                                   device_b=dev_b, effects=model, truth_a=args.truth,
+                                   hz_b=args.pair_hz, **common)
         else:
             truths = [simulate_recording(out, device=args.device, site=args.site, effects=model,
                                          truth_path=args.truth, **common)]

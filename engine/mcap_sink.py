@@ -318,39 +318,55 @@ class McapSink:
         reproduces it exactly)."""
         w = self.cell_ns
         cells = []
+        raw_cut = None
         if block is not None and block.n:
-            cells.append(np.unique(block.time_ns // w))
+            # raw messages hold whole sectors/pages: a unit belongs to the cell of its first sample
+            starts = block.unit_start if block.m else np.zeros(1, np.int64)
+            ucell = block.time_ns[starts] // w
+            first = np.concatenate([[0], np.flatnonzero(ucell[1:] != ucell[:-1]) + 1])
+            raw_cut = (ucell[first], np.append(starts[first][1:], block.n), starts[first])
+            cells.append(ucell[first])
         if len(epochs):
             cells.append(epochs.start_ns // w)
         todo = np.unique(np.concatenate(cells)) if cells else np.zeros(0, np.int64)
-        for cell in todo.tolist():
-            if self._cell is None or cell > self._cell:
-                if self._cell is not None and self.flush_every_ns is not None:
-                    self._do("flush", False)
-                self._cell = cell
-            lo, hi = cell * w, (cell + 1) * w
-            if block is not None and block.n:
-                a, b = np.searchsorted(block.time_ns, [lo, hi])
-                if b > a:
-                    self.write_raw(block.slice(int(a), int(b)))
-            if len(epochs):
-                a, b = np.searchsorted(epochs.start_ns, [lo, hi])
-                if b > a:
-                    self.write_epochs(EpochMetrics(**{k: getattr(epochs, k)[a:b] for k in (
-                        "start_ns", "n", "enmo_mg", "bfen_mg", "mad_mg", "mean", "temperature",
-                        "segment")}))
+        pieces = []  # (cell, corrected piece) in time order
         for c in corrected:
             if c.n == 0:
                 continue
             cc = c.time_ns // w
             edges = np.concatenate([[0], np.flatnonzero(cc[1:] != cc[:-1]) + 1, [c.n]])
             for a, b in zip(edges[:-1].tolist(), edges[1:].tolist()):
-                cell = int(cc[a])
-                if self._corr_cell is not None and cell != self._corr_cell:
-                    self._emit_corrected()
-                self._corr_cell = cell
-                self._pending_corr.append(c if (a == 0 and b == c.n) else CorrectedBatch(
-                    c.time_ns[a:b], c.accel[a:b], c.temperature[a:b], c.segment))
+                pieces.append((int(cc[a]), c if (a == 0 and b == c.n) else CorrectedBatch(
+                    c.time_ns[a:b], c.accel[a:b], c.temperature[a:b], c.segment)))
+        j = 0
+        for cell in todo.tolist():
+            while j < len(pieces) and pieces[j][0] < cell:  # corrected data of earlier cells
+                self._take_corrected(*pieces[j])
+                j += 1
+            if self._cell is None or cell > self._cell:
+                if self._cell is not None and self.flush_every_ns is not None:
+                    self._do("flush", False)
+                self._cell = cell
+            lo, hi = cell * w, (cell + 1) * w
+            if raw_cut is not None:
+                k = int(np.searchsorted(raw_cut[0], cell))
+                if k < len(raw_cut[0]) and raw_cut[0][k] == cell:
+                    self.write_raw(block.slice(int(raw_cut[2][k]), int(raw_cut[1][k])))
+            if len(epochs):
+                a, b = np.searchsorted(epochs.start_ns, [lo, hi])
+                if b > a:
+                    self.write_epochs(EpochMetrics(**{k: getattr(epochs, k)[a:b] for k in (
+                        "start_ns", "n", "enmo_mg", "bfen_mg", "mad_mg", "mean", "temperature",
+                        "segment")}))
+        while j < len(pieces):
+            self._take_corrected(*pieces[j])
+            j += 1
+
+    def _take_corrected(self, cell: int, piece: CorrectedBatch) -> None:
+        if self._corr_cell is not None and cell != self._corr_cell:
+            self._emit_corrected()
+        self._corr_cell = cell
+        self._pending_corr.append(piece)
 
     def _emit_corrected(self) -> None:
         parts, self._pending_corr = self._pending_corr, []

@@ -136,6 +136,7 @@ class OutputStage:
         self.samples_metrics = 0
         self._qc_logged = 0
         self._last_ns = 0
+        self._segment = None
 
     def _log_reader_qc(self) -> None:
         events = getattr(getattr(self.source, "qc", None), "events", [])
@@ -157,6 +158,11 @@ class OutputStage:
     def push(self, block: Block) -> None:
         self._last_ns = int(block.time_ns[0])
         self._log_reader_qc()
+        if block.segment != self._segment:
+            self._segment = block.segment
+            self.sink.write_qc({"source": "engine", "reason": "segment_start",
+                                "segment": block.segment, "index": int(block.unit_index[0])
+                                if block.m else -1, "time_ns": self._last_ns}, self._last_ns)
         self._step(block, self.correction.push(block))
 
     def flush(self) -> None:
@@ -266,6 +272,8 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
             applied = est.status in APPLIED_STATUSES
             initial = est if applied else CalibrationEstimate.identity(est.reason)
             sink.write_estimate(est, applied, st1.first_ns or 0)
+            sink.write_qc({"source": "engine", "reason": "calibration", "status": est.status,
+                           "applied": applied, "detail": est.reason}, st1.first_ns or 0)
             estimates_log.append({"status": est.status, "applied": applied})
             outst = OutputStage(s, rate, sink, src, initial)
             st = Pipeline(src, [outst], rate_hz=rate, max_block_s=s.max_block_s).run(

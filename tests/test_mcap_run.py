@@ -1,0 +1,209 @@
+"""End to end on written .cwa files: process -> MCAP (raw lossless, corrected, metrics,
+estimates, QC), replay bit for bit, faults (corrupt sector, truncated file, unreadable file),
+export, CLI."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+
+from stillpoint.drivers import open_recording
+from stillpoint.drivers.cwa import corrupt_sector
+from stillpoint.drivers.mcap_replay import McapRawSource
+from stillpoint.engine.blocks import Block
+from stillpoint.engine.calibration.estimate import CalibrationEstimate
+from stillpoint.engine.mcap_compare import compare
+from stillpoint.engine.mcap_schemas import ACCEL_BATCH, times_from_deltas
+from stillpoint.engine.run import RunSettings, process_file
+from stillpoint.tools.cli import main as cli
+from stillpoint.tools.commands.demo import make_recording
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory):
+    d = tmp_path_factory.mktemp("rec")
+    p = d / "rec.cwa"
+    make_recording(p, hours=1.0, rate=50.0, seed=3)
+    return p
+
+
+def _blocks(src):
+    by_seg = {}
+    for b in src:
+        by_seg.setdefault(b.segment, []).append(b)
+    return {s: Block.concat(v) for s, v in by_seg.items()}
+
+
+def _messages(path, topic):
+    with open(path, "rb") as f:
+        return [(m.log_time, m.data) for _s, _c, m in
+                make_reader(f).iter_messages(topics=[topic], log_time_order=False)]
+
+
+def _corrected(path):
+    t, a = [], []
+    for _lt, data in _messages(path, "/corrected/accel"):
+        m = ACCEL_BATCH.decode(data)
+        t.append(times_from_deltas(m["t0_ns"], m["dt_ns"]))
+        a.append(np.stack([m["x"], m["y"], m["z"]], axis=1))
+    return np.concatenate(t), np.concatenate(a)
+
+
+def test_raw_channel_replays_exactly_the_logged_blocks(recording, tmp_path):
+    out = tmp_path / "r.mcap"
+    process_file(recording, out, RunSettings(mode="online"))
+    with open_recording(recording) as src:
+        ref = _blocks(src)
+        info = src.info
+    rs = McapRawSource(out)
+    got = _blocks(rs)
+    assert rs.info.device_key == info.device_key and rs.info.sample_rate_nominal == info.sample_rate_nominal
+    assert rs.settings["mode"] == "online"
+    assert set(got) == set(ref)
+    for s in ref:
+        a, b = ref[s], got[s]
+        for name in ("time_ns", "accel", "accel_counts_per_g", "accel_zero", "unit_index",
+                     "unit_sequence", "unit_start", "temperature_c", "temperature_raw", "light",
+                     "battery_v", "events"):
+            assert np.array_equal(getattr(a, name), getattr(b, name)), name
+        assert a.first_sample == b.first_sample
+
+
+@pytest.mark.parametrize("mode", ["batch", "online"])
+def test_replay_is_bit_identical(recording, tmp_path, mode):
+    first = tmp_path / "first.mcap"
+    s = RunSettings(mode=mode, chunk_hours=0.25, first_hours=0.5)
+    summary = process_file(recording, first, s)
+    assert summary["samples"] > 150_000
+    again = tmp_path / "again.mcap"
+    assert cli(["replay", str(first), "-o", str(again), "-q"]) == 0
+    res = compare(first, again)
+    assert all(r["identical"] for r in res.values()), res
+    assert res["/corrected/accel"]["messages"][0] > 10
+    if mode == "online":  # several refits were published, with their effective times
+        est = [json.loads(d) for _t, d in _messages(first, "/calibration")]
+        assert len(est) >= 3 and all("effective_from_ns" in e for e in est)
+    # different settings -> a different corrected stream (the check can fail)
+    other = tmp_path / "other.mcap"
+    assert cli(["replay", str(first), "-o", str(other), "-q", "--no-calibrate"]) == 0
+    assert not compare(first, other)["/corrected/accel"]["identical"]
+    assert cli(["replay", str(first), "-o", str(tmp_path / "o2.mcap"), "-q", "--no-calibrate",
+                "--check"]) == 1
+
+
+def test_batch_corrected_stream_is_the_logged_estimate_applied(recording, tmp_path):
+    out = tmp_path / "b.mcap"
+    summary = process_file(recording, out, RunSettings(mode="batch"))
+    cal = summary["calibration"]
+    assert cal["status"] in ("ok", "high_error")
+    assert cal["error_after_mg"] < cal["error_before_mg"]
+    logged = [json.loads(d) for _t, d in _messages(out, "/calibration")]
+    assert len(logged) == 1 and logged[0]["applied"] is True
+    est = CalibrationEstimate.from_dict(logged[0])
+    with open_recording(recording) as src:
+        ref = _blocks(src)[0]
+    t, a = _corrected(out)
+    assert np.array_equal(t, ref.time_ns)
+    ends = np.append(ref.unit_start[1:], ref.n) - 1
+    rel = (ref.time_ns - ref.time_ns[0]).astype(float)
+    temp = np.interp(rel, rel[ends], ref.temperature_c)
+    want = est.apply(ref.accel_g(), temp)
+    q = 2.0 ** -16
+    assert np.max(np.abs(a - want)) <= q / 2 + 1e-6
+    # epoch metrics were logged for every 5 s of data, ENMO >= 0
+    assert summary["epochs"] >= 3600 / 5
+    assert summary["enmo_mean_mg"] > 0
+
+
+def test_corrupt_sector_is_skipped_logged_and_run_goes_on(recording, tmp_path):
+    bad = tmp_path / "bad.cwa"
+    bad.write_bytes(recording.read_bytes())
+    corrupt_sector(bad, 500, "checksum")
+    out = tmp_path / "bad.mcap"
+    s = process_file(bad, out, RunSettings(mode="online"))
+    with open_recording(recording) as src:
+        n_full = sum(b.n for b in src)
+    assert s["samples"] == n_full - 80  # one unpacked AX3 sector of 80 samples skipped
+    assert s["qc"]["skipped"] == 1 and s["segments"] == 2
+    qc = [json.loads(d) for _t, d in _messages(out, "/qc")]
+    assert any(e["reason"] == "checksum" and e["index"] == 500 and e["source"] == "reader" for e in qc)
+    # after the corrupt sector, windows restart at the new segment and the stream continues
+    t, _a = _corrected(out)
+    assert t.shape[0] == s["samples"]
+
+
+def test_file_ending_mid_sector_is_processed_to_the_last_whole_sector(recording, tmp_path):
+    cut = tmp_path / "cut.cwa"
+    data = recording.read_bytes()
+    cut.write_bytes(data[: len(data) - 200])
+    s = process_file(cut, tmp_path / "cut.mcap", RunSettings())
+    with open_recording(recording) as src:
+        n_full = sum(b.n for b in src)
+    assert 0 < n_full - s["samples"] <= 80
+
+
+def test_unreadable_input_exits_2_with_one_line(tmp_path):
+    junk = tmp_path / "junk.cwa"
+    junk.write_bytes(b"this is not a recording" * 10)
+    r = subprocess.run([sys.executable, "-m", "stillpoint.tools", "process", str(junk)],
+                       capture_output=True, text=True)
+    assert r.returncode == 2
+    assert len(r.stderr.strip().splitlines()) == 1 and "junk.cwa" in r.stderr
+    r = subprocess.run([sys.executable, "-m", "stillpoint.tools", "recover", str(junk), "-o",
+                        str(tmp_path / "x.mcap")], capture_output=True, text=True)
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1
+
+
+def test_process_cli_summary_and_export(recording, tmp_path, capsys):
+    out, sj = tmp_path / "c.mcap", tmp_path / "s.json"
+    assert cli(["process", str(recording), "-o", str(out), "--summary", str(sj)]) == 0
+    text = capsys.readouterr().out
+    assert "calibration:" in text and "ENMO mean" in text
+    s = json.loads(sj.read_text())
+    for k in ("samples", "duration_s", "windows", "nonmovement_windows", "calibration",
+              "enmo_mean_mg", "outputs"):
+        assert k in s, k
+    for k in ("offset", "scale", "tempoffset", "temperature_ref", "error_before_mg",
+              "error_after_mg", "hours_used", "status"):
+        assert k in s["calibration"], k
+    assert s["outputs"]["mcap"] == str(out)
+    assert abs(s["duration_s"] - 3600) < 2
+    # the MCAP carries device + settings metadata and well-known encodings
+    with open(out, "rb") as f:
+        r = make_reader(f)
+        meta = {m.name: m.metadata for m in r.iter_metadata()}
+        summ = r.get_summary()
+    assert {"device", "settings", "summary", "calibration"} <= set(meta)
+    assert json.loads(meta["settings"]["json"])["mode"] == "batch"
+    enc = {c.topic: c.message_encoding for c in summ.channels.values()}
+    assert enc["/raw/accel"] == enc["/corrected/accel"] == enc["/metrics/epoch"] == "cdr"
+    assert enc["/calibration"] == enc["/qc"] == "json"
+    assert {s.encoding for s in summ.schemas.values()} == {"ros2msg"}
+    # export: epoch metrics to CSV, corrected stream to NPZ
+    csv = tmp_path / "m.csv"
+    assert cli(["export", str(out), "-o", str(csv)]) == 0
+    lines = csv.read_text().splitlines()
+    assert lines[0].startswith("time,time_ns,n,enmo_mg,bfen_mg,mad_mg") and len(lines) - 1 == s["epochs"]
+    npz = tmp_path / "c.npz"
+    assert cli(["export", str(out), "-o", str(npz), "--topic", "/corrected/accel"]) == 0
+    z = np.load(npz)
+    assert z["corrected/accel/x"].shape[0] == s["samples"]
+    t, _a = _corrected(out)
+    assert np.array_equal(z["corrected/accel/time_ns"], t)
+
+
+def test_flush_cadence_bounds_chunk_time_span(recording, tmp_path):
+    out = tmp_path / "f.mcap"
+    s = process_file(recording, out, RunSettings(mode="online", flush_every_s=10))
+    with open(out, "rb") as f:
+        summ = make_reader(f).get_summary()
+    spans = [(c.message_end_time - c.message_start_time) / 1e9 for c in summ.chunk_indexes]
+    assert len(summ.chunk_indexes) >= 3600 / 10 - 2
+    # a chunk holds one 10 s cell (+ the corrected tail of the previous one, <= one cell)
+    assert max(spans) <= 20.0
+    assert s["mcap_flushes"] >= 3600 / 10 - 2

@@ -214,8 +214,8 @@ class CwaReader:
         self._started = True
         self._init_state()
         try:
-            for sec, first_index in self._batches():
-                yield from self._process(sec, first_index)
+            for sec, first_index, final in self._batches():
+                yield from self._process(sec, first_index, final)
             if self._seg is not None:
                 yield from self._close_segment()
             self._finish_swap_run()
@@ -255,7 +255,8 @@ class CwaReader:
 
     # ------------------------------------------------------------------ bytes -> sector batches
     def _batches(self):
-        """Yield (sectors view, data-sector index of the first) from one reusable buffer."""
+        """Yield (sectors view, data-sector index of the first, end of stream reached) from one
+        reusable buffer."""
         self._stream = f = _open_header(self.path, self.follow, self.follow_idle_s)
         _read_or_fail(self.path, f, C.CWA_HEADER_BYTES)
         size = self.batch_sectors * C.CWA_SECTOR_BYTES
@@ -281,7 +282,7 @@ class CwaReader:
                     break
             k = have // C.CWA_SECTOR_BYTES
             if k:
-                yield np.frombuffer(buf, SECTOR_DTYPE, count=k), index
+                yield np.frombuffer(buf, SECTOR_DTYPE, count=k), index, eof
                 index += k
                 rem = have - k * C.CWA_SECTOR_BYTES
                 if rem:
@@ -295,7 +296,7 @@ class CwaReader:
                         f"file ends {have} bytes into data sector {index}; the partial sector is ignored")
 
     # ------------------------------------------------------------------ one batch
-    def _process(self, sec: np.ndarray, first_index: int):
+    def _process(self, sec: np.ndarray, first_index: int, final: bool = False):
         k = sec.shape[0]
         self.qc.total += k
         reason = classify(sec)
@@ -416,7 +417,10 @@ class CwaReader:
                 chunk[f_] = units[f_][a:b]
             seg.chunks.append(chunk)
         if self._seg is not None:
-            yield from self._emit(self._seg, closed=False)
+            if final:  # end of the stream: the open segment ends here, emit everything at once
+                yield from self._close_segment()
+            else:
+                yield from self._emit(self._seg, closed=False)
 
     # ------------------------------------------------------------------ invalid sectors
     def _log_invalid(self, sec, reason, bad, first_index, cap, count) -> None:

@@ -168,3 +168,26 @@ def test_gzip_output_and_in_memory_generator(tmp_path):
     mem = list(iter_chunks(days=0.02, hz=25, seed=6, effects=build_model("default,corrupt_sectors")))
     assert sum(c.n for c in mem) == t.samples_written
     assert all(c.true_g.shape == c.measured_g.shape == (c.n, 3) for c in mem)
+
+
+def test_sim_source_matches_the_written_file(tmp_path):
+    from stillpoint.engine.sim.source import SimSource
+    from stillpoint.engine.source import Source
+    eff = build_model("default,halts,restarts")
+    p = tmp_path / "s.cwa"
+    simulate_recording(p, days=0.1, hz=25, seed=8, effects=eff)
+    src = SimSource(days=0.1, hz=25, seed=8, effects=eff)
+    assert isinstance(src, Source)
+    blocks = list(src)
+    fsrc, fblocks = _read(p)
+    assert np.array_equal(np.concatenate([b.accel for b in blocks]),
+                          np.concatenate([b.accel for b in fblocks]))
+    dt = np.abs(np.concatenate([b.time_ns for b in blocks]) - np.concatenate([b.time_ns for b in fblocks]))
+    assert np.count_nonzero(dt > 1_000_000) <= 120  # exact but for the sector straddling the halt
+    assert src.qc.segments == fsrc.qc.segments == 3
+    assert np.allclose(blocks[0].accel_g(), fblocks[0].accel_g()[:blocks[0].n])
+    # units like the file's sectors: 120 samples, sequence reset at the restart
+    assert np.all(np.diff(blocks[0].unit_start) == 120)
+    tf = np.concatenate([b.temperature_c for b in fblocks])
+    ts = np.concatenate([b.temperature_c for b in blocks])
+    assert abs(np.median(tf) - np.median(ts)) < 0.3

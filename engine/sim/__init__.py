@@ -4,7 +4,8 @@
 Modules: ``model`` (effects, JSON model files, the pure deterministic sensor function),
 ``wearer`` (behaviour schedule and motion at a body site), ``temperature`` (device temperature),
 ``clock`` (RTC model), ``sensor`` (the full sensor incl. noise, clipping, quantisation),
-``record`` (streaming generation, writers, truth).
+``record`` (streaming generation, writers, truth), ``source`` (SimSource: the simulator as a
+Source of Blocks, no file), ``corrupt`` (damaging .bin pages).
 """
 
 from .model import (EFFECT_ORDER, EFFECTS, ModelError, SensorModel, apply_deterministic,
@@ -12,10 +13,11 @@ from .model import (EFFECT_ORDER, EFFECTS, ModelError, SensorModel, apply_determ
                     resolve_model, save_model)
 from .record import (DeviceSim, SimChunk, Truth, build_model, iter_chunks, load_labels, load_truth,
                      make_devices, simulate_pair, simulate_recording, truth_device_time)
+from .source import SimSource
 from .temperature import TemperatureParams
 from .wearer import SITES, WearerParams
 
-__all__ = ["DeviceSim", "EFFECT_ORDER", "EFFECTS", "ModelError", "SITES", "SensorModel", "SimChunk",
+__all__ = ["DeviceSim", "EFFECT_ORDER", "EFFECTS", "ModelError", "SITES", "SensorModel", "SimChunk", "SimSource",
            "TemperatureParams", "Truth", "WearerParams", "apply_deterministic", "build_model",
            "first_order_lag", "ggir_equivalent", "iter_chunks", "load_labels", "load_model",
            "load_truth", "make_devices", "parse_effect_option", "resolve_model", "save_model",

@@ -393,8 +393,9 @@ def fit_robust(blocks: Sequence[BlockLag], rate: float,
     while detect_steps and len(steps) < max_steps:
         trial = None
         for j in cand_pos:
-            if j in step_pos:
-                continue
+            bounds = [0] + sorted(step_pos + [j]) + [n]
+            if j in step_pos or min(np.diff(bounds)) < STEP_MIN_SIDE:
+                continue  # every stretch between steps keeps at least STEP_MIN_SIDE blocks
             tau = 0.5 * (t[j - 1] + t[j])
             st = sorted(steps + [tau])
             res = _fit_model(t, y, st, None, cap)

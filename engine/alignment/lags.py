@@ -37,14 +37,18 @@ def normalized_xcorr(ref: np.ndarray, other_ext: np.ndarray, max_lag: int,
     if other_ext.size != n + 2 * max_lag:
         raise ValueError("other_ext must be len(ref) + 2*max_lag long")
     r = ref - ref.mean() if centred else ref
-    num = _sig.correlate(other_ext, r, mode="valid", method="fft")
+    if L <= 64:  # few lags (the fine stage): direct dot products beat an FFT of 2n
+        # (not np.dot: a multithreaded BLAS dot is ~100x slower on a loaded machine)
+        num = np.array([(other_ext[j:j + n] * r).sum() for j in range(L)])
+    else:
+        num = _sig.correlate(other_ext, r, mode="valid", method="fft")
     c2 = np.concatenate([[0.0], np.cumsum(other_ext * other_ext)])
     ss = c2[n:n + L] - c2[:L]
     if centred:
         c1 = np.concatenate([[0.0], np.cumsum(other_ext)])
         s1 = c1[n:n + L] - c1[:L]
         ss = ss - s1 * s1 / n
-    den = np.sqrt(np.maximum(ss, 0.0) * float(np.dot(r, r)))
+    den = np.sqrt(np.maximum(ss, 0.0) * float((r * r).sum()))
     out = np.zeros(L)
     ok = den > 1e-12 * max(1.0, float(den.max()) if den.size else 1.0)
     out[ok] = num[ok] / den[ok]
@@ -69,6 +73,41 @@ def peak_lag(corr: np.ndarray, max_lag: int, subsample: bool = True) -> tuple[fl
     return lag, peak, at_edge
 
 
+COARSE_ABOVE = 2000  # searches wider than this many samples run coarse-to-fine
+COARSE_DECIM = 6  # coarse stage: block means of 6 samples (5 Hz at 30 Hz)
+
+
+def _block_means(x: np.ndarray, d: int) -> np.ndarray:
+    m = x.size // d
+    return x[:m * d].reshape(m, d).mean(axis=1)
+
+
+def wide_lag(ref: np.ndarray, other_ext: np.ndarray, max_lag: int, centred: bool = True,
+             subsample: bool = True, decim: int = COARSE_DECIM
+             ) -> tuple[float, float, bool, np.ndarray]:
+    """Coarse-to-fine lag for wide searches: the correlation of ``decim``-sample means over
+    +-max_lag finds the peak, the full-rate correlation within +-2 coarse steps refines it.
+    Returns (lag, peak, at_edge, coarse correlogram); the correlogram's step is ``decim``."""
+    n = ref.size
+    md = max_lag // decim
+    nd = n // decim
+    rd = _block_means(ref, decim)[:nd]
+    od = _block_means(other_ext[max_lag - md * decim:], decim)[:nd + 2 * md]
+    if od.size < nd + 2 * md or nd < 4:
+        return np.nan, np.nan, True, np.zeros(0)
+    cd = normalized_xcorr(rd, od, md, centred)
+    jd = int(np.argmax(cd))
+    if jd == 0 or jd == cd.size - 1:
+        return float((jd - md) * decim), float(cd[jd]), True, cd
+    kc = (jd - md) * decim
+    f = 2 * decim
+    kc = int(np.clip(kc, -max_lag + f, max_lag - f))
+    seg = other_ext[max_lag + kc - f:max_lag + kc + f + n]
+    c = normalized_xcorr(ref, seg, f, centred)
+    lag, peak, edge = peak_lag(c, f, subsample)
+    return kc + lag, peak, edge, cd
+
+
 @dataclass
 class BlockLag:
     """One block's result. Times are seconds since the reference's first sample (its clock)."""
@@ -87,7 +126,8 @@ class BlockLag:
     centroid_s: float = np.nan  # activity-weighted time of the block (where its lag applies)
     sub_lags: np.ndarray = field(default_factory=lambda: np.zeros(0))
     sub_corr: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    correlogram: Optional[np.ndarray] = None  # float32 (2*max_lag+1,), when kept
+    correlogram: Optional[np.ndarray] = None  # float32, lags -max_lag..max_lag, when kept
+    correlogram_step: int = 1  # samples between correlogram points (coarse search: decimated)
 
     @property
     def centre_s(self) -> float:
@@ -270,9 +310,14 @@ class LagEstimator:
         # the lag of a block is the lag where its movement is: with drift, that is the
         # activity-weighted time, not the block's start or centre
         w = rf * rf
-        bl.centroid_s = (s + float(np.dot(np.arange(n), w) / w.sum())) / self.rate
-        corr = normalized_xcorr(rf, of, M, self.centred)
-        bl.lag, bl.corr, edge = peak_lag(corr, M, self.subsample)
+        bl.centroid_s = (s + float((np.arange(n) * w).sum() / w.sum())) / self.rate
+        wide = M > COARSE_ABOVE
+        if wide:
+            bl.lag, bl.corr, edge, corr = wide_lag(rf, of, M, self.centred, self.subsample)
+            bl.correlogram_step = COARSE_DECIM
+        else:
+            corr = normalized_xcorr(rf, of, M, self.centred)
+            bl.lag, bl.corr, edge = peak_lag(corr, M, self.subsample)
         if self.keep_correlograms:
             bl.correlogram = corr.astype(np.float32)
         if edge:
@@ -286,10 +331,14 @@ class LagEstimator:
             for i in range(self.sub_blocks):
                 a, b = edges[i], edges[i + 1]
                 seg = rf[a:b]
-                if not seg.any() or b - a < 4 * M // 10:
+                if not seg.any() or b - a < 4 * COARSE_DECIM:
                     continue
-                c = normalized_xcorr(seg, of[a:b + 2 * M], M, self.centred)
-                lag, pk, ed = peak_lag(c, M, self.subsample)
+                if wide:
+                    lag, pk, ed, _ = wide_lag(seg, of[a:b + 2 * M], M, self.centred,
+                                              self.subsample)
+                else:
+                    c = normalized_xcorr(seg, of[a:b + 2 * M], M, self.centred)
+                    lag, pk, ed = peak_lag(c, M, self.subsample)
                 if not ed:
                     sl[i], sc[i] = lag, pk
             bl.sub_lags, bl.sub_corr = sl, sc

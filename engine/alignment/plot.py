@@ -60,12 +60,14 @@ def plot_alignment(result: AlignmentResult, path, max_correlograms: int = 40) ->
         used = [used[i] for i in np.linspace(0, len(used) - 1, max_correlograms).astype(int)]
     if used:
         M = (used[0].correlogram.size - 1) // 2
-        lags = (np.arange(-M, M + 1)) / rate
+        step = used[0].correlogram_step
+        lags = np.arange(-M, M + 1) * step / rate
         cmap = plt.get_cmap("viridis")
         for i, b in enumerate(used):
             ax2.plot(lags, b.correlogram, lw=0.7, color=cmap(i / max(len(used) - 1, 1)))
         peaks = np.array([b.lag / rate for b in used])
-        ax2.set_xlim(max(-M / rate, peaks.min() - 15.0), min(M / rate, peaks.max() + 15.0))
+        ax2.set_xlim(max(-M * step / rate, peaks.min() - 15.0),
+                     min(M * step / rate, peaks.max() + 15.0))
         ax2.set_xlabel("lag (s)")
         ax2.set_ylabel("normalised cross-correlation")
         ax2.set_title(f"{len(used)} blocks used (colour: time)", fontsize=10)

@@ -1,0 +1,112 @@
+"""End-to-end alignment accuracy on synthetic device pairs with known clocks (CI-sized: 1.5-2.5
+days at 20 Hz; the full 7-day, 20-seed table is tools/align_seeds.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from stillpoint.engine.alignment import AlignConfig, estimate_alignment
+from stillpoint.engine.alignment.synthetic import DeviceClock, SyntheticPair
+
+RATE = 30.0
+
+
+def _pair(seed, days, **kw):
+    rng = np.random.default_rng(1000 + seed)
+    kw.setdefault("clock_ref", DeviceClock(offset_s=0.0, skew_ppm=float(rng.uniform(-50, 50))))
+    kw.setdefault("clock_other", DeviceClock(offset_s=float(rng.uniform(-10, 10)),
+                                             skew_ppm=float(rng.uniform(-50, 50))))
+    return SyntheticPair(seed=seed, duration_s=days * 86400, rate_ref=20, rate_other=20, **kw)
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_linear_clocks_offset_within_one_sample_and_day7_within_0p1s(seed):
+    pair = _pair(seed, 1.5)
+    res = estimate_alignment(pair.source(0), pair.source(1), AlignConfig(method="robust"))
+    assert res.ok, res.reason
+    truth = pair.truth()
+    fit = res.fit
+    assert fit.model == "linear"
+    assert abs(fit.initial_offset_s - truth["initial_offset_s"]) < 1 / RATE
+    assert abs(fit.drift_day7_s - truth["drift_day7_s"]) < 0.1
+    lo, hi = fit.ci()["initial_offset_s"]
+    assert hi - lo < 0.05
+
+
+def test_sampling_halt_detected_located_and_day7_kept_where_linear_fails():
+    halt_at, halt_s = 1.2 * 86400, 150.0
+    pair = _pair(7, 2.5, clock_other=DeviceClock(offset_s=3.0, skew_ppm=20, halt_at_s=halt_at,
+                                                  halt_s=halt_s))
+    truth = pair.truth()
+    robust = estimate_alignment(pair.source(0), pair.source(1), AlignConfig(method="robust"))
+    assert robust.ok and robust.fit.model.startswith("piecewise")
+    [step] = robust.fit.steps
+    # the halt starts at true time halt_at; on the reference clock that is:
+    t_ref = float(pair.clock(0, halt_at) - pair.first_sample_clock(0))
+    assert step.window_s[0] <= t_ref <= step.window_s[1] + 1.0
+    assert step.window_s[1] - step.window_s[0] <= 3600.0
+    assert abs(step.size / RATE + halt_s) < 0.1
+    assert abs(robust.fit.drift_day7_s - truth["drift_day7_s"]) < 0.5
+    brond = estimate_alignment(pair.source(0), pair.source(1),
+                               AlignConfig(method="brond", max_lag_s=300.0))
+    assert brond.ok and abs(brond.fit.drift_day7_s - truth["drift_day7_s"]) > 0.5
+
+
+def test_temperature_dependent_crystals_robust_beats_linear_on_held_out_blocks():
+    pair = _pair(11, 2.5, clock_ref=DeviceClock(skew_ppm=5, temp_ppm_per_c2=-0.035),
+                 clock_other=DeviceClock(offset_s=1.1, skew_ppm=-20, temp_ppm_per_c2=-0.035))
+    res = estimate_alignment(pair.source(0), pair.source(1), AlignConfig(method="robust"))
+    assert res.ok and res.fit.model == "linear+temperature"
+    d = res.fit.diagnostics["temperature"]
+    assert d["heldout_rmse_with"] < 0.5 * d["heldout_rmse_without"]
+    # and the model follows the true offset better than a line between the blocks
+    t = np.linspace(0, 2.4 * 86400, 50)
+    err = np.abs(res.fit.offset_s(t) - pair.truth_offset_s(t))
+    assert err.max() < 2 / RATE
+
+
+def test_sedentary_recording_reports_too_few_blocks():
+    pair = _pair(21, 1.0, active_fraction=0.01)
+    for method in ("brond", "robust"):
+        res = estimate_alignment(pair.source(0), pair.source(1), AlignConfig(method=method))
+        assert not res.ok and res.fit is None
+        assert res.reason.startswith("too few blocks") and "inactive" in res.reason
+        d = res.as_dict()
+        assert d["aligned"] is False and d["initial_offset_s"] is None
+
+
+def test_recordings_that_do_not_overlap():
+    a = _pair(22, 0.3)
+    b = SyntheticPair(seed=22, duration_s=0.3 * 86400, rate_ref=20, rate_other=20,
+                      clock_other=DeviceClock(offset_s=-2 * 86400.0))
+    res = estimate_alignment(a.source(0), b.source(1), AlignConfig())
+    assert not res.ok and "do not overlap" in res.reason
+
+
+def test_online_estimates_converge_to_the_batch_estimate():
+    pair = _pair(4, 1.5)
+    seen = []
+    res = estimate_alignment(pair.source(0), pair.source(1), AlignConfig(method="robust"),
+                             on_estimate=lambda fit, bl: seen.append((bl.index, fit)))
+    assert len(seen) >= 4
+    idx = [i for i, _ in seen]
+    assert idx == sorted(idx)
+    last = seen[-1][1]
+    assert abs(last.initial_offset_s - res.fit.initial_offset_s) < 1 / RATE
+    truth = pair.truth()
+    assert abs(seen[-1][1].drift_day7_s - truth["drift_day7_s"]) < 0.2
+
+
+def test_brond_method_reproduces_the_paper_on_linear_clocks():
+    pair = _pair(5, 1.5, clock_other=DeviceClock(offset_s=2.0, skew_ppm=15))
+    res = estimate_alignment(pair.source(0), pair.source(1), AlignConfig(method="brond"))
+    assert res.ok and res.fit.method == "brond"
+    lags = [b.lag for b in res.blocks if b.valid]
+    assert all(float(x).is_integer() for x in lags)  # integer lags at 30 Hz, as the paper
+    assert res.fit.thresholds[0] == 1.0
+    truth = pair.truth()
+    # block start as the lag's time biases the offset by drift x 30 min (documented)
+    bias = truth["drift_day7_s"] / 7 / 48
+    assert abs(res.fit.initial_offset_s - truth["initial_offset_s"] - bias) < 3 / RATE
+    assert abs(res.fit.drift_day7_s - truth["drift_day7_s"]) < 1.0

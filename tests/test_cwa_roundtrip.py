@@ -337,3 +337,41 @@ def test_block_invariants(tmp_path):
     # a block never mixes segments
     segs = [b.segment for b in r["blocks"]]
     assert segs == sorted(segs)
+
+
+def test_format_change_count_legacy_overflow(tmp_path):
+    from stillpoint.drivers.cwa import patch_sector
+    t, a = synth(120 * 12)
+    p = tmp_path / "f.cwa"
+    _write(p, t, a, events=0)
+    patch_sector(p, 3, events=0x10)  # device reports a FIFO overflow
+    patch_sector(p, 5, sample_count=500)  # above the 120 capacity: clamped
+    patch_sector(p, 7, tag=0x4255)  # legacy "UB" sector
+    for i in range(9, 12):
+        patch_sector(p, i, rate_code=0x49)  # 50 Hz from here on
+    r = read_all(p)
+    assert qc_reasons(r["reader"]) == [(3, "device_overflow"), (5, "bad_count"), (7, "legacy_sector"),
+                                       (8, "sequence_gap"), (9, "format_change")]
+    assert r["n"] == 11 * 120 and r["reader"].qc.segments == 3
+    np.testing.assert_array_equal(r["accel"], np.delete(a, np.s_[840:960], axis=0))
+    assert r["events"][3] == 0x10
+
+
+def test_segment_without_timestamps_is_dropped_and_logged(tmp_path):
+    from stillpoint.drivers.cwa import patch_sector
+    t, a = synth(120 * 6)
+    t2, a2 = synth(120 * 4, start_ns=int(t[-1]) + 60 * 10**9, seed=2)
+    p = tmp_path / "u.cwa"
+    with CwaWriter(p) as w:
+        w.write(t, a)
+        w.restart()
+        w.write(t2, a2)
+    for i in range(6, 10):
+        patch_sector(p, i, timestamp=0)
+    r = read_all(p)
+    reasons = qc_reasons(r["reader"])
+    assert reasons.count((6, "bad_timestamp")) == 1 and (6, "restart") in reasons
+    untimed = [e for e in r["reader"].qc.events if e.reason == "untimed"]
+    assert len(untimed) == 1 and untimed[0].samples == 480
+    assert r["n"] == 720 and r["reader"].qc.valid == 6 and r["reader"].qc.skipped == 4
+    np.testing.assert_array_equal(r["accel"], a)

@@ -348,7 +348,7 @@ def test_format_change_count_legacy_overflow(tmp_path):
     patch_sector(p, 5, sample_count=500)  # above the 120 capacity: clamped
     patch_sector(p, 7, tag=0x4255)  # legacy "UB" sector
     for i in range(9, 12):
-        patch_sector(p, i, rate_code=0x49)  # 50 Hz from here on
+        patch_sector(p, i, rate_code=0x0A)  # +-16 g from here on (same rate)
     r = read_all(p)
     assert qc_reasons(r["reader"]) == [(3, "device_overflow"), (5, "bad_count"), (7, "legacy_sector"),
                                        (8, "sequence_gap"), (9, "format_change")]

@@ -495,16 +495,6 @@ class SiteModel:
         ph = k0 + (t - t0) / iv
         return ph, 1.0 / iv
 
-    def _heel(self, t: np.ndarray) -> np.ndarray:
-        """Heel-strike transient: peak 1 at 25 ms after each step, decaying (shared by all sites)."""
-        st = self.schedule.steps
-        if st.size == 0:
-            return np.zeros_like(t)
-        k = np.searchsorted(st, t, side="right") - 1
-        dt = np.where(k >= 0, t - st[np.maximum(k, 0)], 1.0)
-        tau = 0.025
-        return (dt / tau) * np.exp(1.0 - dt / tau)
-
     def orientation_at_end(self, i: int) -> np.ndarray:
         """Device orientation at the end of segment i."""
         R = self._end_cache.get(i)

@@ -67,7 +67,8 @@ def test_calibrate_features_ggir_and_human(capsys, features_csv):
     path, _ = features_csv
     code, out, _ = run_cli(capsys, "calibrate-features", str(path), "--ggir-compatible", "--json")
     d = json.loads(out)
-    assert d["stop_rule"] == "ggir-res" and d["error_after_g"] == round(d["error_after_mg"] / 1000, 5)
+    assert d["stop_rule"] == "ggir-res"
+    assert d["error_after_g"] == round(d["error_after_mg"] / 1000, 5)
     code, out, _ = run_cli(capsys, "calibrate-features", str(path))
     assert code == 0 and "status       ok" in out and "offset (g)" in out
 
@@ -137,12 +138,18 @@ def test_calibrate_whole_file_and_bad_input(capsys, cwa_file, tmp_path):
     assert code == 2 and "junk.cwa" in err
 
 
-def test_plot_and_missing_matplotlib(capsys, features_csv, tmp_path, monkeypatch):
+def test_plot_writes_png(capsys, features_csv, tmp_path, monkeypatch):
+    pytest.importorskip("matplotlib", reason="matplotlib (the plot extra) is not installed")
     path, _ = features_csv
     png = tmp_path / "cal.png"
     code, out, _ = run_cli(capsys, "calibrate-features", str(path), "--plot", str(png))
     assert code == 0 and png.stat().st_size > 10000
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_plot_without_matplotlib_is_a_clear_error(capsys, features_csv, tmp_path, monkeypatch):
+    path, _ = features_csv
     monkeypatch.setitem(sys.modules, "matplotlib", None)
-    code, _, err = run_cli(capsys, "calibrate-features", str(path), "--plot", str(tmp_path / "x.png"))
+    code, _, err = run_cli(capsys, "calibrate-features", str(path), "--plot",
+                           str(tmp_path / "x.png"))
     assert code == 2 and "matplotlib" in err and "stillpoint[plot]" in err

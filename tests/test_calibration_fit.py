@@ -180,7 +180,7 @@ def test_rereference_is_the_same_calibration(synth):
                                truth.apply(feats.mean, feats.temperature), atol=1e-14)
 
 
-# ----------------------------------------------------------------------------- GGIR's real feature set
+# ------------------------------------------------------------------------ GGIR's real feature set
 @pytest.fixture(scope="module")
 def ggir_features(real_file):
     return read_features_csv(real_file(SPHERE_CSV))

@@ -95,7 +95,8 @@ def main(argv=None) -> int:
     if not path.is_file():
         t = time.perf_counter()
         truth = make_recording(path, args.days, args.rate)
-        print(f"wrote {path} ({path.stat().st_size / 1e6:.0f} MB) in {time.perf_counter() - t:.1f} s")
+        print(f"wrote {path} ({path.stat().st_size / 1e6:.0f} MB) "
+              f"in {time.perf_counter() - t:.1f} s")
     else:
         truth = json.loads(path.with_suffix(".truth.json").read_text())
     size_mb = path.stat().st_size / 1e6
@@ -127,7 +128,8 @@ def main(argv=None) -> int:
     print("\nratios (same run):")
     if have_skdh:
         sk = res["skdh read + autocal"]
-        print(f"  skdh read+autocal / stillpoint calibrate      = {sk['wall_s'] / ours['wall_s']:.1f}x"
+        print("  skdh read+autocal / stillpoint calibrate      = "
+              f"{sk['wall_s'] / ours['wall_s']:.1f}x"
               "  (target >= 4x)")
         print(f"  skdh read+autocal / calibrate --read-all      = "
               f"{sk['wall_s'] / res['calibrate --read-all']['wall_s']:.1f}x")
@@ -147,7 +149,8 @@ def main(argv=None) -> int:
     tr = rereference(CalibrationEstimate(**truth), est["temperature_ref"])
     print(f"\nfit: {est['status']}, {est['windows']} windows, {est['hours_used']:.0f} h used, "
           f"error {est['error_before_mg']:.2f} -> {est['error_after_mg']:.2f} mg")
-    print(f"  |offset - true| max {np.max(np.abs(np.subtract(est['offset'], tr.offset))) * 1e3:.3f} mg"
+    d_off = np.max(np.abs(np.subtract(est['offset'], tr.offset))) * 1e3
+    print(f"  |offset - true| max {d_off:.3f} mg"
           f", |scale/true - 1| max "
           f"{np.max(np.abs(np.divide(est['scale'], truth['scale']) - 1)) * 100:.4f} %, "
           f"|tempoffset - true| max "

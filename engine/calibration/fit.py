@@ -130,6 +130,36 @@ def temperature_check(temperature: Optional[np.ndarray]) -> tuple[bool, str]:
     return True, "temperature used"
 
 
+def _design(curr_k, t, ones, fit_offset, fit_scale):
+    cols = []
+    if fit_offset:
+        cols.append(ones)
+    if fit_scale:
+        cols.append(curr_k)
+    if t is not None:
+        cols.append(t)
+    return np.column_stack(cols)
+
+
+def _wls_qr(curr, closest, t, w, fit_offset, fit_scale):
+    """Per-axis weighted least squares the way R's lm.wfit does it (orthogonal decomposition of
+    sqrt(w)-scaled rows; fitted = y - residual / sqrt(w)). Returns coefficients (3, p) and the
+    fitted current points (n, 3)."""
+    n = curr.shape[0]
+    sw = np.sqrt(w)
+    ones = np.ones(n)
+    coefs, fitted = [], np.empty_like(curr)
+    for k in range(3):
+        x = _design(curr[:, k], t, ones, fit_offset, fit_scale) * sw[:, None]
+        y = closest[:, k] if fit_scale else closest[:, k] - curr[:, k]
+        yw = y * sw
+        coef = np.linalg.lstsq(x, yw, rcond=None)[0]
+        yhat = y - (yw - x @ coef) / sw
+        fitted[:, k] = yhat if fit_scale else yhat + curr[:, k]
+        coefs.append(coef)
+    return np.array(coefs), fitted
+
+
 @dataclass
 class IcpResult:
     """Parameters and diagnostics of one ICP run."""
@@ -163,7 +193,6 @@ def icp_sphere_fit(mean: np.ndarray, temp_centered: Optional[np.ndarray] = None,
     offset, scale, tempoffset = np.zeros(3), np.ones(3), np.zeros(3)
     weights = np.ones(n)
     res_hist = [float("inf")]
-    ones = np.ones(n)
     converged, failed, it = False, "", 0
     for it in range(1, max_iter + 1):
         curr = apply_model(mean, t, offset, scale, tempoffset, ggir_arithmetic=ggir_compatible)
@@ -174,33 +203,17 @@ def icp_sphere_fit(mean: np.ndarray, temp_centered: Optional[np.ndarray] = None,
             failed = f"non-finite values at iteration {it}"
             it -= 1
             break
-        sw = np.sqrt(weights)
         d_off, d_scale, d_t = np.zeros(3), np.ones(3), np.zeros(3)
-        fitted = np.empty_like(curr)
-        for k in range(3):
-            cols = []
-            if fit_offset:
-                cols.append(ones)
-            if fit_scale:
-                cols.append(curr[:, k])
-            if use_t:
-                cols.append(t)
-            x = np.column_stack(cols) * sw[:, None]
-            y = closest[:, k] if fit_scale else closest[:, k] - curr[:, k]
-            yw = y * sw
-            coef = np.linalg.lstsq(x, yw, rcond=None)[0]
-            # fitted values as lm.wfit forms them: y minus the unweighted residual
-            yhat = y - (yw - x @ coef) / sw
-            fitted[:, k] = yhat if fit_scale else yhat + curr[:, k]
-            j = 0
-            if fit_offset:
-                d_off[k] = coef[j]
-                j += 1
-            if fit_scale:
-                d_scale[k] = coef[j]
-                j += 1
-            if use_t:
-                d_t[k] = coef[j]
+        coefs, fitted = _wls_qr(curr, closest, t, weights, fit_offset, fit_scale)
+        j = 0
+        if fit_offset:
+            d_off = coefs[:, j]
+            j += 1
+        if fit_scale:
+            d_scale = coefs[:, j]
+            j += 1
+        if use_t:
+            d_t = coefs[:, j]
         new_offset = offset + d_off / (scale * d_scale)
         new_tempoffset = tempoffset * d_scale + d_t if use_t else tempoffset
         new_scale = scale * d_scale

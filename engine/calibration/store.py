@@ -81,7 +81,7 @@ def _locked(path: Path):
 
 
 class CalibrationStore:
-    """Estimates per device. ``root`` defaults to ``$STILLPOINT_HOME`` or ~/.local/share/stillpoint."""
+    """Estimates per device; ``root``: $STILLPOINT_HOME or ~/.local/share/stillpoint."""
 
     def __init__(self, root=None):
         self.root = Path(root).expanduser() if root is not None else default_root()

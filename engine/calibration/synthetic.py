@@ -1,4 +1,4 @@
-"""Synthetic window-feature tables with a known calibration error (for tests and the accuracy table).
+"""Synthetic window-feature tables with a known calibration error (tests, accuracy table).
 
 Not a signal simulator (that is ``engine.sim``): this draws the *window features* a recording
 would produce directly, which is what the fit consumes. Still periods hold one orientation for a

@@ -70,7 +70,8 @@ def run(args) -> int:
             e, q = r["estimate"], r.get("quality") or {}
             print(f"- data {r.get('data_start') or '?'} .. {r.get('data_end') or '?'}  "
                   f"[{r['status']}, {r['method']}]  stored {r.get('stored_at')}")
-            print(f"    error {_fmt(q.get('error_before_mg'))} -> {_fmt(q.get('error_after_mg'))} mg"
+            print(f"    error {_fmt(q.get('error_before_mg'))} -> "
+                  f"{_fmt(q.get('error_after_mg'))} mg"
                   f" on {q.get('windows')} windows, {_fmt(q.get('hours_used'), '.1f')} h")
             print("    offset " + " ".join(f"{v:+.6f}" for v in e["offset"]) +
                   "  scale " + " ".join(f"{v:.6f}" for v in e["scale"]) +

@@ -157,6 +157,9 @@ class CwaWriter:
             aux[name] = v
         if n == 0:
             return
+        if (self._last_time is not None and t[0] <= self._last_time) or (n > 1 and not (t[1:] > t[:-1]).all()):
+            raise ValueError("sample times must increase strictly (also across write() calls and restarts)")
+        self._last_time = int(t[-1])
         spp = self.samples_per_sector
         i = 0
         if self._pending is not None:
@@ -238,10 +241,6 @@ class CwaWriter:
         spp = self.samples_per_sector
         starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
         first = t[starts]
-        prev = self._last_time
-        if (np.any(np.diff(first) <= 0)) or (prev is not None and first[0] <= prev):
-            raise ValueError("sample times must increase (sector start times went backwards)")
-        self._last_time = int(t[-1])
 
         sec = np.zeros(k, SECTOR_DTYPE)
         sec["tag"] = C.CWA_TAG_DATA

@@ -390,6 +390,12 @@ def _start_ns(start) -> int:
     return int(round(start.timestamp() * 1e9))
 
 
+def _device_hz(device: str, hz: float) -> float:
+    """GENEActiv "85.7 Hz" is 300 samples per 3.5 s = 600/7 Hz (drivers/constants.GNA_RATE_85_7)."""
+    from stillpoint.drivers.constants import GNA_RATE_85_7
+    return GNA_RATE_85_7 if device.lower() == "geneactiv" and abs(hz - 85.7) < 0.01 else float(hz)
+
+
 def make_devices(*, sites: Sequence[str], devices: Sequence[str], days: float, hz: float,
                  effects=None, seed: int = 1, start=None, range_g=None, packed=None,
                  gyro_range_dps=None, wearer: Optional[WearerParams] = None,
@@ -411,6 +417,7 @@ def make_devices(*, sites: Sequence[str], devices: Sequence[str], days: float, h
         if site not in SITES:
             raise ValueError(f"site must be one of {', '.join(SITES)}, got {site!r}")
         dev = dev.lower()
+        dev_hz = _device_hz(dev, hz)
         gains = offsets = None
         if dev == "geneactiv" and geneactiv_calibration:
             r = np.random.default_rng(np.random.SeedSequence([int(seed), 5, i]))
@@ -421,7 +428,7 @@ def make_devices(*, sites: Sequence[str], devices: Sequence[str], days: float, h
                                gains=gains, offsets=offsets)
         m = models[i] if models is not None else build_model(effects)
         dev_id = int(np.random.SeedSequence([int(seed), 6, i]).generate_state(1)[0] % 60000) + 1000
-        out.append(DeviceSim(schedule, site=site, spec=spec, model=m, seed=seed, dev_index=i, hz=hz,
+        out.append(DeviceSim(schedule, site=site, spec=spec, model=m, seed=seed, dev_index=i, hz=dev_hz,
                              duration_s=duration, start_ns=start_ns, temperature=temperature,
                              device_id=dev_id))
     return out
@@ -628,7 +635,7 @@ def simulate_pair(path_a, path_b, *, site_a: str = "wrist", site_b: str = "hip",
     if hz_b is not None and hz_b != hz:
         b = sims[1]
         sims[1] = DeviceSim(b.schedule, site=b.site, spec=b.spec, model=m_b, seed=seed, dev_index=1,
-                            hz=hz_b, duration_s=b.duration_s, start_ns=b.start_ns,
+                            hz=_device_hz(b.spec.kind, hz_b), duration_s=b.duration_s, start_ns=b.start_ns,
                             temperature=temperature, device_id=b.device_id)
     sinks = [_FileSink(sims[0], path_a), _FileSink(sims[1], path_b)]
     try:

@@ -55,7 +55,9 @@ class DeviceSpec:
             return DeviceSpec("ax3", r, True if packed is None else bool(packed))
         if packed:
             raise ValueError("packed mode is AX3-only")
-        return DeviceSpec("ax6", r, False, 2000.0 if gyro_range_dps is None else float(gyro_range_dps))
+        # AX6: gyro on at 2000 dps by default; gyro_range_dps=0 records the accelerometer only
+        gyro = 2000.0 if gyro_range_dps is None else (float(gyro_range_dps) or None)
+        return DeviceSpec("ax6", r, False, gyro)
 
     # --------------------------------------------------------------- resolution
     @property

@@ -82,7 +82,7 @@ def run(args) -> int:
     model = build_model(effects, model=args.model, overrides=overrides)
     common = dict(days=args.days, hz=args.hz, seed=args.seed, start=args.start,
                   range_g=args.range_g, packed=False if args.unpacked else None,
-                  gyro_range_dps=(args.gyro or None) if args.device == "ax6" else None)
+                  gyro_range_dps=args.gyro if args.device == "ax6" else None)
     t0 = time.perf_counter()
     try:
         if args.pair:
@@ -91,7 +91,7 @@ def run(args) -> int:
             stem = out.name[: -len(ext)] if out.name.endswith(ext) else out.stem
             out_b = Path(args.pair_output) if args.pair_output else out.with_name(f"{stem}.{args.pair}{ext_b}")
             if common["gyro_range_dps"] is None and dev_b == "ax6":
-                common["gyro_range_dps"] = args.gyro or None
+                common["gyro_range_dps"] = args.gyro
             truths = simulate_pair(out, out_b, site_a=args.site, site_b=args.pair, device_a=args.device,
                                    device_b=dev_b, effects=model, truth_a=args.truth,
                                    hz_b=args.pair_hz, **common)

@@ -129,8 +129,11 @@ def realism(days: float, hz: float, seed: int) -> dict:
         "enmo_p25_p50_p75_p95_uncal": [round(float(x) * 1000, 1) for x in np.percentile(u, [25, 50, 75, 95])],
         "enmo_p25_p50_p75_p95_cal": [round(float(x) * 1000, 1) for x in np.percentile(cc, [25, 50, 75, 95])],
         "walking_bouts_ge_60s": int(pk.shape[0]),
-        "walking_peak_hz_min_max": [round(float(pk[:, 0].min()), 2), round(float(pk[:, 0].max()), 2)] if pk.size else None,
-        "walking_peak_minus_step_hz_max_abs": round(float(np.abs(pk[:, 0] - pk[:, 1]).max()), 3) if pk.size else None,
+        "walking_step_hz_min_max": [round(float(pk[:, 1].min()), 2), round(float(pk[:, 1].max()), 2)] if pk.size else None,
+        # share of walking bouts whose vector-magnitude spectrum peaks at their step frequency
+        # (+-0.1 Hz); the others peak at the stride frequency (half of it)
+        "walking_peak_at_step_hz_share": round(float(np.mean(np.abs(pk[:, 0] - pk[:, 1]) < 0.1)), 3) if pk.size else None,
+        "walking_peak_in_1p6_2p2_hz_share": round(float(np.mean((pk[:, 0] >= 1.6) & (pk[:, 0] <= 2.2))), 3) if pk.size else None,
         "worn_temperature_c_p5_p95": [round(float(x), 1) for x in np.percentile(lab["temperature_c"][worn], [5, 95])],
     }
 

@@ -31,6 +31,9 @@ def test_json_round_trip_and_aliases(tmp_path):
     ({"effects": {"offset": {"x_g": 1}}}, "no parameter"),
     ({"format": "other", "effects": {}}, "format"),
     ({"nothing": 1}, "effects"),
+    ({"effects": {"offset": {"x_mg": "ten"}}}, "finite number"),
+    ({"effects": {"offset": 5}}, "object"),
+    ({"effects": {"halts": {"events": 3}}}, "list"),
 ])
 def test_bad_models_are_typed_errors(tmp_path, bad, msg):
     p = tmp_path / "bad.json"
@@ -125,6 +128,6 @@ def test_resolve_fills_typical_values_reproducibly():
     assert abs(a.effects["clock"]["skew_ppm"]) <= 50
     assert a.effects["clock"]["curvature_ppm_per_c2"] == -0.035
     # one effect's draws do not depend on which other effects are on
-    c = resolve_model(SensorModel({"gain": {}}), seed=7)
+    c = resolve_model(SensorModel({"gain": None}), seed=7)
     assert c.effects["gain"] == a.effects["gain"]
     assert resolve_model(SensorModel({"gain": {}}), seed=8).effects["gain"] != c.effects["gain"]

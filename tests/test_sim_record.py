@@ -191,3 +191,16 @@ def test_sim_source_matches_the_written_file(tmp_path):
     tf = np.concatenate([b.temperature_c for b in fblocks])
     ts = np.concatenate([b.temperature_c for b in blocks])
     assert abs(np.median(tf) - np.median(ts)) < 0.3
+
+
+def test_prefetch_thread_does_not_change_the_output():
+    kw = dict(sites=["hip"], devices=["ax6"], days=2.5 / 24, hz=25, seed=12,
+              effects=build_model("default,halts"))
+    [a] = make_devices(**kw)
+    [b] = make_devices(**kw)
+    ca = list(a.chunks(prefetch=False))
+    cb = list(b.chunks(prefetch=True))
+    assert len(ca) == len(cb) == 3
+    for x, y in zip(ca, cb):
+        assert np.array_equal(x.counts, y.counts) and np.array_equal(x.time_ns, y.time_ns)
+        assert np.array_equal(x.gyro_counts, y.gyro_counts)

@@ -204,15 +204,27 @@ class SensorModel:
         clean = {}
         for name, params in (self.effects or {}).items():
             n = canonical_name(name)
-            params = dict(params or {})
+            if params is None:
+                params = {}
+            if not isinstance(params, dict):
+                raise ModelError(f"effect {n!r}: parameters must be an object, got {params!r}")
+            params = dict(params)
             if params.get("enabled", True) is False:
                 continue
             params.pop("enabled", None)
-            known = {p.key for p in EFFECTS[n]["params"]}
-            for k in params:
-                if k not in known and k not in META_KEYS:
+            specs = {p.key: p for p in EFFECTS[n]["params"]}
+            for k, v in params.items():
+                if k not in specs and k not in META_KEYS:
                     raise ModelError(f"effect {n!r} has no parameter {k!r}; parameters: "
-                                     f"{', '.join(sorted(known)) or '(none)'}")
+                                     f"{', '.join(sorted(specs)) or '(none)'}")
+                if k in specs and k not in ("events", "indices", "mode", "count"):
+                    if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
+                        raise ModelError(f"effect {n!r}: {k} must be a finite number"
+                                         f" (in {specs[k].unit or 'no unit'}), got {v!r}")
+                elif k == "count" and (isinstance(v, bool) or not isinstance(v, int) or v < 0):
+                    raise ModelError(f"effect {n!r}: count must be a non-negative integer, got {v!r}")
+                elif k in ("events", "indices") and not isinstance(v, list):
+                    raise ModelError(f"effect {n!r}: {k} must be a list, got {v!r}")
             clean[n] = params
         self.effects = {n: clean[n] for n in EFFECT_ORDER if n in clean}
 

@@ -99,3 +99,19 @@ def test_follow_reads_a_growing_file(tmp_path):
     np.testing.assert_array_equal(np.concatenate([b.accel for b in blocks]), a)
     assert np.abs(time_ns - t).max() <= 1e9 / 32768
     assert reader.qc.valid == 60 and reader.qc.events == []
+
+
+def test_qc_log_is_capped_but_counts_stay_exact(tmp_path, monkeypatch):
+    import stillpoint.drivers.cwa_reader as cr
+    from stillpoint.drivers.cwa import corrupt_sector
+    monkeypatch.setattr(cr, "MAX_QC_EVENTS", 3)
+    t, a = synth(120 * 20)
+    p = tmp_path / "many.cwa"
+    with CwaWriter(p) as w:
+        w.write(t, a)
+    for i in range(0, 20, 2):
+        corrupt_sector(p, i)
+    r = read_all(p)
+    rd = r["reader"]
+    assert rd.qc.skipped == 10 and rd.qc.valid == 10 and r["n"] == 1200
+    assert len(rd.qc.events) == 4 and rd.qc.events[-1].reason == "qc_log_truncated"

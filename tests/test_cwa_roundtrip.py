@@ -452,3 +452,15 @@ if given is not None:
         rows = {tuple(x) for x in a.tolist()}
         assert all(tuple(x) in rows for x in ref["accel"][::37].tolist())
         assert (np.diff(ref["time"])[np.diff(ref["segment"]) == 0] > 0).all()
+
+
+def test_blocks_are_bounded_by_the_batch(tmp_path):
+    """Memory proxy (CI-sized): no Block holds more than about one batch of sectors, however long
+    the file, and every sector is yielded once (the benchmark measures RSS on a 7/14-day file)."""
+    t, a = synth(120 * 300)
+    p = tmp_path / "long.cwa"
+    _write(p, t, a)
+    r = read_all(p, batch_sectors=16)
+    assert max(b.n for b in r["blocks"]) <= (16 + 2) * 120
+    assert len(r["blocks"]) >= 300 // 16
+    np.testing.assert_array_equal(r["unit_index"], np.arange(300))

@@ -153,3 +153,19 @@ def test_plot_without_matplotlib_is_a_clear_error(capsys, features_csv, tmp_path
     code, _, err = run_cli(capsys, "calibrate-features", str(path), "--plot",
                            str(tmp_path / "x.png"))
     assert code == 2 and "matplotlib" in err and "stillpoint[plot]" in err
+
+
+@pytest.mark.parametrize("jobs", ["1", "2"])
+def test_calibrate_cohort_several_files(capsys, cwa_file, tmp_path, jobs):
+    junk = tmp_path / "junk.bin"
+    junk.write_bytes(b"\x00" * 2000)
+    plots = tmp_path / "plots"
+    extra = ["--plot", str(plots)] if jobs == "2" else []
+    code, out, err = run_cli(capsys, "calibrate", str(cwa_file), str(junk), str(cwa_file),
+                             "--json", "--first-hours", "6", "-j", jobs, *extra)
+    lines = [json.loads(x) for x in out.splitlines()]
+    assert code == 2 and "junk.bin" in err
+    assert [d["file"] for d in lines] == [str(cwa_file), str(junk), str(cwa_file)]
+    assert lines[1]["status"] == "error" and "junk.bin" in lines[1]["reason"]
+    assert lines[0]["status"] == "ok" and lines[0]["offset"] == lines[2]["offset"]
+    assert (plots / (cwa_file.name + ".png")).is_file() == (jobs == "2")

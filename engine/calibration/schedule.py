@@ -138,7 +138,8 @@ class BatchSchedule:
             est.extra["recording_hours"] = round(total_h, 6)
             if total_h < self.first_hours:
                 est.extra["flags"].append("short")
-                est.reason += (f"; recording only {total_h:.1f} h (< {self.first_hours:g} h "
+                dur = f"{total_h:.1f} h" if total_h >= 1 else f"{total_h * 60:.1f} min"
+                est.reason += (f"; recording only {dur} (< {self.first_hours:g} h "
                                "first load): flagged short")
                 if total_h < SHORT_RECORDING_HOURS:
                     est.extra["flags"].append("under_24h")

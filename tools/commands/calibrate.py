@@ -1,5 +1,5 @@
-"""``stillpoint calibrate FILE``: batch autocalibration of a recording, fit only (no corrected
-output): the fast path for cohort QC.
+"""``stillpoint calibrate FILE [FILE ...]``: batch autocalibration of recordings, fit only (no
+corrected output): the fast path for cohort QC.
 
 One streaming pass computes 10 s window features, keeps the nonmovement windows and fits by the
 72 h + 12 h schedule (van Hees 2014), stopping the read as soon as the fit is good (error
@@ -7,6 +7,11 @@ One streaming pass computes 10 s window features, keeps the nonmovement windows 
 ``tempoffset`` (GGIR form), ``temperature_ref``, ``error_before_mg``, ``error_after_mg``,
 ``windows``, ``iterations``, ``status``, ``reason`` and more. ``--store`` records the estimate in
 the per-device calibration store; ``--plot PNG`` draws the calibration report.
+
+Several files (a cohort): one result per file (``--json``: one JSON object per line, with
+``file``), ``--jobs N`` runs N files in parallel processes, ``--plot DIR`` writes
+``DIR/<file name>.png``. A file that cannot be read does not stop the others: it gets a line
+with ``status: "error"`` and the exit code is 2.
 """
 
 from __future__ import annotations
@@ -37,8 +42,11 @@ def add_fit_arguments(parser) -> None:
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("file", help="recording: .cwa (AX3/AX6), .bin (GENEActiv), .mcap; .gz ok")
+    parser.add_argument("file", nargs="+",
+                        help="recording(s): .cwa (AX3/AX6), .bin (GENEActiv), .mcap; .gz ok")
     add_fit_arguments(parser)
+    parser.add_argument("--jobs", "-j", type=int, default=1,
+                        help="files processed in parallel (processes; default 1)")
     parser.add_argument("--first-hours", type=float, default=72.0,
                         help="first load of the schedule in hours (default 72; GGIR >= 3.0: 168)")
     parser.add_argument("--chunk-hours", type=float, default=12.0,
@@ -81,8 +89,8 @@ def _finite(x):
     return x
 
 
-def _num(v, fmt):
-    return "n/a" if v is None else format(v, fmt)
+def fmt_hours(h: float) -> str:
+    return f"{h:.1f} h" if h >= 1.0 else f"{h * 60:.1f} min"
 
 
 def print_human(est, out=None, title: str = "") -> None:
@@ -93,10 +101,15 @@ def print_human(est, out=None, title: str = "") -> None:
     w(f"  status       {est.status}\n")
     w(f"  reason       {est.reason}\n")
     w(f"  method       {est.method}\n")
-    hours = "" if est.hours_used is None else f" ({est.hours_used:.1f} h of data used)"
+    hours = "" if est.hours_used is None else f" ({fmt_hours(est.hours_used)} of data used)"
     w(f"  windows      {est.windows}{hours}\n")
-    w(f"  error        {_num(est.error_before_mg, '.2f')} mg before -> "
-      f"{_num(est.error_after_mg, '.2f')} mg after\n")
+    if est.error_before_mg is None:
+        w("  error        n/a (no calibration windows)\n")
+    elif est.error_after_mg is None:
+        w(f"  error        {est.error_before_mg:.2f} mg (not calibrated)\n")
+    else:
+        w(f"  error        {est.error_before_mg:.2f} mg before -> "
+          f"{est.error_after_mg:.2f} mg after\n")
     w("  offset (g)   " + "  ".join(f"{a} {v:+.6f}" for a, v in zip("xyz", est.offset)) + "\n")
     w("  scale        " + "  ".join(f"{a} {v:.6f}" for a, v in zip("xyz", est.scale)) + "\n")
     w("  tempoffset   " + "  ".join(f"{a} {v * 1000:+.4f}" for a, v in zip("xyz", est.tempoffset))
@@ -127,25 +140,105 @@ def finish_output(args, est, windows, title: str) -> int:
     return 0
 
 
-def run(args) -> int:
+def _calibrate_one(path: str, opts: dict) -> tuple:
+    """Worker: (estimate dict, device key, plot path or None); runs in a child with --jobs."""
     from stillpoint.engine.calibration.recording import calibrate_recording
 
-    if args.first_hours <= 0 or args.chunk_hours <= 0:
-        from stillpoint.drivers.errors import StillpointError
-
-        raise StillpointError("--first-hours and --chunk-hours must be positive")
-    res = calibrate_recording(args.file, first_hours=args.first_hours,
-                              chunk_hours=args.chunk_hours,
-                              temperature=not args.no_temperature,
-                              ggir_compatible=args.ggir_compatible, variant=args.variant,
-                              sd_threshold=args.sd_threshold_mg / 1000.0,
-                              read_all=args.read_all)
+    plot = opts.pop("plot", None)
+    title = opts.pop("title", path)
+    res = calibrate_recording(path, **opts)
     est = res.estimate
+    if plot:
+        from stillpoint.engine.calibration.plot import plot_calibration
+
+        plot_calibration(res.windows, est, plot, title=f"{title} ({res.info.device_key})")
+    return est.to_dict(), res.info.device_key, plot
+
+
+def _calibrate_safe(path: str, opts: dict) -> tuple:
+    """Pool worker: typed input errors come back as text (they do not pickle)."""
+    from stillpoint.drivers.errors import StillpointError
+
+    try:
+        return _calibrate_one(path, opts), None
+    except StillpointError as e:
+        return None, str(e)
+
+
+def _plot_path(args, path: str, many: bool):
+    if not args.plot:
+        return None
+    if not many:
+        return args.plot
+    from pathlib import Path
+
+    d = Path(args.plot)
+    d.mkdir(parents=True, exist_ok=True)
+    return str(d / (Path(path).name + ".png"))
+
+
+def run(args) -> int:
+    from stillpoint.drivers.errors import StillpointError
+    from stillpoint.engine.calibration.estimate import CalibrationEstimate
+
+    if args.first_hours <= 0 or args.chunk_hours <= 0:
+        raise StillpointError("--first-hours and --chunk-hours must be positive")
+    if args.jobs < 1:
+        raise StillpointError("--jobs must be at least 1")
+    files = list(args.file)
+    many = len(files) > 1
+    base = dict(first_hours=args.first_hours, chunk_hours=args.chunk_hours,
+                temperature=not args.no_temperature, ggir_compatible=args.ggir_compatible,
+                variant=args.variant, sd_threshold=args.sd_threshold_mg / 1000.0,
+                read_all=args.read_all)
+    jobs = [(f, dict(base, plot=_plot_path(args, f, many), title=f)) for f in files]
+    store = None
     if args.store:
         from stillpoint.engine.calibration.store import CalibrationStore
 
         store = CalibrationStore(args.store_dir)
-        store.add(est, source=args.file)
-        if not args.json:
-            print(f"stored for {est.device_key} in {store.dir}", file=sys.stderr)
-    return finish_output(args, est, res.windows, title=f"{args.file} ({res.info.device_key})")
+
+    def results():
+        if args.jobs == 1 or not many:
+            for f, o in jobs:
+                try:
+                    yield f, _calibrate_one(f, o), None
+                except StillpointError as e:
+                    if not many:
+                        raise
+                    yield f, None, e
+        else:
+            from concurrent.futures import ProcessPoolExecutor
+
+            with ProcessPoolExecutor(max_workers=min(args.jobs, len(jobs))) as ex:
+                futs = [(f, ex.submit(_calibrate_safe, f, o)) for f, o in jobs]
+                for f, fut in futs:
+                    out, err = fut.result()
+                    yield f, out, err
+
+    failed = 0
+    for f, out, err in results():
+        if err is not None:
+            failed += 1
+            print(f"stillpoint calibrate: error: {err}", file=sys.stderr)
+            if args.json:
+                print(json.dumps({"file": f, "status": "error", "reason": str(err)}))
+            else:
+                print(f"{f}\n  status       error\n  reason       {err}")
+            continue
+        d, key, plot = out
+        est = CalibrationEstimate.from_dict(d)
+        if store is not None:
+            store.add(est, source=f)
+            if not args.json:
+                print(f"stored for {est.device_key} in {store.dir}", file=sys.stderr)
+        if args.json:
+            obj = estimate_json(est)
+            if many:
+                obj = {"file": f, **obj}
+            print(json.dumps(obj), flush=True)
+        else:
+            print_human(est, title=f"{f} ({key})")
+            if plot:
+                print(f"  plot         {plot}")
+    return 2 if failed else 0

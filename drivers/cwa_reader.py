@@ -43,7 +43,7 @@ import numpy as np
 
 from ..engine.blocks import Block, DeviceInfo, QCEvent, QCReport
 from . import constants as C
-from .byteio import FollowingReader, open_bytes, read_exact
+from .byteio import FollowingReader, is_gzip, open_bytes, read_exact
 from .cwa_decode import (EMPTY, ERASED, REASONS, classify, decode_samples, interpolate_times,
                          max_samples, sector_anchors)
 from .cwa_layout import FORMATS, SECTOR_DTYPE, parse_header, parse_timezone
@@ -65,6 +65,9 @@ def _open_header(path: Path, follow: bool, idle_s: float):
         raise RecordingError(path, "is a directory, not a recording")
     if not follow and path.stat().st_size == 0:
         raise TruncatedRecordingError(path, "file is empty (0 bytes)")
+    if follow and path.stat().st_size >= 2 and is_gzip(path):
+        raise UnsupportedFormatError(path, "follow mode reads a plain .cwa that is still being "
+                                           "written; a gzip file cannot be followed")
     try:
         f = FollowingReader(path, idle_timeout=idle_s) if follow else open_bytes(path)
     except OSError as e:

@@ -115,3 +115,29 @@ def test_qc_log_is_capped_but_counts_stay_exact(tmp_path, monkeypatch):
     rd = r["reader"]
     assert rd.qc.skipped == 10 and rd.qc.valid == 10 and r["n"] == 1200
     assert len(rd.qc.events) == 4 and rd.qc.events[-1].reason == "qc_log_truncated"
+
+
+def test_legacy_byte_sum_checksum_is_accepted(tmp_path):
+    """cwa-format.md §5.5: a stored checksum equal to the byte sum of the first 510 bytes is valid."""
+    from stillpoint.drivers.cwa import read_sector
+    t, a = synth(120 * 3)
+    p = tmp_path / "legacy.cwa"
+    with CwaWriter(p) as w:
+        w.write(t, a)
+    sec = read_sector(p, 1)
+    raw = sec.view(np.uint8)
+    sec["checksum"] = int(raw[:510].sum()) & 0xFFFF
+    assert sec.view("<u2").sum(dtype=np.uint16) != 0  # not a valid word-sum checksum any more
+    with open(p, "r+b") as f:
+        f.seek(1024 + 512)
+        f.write(sec.tobytes())
+    r = read_all(p)
+    assert r["reader"].qc.events == [] and r["n"] == 360
+
+
+def test_follow_refuses_gzip(tmp_path):
+    import gzip
+    p = tmp_path / "x.cwa.gz"
+    p.write_bytes(gzip.compress(b"MD" + b"\x00" * 2000))
+    with pytest.raises(UnsupportedFormatError, match="gzip file cannot be followed"):
+        CwaReader(p, follow=True)

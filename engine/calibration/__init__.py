@@ -2,7 +2,8 @@
 72 h + 12 h schedule, online refits, and the per-device calibration store.
 
     from stillpoint.engine.calibration import (fit_calibration, fit_batch_schedule,
-                                               OnlineCalibrator, CalibrationStore)
+                                               OnlineCalibrator, CalibrationStore,
+                                               calibrate_recording, read_features_csv)
 
 Every result is a :class:`CalibrationEstimate` (GGIR-form offset/scale/tempoffset with status,
 one-line reason and provenance).
@@ -12,7 +13,7 @@ from .estimate import CalibrationEstimate
 from .fit import (apply_model, calibration_error_g, estimate_error_mg, fit_calibration,
                   icp_sphere_fit, sphere_coverage, temperature_check)
 from .online import OnlineCalibrator
-from .schedule import fit_batch_schedule
+from .schedule import BatchSchedule, fit_batch_schedule
 from .select import nonmovement_mask, repeat_mask, select_calibration_windows
 from .store import CalibrationStore, CalibrationStoreError
 
@@ -20,5 +21,20 @@ __all__ = [
     "CalibrationEstimate", "fit_calibration", "fit_batch_schedule", "OnlineCalibrator",
     "CalibrationStore", "CalibrationStoreError", "icp_sphere_fit", "apply_model",
     "calibration_error_g", "estimate_error_mg", "sphere_coverage", "temperature_check",
-    "nonmovement_mask", "repeat_mask", "select_calibration_windows",
+    "nonmovement_mask", "repeat_mask", "select_calibration_windows", "BatchSchedule",
+    "calibrate_recording", "calibrate_source", "plot_calibration", "read_features_csv",
 ]
+
+_LAZY = {  # imported on first use: recording pulls in the engine's operators (which import
+    # .select from this package), plot pulls in matplotlib
+    "calibrate_recording": ".recording", "calibrate_source": ".recording",
+    "plot_calibration": ".plot", "read_features_csv": ".table",
+}
+
+
+def __getattr__(name):
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(_LAZY[name], __name__), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

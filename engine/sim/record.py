@@ -216,6 +216,7 @@ class DeviceSim:
         self.Ta_grid = (first_order_lag(self.T_grid, self.t_grid, float(self.model.get("thermal_lag", "tau_s")))
                         if self.model.on("thermal_lag") else self.T_grid)
         self.bias_grid = bias_track(self.model, self.t_grid, dev_seed)
+        self._bias_axes = np.ascontiguousarray(self.bias_grid.T)
         self.clock: ClockModel = make_clock(self.model, self.t_grid, self.T_grid, self.hz)
         r = np.random.default_rng(np.random.SeedSequence([self.seed, 4, self.dev_index]))
         self.gyro_bias = r.normal(0, GYRO_BIAS_SD_DPS, 3)
@@ -251,8 +252,9 @@ class DeviceSim:
         Ta = _lerp(self.Ta_grid, gi, fr) if self.Ta_grid is not self.T_grid else T
         bias = None
         if self.model.on("bias_instability"):
-            b0 = self.bias_grid[gi]
-            bias = (b0 + fr[:, None] * (self.bias_grid[gi + 1] - b0)).astype(np.float32)
+            bias = np.empty((t.shape[0], 3), np.float32)
+            for j in range(3):  # 1-D gathers from contiguous per-axis tracks (2-D gathers are slow)
+                bias[:, j] = _lerp(self._bias_axes[j], gi, fr)
         rng = np.random.default_rng(np.random.SeedSequence([self.seed, 3, self.dev_index, k]))
         meas, counts = measure(f, self.model, self.spec, temperature_c=T, time_s=t,
                                accel_temperature_c=Ta, bias_g=bias, rng=rng, rate_hz=self.hz)

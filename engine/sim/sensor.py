@@ -96,14 +96,15 @@ class DeviceSpec:
         instead if a value is out of range. ``mode``: "nearest" or "floor" (dropping low bits
         by an arithmetic shift, as firmware does)."""
         step = self.step_counts
+        dt = a_g.dtype if a_g.dtype in (np.float32, np.float64) else np.float64
         if self.kind == "geneactiv":
-            x = a_g * (np.asarray(self.gains, np.float64) / 100.0)
-            x += np.asarray(self.offsets, np.float64) / 100.0
+            x = a_g * (np.asarray(self.gains, np.float64) / 100.0).astype(dt)
+            x += (np.asarray(self.offsets, np.float64) / 100.0).astype(dt)
         else:
-            x = a_g * (self.counts_per_g / step)
+            x = a_g * (self.counts_per_g / step).astype(dt)
         q = np.floor(x, out=x) if mode == "floor" else np.rint(x, out=x)
         lo, hi = self.count_limits()
-        lo_s, hi_s = lo // step, hi // step
+        lo_s, hi_s = int(lo[0]) // step, int(hi[0]) // step  # the same on every axis
         if clip:
             np.clip(q, lo_s, hi_s, out=q)
         elif np.any(q < lo_s) or np.any(q > hi_s):

@@ -107,6 +107,17 @@ def test_pair_shares_movement_with_own_clocks(tmp_path):
     ta, tb = simulate_pair(a, b, site_a="wrist", site_b="hip", days=0.3, hz=25, seed=5,
                            effects="default")
     assert ta.clock["model"]["skew_ppm"] != tb.clock["model"]["skew_ppm"]
+    from stillpoint.engine.sim import relative_clock_s
+    da, db = load_truth(tmp_path / "w.truth.json"), load_truth(tmp_path / "h.truth.json")
+    rel = relative_clock_s(da, db, [0.0, 0.3 * 86400])
+    ma, mb = ta.clock["model"], tb.clock["model"]
+    assert rel[0] == pytest.approx(mb["offset_s"] - ma["offset_s"], abs=1e-6)
+    drift = (rel[1] - rel[0]) / 0.3  # s/day: skew difference + crystal parabola at each site
+    para = [m["curvature_ppm_per_c2"] * np.mean((t.labels["temperature_c"] - m["turnover_c"]) ** 2)
+            for m, t in ((ma, ta), (mb, tb))]
+    expect = ((mb["skew_ppm"] + para[1]) - (ma["skew_ppm"] + para[0])) * 0.0864
+    assert drift == pytest.approx(expect, abs=0.02)
+    assert abs(para[1] - para[0]) * 0.0864 > 0.05  # the sites' temperatures matter
     assert ta.sensor_model.effects["offset"] != tb.sensor_model.effects["offset"]
     la, lb = ta.labels, tb.labels
     assert np.array_equal(la["activity"], lb["activity"])  # one body, one schedule

@@ -12,7 +12,8 @@ from .model import (EFFECT_ORDER, EFFECTS, ModelError, SensorModel, apply_determ
                     first_order_lag, ggir_equivalent, load_model, parse_effect_option,
                     resolve_model, save_model)
 from .record import (DeviceSim, SimChunk, Truth, build_model, iter_chunks, load_labels, load_truth,
-                     make_devices, simulate_pair, simulate_recording, truth_device_time)
+                     make_devices, relative_clock_s, simulate_pair, simulate_recording,
+                     truth_device_time)
 from .source import SimSource
 from .temperature import TemperatureParams
 from .wearer import SITES, WearerParams
@@ -20,5 +21,5 @@ from .wearer import SITES, WearerParams
 __all__ = ["DeviceSim", "EFFECT_ORDER", "EFFECTS", "ModelError", "SITES", "SensorModel", "SimChunk", "SimSource",
            "TemperatureParams", "Truth", "WearerParams", "apply_deterministic", "build_model",
            "first_order_lag", "ggir_equivalent", "iter_chunks", "load_labels", "load_model",
-           "load_truth", "make_devices", "parse_effect_option", "resolve_model", "save_model",
+           "load_truth", "make_devices", "parse_effect_option", "relative_clock_s", "resolve_model", "save_model",
            "simulate_pair", "simulate_recording", "truth_device_time"]

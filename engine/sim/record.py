@@ -160,6 +160,12 @@ def truth_device_time(truth: dict, true_s) -> np.ndarray:
     return truth["start_ns"] + np.round(d * 1e9).astype(np.int64)
 
 
+def relative_clock_s(truth_a: dict, truth_b: dict, true_s) -> np.ndarray:
+    """Device B's clock minus device A's clock (s) at true times (s since the common start): the
+    lag an alignment method should find between two devices of a pair (truth dicts)."""
+    return (truth_device_time(truth_b, true_s) - truth_device_time(truth_a, true_s)) / 1e9
+
+
 LABEL_COLUMNS = ("window", "true_start_s", "device_start_ns", "samples", "still", "activity",
                  "posture", "motion", "temperature_c", "accel_temperature_c", "true_mean_x",
                  "true_mean_y", "true_mean_z", "true_sd_x", "true_sd_y", "true_sd_z")

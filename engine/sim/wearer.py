@@ -53,8 +53,8 @@ class WearerParams:
     sleep_sd_h: float = 0.6
     sleep_posture_min: float = 35.0  # mean time between posture changes in bed (min)
     sleep_twitch_per_h: float = 4.0  # brief movements in bed (5-20 s) per hour
-    sit_share: float = 0.52  # shares of awake bouts (by count) for sitting / standing /
-    stand_share: float = 0.18  # walking / lying awake; the rest (of the remaining share) is walking
+    sit_share: float = 0.52  # shares of the awake bouts (by count): sitting, standing, lying
+    stand_share: float = 0.18  # awake; the remainder (0.28 by default) are short walks
     lying_share: float = 0.02
     sit_bout_min: float = 20.0  # median bout durations (min), lognormal
     stand_bout_min: float = 4.0

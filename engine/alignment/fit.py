@@ -372,14 +372,8 @@ def _locate_step(blocks_by_index: dict, v: Sequence[BlockLag], j: int, pre, post
     return 0.5 * (lo + hi), (lo, hi)
 
 
-def fit_robust(blocks: Sequence[BlockLag], rate: float,
-               temperature: Optional[TemperatureRegressor] = None,
-               min_blocks: int = MIN_BLOCKS, detect_steps: bool = True,
-               max_steps: int = MAX_STEPS) -> ClockFit:
-    """Trimmed least squares with step detection (greedy, ΔBIC) and an optional temperature term
-    (kept only if ΔBIC and the held-out RMSE both favour it). Block times are block centres."""
-    v, idx, t, y = _valid_arrays(blocks, "centroid")
-    _check_enough(blocks, len(v), min_blocks)
+def _model_search(t, y, xtemp, min_blocks, detect_steps, max_steps) -> dict:
+    """Greedy step search (ΔBIC) then the temperature term (ΔBIC and held-out blocks)."""
     n = t.size
     # noise scale shared by every candidate model (truncated loss makes their BICs comparable)
     coef0, inc0, r0 = trimmed_fit(_design(t, (), None), y)
@@ -414,7 +408,6 @@ def fit_robust(blocks: Sequence[BlockLag], rate: float,
         else:
             break
     # temperature term
-    xtemp = temperature(t) if temperature is not None else None
     temp_diag = {}
     use_temp = False
     if xtemp is not None and np.ptp(xtemp) > 0 and n >= min_blocks + 2:
@@ -429,6 +422,102 @@ def fit_robust(blocks: Sequence[BlockLag], rate: float,
                      "heldout_rmse_with": h_tmp, "chosen": use_temp}
         if use_temp:
             best = with_t
+    return {"best": best, "steps": steps, "step_pos": step_pos, "use_temp": use_temp,
+            "temp_diag": temp_diag, "bic_linear": bic_linear, "diag_steps": diag_steps,
+            "cap": cap}
+
+
+CONSENSUS_TOL = 4.0  # samples: a candidate peak within this of the consensus line agrees
+CONSENSUS_HYPOTHESES = 3000
+MAX_SLOPE_PPM = 500.0  # lines steeper than this relative skew are not considered
+
+
+def _candidates(v: Sequence[BlockLag], y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(n, K) candidate lags and heights per block (the chosen lag first), NaN-padded."""
+    k = max([1] + [b.cand_lags.size + 1 for b in v])
+    C = np.full((len(v), k), np.nan)
+    H = np.full((len(v), k), np.nan)
+    for i, b in enumerate(v):
+        C[i, 0], H[i, 0] = y[i], b.corr
+        m = b.cand_lags.size
+        if m:
+            keep = np.abs(b.cand_lags - y[i]) > 1e-9
+            cl, ch = b.cand_lags[keep], b.cand_corr[keep]
+            C[i, 1:1 + cl.size], H[i, 1:1 + cl.size] = cl, ch
+    return C, H
+
+
+def _nearest_candidate(C: np.ndarray, pred: np.ndarray, y: np.ndarray,
+                       tol: float = CONSENSUS_TOL) -> np.ndarray:
+    d = np.abs(C - pred[:, None])
+    d = np.where(np.isfinite(d), d, np.inf)
+    j = np.argmin(d, axis=1)
+    best = C[np.arange(C.shape[0]), j]
+    ok = d[np.arange(C.shape[0]), j] <= tol
+    return np.where(ok, best, y)
+
+
+def consensus_select(t: np.ndarray, C: np.ndarray, H: np.ndarray, y: np.ndarray,
+                     rate_hint: float = 30.0, seed: int = 0) -> tuple[np.ndarray, int]:
+    """Choose one correlation peak per block so that as many blocks as possible agree on one
+    line (RANSAC over candidate peaks, deterministic). Blocks with no candidate near the line
+    keep their highest peak (steps are found afterwards). Returns (lags, blocks switched)."""
+    n, k = C.shape
+    if n < 3 or k < 2:
+        return y, 0
+    rng = np.random.default_rng(seed)
+    h = CONSENSUS_HYPOTHESES
+    i = rng.integers(0, n, h)
+    j = rng.integers(0, n, h)
+    a = rng.integers(0, min(k, 3), h)
+    b = rng.integers(0, min(k, 3), h)
+    ok = (i != j) & np.isfinite(C[i, a]) & np.isfinite(C[j, b]) & (np.abs(t[i] - t[j]) > 0)
+    i, j, a, b = i[ok], j[ok], a[ok], b[ok]
+    # always include the plain highest-peak hypotheses as well
+    slope = (C[j, b] - C[i, a]) / (t[j] - t[i])
+    icpt = C[i, a] - slope * t[i]
+    keep = np.abs(slope) <= MAX_SLOPE_PPM * 1e-6 * rate_hint
+    slope, icpt = slope[keep], icpt[keep]
+    if slope.size == 0:
+        return y, 0
+    Cf = np.where(np.isfinite(C), C, np.inf)
+    best_score, best_line = -1.0, None
+    for s0 in range(0, slope.size, 256):
+        pred = icpt[s0:s0 + 256, None] + slope[s0:s0 + 256, None] * t[None, :]
+        dist = np.min(np.abs(Cf[None, :, :] - pred[:, :, None]), axis=2)
+        score = (dist <= CONSENSUS_TOL).sum(axis=1) - 1e-3 * np.minimum(dist, CONSENSUS_TOL).sum(axis=1)
+        m = int(np.argmax(score))
+        if score[m] > best_score:
+            best_score, best_line = float(score[m]), (icpt[s0 + m], slope[s0 + m])
+    pred = best_line[0] + best_line[1] * t
+    out = _nearest_candidate(C, pred, y)
+    return out, int(np.sum(out != y))
+
+
+def fit_robust(blocks: Sequence[BlockLag], rate: float,
+               temperature: Optional[TemperatureRegressor] = None,
+               min_blocks: int = MIN_BLOCKS, detect_steps: bool = True,
+               max_steps: int = MAX_STEPS) -> ClockFit:
+    """Trimmed least squares with step detection (greedy, ΔBIC) and an optional temperature term
+    (kept only if ΔBIC and the held-out RMSE both favour it). Block times are block centres."""
+    v, idx, t, y = _valid_arrays(blocks, "centroid")
+    _check_enough(blocks, len(v), min_blocks)
+    n = t.size
+    xtemp = temperature(t) if temperature is not None else None
+    cands, heights = _candidates(v, y)
+    y, n_switched = consensus_select(t, cands, heights, y, rate)
+    search = _model_search(t, y, xtemp, min_blocks, detect_steps, max_steps)
+    for _ in range(2):  # re-choose each block's peak against the fitted model, refit
+        coef_, inc_, r_, _ = search["best"]
+        pred = y - r_
+        y2 = _nearest_candidate(cands, pred, y)
+        if np.array_equal(y2, y):
+            break
+        y = y2
+        search = _model_search(t, y, xtemp, min_blocks, detect_steps, max_steps)
+    best, steps, step_pos = search["best"], search["steps"], search["step_pos"]
+    use_temp, temp_diag, bic_linear = search["use_temp"], search["temp_diag"], search["bic_linear"]
+    diag_steps, cap = search["diag_steps"], search["cap"]
     coef, inc, r, bic = best
     A = _design(t, steps, xtemp if use_temp else None)
     cov, dof = _covariance(A[inc], r[inc])
@@ -465,5 +554,6 @@ def fit_robust(blocks: Sequence[BlockLag], rate: float,
                                  "n_included": int(inc.sum()), "invalid": _count_reasons(blocks),
                                  "bic_linear": round(bic_linear, 3), "bic_final": round(bic, 3),
                                  "step_search": diag_steps, "temperature": temp_diag,
+                                 "peaks_switched_by_consensus": int(n_switched),
                                  "heldout_rmse_samples": heldout_final,
                                  "residual_scale_samples": cap / TRIM_K})

@@ -73,6 +73,34 @@ def peak_lag(corr: np.ndarray, max_lag: int, subsample: bool = True) -> tuple[fl
     return lag, peak, at_edge
 
 
+N_CANDIDATES = 7  # highest local maxima kept per block (gait makes the peak ambiguous)
+FINE_HALF_S = 5.0  # wide search: candidates are looked for within +-5 s of the coarse peak
+
+
+def top_peaks(corr: np.ndarray, max_lag: int, k: int = N_CANDIDATES, subsample: bool = True
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """Lags and heights of the k highest interior local maxima (sub-sample refined), highest
+    first. Walking is nearly periodic, so the true lag is often the 2nd or 3rd peak, one step
+    period (~0.5 s) away from the highest; the robust fit chooses among them by consensus."""
+    c = corr
+    if c.size < 3:
+        return np.zeros(0), np.zeros(0)
+    j = np.nonzero((c[1:-1] > c[:-2]) & (c[1:-1] >= c[2:]))[0] + 1
+    if j.size == 0:
+        return np.zeros(0), np.zeros(0)
+    j = j[np.argsort(c[j])[::-1][:k]]
+    lags = (j - max_lag).astype(np.float64)
+    heights = c[j].astype(np.float64)
+    if subsample:
+        a, b, d = c[j - 1], c[j], c[j + 1]
+        den = a - 2 * b + d
+        off = np.where(den < 0, 0.5 * (a - d) / np.where(den < 0, den, -1.0), 0.0)
+        off = np.clip(off, -0.5, 0.5)
+        lags += off
+        heights = b - 0.25 * (a - d) * off
+    return lags, heights
+
+
 COARSE_ABOVE = 2000  # searches wider than this many samples run coarse-to-fine
 COARSE_DECIM = 6  # coarse stage: block means of 6 samples (5 Hz at 30 Hz)
 
@@ -83,29 +111,33 @@ def _block_means(x: np.ndarray, d: int) -> np.ndarray:
 
 
 def wide_lag(ref: np.ndarray, other_ext: np.ndarray, max_lag: int, centred: bool = True,
-             subsample: bool = True, decim: int = COARSE_DECIM
-             ) -> tuple[float, float, bool, np.ndarray]:
+             subsample: bool = True, decim: int = COARSE_DECIM, fine_half: int = 0,
+             n_candidates: int = 0):
     """Coarse-to-fine lag for wide searches: the correlation of ``decim``-sample means over
-    +-max_lag finds the peak, the full-rate correlation within +-2 coarse steps refines it.
-    Returns (lag, peak, at_edge, coarse correlogram); the correlogram's step is ``decim``."""
+    +-max_lag finds the peak, the full-rate correlation within +-``fine_half`` samples (default
+    2 coarse steps) refines it. Returns (lag, peak, at_edge, coarse correlogram, candidate lags,
+    candidate heights); the coarse correlogram's step is ``decim``."""
     n = ref.size
     md = max_lag // decim
     nd = n // decim
+    none = np.zeros(0)
     rd = _block_means(ref, decim)[:nd]
     od = _block_means(other_ext[max_lag - md * decim:], decim)[:nd + 2 * md]
     if od.size < nd + 2 * md or nd < 4:
-        return np.nan, np.nan, True, np.zeros(0)
+        return np.nan, np.nan, True, none, none, none
     cd = normalized_xcorr(rd, od, md, centred)
     jd = int(np.argmax(cd))
     if jd == 0 or jd == cd.size - 1:
-        return float((jd - md) * decim), float(cd[jd]), True, cd
+        return float((jd - md) * decim), float(cd[jd]), True, cd, none, none
     kc = (jd - md) * decim
-    f = 2 * decim
+    f = max(2 * decim, int(fine_half))
+    f = min(f, max_lag // 2)
     kc = int(np.clip(kc, -max_lag + f, max_lag - f))
     seg = other_ext[max_lag + kc - f:max_lag + kc + f + n]
     c = normalized_xcorr(ref, seg, f, centred)
     lag, peak, edge = peak_lag(c, f, subsample)
-    return kc + lag, peak, edge, cd
+    cl, ch = top_peaks(c, f, n_candidates, subsample) if n_candidates else (none, none)
+    return kc + lag, peak, edge, cd, kc + cl, ch
 
 
 @dataclass
@@ -128,6 +160,8 @@ class BlockLag:
     sub_corr: np.ndarray = field(default_factory=lambda: np.zeros(0))
     correlogram: Optional[np.ndarray] = None  # float32, lags -max_lag..max_lag, when kept
     correlogram_step: int = 1  # samples between correlogram points (coarse search: decimated)
+    cand_lags: np.ndarray = field(default_factory=lambda: np.zeros(0))  # highest local maxima
+    cand_corr: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def centre_s(self) -> float:
@@ -313,11 +347,14 @@ class LagEstimator:
         bl.centroid_s = (s + float((np.arange(n) * w).sum() / w.sum())) / self.rate
         wide = M > COARSE_ABOVE
         if wide:
-            bl.lag, bl.corr, edge, corr = wide_lag(rf, of, M, self.centred, self.subsample)
+            bl.lag, bl.corr, edge, corr, bl.cand_lags, bl.cand_corr = wide_lag(
+                rf, of, M, self.centred, self.subsample,
+                fine_half=int(round(FINE_HALF_S * self.rate)), n_candidates=N_CANDIDATES)
             bl.correlogram_step = COARSE_DECIM
         else:
             corr = normalized_xcorr(rf, of, M, self.centred)
             bl.lag, bl.corr, edge = peak_lag(corr, M, self.subsample)
+            bl.cand_lags, bl.cand_corr = top_peaks(corr, M, N_CANDIDATES, self.subsample)
         if self.keep_correlograms:
             bl.correlogram = corr.astype(np.float32)
         if edge:
@@ -334,8 +371,8 @@ class LagEstimator:
                 if not seg.any() or b - a < 4 * COARSE_DECIM:
                     continue
                 if wide:
-                    lag, pk, ed, _ = wide_lag(seg, of[a:b + 2 * M], M, self.centred,
-                                              self.subsample)
+                    lag, pk, ed, *_ = wide_lag(seg, of[a:b + 2 * M], M, self.centred,
+                                               self.subsample)
                 else:
                     c = normalized_xcorr(seg, of[a:b + 2 * M], M, self.centred)
                     lag, pk, ed = peak_lag(c, M, self.subsample)

@@ -34,7 +34,11 @@ import sys, numpy as np, cwa_reader_rs
 df = cwa_reader_rs.read_cwa_file(sys.argv[1])
 t = df.index.to_numpy().astype("datetime64[ns]").astype(np.int64)
 a = df[["acc_x", "acc_y", "acc_z"]].to_numpy(np.float64)
-np.savez(sys.argv[2], time_ns=t, accel=a, temperature=df["temperature"].to_numpy(np.float64))
+extra = {}
+if "gyro_x" in df:
+    extra["gyro"] = df[["gyro_x", "gyro_y", "gyro_z"]].to_numpy(np.float64)
+np.savez(sys.argv[2], time_ns=t, accel=a, temperature=df["temperature"].to_numpy(np.float64),
+         battery=df["battery"].to_numpy(np.float64), light=df["light"].to_numpy(np.float64), **extra)
 """,
     "skdh": r"""
 import sys, warnings, numpy as np
@@ -42,8 +46,9 @@ warnings.simplefilter("ignore")
 from skdh.io import ReadCwa
 r = ReadCwa().predict(file=sys.argv[1])
 t = np.rint(np.asarray(r["time"], np.float64) * 1e9).astype(np.int64)
+extra = {"gyro": np.asarray(r["gyro"], np.float64)} if "gyro" in r else {}
 np.savez(sys.argv[2], time_ns=t, accel=np.asarray(r["accel"], np.float64),
-         temperature=np.asarray(r["temperature"], np.float64))
+         temperature=np.asarray(r["temperature"], np.float64), **extra)
 """,
     "actipy": r"""
 import sys, numpy as np, actipy
@@ -51,7 +56,7 @@ d, info = actipy.read_device(sys.argv[1], lowpass_hz=None, calibrate_gravity=Fal
                              detect_nonwear=False, resample_hz=None, verbose=False)
 t = d.index.to_numpy().astype("datetime64[ns]").astype(np.int64)
 np.savez(sys.argv[2], time_ns=t, accel=d[["x", "y", "z"]].to_numpy(np.float64),
-         temperature=d["temperature"].to_numpy(np.float64))
+         temperature=d["temperature"].to_numpy(np.float64), light=d["light"].to_numpy(np.float64))
 """,
 }
 
@@ -60,14 +65,21 @@ def ours(path: Path) -> dict:
     from stillpoint.drivers.cwa import CwaReader
 
     r = CwaReader(path)
-    t, a, temp, traw = [], [], [], []
+    t, a, g, temp, traw, batt, light = [], [], [], [], [], [], []
     for b in r:
+        u = b.unit_of_sample()
         t.append(b.time_ns)
         a.append(b.accel_g())
-        temp.append(b.temperature_per_sample())
-        traw.append(b.temperature_raw[b.unit_of_sample()])
-    return {"time_ns": np.concatenate(t), "accel": np.concatenate(a),
-            "temperature": np.concatenate(temp), "temperature_raw": np.concatenate(traw),
+        if b.gyro is not None:
+            g.append(b.gyro_dps())
+        temp.append(b.temperature_c[u])
+        traw.append(b.temperature_raw[u])
+        batt.append(b.battery_v[u])
+        light.append(b.light[u])
+    cat = np.concatenate
+    return {"time_ns": cat(t), "accel": cat(a), "gyro": cat(g) if g else None,
+            "temperature": cat(temp), "temperature_raw": cat(traw), "battery": cat(batt),
+            "light_raw": cat(light),
             "qc": [(e.index, e.reason) for e in r.qc.events], "segments": r.qc.segments}
 
 
@@ -101,6 +113,15 @@ def compare(o: dict, q: dict) -> dict:
     da = np.abs(q["accel"][iq] - o["accel"][io]).max(axis=1)
     res.update(dt_med_ms=float(np.median(dt)), dt_max_ms=float(dt.max()), da_max_g=float(da.max()),
                da_bad=int((da > 1e-6).sum()))
+    if o["gyro"] is not None and "gyro" in q:
+        res["dg_max_dps"] = float(np.abs(q["gyro"][iq] - o["gyro"][io]).max())
+    if "battery" in q:
+        res["dbatt_max_v"] = float(np.abs(q["battery"][iq] - o["battery"][io]).max())
+    if "light" in q:
+        raw = o["light_raw"][io].astype(np.float64)
+        forms = {"10^((raw+512)*6/1024) (docs)": 10 ** ((raw + 512) * 6 / 1024), "10^(raw/341)": 10 ** (raw / 341)}
+        res["light_formula"] = next((k for k, v in forms.items()
+                                     if np.allclose(q["light"][iq], v, rtol=1e-4)), "?")
     return res
 
 
@@ -142,6 +163,9 @@ def main() -> int:
                 print(f"   {name:14s} {c['n']:9,d} {c['dn']:6d} {c['t0_ms']:8.2f} {c['tend_ms']:8.2f} "
                       f"{c['dt_med_ms']:9.3f} {c['dt_max_ms']:9.3f} {c['da_max_g']:9.2g} {c['da_bad']:6d}  "
                       f"{c['temp0']:.3f} ({temperature_formula(c['temp0'], int(o['temperature_raw'][0]))})")
+                more = {k: c[k] for k in ("dg_max_dps", "dbatt_max_v", "light_formula") if k in c}
+                if more:
+                    print(f"   {'':14s} {more}")
     if "--json" in sys.argv:
         print(json.dumps(summary, indent=1, default=float))
     return 0

@@ -215,3 +215,16 @@ def test_prefetch_thread_does_not_change_the_output():
     for x, y in zip(ca, cb):
         assert np.array_equal(x.counts, y.counts) and np.array_equal(x.time_ns, y.time_ns)
         assert np.array_equal(x.gyro_counts, y.gyro_counts)
+
+
+def test_still_windows_without_rendering_match_the_labels(tmp_path):
+    eff = build_model("default,halts")
+    t = simulate_recording(tmp_path / "r.cwa", days=0.2, hz=25, seed=13, effects=eff)
+    [sim] = make_devices(sites=["wrist"], devices=["ax3"], days=0.2, hz=25, seed=13, effects=eff)
+    sw = sim.still_windows()
+    lab = t.labels
+    still = np.nonzero(lab["still"] == 1)[0]
+    assert set(sw["window"]) <= set(still) and len(sw["window"]) >= len(still) - 40
+    m = np.stack([lab["true_mean_x"], lab["true_mean_y"], lab["true_mean_z"]], 1)[sw["window"]]
+    assert np.allclose(sw["gravity"], m, atol=1e-6)
+    assert np.allclose(sw["temperature_c"], lab["temperature_c"][sw["window"]])

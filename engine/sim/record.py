@@ -357,6 +357,29 @@ class DeviceSim:
                 "true_mean_z": mean[:, 2], "true_sd_x": sd[:, 0], "true_sd_y": sd[:, 1],
                 "true_sd_z": sd[:, 2]}
 
+    def still_windows(self) -> dict:
+        """The truly still 10 s windows without rendering any sample (fast: for window-level
+        studies such as the discrepancy workflow's): true start (s), device-clock start (ns),
+        the gravity vector in the device frame (k, 3) g, temperature and accelerometer
+        temperature (degC). Same windows and vectors as ``labels`` gives for a full run
+        (windows cut by a halt or restart excepted)."""
+        sch = self.schedule
+        nw = int(np.ceil(self.duration_s / WINDOW_S))
+        full = np.full(nw, int(np.floor(WINDOW_S * self.clock.rate_true_hz)))
+        lab = self.labels(np.zeros((nw, 3)), np.zeros((nw, 3)), full)
+        idx = np.nonzero(lab["still"] == 1)[0]
+        w0 = idx * WINDOW_S
+        for a, b in self.clock.gaps():  # windows touching a halt/restart gap are not full
+            idx = idx[(w0 + WINDOW_S <= a) | (w0 >= b)]
+            w0 = idx * WINDOW_S
+        seg = sch.segment_at(w0 + 0.5 * WINDOW_S)
+        grav = np.empty((idx.shape[0], 3))
+        for i in np.unique(seg):
+            grav[seg == i] = self.site_model.params(int(i)).R_base[2, :]
+        return {"window": idx, "true_start_s": w0, "device_start_ns": lab["device_start_ns"][idx],
+                "gravity": grav, "temperature_c": lab["temperature_c"][idx],
+                "accel_temperature_c": lab["accel_temperature_c"][idx]}
+
     def clock_truth(self) -> dict:
         step = max(1, int(600.0 / TRACK_STEP_S))
         g = self.clock.grid_s[::step]

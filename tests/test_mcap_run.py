@@ -207,3 +207,34 @@ def test_flush_cadence_bounds_chunk_time_span(recording, tmp_path):
     # a chunk holds one 10 s cell (+ the corrected tail of the previous one, <= one cell)
     assert max(spans) <= 20.0
     assert s["mcap_flushes"] >= 3600 / 10 - 2
+
+
+def test_online_applies_each_accepted_estimate_from_its_boundary(recording, tmp_path):
+    out = tmp_path / "on.mcap"
+    process_file(recording, out, RunSettings(mode="online", chunk_hours=0.25))
+    logged = [json.loads(d) for _t, d in _messages(out, "/calibration")]
+    accepted = [CalibrationEstimate.from_dict(e) for e in logged if e["applied"]]
+    assert accepted, logged
+    assert all(e["effective_from_ns"] is not None for e in logged)
+    with open_recording(recording) as src:
+        ref = _blocks(src)[0]
+    ends = np.append(ref.unit_start[1:], ref.n) - 1
+    rel = (ref.time_ns - ref.time_ns[0]).astype(float)
+    temp = np.interp(rel, rel[ends], ref.temperature_c)
+    raw = ref.accel_g()
+    want = raw.copy()  # identity before the first accepted estimate
+    for e in accepted:
+        sel = ref.time_ns >= e.effective_from_ns
+        want[sel] = e.apply(raw[sel], temp[sel])
+    t, a = _corrected(out)
+    assert np.array_equal(t, ref.time_ns)
+    assert np.max(np.abs(a - want)) <= 2.0 ** -17 + 1e-6
+    first = accepted[0].effective_from_ns
+    assert np.any(ref.time_ns < first) and np.any(ref.time_ns >= first)
+
+
+def test_demo_command_runs(tmp_path, capsys):
+    assert cli(["demo", "--hours", "2", "--keep", str(tmp_path)]) == 0
+    text = capsys.readouterr().out
+    assert "sensor errors" in text and "ENMO mean: truth" in text
+    assert (tmp_path / "demo.mcap").is_file() and (tmp_path / "demo.cwa").is_file()

@@ -140,8 +140,11 @@ def run(args) -> int:
             print("        fit   " + " ".join(f"{x:.5f}   " for x in c["scale"]))
             print("tempoff true  " + " ".join(f"{x:+.6f} " for x in to))
             print("        fit   " + " ".join(f"{x:+.6f} " for x in c["tempoffset"]))
-        print(f"\ncalibration error: {c['error_before_mg']:.1f} mg before -> "
-              f"{c['error_after_mg']:.1f} mg after" if c["error_before_mg"] is not None else "")
+        if c["error_before_mg"] is not None and c["error_after_mg"] is not None:
+            print(f"\ncalibration error: {c['error_before_mg']:.1f} mg before -> "
+                  f"{c['error_after_mg']:.1f} mg after")
+        else:
+            print(f"\ncalibration not applied: {c['status']}")
         print(f"ENMO mean: truth {truth['enmo_true_mg']:.2f} mg | uncorrected "
               f"{truth['enmo_uncorrected_mg']:.2f} mg | calibrated {s['enmo_mean_mg']:.2f} mg")
         if args.keep:

@@ -1,0 +1,164 @@
+"""Benchmark `stillpoint process --mode batch` (two passes, full MCAP log) on long packed AX3 files.
+
+    /work/venv/bin/python tools/bench_process.py [--days 7] [--rss-days 1,7,14] [--repeat 1]
+
+Measured side by side in one run, each command in its own child process (wall time and peak RSS
+of that child via ``getrusage(RUSAGE_CHILDREN)``):
+
+* plain decode: one CwaReader pass over the whole file (the drivers' decode baseline);
+* ``stillpoint process --mode batch`` with the default 10 s flush cadence, and with 60 s;
+* scikit-digital-health read + autocalibration (if ``--peers`` python has skdh);
+* peak RSS of ``process`` on 1-, 7- and 14-day files (must be flat and < 300 MB);
+* MCAP size against the input .cwa (must be <= 2x).
+
+Recordings are written once with the calibration issue's synthetic generator (packed AX3, 100 Hz,
+known sensor errors) into ``--workdir`` and reused (same names as tools/bench_calibrate.py).
+The machine is shared and noisy: read the ratios, not the seconds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+WRAPPER = r"""
+import json, resource, subprocess, sys, time
+t = time.perf_counter()
+p = subprocess.run(sys.argv[1:], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+wall = time.perf_counter() - t
+ru = resource.getrusage(resource.RUSAGE_CHILDREN)
+print(json.dumps({"wall_s": wall, "cpu_s": ru.ru_utime + ru.ru_stime, "maxrss_mb": ru.ru_maxrss / 1024.0,
+                  "rc": p.returncode, "stdout": p.stdout[-4000:], "stderr": p.stderr[-2000:]}))
+"""
+
+DECODE = r"""
+import sys
+from stillpoint.drivers import open_recording
+n = 0
+with open_recording(sys.argv[1]) as src:
+    for b in src:
+        n += b.n
+print(n)
+"""
+
+SKDH = r"""
+import sys, warnings
+warnings.simplefilter("ignore")
+from skdh.io import ReadCwa
+from skdh.preprocessing import CalibrateAccelerometer
+d = ReadCwa().predict(file=sys.argv[1])
+r = CalibrateAccelerometer().predict(time=d["time"], accel=d["accel"], fs=d.get("fs"),
+                                     temperature=d.get("temperature"))
+print(sorted(r))
+"""
+
+
+def measure(cmd) -> dict:
+    out = subprocess.run([sys.executable, "-c", WRAPPER, *map(str, cmd)], stdout=subprocess.PIPE,
+                         text=True, check=True).stdout
+    r = json.loads(out)
+    if r["rc"] != 0:
+        raise SystemExit(f"command failed: {' '.join(map(str, cmd))}\n{r['stderr']}")
+    return r
+
+
+def best(cmd, repeat):
+    return min((measure(cmd) for _ in range(max(1, repeat))), key=lambda r: r["wall_s"])
+
+
+def recording(workdir: Path, days: float, rate: float) -> Path:
+    path = workdir / f"calib_{days:g}d_{rate:g}hz_packed.cwa"
+    if path.is_file():
+        return path
+    import numpy as np
+
+    from stillpoint.engine.calibration.synthetic import (random_truth, synthetic_recording,
+                                                         write_synthetic_cwa)
+    t = time.perf_counter()
+    truth = random_truth(np.random.default_rng(7))
+    rec = synthetic_recording(days * 24.0, truth, seed=8)
+    tmp = path.with_suffix(".part")
+    write_synthetic_cwa(tmp, rec.features, rate_hz=rate, seed=9, packed=True)
+    os.replace(tmp, path)
+    path.with_suffix(".truth.json").write_text(json.dumps(
+        {"offset": truth.offset.tolist(), "scale": truth.scale.tolist(),
+         "tempoffset": truth.tempoffset.tolist(), "temperature_ref": truth.temperature_ref}))
+    print(f"wrote {path.name} ({path.stat().st_size / 1e6:.0f} MB) in {time.perf_counter() - t:.0f} s",
+          flush=True)
+    return path
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--days", type=float, default=7.0)
+    ap.add_argument("--rate", type=float, default=100.0)
+    ap.add_argument("--rss-days", default="1,7,14", help="file lengths for the peak-RSS check ('' skips)")
+    ap.add_argument("--workdir", default=os.path.join(tempfile.gettempdir(), "stillpoint_bench"))
+    ap.add_argument("--peers", default="/work/peers/bin/python")
+    ap.add_argument("--repeat", type=int, default=1)
+    args = ap.parse_args(argv)
+    wd = Path(args.workdir)
+    wd.mkdir(parents=True, exist_ok=True)
+    path = recording(wd, args.days, args.rate)
+    cwa_mb = path.stat().st_size / 1e6
+    sp = [sys.executable, "-m", "stillpoint.tools"]
+    out = wd / "bench_process.mcap"
+    summ = wd / "bench_process.json"
+
+    res = {"decode": best([sys.executable, "-c", DECODE, path], args.repeat)}
+    res["process"] = best(sp + ["process", path, "-o", out, "--mode", "batch", "-q", "--summary", summ],
+                          args.repeat)
+    mcap_mb = out.stat().st_size / 1e6
+    s = json.loads(summ.read_text())
+    res["process60"] = best(sp + ["process", path, "-o", out, "--mode", "batch", "-q",
+                                  "--flush-every-s", "60"], args.repeat)
+    have_skdh = Path(args.peers).exists()
+    if have_skdh:
+        res["skdh"] = best([args.peers, "-c", SKDH, path], args.repeat)
+
+    dec, pr, pr60 = res["decode"], res["process"], res["process60"]
+    print(f"\nfile: {path.name}: {s['samples']:,} samples, {s['duration_s'] / 86400:.2f} days, "
+          f"{cwa_mb:.0f} MB; calibration {s['calibration']['status']} "
+          f"({s['calibration']['error_before_mg']:.2f} -> {s['calibration']['error_after_mg']:.2f} mg)")
+    print(f"{'command':44s} {'wall s':>8s} {'cpu s':>8s} {'peak RSS MB':>12s}")
+    rows = [("plain decode (CwaReader, whole file)", dec),
+            ("process --mode batch (flush every 10 s)", pr),
+            ("process --mode batch --flush-every-s 60", pr60)]
+    if have_skdh:
+        rows.append(("skdh read + autocalibration", res["skdh"]))
+    for name, r in rows:
+        print(f"{name:44s} {r['wall_s']:8.2f} {r['cpu_s']:8.2f} {r['maxrss_mb']:12.0f}")
+    print("ratios (same run):")
+    print(f"  process / plain decode                      = {pr['wall_s'] / dec['wall_s']:.1f}x wall")
+    if have_skdh:
+        sk = res["skdh"]
+        print(f"  skdh read+autocal / process                 = {sk['wall_s'] / pr['wall_s']:.2f}x wall "
+              f"(target > 1), {sk['wall_s'] / pr60['wall_s']:.2f}x with 60 s flushes")
+        print(f"  peak RSS skdh / process                     = {sk['maxrss_mb'] / pr['maxrss_mb']:.1f}x")
+    print(f"  MCAP size / input .cwa                      = {mcap_mb / cwa_mb:.2f}x "
+          f"({mcap_mb:.0f} MB; target <= 2x)")
+    print(f"  MCAP flushes                                = {s.get('mcap_flushes', 'n/a')}")
+
+    days = [float(x) for x in args.rss_days.split(",") if x.strip()]
+    if days:
+        print("\npeak RSS of process --mode batch by file length (target: flat, < 300 MB):")
+        for d in days:
+            p = recording(wd, d, args.rate)
+            o = wd / f"bench_rss_{d:g}d.mcap"
+            r = pr if p == path else measure(sp + ["process", p, "-o", o, "--mode", "batch", "-q"])
+            print(f"  {d:5g} days ({p.stat().st_size / 1e6:5.0f} MB .cwa): {r['maxrss_mb']:6.0f} MB "
+                  f"peak RSS, {r['wall_s']:6.1f} s wall")
+            if o.exists():
+                o.unlink()
+    out.unlink(missing_ok=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -365,7 +365,7 @@ class CwaReader:
             "seq": seq,
             "temp": (sec["temperature"] & 0x3FF).astype(np.int32),
             "light": (ls & 0x3FF).astype(np.int32),
-            "battery": sec["battery"],
+            "battery": sec["battery"].copy(),  # copies: ``sec`` may view the reusable read buffer
             "events": sec["events"].copy(),
         }
         ovf = np.flatnonzero(units["events"] & (C.CWA_EVENT_FIFO_OVERFLOW | C.CWA_EVENT_BUFFER_OVERFLOW))

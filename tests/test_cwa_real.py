@@ -216,6 +216,6 @@ def test_batch_invariance_on_real_files(real_file, name):
     ref = read_all(p)
     for batch in (1, 13):
         got = read_all(p, batch_sectors=batch)
-        np.testing.assert_array_equal(got["time"], ref["time"])
-        np.testing.assert_array_equal(got["accel"], ref["accel"])
+        for k in ("time", "accel", "unit_index", "temperature_raw", "light", "battery_v", "events"):
+            np.testing.assert_array_equal(got[k], ref[k], err_msg=k)
         assert qc_reasons(got["reader"]) == qc_reasons(ref["reader"])

@@ -156,7 +156,8 @@ def _file_with_anomalies(path):
     """A 40-sector file with corrupt, duplicated, gap, session, bad-timestamp and erased sectors."""
     n = 120 * 40
     t, a = synth(n, seed=11)
-    _write(path, t, a)
+    k = np.arange(n) // 120
+    _write(path, t, a, battery_raw=150 + k, temperature_raw=240 + 2 * k, light_raw=100 + 3 * k)
     raw = bytearray(path.read_bytes())
     hdr, body = raw[:1024], raw[1024:]
     secs = [bytes(body[i:i + 512]) for i in range(0, len(body), 512)]
@@ -196,7 +197,8 @@ def test_batch_size_invariance(tmp_path, batch):
     _file_with_anomalies(p)
     ref = read_all(p, batch_sectors=2048)
     got = read_all(p, batch_sectors=batch)
-    for k in ("time", "accel", "segment", "unit_index", "temperature_raw", "events"):
+    for k in ("time", "accel", "segment", "unit_index", "unit_sequence", "temperature_raw",
+              "temperature_c", "light", "battery_v", "events"):
         np.testing.assert_array_equal(got[k], ref[k], err_msg=k)
     assert qc_reasons(got["reader"]) == qc_reasons(ref["reader"])
 

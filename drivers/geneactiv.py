@@ -21,6 +21,14 @@ What the reader does, in order:
 
 Accel counts are returned raw (int16) with ``accel_counts_per_g = gain/100`` and
 ``accel_zero = offset/100`` per axis, so ``Block.accel_g()`` equals ``(raw*100 - offset)/gain``.
+Per page (``unit_*``): index in the file, ``Sequence Number``, temperature (degC) and battery (V)
+from the page lines, ``light`` = the raw light of the page's first sample, ``temperature_raw`` = -1
+(no ADC code in the format). Per sample: ``per_sample["light_raw"]`` (10 bits; lux = raw * Lux /
+Volts of the header) and ``per_sample["button"]``.
+
+Why a page-time step off by more than ``time_tolerance`` is not interpolated: both 50 Hz Ver4.08a
+files we have show 6.5 s between pages 0 and 1 (6.0 s everywhere else); interpolating would put
+page 0 at 46 Hz. We keep the rate within the page and record the 0.52 s as a gap (new segment).
 """
 
 from __future__ import annotations

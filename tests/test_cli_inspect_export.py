@@ -186,6 +186,15 @@ def test_formatters():
     assert [bytes(r[r != 0]).decode() for r in s] == ["1700000000.123456789", "-0.000000005"]
     ti = format_time(np.array([1_551_178_506_000_500_999]), "iso")
     assert bytes(ti[0]).decode() == "2019-02-26T10:55:06.000500Z"
+    # the vectorised ISO formatter equals numpy's datetime64 text (1906..2096, leap years, pre-1970)
+    t = np.random.default_rng(0).integers(-2 * 10**18, 4 * 10**18, 20000)
+    t = np.concatenate([t, [0, -1, 951_782_400_000_000_000, 4_107_542_399_999_999_999]])
+    ref = np.char.add(np.datetime_as_string(t.astype("datetime64[ns]"), unit="us").astype("S26"), b"Z")
+    np.testing.assert_array_equal(format_time(t, "iso").view("S27").ravel(), ref)
+    # integers: exact, no leading zeros, sign
+    v = np.array([0, 7, -7, 10, 99, 100, -123456789012345678, 2**62])
+    np.testing.assert_array_equal([bytes(r[r != 0]).decode() for r in format_scaled(v)],
+                                  [str(int(x)) for x in v])
 
 
 # ---------------------------------------------------------------------------- .cwa through the CLI

@@ -88,6 +88,23 @@ def block_columns(block, info) -> dict[str, np.ndarray]:
 _DIGITS = np.arange(48, 58, dtype=np.uint8)
 
 
+def _put_digits(m: np.ndarray, col: int, v: np.ndarray, k: int) -> None:
+    """Write v (non-negative ints) as k zero-padded digits into m[:, col:col+k].
+
+    Runs in int32 (numpy divides int32 by a constant far faster than int64); more than 9 digits
+    are split into a high part and 8 low digits."""
+    if k > 9:
+        hi = v // 10**8
+        _put_digits(m, col, hi, k - 8)
+        _put_digits(m, col + k - 8, v - hi * 10**8, 8)
+        return
+    v = np.asarray(v).astype(np.int32)
+    for c in range(col + k - 1, col - 1, -1):
+        q = v // 10
+        m[:, c] = (v - q * 10).astype(np.uint8) + 48
+        v = q
+
+
 def format_fixed(v: np.ndarray, decimals: int) -> np.ndarray:
     """Numbers -> (n, w) uint8 ASCII with fixed decimals; 0 bytes mark unused cells (the caller
     drops them, so the text has no padding). NaN becomes an empty field."""
@@ -111,22 +128,53 @@ def format_scaled(x: np.ndarray, decimals: int = 0) -> np.ndarray:
     width = 1 + k + (1 + decimals if decimals else 0)
     m = np.zeros((n, width), np.uint8)
     m[:, 0] = np.where(neg, ord("-"), 0)
-    for j in range(k):
-        p = 10 ** (k - 1 - j)
-        m[:, 1 + j] = np.where((ip >= p) | (j == k - 1), _DIGITS[(ip // p) % 10], 0)
+    _put_digits(m, 1, ip, k)
+    for j in range(k - 1):  # blank the leading zeros of the integer part
+        m[:, 1 + j] *= ip >= 10 ** (k - 1 - j)
     if decimals:
         m[:, 1 + k] = ord(".")
-        for j in range(decimals):
-            m[:, 2 + k + j] = _DIGITS[(fp // 10 ** (decimals - 1 - j)) % 10]
+        _put_digits(m, 2 + k, fp, decimals)
+    return m
+
+
+def _civil_from_days(days: np.ndarray):
+    """Days since 1970-01-01 -> (year, month, day), proleptic Gregorian (H. Hinnant's algorithm)."""
+    z = days + 719468
+    era = np.floor_divide(z, 146097)
+    doe = z - era * 146097
+    yoe = (doe - doe // 1460 + doe // 36524 - doe // 146096) // 365
+    doy = doe - (365 * yoe + yoe // 4 - yoe // 100)
+    mp = (5 * doy + 2) // 153
+    d = doy - (153 * mp + 2) // 5 + 1
+    mo = np.where(mp < 10, mp + 3, mp - 9)
+    y = yoe + era * 400 + (mo <= 2)
+    return y, mo, d
+
+
+def format_iso(t_ns: np.ndarray) -> np.ndarray:
+    """UTC ns -> "YYYY-MM-DDTHH:MM:SS.ffffffZ" (27 bytes; sub-microsecond part truncated)."""
+    t_us = np.floor_divide(np.asarray(t_ns, np.int64), 1000)
+    days, us_of_day = np.divmod(t_us, 86_400_000_000)
+    y, mo, d = _civil_from_days(days)
+    sec, us = np.divmod(us_of_day, 1_000_000)
+    hh, rem = np.divmod(sec, 3600)
+    mi, ss = np.divmod(rem, 60)
+    m = np.empty((t_us.shape[0], 27), np.uint8)
+    m[:, [4, 7]] = ord("-")
+    m[:, 10] = ord("T")
+    m[:, [13, 16]] = ord(":")
+    m[:, 19] = ord(".")
+    m[:, 26] = ord("Z")
+    for col, v, k in ((0, np.clip(y, 0, 9999), 4), (5, mo, 2), (8, d, 2), (11, hh, 2), (14, mi, 2),
+                      (17, ss, 2), (20, us, 6)):
+        _put_digits(m, col, v, k)
     return m
 
 
 def format_time(t_ns: np.ndarray, mode: str) -> np.ndarray:
     t_ns = np.asarray(t_ns, np.int64)
     if mode == "iso":
-        s = np.datetime_as_string(t_ns.astype("datetime64[ns]"), unit="us").astype("S26")
-        m = s.view(np.uint8).reshape(-1, 26)
-        return np.concatenate([m, np.full((m.shape[0], 1), ord("Z"), np.uint8)], axis=1)
+        return format_iso(t_ns)
     if mode == "epoch":
         return format_scaled(t_ns, 9)
     if mode == "ns":
@@ -264,8 +312,8 @@ def export_recording(path, out, *, time_format: str = "iso", timezone=None, comp
         raise StillpointError(f"--time must be one of {', '.join(TIME_FORMATS)}")
     opts = {}
     if timezone is not None:
-        from .inspect import _tz_option
-        opts["timezone"] = _tz_option(timezone, fmt)
+        from .inspect import timezone_option
+        opts["timezone"] = timezone_option(timezone, fmt)
     src = open_recording(path, **opts)
     partial = out.with_name(out.name + ".partial")
     sink = (CsvSink(partial, time_format, gz=out.name.lower().endswith(".gz")) if kind == "csv"

@@ -42,11 +42,11 @@ def iso_utc(t_ns: Optional[int]) -> Optional[str]:
 def _open(path, fmt: str, timezone):
     opts = {}
     if timezone is not None:
-        opts["timezone"] = _tz_option(timezone, fmt)
+        opts["timezone"] = timezone_option(timezone, fmt)
     return open_recording(path, **opts)
 
 
-def _tz_option(timezone, fmt: str):
+def timezone_option(timezone, fmt: str):
     """The CLI's time zone string as the reader wants it (GENEActiv parses text; AX takes seconds)."""
     if fmt == "geneactiv":
         return timezone
@@ -64,7 +64,7 @@ def _header_info(path, fmt: str, timezone):
         return read_header(path, **({"timezone": timezone} if timezone is not None else {}))
     if fmt == "cwa":
         from stillpoint.drivers.cwa import read_header
-        return read_header(path, **({"timezone": _tz_option(timezone, fmt)} if timezone is not None
+        return read_header(path, **({"timezone": timezone_option(timezone, fmt)} if timezone is not None
                                     else {}))
     src = _open(path, fmt, timezone)
     try:

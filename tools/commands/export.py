@@ -346,7 +346,9 @@ def export_recording(path, out, *, time_format: str = "iso", timezone=None, comp
 def run(args) -> int:
     rep = export_recording(args.file, args.output, time_format=args.time, timezone=args.timezone,
                            compress=args.compress, topics=args.topic)
-    if rep.get("format") != "mcap":
+    if rep.get("format") == "mcap":
+        print(f"wrote {rep['output']} (from the MCAP log)")
+    else:
         q = rep["qc"]
         print(f"wrote {rep['samples']} samples to {rep['output']} "
               f"({q['valid']} of {q['total']} {q['unit']}s valid, {len(q['events'])} QC event(s))")

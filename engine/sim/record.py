@@ -396,16 +396,19 @@ class DeviceSim:
         return d
 
 
-def write_labels(path, labels: dict) -> None:
-    """Labels CSV: integer columns as integers, others with 6 decimals (nan for empty windows)."""
+def write_labels(path, labels: dict, rows_per_block: int = 4096) -> None:
+    """Labels CSV: integer columns as integers, others with 6 decimals (nan for empty windows).
+    Written in blocks of rows so that memory stays flat for long recordings."""
     cols = list(LABEL_COLUMNS)
     ints = {"window", "device_start_ns", "samples", "still", "activity", "posture", "motion"}
-    texts = [labels[c].astype(np.int64).astype(str) if c in ints
-             else np.char.mod("%.6f", labels[c].astype(np.float64)) for c in cols]
+    n = labels[cols[0]].shape[0]
     with open(path, "w") as f:
         f.write(",".join(cols) + "\n")
-        for row in zip(*texts):
-            f.write(",".join(row) + "\n")
+        for a in range(0, n, rows_per_block):
+            b = min(n, a + rows_per_block)
+            texts = [labels[c][a:b].astype(np.int64).astype(str) if c in ints
+                     else np.char.mod("%.6f", labels[c][a:b].astype(np.float64)) for c in cols]
+            f.write("".join(",".join(row) + "\n" for row in zip(*texts)))
 
 
 # ----------------------------------------------------------------------------- set-up

@@ -238,3 +238,39 @@ def test_demo_command_runs(tmp_path, capsys):
     text = capsys.readouterr().out
     assert "sensor errors" in text and "ENMO mean: truth" in text
     assert (tmp_path / "demo.mcap").is_file() and (tmp_path / "demo.cwa").is_file()
+
+
+def test_store_feeds_the_online_prior_and_is_recorded(recording, tmp_path, capsys):
+    store = tmp_path / "store"
+    a = tmp_path / "a.mcap"
+    assert cli(["process", str(recording), "-o", str(a), "-q", "--store", str(store)]) == 0
+    from stillpoint.engine.calibration import CalibrationStore
+    st = CalibrationStore(store)
+    [key] = st.devices()
+    stored = st.latest(key)
+    assert stored is not None and stored.status == "ok"
+    b = tmp_path / "b.mcap"
+    assert cli(["process", str(recording), "-o", str(b), "-q", "--mode", "online", "--chunk-hours",
+                "100", "--store", str(store), "--summary", str(tmp_path / "s.json")]) == 0
+    with open(b, "rb") as f:
+        meta = {m.name: m.metadata for m in make_reader(f).iter_metadata()}
+    prior = json.loads(meta["settings"]["json"])["prior"]
+    assert np.allclose(prior["offset"], stored.offset)
+    # no refit within 100 h: the stored prior corrects the whole stream
+    s = json.loads((tmp_path / "s.json").read_text())
+    assert np.allclose(s["calibration"]["offset"], stored.offset)
+    # the replay needs no store: the prior travels in the settings record
+    c = tmp_path / "c.mcap"
+    assert cli(["replay", str(b), "-o", str(c), "-q", "--check"]) == 0
+
+
+def test_progress_bar_only_on_a_terminal():
+    import io
+    from stillpoint.engine.pipeline import PipelineStats
+    from stillpoint.tools.commands._runopts import Progress
+    buf = io.StringIO()
+    Progress(stream=buf)("pass 1/2", PipelineStats(samples=10, first_ns=0, last_ns=3600 * 10**9))
+    assert buf.getvalue() == ""  # StringIO is not a TTY: quiet
+    p = Progress(enabled=True, stream=buf)
+    p("pass 2/2", PipelineStats(samples=10, first_ns=0, last_ns=7200 * 10**9, fraction=0.5))
+    assert "pass 2/2" in buf.getvalue() and "50.0%" in buf.getvalue() and "2.0 h" in buf.getvalue()

@@ -75,8 +75,9 @@ def execute(args, settings: RunSettings, out: Path) -> int:
         est = CalibrationEstimate.from_dict(dict(summary["calibration"]))
         if est.status in ("ok", "high_error") and summary.get("device"):
             d = summary["device"]
-            rec = _store(args.store).add(est, device_key=f"{d['type']}-{d['id']}", source=str(args.file))
-            summary["outputs"]["store"] = rec.get("source") and str(_store(args.store).dir)
+            store = _store(args.store)
+            store.add(est, device_key=f"{d['type']}-{d['id']}", source=str(args.file))
+            summary["outputs"]["store"] = str(store.dir)
     if args.summary:
         write_summary(summary, args.summary)
         summary["outputs"]["summary"] = str(args.summary)

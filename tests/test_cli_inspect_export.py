@@ -268,3 +268,17 @@ def test_cli_subprocess_on_real_geneactiv(real_file, tmp_path):
     assert d["samples"] == 5031 and d["pages"] == {"total": 17, "valid": 17, "skipped": 0}
     assert [q["reason"] for q in d["qc"]] == ["truncated_page", "page_count_mismatch"]
     assert d["start"] == "2013-05-30T09:12:54.500000000Z"
+
+
+def test_inspect_gzip_bin_and_cwa_timezone(tmp_path, gna, capsys):
+    p, t, _ = gna
+    gz = tmp_path / "rec.bin.gz"
+    gz.write_bytes(gzip.compress(p.read_bytes()))
+    d = inspect_recording(gz)
+    assert d["samples"] == 3000 and d["format"] == "geneactiv" and d["start_ns"] == int(t[0])
+    cp, ct = _cwa_file(tmp_path)
+    a = inspect_recording(cp)
+    b = inspect_recording(cp, timezone="+01:00")
+    assert b["timezone_offset_s"] == 3600 and a["start_ns"] - b["start_ns"] == 3600 * 10**9
+    code, _, err = run_cli(["inspect", str(cp), "--timezone", "nonsense"], capsys)
+    assert code == 2 and "timezone" in err.lower()

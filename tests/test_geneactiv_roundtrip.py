@@ -203,3 +203,17 @@ def test_follow_mode_reads_a_file_being_written(tmp_path):
     assert b.n == 3000
     np.testing.assert_array_equal(b.accel, a)
     assert r.qc.skipped == 0 and r.qc.segments == 1
+
+
+def test_writer_header_start_time_and_page_count(tmp_path):
+    p = tmp_path / "r.bin"
+    start = T0 - 5 * 10**9
+    w = GeneactivWriter(p, rate_hz=50.0, timezone="-04:00", start_time=start)
+    w.write(T0 + np.arange(1500) * 20_000_000, np.zeros((1500, 3), int))
+    w.close()
+    info = read_header(p)
+    assert info.header["start_time_ns"] == (start + 500_000) // 1_000_000 * 1_000_000
+    assert info.header["number_of_pages"] == 5
+    assert info.header["Time Zone"] == "GMT -04:00"
+    text = p.read_bytes().decode()
+    assert text.count("Recorded Data") == 5 and text.count("\r\n") == text.count("\n")

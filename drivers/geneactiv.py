@@ -57,6 +57,7 @@ __all__ = ["GeneactivReader", "read_header", "decode_hex_samples", "GeneactivWri
 PAGE_HEX_CHARS = GNA_SAMPLES_PER_PAGE * GNA_HEX_PER_SAMPLE  # 3600
 APPROX_PAGE_BYTES = 3800  # a page with its 9 text lines, for sizing reads (never for allocation)
 HEADER_LIMIT_BYTES = 1 << 20  # a header longer than this is not a GENEActiv header
+MAX_QC_EVENTS = 10_000  # QC events listed per file (as the .cwa reader); the rest are counted
 MAX_LINE_BYTES = 1 << 20  # a "line" longer than this is garbage (a data line is 3600 characters)
 MAX_PAGE_FIELD_LINES = 24
 # (line within the page, key prefix) that a standard page must have for the fast path
@@ -184,6 +185,7 @@ class GeneactivReader:
         self._iterated = False
         self._samples = 0
         self._desync_open = None  # (lines, bytes) of a desync stretch still being skipped
+        self._n_events = 0
 
     # ------------------------------------------------------------------ Source protocol
     def __enter__(self):
@@ -217,9 +219,18 @@ class GeneactivReader:
         if p.stat().st_size == 0:
             raise TruncatedRecordingError(p, "file is empty (0 bytes)")
 
-    def _event(self, index: int, reason: str, detail: str = "", time_ns=None, samples: int = 0):
-        self.qc.add(QCEvent(index=index, reason=reason, detail=detail, time_ns=time_ns,
-                            samples=samples))
+    def _event(self, index: int, reason: str, detail: str = "", time_ns=None, samples: int = 0,
+               always: bool = False):
+        """Log a QC event. The list is capped at MAX_QC_EVENTS (memory stays bounded on a file that
+        is damaged throughout); later events are still counted in total/skipped/segments."""
+        self._n_events += 1
+        if self._n_events <= MAX_QC_EVENTS or always:
+            self.qc.add(QCEvent(index=index, reason=reason, detail=detail, time_ns=time_ns,
+                                samples=samples))
+        elif self._n_events == MAX_QC_EVENTS + 1:
+            self.qc.add(QCEvent(index=index, reason="qc_log_truncated",
+                                detail=f"more than {MAX_QC_EVENTS} QC events; later ones are counted "
+                                       "in total/skipped but not listed"))
 
     def _blocks(self) -> Iterator[Block]:
         info = self.info
@@ -290,7 +301,7 @@ class GeneactivReader:
         n_hdr = self.info.header.get("number_of_pages")
         if n_hdr is not None and n_hdr != self.qc.total:
             self._event(self.qc.total, "page_count_mismatch",
-                        f"header Number of Pages is {n_hdr}, the file holds {self.qc.total}")
+                        f"header Number of Pages is {n_hdr}, the file holds {self.qc.total}", always=True)
         if self.qc.valid == 0 and self.qc.events and any(
                 e.reason != "page_count_mismatch" for e in self.qc.events):
             counts: dict[str, int] = {}
@@ -414,6 +425,7 @@ class GeneactivReader:
                             and self._desync_open:
                         # the same stretch of non-page text, seen over several reads: one event
                         self.qc.events.pop()
+                        self._n_events -= 1
                         nlines += self._desync_open[0]
                         nbytes += self._desync_open[1]
                     self._desync_open = (nlines, nbytes)

@@ -353,3 +353,20 @@ def test_fast_path_equals_general_parser(tmp_path, damage):
         assert fast_qc["events"]
     else:
         assert fast_qc["events"] == [] and 20.5 in np.concatenate([b.temperature_c for b in fast_blocks])
+
+
+def test_qc_log_is_capped(tmp_path, monkeypatch):
+    import stillpoint.drivers.geneactiv as g
+    monkeypatch.setattr(g, "MAX_QC_EVENTS", 3)
+    p = tmp_path / "r.bin"
+    write(p, pages=12)
+    data = p.read_bytes()
+    for k in range(1, 12, 2):  # every other page has a bad character: 6 bad_hex events
+        pos = pages_of(data)
+        i = data.find(b"Frequency:50.0", pos[k]) + 20
+        data = data[:i] + b"x" + data[i + 1:]
+    p.write_bytes(data[:pages_of(data)[11]])  # and 11 pages where the header says 12
+    r, _, b = read(p)
+    reasons = [e.reason for e in r.qc.events]
+    assert reasons == ["bad_hex"] * 3 + ["qc_log_truncated", "page_count_mismatch"]
+    assert (r.qc.total, r.qc.valid, r.qc.skipped) == (11, 6, 5) and b.n == 1800

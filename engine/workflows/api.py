@@ -52,6 +52,12 @@ def analyse(source: Union[str, Path, WindowFeatures, PreparedInput], model=None,
     noise = None
     noise_from = truth_sim if truth_sim is not None and truth_sim.on("noise") else start_sim
     if prepared.rate_hz:
+        if not noise_from.on("noise") and prepared.device:
+            # no noise term in the model: compare with the simulator's default for this device
+            dev = prepared.device.lower()
+            noise_from = sim.SensorModel({"noise": dict(zip(
+                ("x_ug_per_rthz", "y_ug_per_rthz", "z_ug_per_rthz"),
+                sim.DEFAULT_NOISE_UG.get(dev, sim.DEFAULT_NOISE_UG["ax3"])))})
         noise = noise_sd_mg(noise_from, prepared.rate_hz)
     res = discrepancy.run(prepared, start_model=start,
                           truth=None if truth_sim is None else from_sim(truth_sim),

@@ -8,7 +8,8 @@ recording is cut into ``folds`` contiguous time blocks of equal window count; ea
 with the model fitted on the others, so every window is held out once.
 
 A candidate is selected only if (1) dBIC < -10 on all windows, with n counted as independent windows
-(AR(1) effective sample size of the residual within still bouts, see ``sensor_fit.effective_n``), and
+(n over the integrated autocorrelation time of the new parameter's score, see ``sensor_fit.fit`` and
+``sensor_fit.effective_n``), and
 (2) the held-out gap with the candidate is lower than without it. Among those that pass, the one with
 the lowest dBIC is named (candidates are scored on held-out data in dBIC order until one passes). A term that makes the held-out gap worse is never kept.
 
@@ -109,6 +110,14 @@ def _r(x, nd=4):
     return None if x is None else float(round(float(x), nd))
 
 
+def sphere_coverage(mean: np.ndarray, limit: float = 0.3) -> dict:
+    """van Hees sphere criterion: on every axis the window means reach below -0.3 g and above
+    +0.3 g; without it offset/gain (and anything else) are poorly constrained."""
+    lo, hi = mean.min(axis=0), mean.max(axis=0)
+    return {"min_g": [round(float(v), 4) for v in lo], "max_g": [round(float(v), 4) for v in hi],
+            "covered": bool(np.all(lo < -limit) and np.all(hi > limit))}
+
+
 def time_folds(t_days: np.ndarray, folds: int) -> np.ndarray:
     """Fold id per window: contiguous time blocks with equal window counts."""
     order = np.argsort(t_days, kind="stable")
@@ -131,9 +140,11 @@ def _gap(r) -> float:
     return float(np.mean(np.abs(r)) * 1000.0)
 
 
-def delta_bic(base: FitResult, cand: FitResult) -> float:
-    """dBIC with both models' likelihoods on the same n_eff (the larger model's residual)."""
-    ne = cand.n_eff
+def delta_bic(base: FitResult, cand: FitResult, key) -> float:
+    """dBIC = n_ind ln(L1 / L0) + dk ln(n_ind), both likelihoods on the same count of independent
+    windows: n / tau, tau the integrated autocorrelation time of the new parameter's score
+    contributions under the larger model (see sensor_fit.fit)."""
+    ne = cand.n_independent(key)
     return float(ne * np.log(max(cand.loss, 1e-300) / max(base.loss, 1e-300))
                  + (cand.k - base.k) * np.log(ne))
 
@@ -207,7 +218,7 @@ def run(prepared: PreparedInput, start_model: Optional[SensorModel] = None,
                 fr = fit(trial, data)
             except (ValueError, np.linalg.LinAlgError):
                 continue
-            db = delta_bic(current, fr)
+            db = delta_bic(current, fr, (cand.effect, cand.component))
             e_i = trial.active.index((cand.effect, cand.component))
             val = cand.unit.show(fr.model.theta()[e_i])
             se = cand.unit.show_se(fr.stderr.get((cand.effect, cand.component), np.nan))
@@ -231,7 +242,8 @@ def run(prepared: PreparedInput, start_model: Optional[SensorModel] = None,
         cb, pb = _curve(best.candidate, current.model, data, current.residual)
         ca, pa = _curve(best.candidate, fr.model, data, fr.residual)
         steps.append(Step(best.candidate, _parameters(fr, best.candidate.effect),
-                          gap_now, best.gap_heldout_mg, best.delta_bic, fr.n, fr.n_eff, scores,
+                          gap_now, best.gap_heldout_mg, best.delta_bic, fr.n,
+                          fr.n_independent((best.candidate.effect, best.candidate.component)), scores,
                           cb, ca, pb, pa))
         current = fr
         gap_now = best.gap_heldout_mg
@@ -239,6 +251,9 @@ def run(prepared: PreparedInput, start_model: Optional[SensorModel] = None,
     if truth is not None:
         noise_floor = _gap(norm_residual(truth, data))
     from .locate import distributions
+    info = dict(prepared.input_info_extra()) if hasattr(prepared, "input_info_extra") else {}
+    info.update(prepared.describe())
+    info["sphere"] = sphere_coverage(data.mean)
     return DiscrepancyResult(
         steps=steps, start_model=model, base_fit=base_fit, final_fit=current,
         gap_initial_mg=gap_initial, gap_final_mg=gap_now,
@@ -246,4 +261,4 @@ def run(prepared: PreparedInput, start_model: Optional[SensorModel] = None,
         noise_floor_mg=noise_floor, locate_initial=loc0,
         locate_final=locate(current.model, data, current.residual),
         distributions=distributions(base_fit.model, current.model, data, noise_model_mg),
-        skipped=skipped_all, input_info=prepared.describe(), folds=folds, last_scores=scores)
+        skipped=skipped_all, input_info=info, folds=folds, last_scores=scores)

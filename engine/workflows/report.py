@@ -94,6 +94,11 @@ def text(d: dict) -> str:
     L.append(f"stillpoint discrepancy: {inp['source']}")
     L.append(f"  {inp['windows_nonmovement']} nonmovement windows of {inp['windows_total']} "
              f"({inp['hours']:.1f} h); temperature {'yes' if inp['temperature_available'] else 'no'}")
+    sph = inp.get("sphere")
+    if sph:
+        L.append("  sphere coverage (min/max g per axis): " + ", ".join(
+            f"{a} {lo:+.2f}/{hi:+.2f}" for a, lo, hi in zip("xyz", sph["min_g"], sph["max_g"]))
+                 + ("" if sph["covered"] else "  -- NOT covered (+-0.3 g): parameters poorly constrained"))
     eff = ", ".join(d["start_model"]["effects"]) or "(none)"
     L.append(f"  start model: {eff}")
     L.append(f"  metric: {d['metric']}")

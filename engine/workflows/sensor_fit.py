@@ -307,31 +307,66 @@ class FitResult:
     stderr: Dict[Tuple[str, str], float]  # standard error per free component (internal units)
     success: bool
     message: str
+    tau_score: Dict[Tuple[str, str], float] = field(default_factory=dict)  # per free component
+
+    def n_independent(self, key: Tuple[str, str]) -> float:
+        """Independent windows as far as component ``key`` is concerned: n / tau of its score."""
+        return self.n / max(self.tau_score.get(key, self.n / self.n_eff), 1.0)
 
     @property
     def gap_mg(self) -> float:
         return float(np.mean(np.abs(self.residual)) * 1000.0)
 
 
-def effective_n(residual: np.ndarray, t_days: np.ndarray, max_gap_s: float = 60.0) -> float:
-    """Number of independent windows: n (1 - rho) / (1 + rho), rho the lag-1 autocorrelation of the
-    residual between windows that follow each other within ``max_gap_s`` (same still bout)."""
+BATCH_SCALES_S = (1800.0, 3600.0, 7200.0, 14400.0, 28800.0, 43200.0)
+
+
+def effective_n(residual: np.ndarray, t_days: np.ndarray, scales_s=BATCH_SCALES_S,
+                min_batches: int = 6, max_gap_s: float = 60.0) -> float:
+    """Number of independent windows, n / tau_int, with tau_int the integrated autocorrelation time
+    of the residual in windows. Still windows come in bouts and the sensor's bias wanders slowly,
+    so neighbouring windows are not independent evidence.
+
+    tau_int is estimated by batch means (Var(batch mean) = sigma^2 tau_int / count) at time scales
+    of 0.5-12 h, each with two phases of batch boundaries averaged, and by the lag-1 correlation
+    within still bouts, (1 + rho) / (1 - rho). Short batches underestimate a slow correlation, so
+    the largest estimate over the scales with at least ``min_batches`` batches is used: a
+    deliberately conservative count (it guards the null control against slow bias wander)."""
     n = residual.shape[0]
     if n < 3:
         return float(max(n, 1))
     dtt = np.diff(t_days)
     if np.any(dtt < 0):
         order = np.argsort(t_days, kind="stable")
-        residual, dtt = residual[order], np.diff(t_days[order])
+        residual, t_days = residual[order], t_days[order]
+        dtt = np.diff(t_days)
     r = residual - np.mean(residual)
-    adj = dtt * 86400.0 <= max_gap_s
-    if adj.sum() < 10 or _dot(r, r) == 0:
+    var = _dot(r, r) / n
+    if var == 0:
         return float(n)
-    a, b = r[:-1][adj], r[1:][adj]
-    den = np.sqrt(_dot(a, a) * _dot(b, b))
-    rho = _dot(a, b) / den if den > 0 else 0.0
-    rho = min(max(rho, 0.0), 0.99)
-    return float(max(n * (1.0 - rho) / (1.0 + rho), min(n, 10)))
+    tau = 1.0
+    adj = dtt * 86400.0 <= max_gap_s
+    if adj.sum() >= 10:
+        a, b = r[:-1][adj], r[1:][adj]
+        den = np.sqrt(_dot(a, a) * _dot(b, b))
+        rho = min(max(_dot(a, b) / den if den > 0 else 0.0, 0.0), 0.99)
+        tau = max(tau, (1.0 + rho) / (1.0 - rho))
+    ts = (t_days - t_days[0]) * 86400.0
+    for scale in scales_s:
+        est = []
+        for phase in (0.0, 0.5):
+            k = np.floor(ts / scale + phase).astype(np.int64)
+            cnt = np.bincount(k).astype(float)
+            sm = np.bincount(k, r)
+            used = cnt > 0
+            nb = int(used.sum())
+            if nb < min_batches:
+                break
+            m = sm[used] / cnt[used]
+            est.append(float(np.sum(cnt[used] * m * m)) / ((nb - 1) * var))
+        if len(est) == 2:
+            tau = max(tau, 0.5 * (est[0] + est[1]))
+    return float(min(max(n / tau, min(n, 10)), n))
 
 
 def _bounds(model: SensorModel):
@@ -416,15 +451,21 @@ def fit(model: SensorModel, data: WindowData, loss_scale: float = LOSS_SCALE_G,
     out = model.with_theta(x)
     n = r.shape[0]
     n_eff = effective_n(r, data.t_days)
+    # per parameter: the integrated autocorrelation of its score contributions J_p w r (a
+    # slowly wandering bias projected on a changing orientation decorrelates the residual but
+    # not its product with a slow covariate such as temperature)
+    tau_p = {}
+    for i, key in enumerate(out.active):
+        tau_p[key] = n / effective_n(J[:, i] * w * r, data.t_days)
     stderr = {}
     try:
         A = np.einsum("ij,ik->jk", J, w[:, None] * J)
         dof = max(n - len(x), 1)
         s2 = float(np.sum(w * r * r)) / dof
-        cov = np.linalg.pinv(A) * s2 * (n / n_eff)
+        cov = np.linalg.pinv(A) * s2
         for i, key in enumerate(out.active):
-            stderr[key] = float(np.sqrt(max(cov[i, i], 0.0)))
+            stderr[key] = float(np.sqrt(max(cov[i, i], 0.0) * tau_p[key]))
     except (np.linalg.LinAlgError, ValueError):
         pass
     return FitResult(out, r, float(np.sum(soft_l1(r, loss_scale))), n, n_eff, len(x), stderr,
-                     ok, f"{iters} iterations")
+                     ok, f"{iters} iterations", tau_p)

@@ -4,8 +4,9 @@ Simulating raw samples for a week takes seconds per seed; the workflow only sees
 features, so for many seeds we simulate at that level: a wearer timeline (sleep with posture changes,
 daytime still bouts, nonwear on a table), the device temperature (skin-coupled when worn, a daily
 cycle, cooling towards ambient in nonwear), the true orientation of every still window, then the simulator's sensor model's
-deterministic part (``engine.sim.model.apply_deterministic``) plus window-level noise (white noise of the
-mean and micro-movements within the 13 mg still criterion). Moving windows are emitted too (large SD)
+deterministic part (``engine.sim.model.apply_deterministic``) plus window-level noise: the
+model's bias instability (Gauss-Markov wander, when on) and micro-movements within the 13 mg still
+criterion. Moving windows are emitted too (large SD)
 so that still selection and dT/dt estimation run exactly as on a recording.
 
 ``simulate_windows(truth, days, seed)`` -> (WindowFeatures, still mask); truth is an engine.sim SensorModel.
@@ -144,6 +145,14 @@ def simulate_windows(truth: sim.SensorModel, days: float = 7.0, seed: int = 0,
 
     t_s = np.arange(n) * WINDOW_S + WINDOW_S / 2
     mean = sim.apply_deterministic(u, truth, temperature_c=temp, time_s=t_s)
+    if truth.on("bias_instability"):
+        # Gauss-Markov bias wander on the window grid (the simulator's non-deterministic term)
+        sig = truth.axis_vector("bias_instability", "mg") / 1000.0
+        tau = float(truth.get("bias_instability", "tau_s", 3600.0))
+        a = np.exp(-WINDOW_S / tau)
+        e = rng.normal(size=(n, 3)) * sig * np.sqrt(1 - a * a)
+        e[0] = rng.normal(size=3) * sig
+        mean = mean + lfilter([1.0], [1.0, -a], e, axis=0)
     mm = s.micro_motion_mg / 1000.0
     mean = mean + np.where(state[:, None] == 1, rng.normal(scale=mm, size=(n, 3)),
                            rng.normal(scale=0.2 * mm, size=(n, 3)))

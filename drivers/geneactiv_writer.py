@@ -26,7 +26,7 @@ from typing import Optional
 
 import numpy as np
 
-from .constants import GNA_HEX_PER_SAMPLE, GNA_LIGHT_SHIFT, GNA_RATE_85_7, GNA_SAMPLES_PER_PAGE
+from .constants import GNA_LIGHT_SHIFT, GNA_RATE_85_7, GNA_SAMPLES_PER_PAGE
 from .geneactiv_header import format_time_ms, format_timezone, parse_timezone
 
 __all__ = ["GeneactivWriter"]

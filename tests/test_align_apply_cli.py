@@ -143,7 +143,7 @@ def test_cli_brond_method_and_exit_code_3_when_too_few_blocks(cwa_pair, tmp_path
     rc = main(["align", ref, oth, "--method", "brond"])
     assert rc == 0
     assert "(brond)" in capsys.readouterr().out
-    rc = main(["align", ref, oth, "--min-blocks", "40", "--json"])
+    rc = main(["align", ref, oth, "--min-blocks", "500", "--json"])
     cap = capsys.readouterr()
     assert rc == 3
     d = json.loads(cap.out)

@@ -279,8 +279,8 @@ def heldout_rmse(t: np.ndarray, y: np.ndarray, steps: Sequence[float],
 
 
 # ---------------------------------------------------------------- the two methods
-def _valid_arrays(blocks: Sequence[BlockLag], block_time: str):
-    v = [b for b in blocks if b.valid and np.isfinite(b.lag)]
+def _valid_arrays(blocks: Sequence[BlockLag], block_time: str, min_corr: float = -1.0):
+    v = [b for b in blocks if b.valid and np.isfinite(b.lag) and b.corr >= min_corr]
     idx = np.array([b.index for b in v], dtype=np.int64)
     if block_time == "start":
         t = np.array([b.start_s for b in v], dtype=np.float64)
@@ -293,18 +293,21 @@ def _valid_arrays(blocks: Sequence[BlockLag], block_time: str):
     return v, idx, t, y
 
 
-def _count_reasons(blocks: Sequence[BlockLag]) -> dict:
+def _count_reasons(blocks: Sequence[BlockLag], min_corr: float = -1.0) -> dict:
     out: dict[str, int] = {}
     for b in blocks:
         if not b.valid:
             out[b.reason or "invalid"] = out.get(b.reason or "invalid", 0) + 1
+        elif b.corr < min_corr:
+            out["low_corr"] = out.get("low_corr", 0) + 1
     return out
 
 
-def _check_enough(blocks: Sequence[BlockLag], n_valid: int, min_blocks: int) -> None:
+def _check_enough(blocks: Sequence[BlockLag], n_valid: int, min_blocks: int,
+                  min_corr: float = -1.0) -> None:
     if n_valid >= min_blocks:
         return
-    reasons = _count_reasons(blocks)
+    reasons = _count_reasons(blocks, min_corr)
     detail = ", ".join(f"{v} {k}" for k, v in sorted(reasons.items()))
     minutes = blocks[0].duration_s / 60 if blocks else 60.0
     raise CannotAlign(
@@ -372,6 +375,28 @@ def _locate_step(blocks_by_index: dict, v: Sequence[BlockLag], j: int, pre, post
     return 0.5 * (lo + hi), (lo, hi)
 
 
+STEP_SHORTLIST = 8  # step positions fully evaluated per round (ranked by a mean-shift scan)
+
+
+def _step_shortlist(t, y, best, cand_pos) -> list:
+    """Positions worth a full fit: the largest mean shifts of the current model's residuals
+    (cumulative sums, all positions at once; residuals capped so outliers cannot dominate)."""
+    if len(cand_pos) <= STEP_SHORTLIST:
+        return list(cand_pos)
+    r = best[2]
+    scale = _robust_scale(r[best[1]])
+    r = np.clip(r, -10 * TRIM_K * scale, 10 * TRIM_K * scale)
+    n = r.size
+    cs = np.concatenate([[0.0], np.cumsum(r)])
+    j = np.asarray(cand_pos)
+    n1, n2 = j, n - j
+    m1 = cs[j] / n1
+    m2 = (cs[n] - cs[j]) / n2
+    score = n1 * n2 / n * (m2 - m1) ** 2
+    order = np.argsort(score)[::-1][:STEP_SHORTLIST]
+    return [int(x) for x in j[order]]
+
+
 def _model_search(t, y, xtemp, min_blocks, detect_steps, max_steps) -> dict:
     """Greedy step search (ΔBIC) then the temperature term (ΔBIC and held-out blocks)."""
     n = t.size
@@ -386,7 +411,7 @@ def _model_search(t, y, xtemp, min_blocks, detect_steps, max_steps) -> dict:
     diag_steps = []
     while detect_steps and len(steps) < max_steps:
         trial = None
-        for j in cand_pos:
+        for j in _step_shortlist(t, y, best, cand_pos):
             bounds = [0] + sorted(step_pos + [j]) + [n]
             if j in step_pos or min(np.diff(bounds)) < STEP_MIN_SIDE:
                 continue  # every stretch between steps keeps at least STEP_MIN_SIDE blocks
@@ -427,6 +452,7 @@ def _model_search(t, y, xtemp, min_blocks, detect_steps, max_steps) -> dict:
             "cap": cap}
 
 
+ROBUST_MIN_CORR = 0.4  # robust: weaker correlation peaks are not lags (ActiPASS uses 0.4 too)
 CONSENSUS_TOL = 4.0  # samples: a candidate peak within this of the consensus line agrees
 CONSENSUS_HYPOTHESES = 3000
 MAX_SLOPE_PPM = 500.0  # lines steeper than this relative skew are not considered
@@ -500,8 +526,8 @@ def fit_robust(blocks: Sequence[BlockLag], rate: float,
                max_steps: int = MAX_STEPS) -> ClockFit:
     """Trimmed least squares with step detection (greedy, ΔBIC) and an optional temperature term
     (kept only if ΔBIC and the held-out RMSE both favour it). Block times are block centres."""
-    v, idx, t, y = _valid_arrays(blocks, "centroid")
-    _check_enough(blocks, len(v), min_blocks)
+    v, idx, t, y = _valid_arrays(blocks, "centroid", ROBUST_MIN_CORR)
+    _check_enough(blocks, len(v), min_blocks, ROBUST_MIN_CORR)
     n = t.size
     xtemp = temperature(t) if temperature is not None else None
     cands, heights = _candidates(v, y)
@@ -551,7 +577,8 @@ def fit_robust(blocks: Sequence[BlockLag], rate: float,
                     block_index=idx, t=t, y=y, rmse=float(np.sqrt(np.mean(r[inc] ** 2))),
                     iterations=1, cov=cov, dof=dof,
                     diagnostics={"block_time": "centroid", "n_valid": int(n),
-                                 "n_included": int(inc.sum()), "invalid": _count_reasons(blocks),
+                                 "n_included": int(inc.sum()),
+                                 "invalid": _count_reasons(blocks, ROBUST_MIN_CORR),
                                  "bic_linear": round(bic_linear, 3), "bic_final": round(bic, 3),
                                  "step_search": diag_steps, "temperature": temp_diag,
                                  "peaks_switched_by_consensus": int(n_switched),

@@ -18,12 +18,15 @@ import numpy as np
 from stillpoint.engine.blocks import DeviceInfo
 
 from .fit import CannotAlign, ClockFit, TemperatureRegressor, fit_brond, fit_robust
-from .lags import BlockLag, LagEstimator
+from .lags import SUB_BLOCKS, BlockLag, LagEstimator
 from .signal import (BLOCK_S, COMMON_RATE_HZ, MAX_LAG_SAMPLES, MIN_BLOCKS, TEMP_BIN_S,
                      GridResampler, TemperatureTrack)
 
 METHODS = ("brond", "robust")
 ROBUST_MAX_LAG_S = 600.0  # robust search window: a halt of up to ~9 min still correlates
+ROBUST_MIN_BLOCKS = 12  # 2 h of active overlapping data in 10 min blocks
+ROBUST_BLOCK_S = 600.0  # robust blocks: 10 min (drift smears a 1 h peak by up to 0.36 s/100 ppm;
+#                         gait makes neighbouring peaks compete; 6x more lags per hour)
 
 
 @dataclass
@@ -32,11 +35,11 @@ class AlignConfig:
 
     method: str = "robust"  # "brond" (the paper) or "robust"
     rate: float = COMMON_RATE_HZ
-    block_s: float = BLOCK_S
+    block_s: Optional[float] = None  # default: 1 h (brond), 10 min (robust)
     max_lag_s: Optional[float] = None  # default: 1000 samples (brond), 600 s (robust)
     block_time: str = "start"  # brond: "start" (authors' code), "centre" or "centroid"
     subsample: Optional[bool] = None  # default: False for brond (integer lags), True for robust
-    min_blocks: int = MIN_BLOCKS
+    min_blocks: Optional[int] = None  # default: 4 (brond, 1 h blocks), 12 (robust, 10 min)
     temperature: bool = True  # robust: consider the crystal-temperature term
     detect_steps: bool = True  # robust: piecewise model around halts/restarts
     keep_correlograms: bool = True
@@ -46,6 +49,18 @@ class AlignConfig:
             raise ValueError(f"unknown alignment method {self.method!r}; use one of {METHODS}")
         if self.block_time not in ("start", "centre", "centroid"):
             raise ValueError("block_time must be 'start', 'centre' or 'centroid'")
+
+    @property
+    def block_length_s(self) -> float:
+        if self.block_s is not None:
+            return float(self.block_s)
+        return BLOCK_S if self.method == "brond" else ROBUST_BLOCK_S
+
+    @property
+    def min_valid_blocks(self) -> int:
+        if self.min_blocks is not None:
+            return int(self.min_blocks)
+        return MIN_BLOCKS if self.method == "brond" else ROBUST_MIN_BLOCKS
 
     @property
     def max_lag(self) -> int:
@@ -75,10 +90,26 @@ class AlignmentResult:
     other_span_s: tuple[float, float] = (0.0, 0.0)  # other's clock, s since t0
     temperature: Optional[TemperatureRegressor] = None
     samples_dropped: dict = field(default_factory=dict)
+    gaps: dict = field(default_factory=dict)  # device -> [(start_s, end_s)] own clock, s since t0
 
     @property
     def ok(self) -> bool:
         return self.fit is not None
+
+    def _gap_steps(self) -> list:
+        """Sampling interruptions seen in the timestamps (a halt while the clock ran on, a
+        restart): located to the sample on the reference clock. They leave no lag step."""
+        out = []
+        for dev, gaps in self.gaps.items():
+            for a, b in gaps:
+                if dev == "other" and self.fit is not None:  # to the reference clock
+                    a = a - float(self.fit.offset_s(a))
+                    b = b - float(self.fit.offset_s(b))
+                out.append({"kind": "gap", "device": "reference" if dev == "ref" else "other",
+                            "time_s": round(a, 3), "time_ns": int(self.t0_ns + round(a * 1e9)),
+                            "window_s": [round(a, 3), round(b, 3)],
+                            "duration_s": round(b - a, 3)})
+        return sorted(out, key=lambda d: d["time_s"])
 
     def as_dict(self) -> dict:
         cfg = self.config
@@ -90,7 +121,7 @@ class AlignmentResult:
             "other": _info_dict(self.other_info),
             "t0_ns": int(self.t0_ns),
             "rate_hz": rate,
-            "block_s": cfg.block_s,
+            "block_s": cfg.block_length_s,
             "max_lag_samples": cfg.max_lag,
             "sign": "offset = other-device clock minus reference clock; aligned other time = "
                     "reference time + offset",
@@ -114,7 +145,8 @@ class AlignmentResult:
                 "excluded_blocks": excl,
                 "rmse_samples": fit.rmse,
                 "rmse_s": fit.rmse / rate,
-                "steps": [s.as_dict(rate, self.t0_ns) for s in fit.steps],
+                "steps": ([dict(s.as_dict(rate, self.t0_ns), kind="lag_step") for s in fit.steps]
+                          + self._gap_steps()),
                 "temperature_coef_samples_per_c2s": fit.temp_coef or None,
                 "ci": fit.ci(),
                 "iterations": fit.iterations,
@@ -154,9 +186,9 @@ def _jsonable(x):
 def fit_blocks(blocks: list[BlockLag], config: AlignConfig,
                temperature: Optional[TemperatureRegressor] = None) -> ClockFit:
     if config.method == "brond":
-        return fit_brond(blocks, config.rate, config.block_time, config.min_blocks)
+        return fit_brond(blocks, config.rate, config.block_time, config.min_valid_blocks)
     return fit_robust(blocks, config.rate, temperature if config.temperature else None,
-                      config.min_blocks, config.detect_steps)
+                      config.min_valid_blocks, config.detect_steps)
 
 
 def _temperature_regressor(tr: TemperatureTrack, to: TemperatureTrack, end_s: float
@@ -189,9 +221,11 @@ def estimate_alignment(reference, other, config: Optional[AlignConfig] = None,
     rs = {"ref": GridResampler(t0_ns, config.rate, reference.info.sample_rate_nominal),
           "other": GridResampler(t0_ns, config.rate, other.info.sample_rate_nominal)}
     temps = {"ref": TemperatureTrack(), "other": TemperatureTrack()}
-    est = LagEstimator(config.rate, config.block_s, config.max_lag, centred=True,
+    est = LagEstimator(config.rate, config.block_length_s, config.max_lag, centred=True,
                        subsample=config.use_subsample,
+                       sub_blocks=SUB_BLOCKS if config.block_length_s > 1200 else 0,
                        keep_correlograms=config.keep_correlograms)
+    refit_every = max(1, int(round(3600.0 / config.block_length_s)))
     iters = {"ref": it_ref, "other": it_oth}
     pending = {"ref": first, "other": None}
     blocks: list[BlockLag] = []
@@ -203,7 +237,8 @@ def estimate_alignment(reference, other, config: Optional[AlignConfig] = None,
             blocks.append(bl)
             if on_block is not None:
                 on_block(bl)
-            if on_estimate is not None and bl.valid:
+            if on_estimate is not None and bl.valid and (
+                    sum(1 for b in blocks if b.valid) % refit_every == 0):
                 try:
                     last_fit = fit_blocks(blocks, config)
                 except CannotAlign:
@@ -227,7 +262,8 @@ def estimate_alignment(reference, other, config: Optional[AlignConfig] = None,
     span = lambda r: (r.first_time_s or 0.0, r.last_time_s or 0.0)  # noqa: E731
     res = AlignmentResult(config, t0_ns, reference.info, other.info, blocks,
                           ref_span_s=span(rs["ref"]), other_span_s=span(rs["other"]),
-                          samples_dropped={k: r.samples_dropped for k, r in rs.items()})
+                          samples_dropped={k: r.samples_dropped for k, r in rs.items()},
+                          gaps={k: list(r.gaps) for k, r in rs.items()})
     if rs["other"].first_time_s is None:
         res.reason = "the other recording has no samples"
         return res

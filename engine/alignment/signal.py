@@ -93,6 +93,8 @@ class GridResampler:
         self.samples_dropped = 0  # non-increasing timestamps
         self.first_time_s: Optional[float] = None
         self.last_time_s: Optional[float] = None
+        self.gaps: list[tuple[float, float]] = []  # (last sample before, first after), s
+        self.min_gap_report_s = max(1.0, self.gap_s)
 
     def push(self, block: Block) -> Iterator[tuple[int, np.ndarray]]:
         if block.n == 0:
@@ -130,6 +132,15 @@ class GridResampler:
                 v = np.concatenate([[self._last_v], v])
         if self.first_time_s is None:
             self.first_time_s = float(t[0])
+        # record interruptions of sampling (halts, restarts) for the report
+        if break_before and self._last_t is not None and t[0] - self._last_t >= 0:
+            self.gaps.append((self._last_t, float(t[0])))
+        if t.size > 1:
+            big = np.nonzero(np.diff(t) >= self.min_gap_report_s)[0]
+            for i in big[:1000]:
+                if not (i == 0 and self._last_t is not None and t[0] == self._last_t
+                        and self.gaps and self.gaps[-1][1] == float(t[1])):
+                    self.gaps.append((float(t[i]), float(t[i + 1])))
         self._last_segment = segment
         self.last_time_s = float(t[-1])
         k_first = int(np.ceil(t[0] * self.rate - 1e-9))

@@ -39,12 +39,14 @@ def add_arguments(p) -> None:
     p.add_argument("--rate", type=float, default=30.0, help="common rate, Hz (default 30)")
     p.add_argument("--out-rate", type=float, default=None,
                    help="rate of the aligned stream (default: OTHER's nominal rate)")
-    p.add_argument("--block-minutes", type=float, default=60.0, help="block length (default 60)")
+    p.add_argument("--block-minutes", type=float, default=None,
+                   help="block length (default 60 for brond, 10 for robust)")
     p.add_argument("--max-lag-s", type=float, default=None,
                    help="lag search half-width, s (default 1000 samples for brond, 600 s robust)")
     p.add_argument("--block-time", choices=("start", "centre", "centroid"), default="start",
                    help="brond: time given to a block's lag (default start, as the authors' code)")
-    p.add_argument("--min-blocks", type=int, default=4, help="valid blocks needed (default 4)")
+    p.add_argument("--min-blocks", type=int, default=None,
+                   help="valid blocks needed (default 4 for brond, 12 ten-minute blocks robust)")
     p.add_argument("--no-temperature", action="store_true",
                    help="robust: do not consider the crystal-temperature drift term")
     p.add_argument("--no-steps", action="store_true", help="robust: no step (halt) detection")
@@ -78,7 +80,8 @@ def run(args) -> int:
     from stillpoint.drivers import open_recording
     from stillpoint.engine.alignment.operator import AlignConfig, run_alignment
 
-    config = AlignConfig(method=args.method, rate=args.rate, block_s=args.block_minutes * 60.0,
+    config = AlignConfig(method=args.method, rate=args.rate,
+                         block_s=None if args.block_minutes is None else args.block_minutes * 60.0,
                          max_lag_s=args.max_lag_s, block_time=args.block_time,
                          min_blocks=args.min_blocks, temperature=not args.no_temperature,
                          detect_steps=not args.no_steps, keep_correlograms=bool(args.plot))

@@ -156,6 +156,14 @@ def test_cli_simulate_pair_model_and_errors(tmp_path, capsys):
     eff = d["sensor_model"]["effects"]
     assert eff["offset"]["z_mg"] == 50 and eff["temperature_offset"]["z_mg_per_c"] == 3.9
     assert (tmp_path / "s.hip.cwa").exists() and (tmp_path / "s.hip.truth.json").exists()
+    # --pair-effect: the second device only
+    rc = cli(["simulate", "-o", str(tmp_path / "p.cwa"), "--days", "0.05", "--hz", "25", "--pair", "thigh",
+              "--pair-effect", "halts:at=0.5h,duration=100s"])
+    assert rc == 0
+    assert load_truth(tmp_path / "p.truth.json")["clock"]["halts"] == []
+    [h] = load_truth(tmp_path / "p.thigh.truth.json")["clock"]["halts"]
+    assert h["start_true_s"] == 1800.0 and h["duration_s"] == 100.0
+    capsys.readouterr()
     # bad effect parameter, wrong extension: exit 2 and one line on stderr
     assert cli(["simulate", "-o", str(tmp_path / "x.cwa"), "--effect", "offset:z=3s"]) == 2
     assert cli(["simulate", "-o", str(tmp_path / "x.cwa"), "--device", "geneactiv"]) == 2

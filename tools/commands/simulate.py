@@ -63,6 +63,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--pair-output", default=None, help="second device's file (default: <stem>.<site><ext>)")
     p.add_argument("--pair-device", default=None, choices=("ax3", "ax6", "geneactiv"))
     p.add_argument("--pair-hz", type=float, default=None, help="second device's sample rate (default --hz)")
+    p.add_argument("--pair-effect", action="append", default=[], metavar="NAME:KEY=VALUE,...",
+                   help="an effect for the second device only (e.g. halts:at=30h,duration=120s); "
+                        "--effects/--effect/--model apply to both devices, each drawing its own "
+                        "values for parameters not given")
     p.add_argument("--save-model", default=None, help="also write the resolved sensor model JSON here")
     p.add_argument("--json", action="store_true", help="print a JSON summary")
 
@@ -92,8 +96,9 @@ def run(args) -> int:
             out_b = Path(args.pair_output) if args.pair_output else out.with_name(f"{stem}.{args.pair}{ext_b}")
             if common["gyro_range_dps"] is None and dev_b == "ax6":
                 common["gyro_range_dps"] = args.gyro
+            model_b = build_model(None, model=model, overrides=[parse_effect_option(e) for e in args.pair_effect])
             truths = simulate_pair(out, out_b, site_a=args.site, site_b=args.pair, device_a=args.device,
-                                   device_b=dev_b, effects=model, truth_a=args.truth,
+                                   device_b=dev_b, effects=model, effects_b=model_b, truth_a=args.truth,
                                    hz_b=args.pair_hz, **common)
         else:
             truths = [simulate_recording(out, device=args.device, site=args.site, effects=model,

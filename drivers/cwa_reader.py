@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import gzip
 import zlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Iterator, Optional
 
@@ -226,6 +226,7 @@ class CwaReader:
             self.close()
         self.qc.segments = self._n_segments
         self.qc.events.sort(key=lambda e: e.index)  # stable: batch-size independent order
+        self._time_events()
         if self.qc.total and not self.qc.valid:
             counts: dict[str, int] = {}
             for e in self.qc.events:
@@ -235,7 +236,28 @@ class CwaReader:
                 self.path, f"none of the {self.qc.total} data sectors is readable ({why})")
 
     # ------------------------------------------------------------------ state
+    def _time_events(self) -> None:
+        """Give every QC event without a time the data time near it: interpolated by sector index
+        inside an emitted Block, else the last valid sample before it (or the first after)."""
+        if not self._bounds or all(e.time_ns is not None for e in self.qc.events):
+            return
+        b = np.array(self._bounds, dtype=np.int64)  # (blocks, 4): first unit, t, last unit, t
+        out = []
+        for e in self.qc.events:
+            if e.time_ns is None:
+                i = int(np.searchsorted(b[:, 0], e.index, side="right")) - 1
+                if i < 0:
+                    t = int(b[0, 1])
+                elif e.index <= b[i, 2] and b[i, 2] > b[i, 0]:
+                    t = int(b[i, 1] + (e.index - b[i, 0]) * (b[i, 3] - b[i, 1]) // (b[i, 2] - b[i, 0]))
+                else:
+                    t = int(b[i, 3] if e.index > b[i, 2] else b[i, 1])
+                e = replace(e, time_ns=t)
+            out.append(e)
+        self.qc.events = out
+
     def _init_state(self) -> None:
+        self._bounds: list = []  # per emitted Block: first sector, its time, last sector, last time
         self._seg: Optional[_Segment] = None
         self._prev: Optional[_Prev] = None
         self._n_segments = 0
@@ -698,6 +720,8 @@ class CwaReader:
             first_sample=self._emitted_total,
         )
         self._emitted_total += n
+        self._bounds.append((int(block.unit_index[0]), int(time_ns[0]), int(block.unit_index[-1]),
+                             int(time_ns[-1])))
         return block
 
     # ------------------------------------------------------------------ AX6 axis swap (fw < 56)

@@ -96,6 +96,11 @@ def test_ax3_corrupt_blocks(real_file):
     assert "12 -> 15" in [e.detail for e in rd.qc.events if e.reason == "sequence_gap"][0]
     assert all(e.samples == 120 for e in rd.qc.events if e.reason == "checksum")
     assert (rd.qc.total, rd.qc.valid, rd.qc.skipped, rd.qc.segments) == (145, 139, 6, 2)
+    # each event carries the data time next to it: a skipped sector -> last valid sample before it
+    times = {(e.index, e.reason): e.time_ns for e in rd.qc.events}
+    seg0_end = int(r["time"][r["segment"] == 0][-1])
+    assert times[(13, "checksum")] == times[(14, "checksum")] == seg0_end
+    assert times[(144, "checksum")] == int(r["time"][-1])
     assert r["n"] == 16_680 and r["unit_index"][-1] == 141
     assert abs(r["time"][0] - ns("2019-02-26 10:55:07.2151")) < 20e6
     # the valid sectors hold exactly the clean file's samples; interior times are identical

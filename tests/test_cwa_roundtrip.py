@@ -185,6 +185,8 @@ def test_anomalies_qc_and_segments(tmp_path):
         (13, "sequence_gap"), (20, "sequence_gap"), (30, "bad_timestamp"),
         (33, "session_change"), (40, "erased")]
     assert rd.qc.total == 42 and rd.qc.skipped == 5 and rd.qc.valid == 37
+    times = [e.time_ns for e in rd.qc.events]
+    assert None not in times and times == sorted(times)
     assert rd.qc.segments == 5
     assert r["n"] == 37 * 120
     # the sector with timestamp 0 keeps its samples, timed from its neighbours

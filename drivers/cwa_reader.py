@@ -120,6 +120,37 @@ def _device_info(path: Path, h: dict, tz_s: int, first_fmt: Optional[tuple]) -> 
         timezone_offset_s=tz_s, metadata=dict(h["metadata"]), header=header, path=str(path))
 
 
+def _tail_sectors(path: Path) -> dict:
+    """Data-sector count and the last valid sector among the final 16 (plain files only)."""
+    size = path.stat().st_size
+    n = max(0, (size - C.CWA_HEADER_BYTES) // C.CWA_SECTOR_BYTES)
+    out = {"data_sectors": n}
+    k = min(n, 16)
+    if k:
+        with open(path, "rb") as f:
+            f.seek(C.CWA_HEADER_BYTES + (n - k) * C.CWA_SECTOR_BYTES)
+            b = f.read(k * C.CWA_SECTOR_BYTES)
+        sec = np.frombuffer(b, SECTOR_DTYPE, count=len(b) // C.CWA_SECTOR_BYTES)
+        ok = np.flatnonzero(classify(sec) == 0)
+        if ok.size:
+            out["last"] = sec[ok[-1]:ok[-1] + 1]
+    return out
+
+
+def _quick_span(ends: dict, tz_s: int) -> dict:
+    """Header-only look at the data (as OmApi does): anchor times of the first and last valid
+    sectors among the first/last 16, as ISO UTC; None when unknown (e.g. gzip: no tail seek)."""
+    out = {"data_sectors": ends.get("data_sectors")}
+    for key in ("first", "last"):
+        iso = None
+        if key in ends:
+            _, t_ns, ok = sector_anchors(ends[key], tz_s)
+            if ok[0]:
+                iso = str(np.datetime64(int(t_ns[0]), "ns")) + "Z"
+        out[f"{key}_sector_time"] = iso
+    return out
+
+
 def read_header(path, *, timezone=0) -> DeviceInfo:
     """Parse only the header (and peek at the first data sectors): fast ``inspect --header-only``."""
     return CwaReader(path, timezone=timezone).info
@@ -180,6 +211,7 @@ class CwaReader:
             head = _read_or_fail(self.path, f, C.CWA_HEADER_BYTES)
             _check_header(self.path, head)
             first_fmt = None
+            ends = {}
             if not self.follow:
                 peek = _read_or_fail(self.path, f, 16 * C.CWA_SECTOR_BYTES)
                 k = len(peek) // C.CWA_SECTOR_BYTES
@@ -189,9 +221,13 @@ class CwaReader:
                     if ok.size:
                         s = sec[ok[0]]
                         first_fmt = (int(s["num_axes_bps"]), int(s["light_scale"]))
+                        ends["first"] = sec[ok[0]:ok[0] + 1]
+                if not is_gzip(self.path):  # plain file: also look at the last 16 sectors
+                    ends.update(_tail_sectors(self.path))
         finally:
             f.close()
         self._header = parse_header(head, self.tz_s)
+        self._header.update(_quick_span(ends, self.tz_s))
         self.info = _device_info(self.path, self._header, self.tz_s, first_fmt)
         self.qc = QCReport(unit="sector")
         self._closed = False

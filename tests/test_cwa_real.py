@@ -224,3 +224,14 @@ def test_batch_invariance_on_real_files(real_file, name):
         for k in ("time", "accel", "unit_index", "temperature_raw", "light", "battery_v", "events"):
             np.testing.assert_array_equal(got[k], ref[k], err_msg=k)
         assert qc_reasons(got["reader"]) == qc_reasons(ref["reader"])
+
+
+def test_header_quick_span(real_file):
+    """read_header looks at the first/last 16 sectors only (OmApi-style) for the data span."""
+    h = read_header(real_file(AX3)).header
+    assert h["data_sectors"] == 145
+    assert h["first_sector_time"].startswith("2019-02-26T10:55:07.2504")  # spec §7.4 anchor
+    g, t, _ = raw_anchor(real_file(AX3_BAD), 141)  # last valid sector of the corrupt file
+    hb = read_header(real_file(AX3_BAD)).header
+    assert abs(ns(hb["last_sector_time"].rstrip("Z")) / 1e9 - t) < 1e-6
+    assert read_header(real_file(OXF)).header["last_sector_time"] is None  # gzip: no tail seek

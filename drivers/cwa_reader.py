@@ -25,8 +25,17 @@ index in the file, 0 = the sector right after the 1024-byte header):
   the data are not changed), ``truncated`` (file ends inside a sector), ``read_error`` (a damaged
   gzip stream: everything before it is returned).
 
+Every event carries ``time_ns``: the anchor time for a segment break, otherwise the data time next
+to it (interpolated by sector index inside a Block, else the last valid sample before it). Events
+beyond ``MAX_QC_EVENTS`` are counted in total/skipped but not listed (memory stays flat).
+
 A file in which not a single data sector is valid raises ``CorruptRecordingError`` at the end of
 iteration (after ``.qc`` is complete); a file with a header and no data sectors yields no Blocks.
+``follow=True`` reads a plain file that is still being written (gzip cannot be followed); it ends
+after ``follow_idle_s`` seconds without growth. ``.info.header`` also holds an OmApi-style quick
+look (``first_sector_time``, ``last_sector_time``, ``data_sectors``) from the first/last 16
+sectors, for ``inspect --header-only``. Not decoded (skipped as ``bad_format``): the prototype
+9-axis 0x92 format and the pre-release "rate code 0" format.
 ``decode=False`` skips sample decoding: Blocks carry times and per-sector data, ``accel`` has
 shape (n, 0) (fast scans).
 """

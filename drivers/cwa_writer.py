@@ -59,6 +59,16 @@ class CwaWriter:
     Auxiliary values are scalars or per-sample arrays; a sector stores the value at its first
     sample (events: the OR over its samples). Samples are buffered until a sector is full;
     ``close()`` flushes a final short sector, ``restart()`` ends the current logging run.
+
+    Options: ``packed`` (default: AX3 without gyro -> packed 0x30; False -> unpacked 0x32),
+    ``gyro_range_dps`` (AX6 only: 125..2000 -> 6-axis 0x62 sectors), ``firmware`` (default 48 for
+    AX3, 56 for AX6), ``metadata`` (short keys like "_sc" or expanded names like "Subject Code"),
+    ``logging_start`` / ``logging_end`` (None = always / never; int ns or datetime),
+    ``fractional=False`` writes old-firmware sectors without the fractional timestamp (anchor at
+    the whole second, good to about one sample). ``path_or_fileobj`` may be an open binary file
+    (e.g. ``gzip.open(..., "wb")``); it is flushed, not closed. Times must increase strictly.
+    Attributes: ``accel_counts_per_g``, ``gyro_dps_per_count``, ``samples_per_sector``,
+    ``exponent`` (packed), ``sectors_written``.
     """
 
     def __init__(self, path_or_fileobj: Union[str, os.PathLike, BinaryIO], *,

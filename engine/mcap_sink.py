@@ -24,9 +24,11 @@ much; the file is fsynced at those flushes at most once per ``fsync_every_wall_s
 (SIGKILL only loses what Python had not handed to the OS; fsync protects against power loss).
 ``recover`` salvages every complete chunk of a file that was never finished.
 
-Writing happens on a background thread (``threaded=True``): compression (zstd releases the GIL)
-overlaps with the pipeline's numeric work. Order of records is the order of calls, so the file
-is deterministic.
+Writing happens in a writer process by default (``writer="process"``: the mcap library's
+per-record Python work and zstd compression run on another core, in parallel with the pipeline's
+numeric work; the pipe gives back-pressure), or on a thread / inline. Records are written in the
+order of the calls, so the file is deterministic. If the engine process dies, the writer
+process sees the pipe close and leaves the file unfinished (recoverable), like a crash.
 """
 
 from __future__ import annotations
@@ -157,42 +159,21 @@ def estimate_message(est: CalibrationEstimate, applied: bool) -> dict:
     return d
 
 
-class McapSink:
-    """Writes one run's MCAP (see module docstring). Use as a context manager or call close()."""
+class _WriterCore:
+    """The mcap Writer and the file: executes write operations (in-process, in a thread, or in
+    a writer process)."""
 
-    def __init__(self, path, info: DeviceInfo, settings: dict, *, flush_every_s: float = 10.0,
-                 fsync_every_wall_s: float = 1.0, compression: str = "zstd",
-                 chunk_size: int = CHUNK_SIZE, corrected_quantum_g: float = 2.0 ** -16,
-                 message_s: float = 60.0, threaded: bool = True):
-        self.path = str(path)
-        self.flush_every_ns = int(flush_every_s * 1e9) if flush_every_s else None
+    def __init__(self, path: str, chunk_size: int, compression: str, fsync_every_wall_s: float):
         self.fsync_every_wall_s = fsync_every_wall_s
-        self.quantum = corrected_quantum_g
-        self._f = open(self.path, "wb")
+        self._f = open(path, "wb")
         self._w = Writer(self._f, chunk_size=chunk_size, compression=_COMPRESSION[compression])
         self._w.start(profile="", library=LIBRARY)
         self._schemas = {t.name: self._w.register_schema(t.name, "ros2msg", t.schema_text().encode())
                          for t in ALL_TYPES}
         self._channels: dict[str, int] = {}
         self._seq: dict[str, int] = {}
-        self._cell: Optional[int] = None  # data-time cell (flush_every_s) being written
-        self.cell_ns = self.flush_every_ns or int(message_s * 1e9)
-        self._pending_corr: list[CorrectedBatch] = []
-        self._corr_cell: Optional[int] = None
         self._last_fsync = time.monotonic()
-        self.flushes = 0
-        self.messages = 0
-        self._error: Optional[BaseException] = None
-        self._q: Optional[queue.Queue] = None
-        self._thread = None
-        self._do("metadata", "device", device_metadata(info))
-        self._do("metadata", "settings", {"json": dumps(settings)})
-        if threaded:
-            self._q = queue.Queue(maxsize=64)
-            self._thread = threading.Thread(target=self._worker, name="mcap-writer", daemon=True)
-            self._thread.start()
 
-    # ------------------------------------------------------------------ plumbing
     def _channel(self, topic: str, encoding: str, schema: Optional[str]) -> int:
         cid = self._channels.get(topic)
         if cid is None:
@@ -202,7 +183,7 @@ class McapSink:
             self._seq[topic] = 0
         return cid
 
-    def _execute(self, op, *args):
+    def execute(self, op, *args):
         if op == "msg":
             topic, encoding, schema, log_time, data = args
             cid = self._channel(topic, encoding, schema)
@@ -210,7 +191,6 @@ class McapSink:
             self._seq[topic] = seq + 1
             t = max(0, int(log_time))
             self._w.add_message(cid, t, data, t, seq)
-            self.messages += 1
         elif op == "msgs":
             topic, encoding, schema, items = args
             cid = self._channel(topic, encoding, schema)
@@ -220,12 +200,10 @@ class McapSink:
                 self._w.add_message(cid, t, data, t, seq)
                 seq += 1
             self._seq[topic] = seq
-            self.messages += len(items)
         elif op == "metadata":
             self._w.add_metadata(args[0], args[1])
         elif op == "flush":
             self._w.flush()
-            self.flushes += 1
             now = time.monotonic()
             if args[0] or now - self._last_fsync >= self.fsync_every_wall_s:
                 os.fsync(self._f.fileno())
@@ -236,6 +214,86 @@ class McapSink:
             os.fsync(self._f.fileno())
             self._f.close()
 
+    def abandon(self) -> None:
+        """Stop without finishing: what was flushed stays on disk, recoverable."""
+        try:
+            self._f.close()
+        except Exception:
+            pass
+
+
+def _writer_process_main(conn, core_args) -> None:
+    try:
+        core = _WriterCore(*core_args)
+    except BaseException as e:
+        conn.send(("error", f"{type(e).__name__}: {e}"))
+        return
+    while True:
+        try:
+            item = conn.recv()
+        except (EOFError, OSError):  # the engine process died: leave the file recoverable
+            core.abandon()
+            return
+        if item is None:
+            core.abandon()
+            conn.send(("done",))
+            return
+        try:
+            core.execute(*item)
+        except BaseException as e:
+            core.abandon()
+            conn.send(("error", f"{type(e).__name__}: {e}"))
+            return
+
+
+class McapSink:
+    """Writes one run's MCAP (see module docstring). Use as a context manager or call close().
+
+    ``writer``: "process" (default: the mcap writer and compression run in a child process, in
+    parallel with the pipeline), "thread", or "inline".
+    """
+
+    def __init__(self, path, info: DeviceInfo, settings: dict, *, flush_every_s: float = 10.0,
+                 fsync_every_wall_s: float = 1.0, compression: str = "zstd",
+                 chunk_size: int = CHUNK_SIZE, corrected_quantum_g: float = 2.0 ** -16,
+                 message_s: float = 60.0, writer: str = "process"):
+        if writer not in ("process", "thread", "inline"):
+            raise ValueError("writer must be 'process', 'thread' or 'inline'")
+        self.path = str(path)
+        self.flush_every_ns = int(flush_every_s * 1e9) if flush_every_s else None
+        self.quantum = corrected_quantum_g
+        self._cell: Optional[int] = None  # data-time cell (flush_every_s) being written
+        self.cell_ns = self.flush_every_ns or int(message_s * 1e9)
+        self._pending_corr: list[CorrectedBatch] = []
+        self._corr_cell: Optional[int] = None
+        self.flushes = 0
+        self.messages = 0
+        self._error: Optional[str] = None
+        self._q: Optional[queue.Queue] = None
+        self._thread = None
+        self._conn = None
+        self._proc = None
+        core_args = (self.path, chunk_size, compression, fsync_every_wall_s)
+        if writer == "process":
+            import multiprocessing as mp
+            ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
+            parent, child = ctx.Pipe()
+            self._proc = ctx.Process(target=_writer_process_main, args=(child, core_args),
+                                     name="mcap-writer", daemon=True)
+            self._proc.start()
+            child.close()
+            self._conn = parent
+            self._core = None
+        else:
+            self._core = _WriterCore(*core_args)
+            if writer == "thread":
+                self._q = queue.Queue(maxsize=64)
+                self._thread = threading.Thread(target=self._worker, name="mcap-writer", daemon=True)
+                self._thread.start()
+        self._do("metadata", "device", device_metadata(info))
+        self._do("metadata", "settings", {"json": dumps(settings)})
+
+    # ------------------------------------------------------------------ plumbing
     def _worker(self):
         while True:
             item = self._q.get()
@@ -243,15 +301,35 @@ class McapSink:
                 return
             if self._error is None:
                 try:
-                    self._execute(*item)
+                    self._core.execute(*item)
                 except BaseException as e:  # reported on the caller's next call
-                    self._error = e
+                    self._error = f"{type(e).__name__}: {e}"
+
+    def _check(self):
+        if self._conn is not None and self._error is None and self._conn.poll():
+            msg = self._conn.recv()
+            if msg[0] == "error":
+                self._error = msg[1]
+        if self._error is not None:
+            raise RuntimeError(f"writing {self.path} failed: {self._error}")
 
     def _do(self, *item):
-        if self._error is not None:
-            raise RuntimeError(f"writing {self.path} failed: {self._error}") from self._error
-        if self._q is None:
-            self._execute(*item)
+        op = item[0]
+        if op == "msg":
+            self.messages += 1
+        elif op == "msgs":
+            self.messages += len(item[4])
+        elif op == "flush":
+            self.flushes += 1
+        self._check()
+        if self._conn is not None:
+            try:
+                self._conn.send(item)
+            except (BrokenPipeError, OSError):
+                self._check()
+                raise RuntimeError(f"writing {self.path} failed: the writer process ended") from None
+        elif self._q is None:
+            self._core.execute(*item)
         else:
             self._q.put(item)
 
@@ -382,26 +460,44 @@ class McapSink:
         self._do("flush", fsync)
 
     def close(self) -> None:
-        """Finish the file (summary, index, footer) and wait for the writer thread."""
+        """Finish the file (summary, index, footer) and wait for the writer."""
         self._emit_corrected()
         self._do("finish")
         self._stop()
         if self._error is not None:
-            raise RuntimeError(f"writing {self.path} failed: {self._error}") from self._error
+            raise RuntimeError(f"writing {self.path} failed: {self._error}")
 
     def abort(self) -> None:
         """Stop writing without finishing (the file stays recoverable up to the last flush)."""
         self._stop()
-        try:
-            self._f.close()
-        except Exception:
-            pass
+        if self._core is not None:
+            self._core.abandon()
 
     def _stop(self):
         if self._thread is not None:
             self._q.put(None)
             self._thread.join()
             self._thread = None
+        if self._conn is not None:
+            try:
+                self._conn.send(None)
+            except (OSError, BrokenPipeError):
+                pass
+            done = False
+            try:
+                while True:
+                    msg = self._conn.recv()
+                    if msg[0] == "error":
+                        self._error = msg[1]
+                    elif msg[0] == "done":
+                        done = True
+            except (EOFError, OSError):
+                pass
+            if not done and self._error is None:
+                self._error = "the writer process ended unexpectedly"
+            self._proc.join()
+            self._conn.close()
+            self._conn = None
 
     def __enter__(self):
         return self

@@ -220,7 +220,7 @@ def _qc_summary(source) -> dict:
 # ---------------------------------------------------------------------------- the job
 def process_file(path, out, settings: Optional[RunSettings] = None, *,
                  progress: Optional[Callable[[str, PipelineStats], None]] = None,
-                 threaded: bool = True, source_options: Optional[dict] = None) -> dict:
+                 writer: str = "process", source_options: Optional[dict] = None) -> dict:
     """Process one recording into ``out`` (MCAP); return the run summary (see module docstring).
 
     ``progress(label, stats)`` is called as the passes advance (label "pass 1/2", "pass 2/2",
@@ -267,7 +267,7 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
         src = open_recording(path, **opts)
         sink = McapSink(out, src.info, meta_settings, flush_every_s=s.flush_every_s,
                         compression=s.compression, chunk_size=s.chunk_size,
-                        corrected_quantum_g=s.corrected_quantum_g, threaded=threaded)
+                        corrected_quantum_g=s.corrected_quantum_g, writer=writer)
         try:
             applied = est.status in APPLIED_STATUSES
             initial = est if applied else CalibrationEstimate.identity(est.reason)
@@ -291,7 +291,7 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
                                window_s=s.window_s, temperature=s.temperature)
         sink = McapSink(out, info, meta_settings, flush_every_s=s.flush_every_s,
                         compression=s.compression, chunk_size=s.chunk_size,
-                        corrected_quantum_g=s.corrected_quantum_g, threaded=threaded)
+                        corrected_quantum_g=s.corrected_quantum_g, writer=writer)
         window_ns = int(round(s.window_s * 1e9))
         outst = None
 

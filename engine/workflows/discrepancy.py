@@ -187,8 +187,8 @@ def _curve(cand: Candidate, model: SensorModel, data: WindowData, r: np.ndarray,
 
 def run(prepared: PreparedInput, start_model: Optional[SensorModel] = None,
         truth: Optional[SensorModel] = None, folds: int = 5, bic_threshold: float = BIC_THRESHOLD,
-        max_steps: int = 8, effects: Optional[List[str]] = None, noise_model_mg=None
-        ) -> DiscrepancyResult:
+        max_steps: int = 8, effects: Optional[List[str]] = None, noise_model_mg=None,
+        rate_hz: Optional[float] = None) -> DiscrepancyResult:
     data = prepared.data
     if len(data) < 50:
         raise ValueError(f"only {len(data)} nonmovement windows: at least 50 are needed to compare")
@@ -260,5 +260,6 @@ def run(prepared: PreparedInput, start_model: Optional[SensorModel] = None,
         gap_insample_initial_mg=base_fit.gap_mg, gap_insample_final_mg=current.gap_mg,
         noise_floor_mg=noise_floor, locate_initial=loc0,
         locate_final=locate(current.model, data, current.residual),
-        distributions=distributions(base_fit.model, current.model, data, noise_model_mg),
+        distributions=distributions(base_fit.model, current.model, data, noise_model_mg,
+                                    rate_hz if rate_hz is not None else prepared.rate_hz),
         skipped=skipped_all, input_info=info, folds=folds, last_scores=scores)

@@ -74,7 +74,7 @@ def locate(model: SensorModel, data: WindowData, residual: np.ndarray) -> list:
 
 
 def distributions(base: SensorModel, final: SensorModel, data: WindowData,
-                  noise_model_mg=None) -> dict:
+                  noise_model_mg=None, rate_hz: Optional[float] = None) -> dict:
     """Distribution checks: SD of still windows per axis vs the model's noise; the measured norm
     against the model's prediction (1 g exactly for a perfect deterministic model)."""
     out = {}
@@ -87,16 +87,23 @@ def distributions(base: SensorModel, final: SensorModel, data: WindowData,
             entry = {"p5": round(q[0], 3), "p25": round(q[1], 3), "median": round(q[2], 3),
                      "p75": round(q[3], 3), "p95": round(q[4], 3),
                      "zero_fraction": round(float(np.mean(sd[:, k] == 0)), 5)}
+            quantised = entry["zero_fraction"] > 0.05
+            entry["quantisation_dominates"] = bool(quantised)
+            if rate_hz and not quantised:
+                # white-noise density that would give this floor: SD / sqrt(bandwidth = rate / 2)
+                entry["noise_density_ug_per_rthz"] = round(q[0] * 1000.0 / np.sqrt(rate_hz / 2.0), 1)
             if noise_model_mg is not None:
                 nm = float(np.broadcast_to(np.asarray(noise_model_mg, float), (3,))[k])
                 entry["model_noise_mg"] = round(nm, 3)
                 entry["ratio_p5_to_model"] = round(q[0] / nm, 3) if nm > 0 else None
-                entry["agrees"] = bool(nm > 0 and 0.8 <= q[0] / nm <= 1.25)
+                entry["agrees"] = bool(nm > 0 and 0.8 <= q[0] / nm <= 1.25) and not quantised
             per_axis[ax] = entry
         out["still_window_sd_mg"] = per_axis
         out["still_window_sd_note"] = (
             "the noise floor is the low end (p5) of the still-window SD; higher SDs contain "
-            "micro-movements. A model noise outside 0.8-1.25x of p5 disagrees with the data.")
+            "micro-movements. A model noise outside 0.8-1.25x of p5 disagrees with the data. When "
+            "more than 5% of still windows have SD exactly 0 on an axis the noise is below one "
+            "quantisation step there: the SD then shows the resolution, not the noise.")
     for name, m in (("before", base), ("after", final)):
         a = invert(m, data)
         r = (np.linalg.norm(a, axis=1) - 1.0) * 1000.0

@@ -236,3 +236,17 @@ def test_still_windows_without_rendering_match_the_labels(tmp_path):
     m = np.stack([lab["true_mean_x"], lab["true_mean_y"], lab["true_mean_z"]], 1)[sw["window"]]
     assert np.allclose(sw["gravity"], m, atol=1e-6)
     assert np.allclose(sw["temperature_c"], lab["temperature_c"][sw["window"]])
+
+
+def test_labels_stream_through_long_gaps_and_in_memory_without_files(tmp_path):
+    eff = build_model("noise").with_effect("restarts", events=[{"start_s": 3000.0, "gap_s": 7300.0}])
+    t = simulate_recording(tmp_path / "g.cwa", days=0.2, hz=12.5, seed=2, effects=eff)
+    lab = t.labels
+    nw = int(np.ceil(0.2 * 86400 / 10))
+    assert np.array_equal(lab["window"], np.arange(nw))
+    gap = (lab["true_start_s"] >= 3000) & (lab["true_start_s"] + 10 <= 10300)
+    assert gap.sum() > 700 and np.all(lab["samples"][gap] == 0) and np.all(lab["still"][gap] == 0)
+    assert np.all(lab["samples"][~gap][1:-1] > 0)
+    t2 = simulate_recording(tmp_path / "h.cwa", days=0.2, hz=12.5, seed=2, effects=eff, truth_path=False)
+    assert not (tmp_path / "h.truth.json").exists() and t2.truth_path is None
+    assert np.array_equal(t2.labels["samples"], lab["samples"])

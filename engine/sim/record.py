@@ -139,6 +139,14 @@ class Truth:
     def save(self, path) -> None:
         Path(path).write_text(json.dumps(self.to_dict(), indent=1) + "\n")
 
+    @property
+    def labels(self) -> Optional[dict]:
+        """Per-window labels as arrays (read from the labels CSV; kept in memory when no truth
+        files were written)."""
+        if getattr(self, "_labels", None) is None and self.labels_path:
+            self._labels = load_labels(self.labels_path)
+        return getattr(self, "_labels", None)
+
 
 def _iso(ns: int) -> str:
     return datetime.fromtimestamp(ns / 1e9, tz=timezone.utc).isoformat(timespec="microseconds")
@@ -322,33 +330,42 @@ class DeviceSim:
         return 4.15 - 0.35 * np.clip(t / max(self.duration_s, 1.0), 0, 1)
 
     # --------------------------------------------------------------- labels
-    def labels(self, sums: np.ndarray, sq: np.ndarray, counts: np.ndarray) -> dict:
-        """Per-10 s-window labels; sums/sq/counts are accumulated true specific force per window."""
+    def moving_mask(self) -> np.ndarray:
+        """(windows,) bool: the window overlaps movement or a posture transition (schedule)."""
+        if getattr(self, "_moving", None) is None:
+            sch = self.schedule
+            nw = int(np.ceil(self.duration_s / WINDOW_S))
+            moving = np.zeros(nw + 2, np.int64)
+            a = sch.start
+            b = np.where(sch.motion != 0, sch.end, sch.start + sch.trans_s)
+            sel = b > a
+            ia = np.clip((a[sel] // WINDOW_S).astype(np.int64), 0, nw)
+            ib = np.clip(((b[sel] - 1e-9) // WINDOW_S).astype(np.int64) + 1, 0, nw)
+            np.add.at(moving, ia, 1)
+            np.add.at(moving, ib, -1)
+            self._moving = np.cumsum(moving)[:nw] > 0
+        return self._moving
+
+    def labels(self, sums: np.ndarray, sq: np.ndarray, counts: np.ndarray, first_window: int = 0) -> dict:
+        """Labels of windows first_window .. first_window + len(counts) - 1; sums/sq/counts are
+        the accumulated true specific force of those windows."""
         sch = self.schedule
         nw = counts.shape[0]
-        w0 = np.arange(nw) * WINDOW_S
-        moving = np.zeros(nw + 2, np.int64)
-        mot_seg = sch.motion != 0
-        a = sch.start
-        b = np.where(mot_seg, sch.end, sch.start + sch.trans_s)
-        sel = b > a
-        ia = np.clip((a[sel] // WINDOW_S).astype(np.int64), 0, nw)
-        ib = np.clip(((b[sel] - 1e-9) // WINDOW_S).astype(np.int64) + 1, 0, nw)
-        np.add.at(moving, ia, 1)
-        np.add.at(moving, ib, -1)
-        mv = np.cumsum(moving)[:nw] > 0
+        win = first_window + np.arange(nw)
+        w0 = win * WINDOW_S
         expected = WINDOW_S * self.clock.rate_true_hz
         full = counts >= np.floor(expected) - 1
-        still = (~mv) & full
-        seg = sch.segment_at(w0 + 0.5 * WINDOW_S)
-        T = np.interp(w0 + 0.5 * WINDOW_S, self.t_grid, self.T_grid)
-        Ta = np.interp(w0 + 0.5 * WINDOW_S, self.t_grid, self.Ta_grid)
+        still = (~self.moving_mask()[win]) & full
+        mid = w0 + 0.5 * WINDOW_S
+        seg = sch.segment_at(mid)
+        T = np.interp(mid, self.t_grid, self.T_grid)
+        Ta = np.interp(mid, self.t_grid, self.Ta_grid)
         with np.errstate(invalid="ignore", divide="ignore"):
             mean = sums / counts[:, None]
             var = (sq - counts[:, None] * mean * mean) / np.maximum(counts[:, None] - 1, 1)
         sd = np.sqrt(np.clip(var, 0, None))
         dev_ns = self.start_ns + np.round(self.clock.device_time(w0) * 1e9).astype(np.int64)
-        return {"window": np.arange(nw), "true_start_s": w0, "device_start_ns": dev_ns,
+        return {"window": win, "true_start_s": w0, "device_start_ns": dev_ns,
                 "samples": counts, "still": still.astype(np.int64),
                 "activity": sch.activity[seg].astype(np.int64),
                 "posture": sch.posture[seg].astype(np.int64),
@@ -396,19 +413,22 @@ class DeviceSim:
         return d
 
 
-def write_labels(path, labels: dict, rows_per_block: int = 4096) -> None:
-    """Labels CSV: integer columns as integers, others with 6 decimals (nan for empty windows).
-    Written in blocks of rows so that memory stays flat for long recordings."""
+def write_labels(path, labels: dict) -> None:
+    """Labels CSV: integer columns as integers, others with 6 decimals (nan for empty windows)."""
+    with open(path, "w") as f:
+        f.write(",".join(LABEL_COLUMNS) + "\n")
+        _write_label_rows(f, labels)
+
+
+def _write_label_rows(f, labels: dict, rows_per_block: int = 4096) -> None:
     cols = list(LABEL_COLUMNS)
     ints = {"window", "device_start_ns", "samples", "still", "activity", "posture", "motion"}
     n = labels[cols[0]].shape[0]
-    with open(path, "w") as f:
-        f.write(",".join(cols) + "\n")
-        for a in range(0, n, rows_per_block):
-            b = min(n, a + rows_per_block)
-            texts = [labels[c][a:b].astype(np.int64).astype(str) if c in ints
-                     else np.char.mod("%.6f", labels[c][a:b].astype(np.float64)) for c in cols]
-            f.write("".join(",".join(row) + "\n" for row in zip(*texts)))
+    for a in range(0, n, rows_per_block):
+        b = min(n, a + rows_per_block)
+        texts = [labels[c][a:b].astype(np.int64).astype(str) if c in ints
+                 else np.char.mod("%.6f", labels[c][a:b].astype(np.float64)) for c in cols]
+        f.write("".join(",".join(row) + "\n" for row in zip(*texts)))
 
 
 # ----------------------------------------------------------------------------- set-up
@@ -472,9 +492,10 @@ def make_devices(*, sites: Sequence[str], devices: Sequence[str], days: float, h
 class _FileSink:
     """A device's writer plus the label accumulators."""
 
-    def __init__(self, sim: DeviceSim, path, *, session_id: int = 1):
+    def __init__(self, sim: DeviceSim, path, *, labels_path=None, session_id: int = 1):
         self.sim = sim
         self.path = Path(path)
+        self.labels_path = Path(labels_path) if labels_path else None
         # a .gz output is written plain first (corrupt sectors are applied to the plain file),
         # then compressed on close
         self.gz = self.path.name.endswith(".gz")
@@ -492,25 +513,59 @@ class _FileSink:
             self.writer = GeneactivWriter(self.plain, serial=f"{sim.device_id:06d}", rate_hz=sim.hz,
                                           gains=spec.gains, offsets=spec.offsets,
                                           header_fields={"Device Location Code": sim.site})
-        nw = int(np.ceil(sim.duration_s / WINDOW_S))
-        self.sums = np.zeros((nw, 3))
-        self.sq = np.zeros((nw, 3))
-        self.counts = np.zeros(nw, np.int64)
+        # labels are streamed: a chunk (1 h) holds whole windows (10 s), so the windows up to a
+        # chunk's end are final once it is pushed; memory stays flat in the recording length
+        self.nw = int(np.ceil(sim.duration_s / WINDOW_S))
+        self.next_window = 0
+        self._labels_f = None
+        self._in_memory = [] if self.labels_path is None else None
+        if self.labels_path is not None:
+            self._labels_f = open(self.labels_path, "w")
+            self._labels_f.write(",".join(LABEL_COLUMNS) + "\n")
+        self.stats = {"still": 0, "windows": 0, "activity": np.zeros(len(ACTIVITIES), np.int64),
+                      "worn_T": []}
         self.samples = 0
 
+    def _emit(self, labels: dict) -> None:
+        st = self.stats
+        st["still"] += int(labels["still"].sum())
+        st["windows"] += labels["still"].shape[0]
+        st["activity"] += np.bincount(labels["activity"], minlength=len(ACTIVITIES))
+        st["worn_T"].append(labels["temperature_c"][labels["activity"] > 1].astype(np.float32))
+        if self._labels_f is not None:
+            _write_label_rows(self._labels_f, labels)
+        else:
+            self._in_memory.append(labels)
+
+    def _emit_until(self, w_end: int, sums=None, sq=None, counts=None) -> None:
+        """Emit windows next_window .. w_end - 1 (zeros where no sample fell)."""
+        n = w_end - self.next_window
+        if n <= 0:
+            return
+        if counts is None:
+            sums, sq, counts = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(n, np.int64)
+        self._emit(self.sim.labels(sums, sq, counts, first_window=self.next_window))
+        self.next_window = w_end
+
     def push(self, c: SimChunk) -> None:
-        nw = self.counts.shape[0]
+        nw = self.nw
         w0 = min(int(c.true_s[0] // WINDOW_S), nw - 1)
         w1 = min(int(c.true_s[-1] // WINDOW_S), nw - 1)
+        self._emit_until(w0)  # windows without samples (halt / restart gaps) before this chunk
+        w0 = self.next_window
         edges = np.searchsorted(c.true_s, np.arange(w0, w1 + 1) * WINDOW_S, side="left")
         edges[0] = 0
         nz = np.diff(np.append(edges, c.n)) > 0  # windows with samples in this chunk
         starts = edges[nz]
-        wins = np.arange(w0, w1 + 1)[nz]
-        self.counts[wins] += np.diff(np.append(starts, c.n))
+        wins = np.arange(w0, w1 + 1)[nz] - w0
+        k = w1 + 1 - w0
+        counts = np.zeros(k, np.int64)
+        sums, sq = np.zeros((k, 3)), np.zeros((k, 3))
+        counts[wins] = np.diff(np.append(starts, c.n))
         g = c.true_g.astype(np.float64)
-        self.sums[wins] += np.add.reduceat(g, starts, axis=0)
-        self.sq[wins] += np.add.reduceat(g * g, starts, axis=0)
+        sums[wins] = np.add.reduceat(g, starts, axis=0)
+        sq[wins] = np.add.reduceat(g * g, starts, axis=0)
+        self._emit_until(w1 + 1, sums, sq, counts)
         cuts = [0] + list(c.restarts) + [c.n]
         for p, (a, b) in enumerate(zip(cuts[:-1], cuts[1:])):
             if p > 0 and hasattr(self.writer, "restart"):
@@ -538,6 +593,9 @@ class _FileSink:
                               battery_v=np.round(sim.battery_v(sim.t_grid), 4)[gi])
 
     def close(self) -> list:
+        self._emit_until(self.nw)
+        if self._labels_f is not None:
+            self._labels_f.close()
         self.writer.close()
         corrupt = []
         m = self.sim.model
@@ -581,18 +639,26 @@ def _count_bin_pages(path) -> int:
     return n
 
 
-def _finish(sim: DeviceSim, sink: _FileSink, corrupt: list, truth_path, labels_path, pair=None) -> Truth:
-    labels = sim.labels(sink.sums, sink.sq, sink.counts)
-    worn = labels["activity"] > 1
-    st = labels["still"] == 1
-    settled_T = labels["temperature_c"][worn]
+def _paths(path, truth_path, labels_path):
+    """(truth path, labels path), or (None, None) for truth_path=False."""
+    if truth_path is False:
+        return None, None
+    tp = Path(truth_path) if truth_path else _default_truth_path(Path(path))
+    if labels_path:
+        return tp, Path(labels_path)
+    stem = tp.name[: -len(".truth.json")] if tp.name.endswith(".truth.json") else tp.stem
+    return tp, tp.with_name(stem + ".labels.csv")
+
+
+def _finish(sim: DeviceSim, sink: _FileSink, corrupt: list, truth_path: Optional[Path], pair=None) -> Truth:
+    st = sink.stats
+    worn_T = np.concatenate(st["worn_T"]) if st["worn_T"] else np.zeros(0)
     summary = {
-        "still_window_fraction": float(st.mean()) if st.size else 0.0,
-        "still_hours_per_day": float(st.sum() * WINDOW_S / 3600.0 / max(sim.duration_s / 86400.0, 1e-9)),
-        "worn_temperature_c_p5_p95": ([float(np.percentile(settled_T, 5)), float(np.percentile(settled_T, 95))]
-                                      if settled_T.size else None),
-        "activity_hours": {a: float((labels["activity"] == i).sum() * WINDOW_S / 3600.0)
-                           for i, a in enumerate(ACTIVITIES)},
+        "still_window_fraction": float(st["still"] / max(st["windows"], 1)),
+        "still_hours_per_day": float(st["still"] * WINDOW_S / 3600.0 / max(sim.duration_s / 86400.0, 1e-9)),
+        "worn_temperature_c_p5_p95": ([float(np.percentile(worn_T, 5)), float(np.percentile(worn_T, 95))]
+                                      if worn_T.size else None),
+        "activity_hours": {a: float(st["activity"][i] * WINDOW_S / 3600.0) for i, a in enumerate(ACTIVITIES)},
         "steps": int(np.count_nonzero((sim.schedule.steps >= 0) & (sim.schedule.steps < sim.duration_s))),
     }
     truth = Truth(path=str(sink.path), device=dict(sim.spec.to_dict(), device_id=sim.device_id),
@@ -601,16 +667,13 @@ def _finish(sim: DeviceSim, sink: _FileSink, corrupt: list, truth_path, labels_p
                   sensor_model=sim.model, clock=sim.clock_truth(),
                   wearer=sim.schedule.params.to_dict(), temperature=sim.tparams.to_dict(),
                   samples_written=sink.samples, corrupt_sectors=corrupt, summary=summary, pair=pair)
-    if truth_path is not False:
-        tp = Path(truth_path) if truth_path else _default_truth_path(sink.path)
-        lp = Path(labels_path) if labels_path else tp.with_name(tp.name.replace(".truth.json", "") + ".labels.csv"
-                                                                 if tp.name.endswith(".truth.json")
-                                                                 else tp.stem + ".labels.csv")
-        write_labels(lp, labels)
-        truth.labels_path = str(lp)
-        truth.truth_path = str(tp)
-        truth.save(tp)
-    truth.labels = labels  # in-memory convenience (not in the JSON)
+    if truth_path is not None:
+        truth.labels_path = str(sink.labels_path)
+        truth.truth_path = str(truth_path)
+        truth.save(truth_path)
+    else:
+        parts = sink._in_memory
+        truth._labels = {k: np.concatenate([p[k] for p in parts]) for k in LABEL_COLUMNS} if parts else None
     return truth
 
 
@@ -642,13 +705,14 @@ def simulate_recording(path, *, device: str = "ax3", site: str = "wrist", days: 
     [sim] = make_devices(sites=[site], devices=[device], days=days, hz=hz, effects=effects, seed=seed,
                          start=start, range_g=range_g, packed=packed, gyro_range_dps=gyro_range_dps,
                          wearer=wearer, temperature=temperature)
-    sink = _FileSink(sim, path)
+    tp, lp = _paths(path, truth_path, labels_path)
+    sink = _FileSink(sim, path, labels_path=lp)
     try:
         for c in sim.chunks():
             sink.push(c)
     finally:
         corrupt = sink.close()
-    return _finish(sim, sink, corrupt, truth_path, labels_path)
+    return _finish(sim, sink, corrupt, tp)
 
 
 def simulate_pair(path_a, path_b, *, site_a: str = "wrist", site_b: str = "hip",
@@ -671,7 +735,9 @@ def simulate_pair(path_a, path_b, *, site_a: str = "wrist", site_b: str = "hip",
         sims[1] = DeviceSim(b.schedule, site=b.site, spec=b.spec, model=m_b, seed=seed, dev_index=1,
                             hz=_device_hz(b.spec.kind, hz_b), duration_s=b.duration_s, start_ns=b.start_ns,
                             temperature=temperature, device_id=b.device_id)
-    sinks = [_FileSink(sims[0], path_a), _FileSink(sims[1], path_b)]
+    paths = [_paths(path_a, truth_a, None), _paths(path_b, truth_b, None)]
+    sinks = [_FileSink(sims[0], path_a, labels_path=paths[0][1]),
+             _FileSink(sims[1], path_b, labels_path=paths[1][1])]
     try:
         for k in range(max(s.n_chunks for s in sims)):
             for s, sink in zip(sims, sinks):
@@ -681,6 +747,6 @@ def simulate_pair(path_a, path_b, *, site_a: str = "wrist", site_b: str = "hip",
     finally:
         corrupt = [sink.close() for sink in sinks]
     pair = {"sites": [site_a, site_b], "paths": [str(path_a), str(path_b)]}
-    ta = _finish(sims[0], sinks[0], corrupt[0], truth_a, None, dict(pair, this=0))
-    tb = _finish(sims[1], sinks[1], corrupt[1], truth_b, None, dict(pair, this=1))
+    ta = _finish(sims[0], sinks[0], corrupt[0], paths[0][0], dict(pair, this=0))
+    tb = _finish(sims[1], sinks[1], corrupt[1], paths[1][0], dict(pair, this=1))
     return ta, tb

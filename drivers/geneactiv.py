@@ -60,6 +60,7 @@ HEADER_LIMIT_BYTES = 1 << 20  # a header longer than this is not a GENEActiv hea
 MAX_QC_EVENTS = 10_000  # QC events listed per file (as the .cwa reader); the rest are counted
 MAX_LINE_BYTES = 1 << 20  # a "line" longer than this is garbage (a data line is 3600 characters)
 MAX_PAGE_FIELD_LINES = 24
+MAX_FIELD_LINE_BYTES = 512  # a page's key:value line is short; a longer line is its data line
 # (line within the page, key prefix) that a standard page must have for the fast path
 _FAST_KEYS = ((1, b"Device Unique Serial Code:"), (2, b"Sequence Number:"), (3, b"Page Time:"),
               (4, b"Unassigned:"), (5, b"Temperature:"), (6, b"Battery voltage:"),
@@ -449,7 +450,9 @@ class GeneactivReader:
             while k < L and k - i <= MAX_PAGE_FIELD_LINES:
                 ln = lines[k]
                 key, sep, value = ln.partition(b":")
-                if not sep or ln.strip(_VALUE_STRIP) == _MARKER:
+                # the data line: the first line that is not "key:value" (or too long to be one, e.g.
+                # a hex line with a damaged character that happens to be a colon)
+                if not sep or len(ln) > MAX_FIELD_LINE_BYTES or ln.strip(_VALUE_STRIP) == _MARKER:
                     break
                 fields[key] = value
                 k += 1
@@ -521,7 +524,14 @@ class GeneactivReader:
         cut = -1 if cr else None
 
         def values(off: int, key: bytes) -> bytes:
-            return b"\n".join(lines[i + off:end:10]).replace(key, b"").replace(b"\r", b"")
+            text = b"\n".join(lines[i + off:end:10])
+            # CR only as the line ending (one per line, at its end): anything else -> general parser
+            if text.count(b"\r") != (P if cr else 0) or (cr and not all(
+                    map(bytes.endswith, lines[i + off:end:10], rep(b"\r")))):
+                raise ValueError("stray CR")
+            if text.count(key) != P:  # each line starts with the key (checked); nowhere else
+                raise ValueError("key repeated inside a value")
+            return text.replace(key, b"").replace(b"\r", b"")
 
         try:
             seq = np.array(values(2, b"Sequence Number:").split()).astype(np.int64)

@@ -370,3 +370,68 @@ def test_qc_log_is_capped(tmp_path, monkeypatch):
     reasons = [e.reason for e in r.qc.events]
     assert reasons == ["bad_hex"] * 3 + ["qc_log_truncated", "page_count_mismatch"]
     assert (r.qc.total, r.qc.valid, r.qc.skipped) == (11, 6, 5) and b.n == 1800
+
+
+# ---------------------------------------------------------------------------- random damage
+from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+from stillpoint.drivers.errors import StillpointError  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def clean_file(tmp_path_factory):
+    p = tmp_path_factory.mktemp("clean") / "r.bin"
+    t, a = write(p, pages=6)
+    return p.read_bytes(), t, a
+
+
+def _read_or_error(path, **kw):
+    try:
+        r = GeneactivReader(path, **kw)
+        blocks = list(r)
+    except StillpointError:
+        return None
+    return r, blocks
+
+
+@settings(max_examples=int(os.environ.get("STILLPOINT_FUZZ_EXAMPLES", "60")), deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(pos=st.integers(0, 23_000), kind=st.sampled_from(["flip", "delete", "insert", "cut"]),
+       length=st.integers(1, 5000), byte=st.integers(0, 255))
+def test_random_damage_never_crashes_and_keeps_what_precedes_it(tmp_path, clean_file, pos, kind, length,
+                                                                 byte):
+    data, t, a = clean_file
+    pos = min(pos, len(data) - 1)
+    if kind == "flip":
+        bad = data[:pos] + bytes([byte]) + data[pos + 1:]
+    elif kind == "delete":
+        bad = data[:pos] + data[pos + length:]
+    elif kind == "insert":
+        bad = data[:pos] + bytes([byte]) * length + data[pos:]
+    else:
+        bad = data[:pos]
+    p = tmp_path / "bad.bin"
+    p.write_bytes(bad)
+    got = _read_or_error(p)
+    other = _read_or_error(p, batch_pages=1)
+    assert (got is None) == (other is None)  # the same verdict whatever the batch size
+    starts = pages_of(data)
+    if got is None:
+        assert pos < starts[1] + 10 or kind == "cut"  # only damage reaching early bytes may fail
+        return
+    r, blocks = got
+    for b in blocks:
+        assert np.all(np.diff(b.time_ns) > 0)
+        assert b.accel.min() >= -2048 and b.accel.max() <= 2047
+    # every page that ends before the damage comes back exactly as written
+    intact = sum(1 for k in range(6) if (starts[k + 1] if k + 1 < 6 else len(data)) <= pos)
+    if pos > starts[0] and intact:
+        from stillpoint.engine.blocks import Block
+        b = Block.concat(blocks)
+        n = 300 * intact
+        np.testing.assert_array_equal(b.accel[:n], a[:n])
+        assert np.abs(b.time_ns[:n] - t[:n]).max() <= 1_000_000
+    # batch size never changes the samples
+    r2, blocks2 = other
+    n1, n2 = sum(b.n for b in blocks), sum(b.n for b in blocks2)
+    assert n1 == n2 and r.qc.as_dict() == r2.qc.as_dict()

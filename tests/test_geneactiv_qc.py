@@ -7,9 +7,11 @@ import os
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
-from stillpoint.drivers.errors import (CorruptRecordingError, RecordingError, TruncatedRecordingError,
-                                       UnsupportedFormatError)
+from stillpoint.drivers.errors import (CorruptRecordingError, RecordingError, StillpointError,
+                                       TruncatedRecordingError, UnsupportedFormatError)
 from stillpoint.drivers.geneactiv import GeneactivReader, GeneactivWriter, read_header
 from stillpoint.engine.blocks import Block
 
@@ -373,10 +375,6 @@ def test_qc_log_is_capped(tmp_path, monkeypatch):
 
 
 # ---------------------------------------------------------------------------- random damage
-from hypothesis import HealthCheck, given, settings  # noqa: E402
-from hypothesis import strategies as st  # noqa: E402
-
-from stillpoint.drivers.errors import StillpointError  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -426,7 +424,6 @@ def test_random_damage_never_crashes_and_keeps_what_precedes_it(tmp_path, clean_
     # every page that ends before the damage comes back exactly as written
     intact = sum(1 for k in range(6) if (starts[k + 1] if k + 1 < 6 else len(data)) <= pos)
     if pos > starts[0] and intact:
-        from stillpoint.engine.blocks import Block
         b = Block.concat(blocks)
         n = 300 * intact
         np.testing.assert_array_equal(b.accel[:n], a[:n])

@@ -282,3 +282,16 @@ def test_inspect_gzip_bin_and_cwa_timezone(tmp_path, gna, capsys):
     assert b["timezone_offset_s"] == 3600 and a["start_ns"] - b["start_ns"] == 3600 * 10**9
     code, _, err = run_cli(["inspect", str(cp), "--timezone", "nonsense"], capsys)
     assert code == 2 and "timezone" in err.lower()
+
+
+def test_inspect_several_files_json_lines(gna, tmp_path, capsys):
+    p, _, _ = gna
+    bad = tmp_path / "bad.bin"
+    bad.write_bytes(b"")
+    code, out, err = run_cli(["inspect", "--json", str(p), str(bad), str(p)], capsys)
+    assert code == 2
+    rows = [json.loads(line) for line in out.splitlines()]
+    assert [r["samples"] for r in rows] == [3000, 3000]
+    assert err.count("\n") == 1 and str(bad) in err and "empty" in err
+    code, out, err = run_cli(["inspect", str(p), str(p)], capsys)
+    assert code == 0 and out.count("samples     3000") == 2

@@ -17,13 +17,17 @@ from typing import Optional
 import numpy as np
 
 from stillpoint.drivers import open_recording, sniff_format
+from stillpoint.drivers.errors import StillpointError
 
 NAME = "inspect"
 HELP = "summarise a recording (device, samples, rate, times, QC); --json for machine-readable output"
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("file", help="recording: .cwa, .bin (GENEActiv), optionally .gz")
+    parser.add_argument("file", nargs="+",
+                        help="recording(s): .cwa, .bin (GENEActiv), optionally .gz. With several files "
+                             "--json prints one JSON object per line; a bad file is reported on "
+                             "stderr and the others are still inspected (exit code 2 if any failed)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument("--header-only", action="store_true",
                         help="read the header only (fast; no sample counts or QC)")
@@ -54,7 +58,6 @@ def timezone_option(timezone, fmt: str):
     try:
         return parse_timezone(timezone)
     except ValueError as e:
-        from stillpoint.drivers.errors import StillpointError
         raise StillpointError(f"--timezone: {e}") from None
 
 
@@ -247,11 +250,30 @@ def format_text(d: dict) -> str:
     return "\n".join(lines)
 
 
-def run(args) -> int:
-    d = inspect_recording(args.file, header_only=args.header_only, timezone=args.timezone)
-    if args.json:
+def _print(d: dict, as_json: bool) -> None:
+    if as_json:
         json.dump(_finite(d), sys.stdout, default=_jsonable)
         sys.stdout.write("\n")
     else:
         print(format_text(d))
-    return 0
+    sys.stdout.flush()
+
+
+def run(args) -> int:
+    files = args.file
+    if len(files) == 1:  # one file: a bad one is the CLI's one-line error (exit 2)
+        _print(inspect_recording(files[0], header_only=args.header_only, timezone=args.timezone),
+               args.json)
+        return 0
+    failed = 0
+    for i, f in enumerate(files):
+        try:
+            d = inspect_recording(f, header_only=args.header_only, timezone=args.timezone)
+        except StillpointError as e:
+            failed += 1
+            print(f"stillpoint inspect: error: {e}", file=sys.stderr)
+            continue
+        if i and not args.json:
+            print()
+        _print(d, args.json)
+    return 2 if failed else 0

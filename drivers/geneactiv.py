@@ -187,6 +187,10 @@ class GeneactivReader:
         self._samples = 0
         self._desync_open = None  # (lines, bytes) of a desync stretch still being skipped
         self._n_events = 0
+        self._serial = self.info.device_id.encode("latin-1")
+        self._serial_line = b"Device Unique Serial Code:" + self._serial
+        self._serial_line_cr = self._serial_line + b"\r"
+        self._serial_warned = False
 
     # ------------------------------------------------------------------ Source protocol
     def __enter__(self):
@@ -516,6 +520,9 @@ class GeneactivReader:
         ok &= np.fromiter(map(len, lines[i + 9:end:10]), np.int64, P) == PAGE_HEX_CHARS + cr
         for off, key in _FAST_KEYS:
             ok &= np.fromiter(map(bytes.startswith, lines[i + off:end:10], rep(key)), bool, P)
+        # the serial line must name the header's device (else the general parser logs it)
+        serial = self._serial_line_cr if cr else self._serial_line
+        ok &= np.fromiter(map(serial.__eq__, lines[i + 1:end:10]), bool, P)
         bad = np.flatnonzero(~ok)
         P = int(bad[0]) if bad.size else P
         if P < 2:
@@ -629,6 +636,13 @@ class GeneactivReader:
                     freq_cache[fv] = gna_rate_hz(fv.strip(_VALUE_STRIP).decode("latin-1")) if fv else None
                 except (ValueError, IndexError):
                     freq_cache[fv] = None
+            sv = fields.get(b"Device Unique Serial Code")
+            if sv is not None and sv.strip(_VALUE_STRIP) != self._serial and not self._serial_warned:
+                self._serial_warned = True
+                self._event(index, "serial_mismatch",
+                            f"page Device Unique Serial Code {sv.strip(_VALUE_STRIP).decode('latin-1')!r} "
+                            f"differs from the header's {self.info.device_id!r} (logged once); "
+                            "the page is kept")
             self.qc.valid += 1
             if partial == "cut":
                 self._event(index, "truncated_page",

@@ -432,3 +432,19 @@ def test_random_damage_never_crashes_and_keeps_what_precedes_it(tmp_path, clean_
     r2, blocks2 = other
     n1, n2 = sum(b.n for b in blocks), sum(b.n for b in blocks2)
     assert n1 == n2 and r.qc.as_dict() == r2.qc.as_dict()
+
+
+def test_page_from_another_device_is_logged_once(tmp_path):
+    p = tmp_path / "r.bin"
+    t, a = write(p, pages=6)
+    data = p.read_bytes()
+    head = pages_of(data)[0]
+    body = data[head:].replace(b"Serial Code:012345\r\nSequence Number:3\r\n",
+                               b"Serial Code:099999\r\nSequence Number:3\r\n")
+    body = body.replace(b"Serial Code:012345\r\nSequence Number:4\r\n",
+                        b"Serial Code:099999\r\nSequence Number:4\r\n")
+    p.write_bytes(data[:head] + body)
+    for bp in (1, 256):
+        r, _, b = read(p, batch_pages=bp)
+        assert [(e.index, e.reason) for e in r.qc.events] == [(3, "serial_mismatch")]
+        assert b.n == 1800 and "099999" in r.qc.events[0].detail

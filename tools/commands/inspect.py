@@ -3,6 +3,8 @@
 A full streaming pass (bounded memory) reports device, samples, nominal and measured rate, start/end
 (ISO 8601 UTC, nanoseconds), duration, channels, sectors/pages {total, valid, skipped}, segments, the
 QC log and the temperature/battery ranges. ``--header-only`` reads the header alone (fast).
+Several files: one summary each (``--json``: one JSON object per line); a bad file is reported on
+stderr and the others are still inspected (exit code 2 if any failed).
 
 API: ``inspect_recording(path, header_only=False, timezone=None) -> dict`` (the same dict as --json).
 """

@@ -82,6 +82,7 @@ def realism(days: float, hz: float, seed: int) -> dict:
                                           "rate_error", "clock"), 25.0)
     nw, ne = int(np.ceil(sim.duration_s / 10)), int(np.ceil(sim.duration_s / 5))
     s1, s2, cnt = np.zeros((nw, 3)), np.zeros((nw, 3)), np.zeros(nw)
+    c1 = np.zeros((nw, 3))  # window sums of the truly calibrated signal
     eu, ec, en = np.zeros(ne), np.zeros(ne), np.zeros(ne)
     peaks = []
     sch = sim.schedule
@@ -93,6 +94,8 @@ def realism(days: float, hz: float, seed: int) -> dict:
             s1[:, j] += np.bincount(w, a[:, j], nw)
             s2[:, j] += np.bincount(w, a[:, j] ** 2, nw)
         cal = (a + g["offset"]) * g["scale"] + (c.temperature_c - 25.0)[:, None] * np.array(g["tempoffset"])
+        for j in range(3):
+            c1[:, j] += np.bincount(w, cal[:, j], nw)
         e = (c.true_s // 5).astype(int)
         en += np.bincount(e, minlength=ne)
         eu += np.bincount(e, np.maximum(np.linalg.norm(a, axis=1) - 1, 0), ne)
@@ -116,6 +119,8 @@ def realism(days: float, hz: float, seed: int) -> dict:
     still = lab["still"] == 1
     floor = np.sqrt(noise_sd_g(sim.model, hz) ** 2 + sim.spec.lsb_g ** 2 / 12)
     ok = en > 0
+    err_u = np.abs(np.linalg.norm(mean[low], axis=1) - 1)  # GGIR's calibration error on
+    err_c = np.abs(np.linalg.norm(c1[low] / cnt[low, None], axis=1) - 1)  # the low-SD windows
     u, cc = eu[ok] / en[ok], ec[ok] / en[ok]
     worn = lab["activity"] > 1
     pk = np.array(peaks) if peaks else np.zeros((0, 2))
@@ -125,6 +130,7 @@ def realism(days: float, hz: float, seed: int) -> dict:
         "low_sd_share_at_night_23_07": round(float((low & night).sum() / max(low.sum(), 1)), 3),
         "still_sd_median_mg": [round(float(x) * 1000, 2) for x in np.median(sd[still], axis=0)],
         "noise_floor_mg": [round(float(x) * 1000, 2) for x in floor],
+        "calibration_error_mg_uncal_cal": [round(float(err_u.mean()) * 1000, 1), round(float(err_c.mean()) * 1000, 2)],
         "enmo_mean_mg_uncal_cal": [round(float(u.mean()) * 1000, 1), round(float(cc.mean()) * 1000, 1)],
         "enmo_p25_p50_p75_p95_uncal": [round(float(x) * 1000, 1) for x in np.percentile(u, [25, 50, 75, 95])],
         "enmo_p25_p50_p75_p95_cal": [round(float(x) * 1000, 1) for x in np.percentile(cc, [25, 50, 75, 95])],

@@ -1,0 +1,18 @@
+"""Workflows built on the engine. ``discrepancy``: where a sensor model and a measurement disagree,
+which named effect is missing, and how much adding it shrinks the held-out gap.
+
+Modules: ``api`` (``analyse``: input + model -> report), ``discrepancy`` (the loop), ``sensor_fit``
+(the model and its robust fit), ``candidates`` (the effect library), ``locate`` (residual by
+covariate, distribution checks), ``inputs``/``sources`` (feature tables, recordings, MCAP logs),
+``simmodel`` (the simulator's JSON), ``report`` (JSON, text, PNG), ``synthetic``/``scenarios``
+(window-level hidden-effect simulations for tests and the 20-seed table).
+"""
+
+
+def analyse(*args, **kwargs):
+    """See ``stillpoint.engine.workflows.api.analyse``."""
+    from .api import analyse as _analyse
+    return _analyse(*args, **kwargs)
+
+
+__all__ = ["analyse"]

@@ -182,6 +182,20 @@ def _robust_scale(r: np.ndarray) -> float:
     return max(1.4826 * float(np.median(np.abs(r - np.median(r)))), MIN_SCALE)
 
 
+def _difference_scale(t: np.ndarray, y: np.ndarray) -> float:
+    """Robust SD of the lag noise from successive differences (model-free)."""
+    if t.size < 3:
+        return MIN_SCALE
+    o = np.argsort(t)
+    dt, dy = np.diff(t[o]), np.diff(y[o])
+    ok = dt > 0
+    if ok.sum() < 2:
+        return MIN_SCALE
+    m = float(np.median(dy[ok] / dt[ok]))
+    rd = dy[ok] - m * dt[ok]
+    return max(1.4826 * float(np.median(np.abs(rd - np.median(rd)))) / math.sqrt(2), MIN_SCALE)
+
+
 def trimmed_fit(A: np.ndarray, y: np.ndarray, k: float = TRIM_K, iters: int = 30
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Least squares that repeatedly excludes points beyond k robust SDs of the residuals.
@@ -191,7 +205,7 @@ def trimmed_fit(A: np.ndarray, y: np.ndarray, k: float = TRIM_K, iters: int = 30
     n, p = A.shape
     w = np.ones(n)
     coef = _lstsq(A, y)
-    for _ in range(10):  # IRLS towards L1 for a robust start
+    for _ in range(30):  # IRLS towards L1 for a robust start
         r = y - A @ coef
         w = 1.0 / np.maximum(np.abs(r), MIN_SCALE)
         sw = np.sqrt(w)
@@ -379,30 +393,35 @@ STEP_SHORTLIST = 8  # step positions fully evaluated per round (ranked by a mean
 
 
 def _step_shortlist(t, y, best, cand_pos) -> list:
-    """Positions worth a full fit: the largest mean shifts of the current model's residuals
-    (cumulative sums, all positions at once; residuals capped so outliers cannot dominate)."""
+    """Positions worth a full fit: the largest shifts of the current model's residual ranks
+    (a rank-sum scan over all positions at once, with cumulative sums)."""
     if len(cand_pos) <= STEP_SHORTLIST:
         return list(cand_pos)
-    r = best[2]
-    scale = _robust_scale(r[best[1]])
-    r = np.clip(r, -10 * TRIM_K * scale, 10 * TRIM_K * scale)
-    n = r.size
-    cs = np.concatenate([[0.0], np.cumsum(r)])
     j = np.asarray(cand_pos)
-    n1, n2 = j, n - j
-    m1 = cs[j] / n1
-    m2 = (cs[n] - cs[j]) / n2
-    score = n1 * n2 / n * (m2 - m1) ** 2
-    order = np.argsort(score)[::-1][:STEP_SHORTLIST]
-    return [int(x) for x in j[order]]
+    # (a) residuals of the current model, (b) lags detrended by the median successive slope
+    # (robust when the current model is pulled by an unmodelled step)
+    o = np.argsort(t)
+    dt, dy = np.diff(t[o]), np.diff(y[o])
+    m = float(np.median(dy[dt > 0] / dt[dt > 0])) if np.any(dt > 0) else 0.0
+    out: list[int] = []
+    for series in (best[2], y - m * t):
+        r = np.argsort(np.argsort(series)).astype(np.float64)  # ranks: outliers cannot dominate
+        n = r.size
+        cs = np.concatenate([[0.0], np.cumsum(r)])
+        n1, n2 = j, n - j
+        score = n1 * n2 / n * ((cs[n] - cs[j]) / n2 - cs[j] / n1) ** 2
+        for x in j[np.argsort(score)[::-1][:STEP_SHORTLIST // 2]]:
+            if int(x) not in out:
+                out.append(int(x))
+    return out
 
 
 def _model_search(t, y, xtemp, min_blocks, detect_steps, max_steps) -> dict:
     """Greedy step search (ΔBIC) then the temperature term (ΔBIC and held-out blocks)."""
     n = t.size
-    # noise scale shared by every candidate model (truncated loss makes their BICs comparable)
-    coef0, inc0, r0 = trimmed_fit(_design(t, (), None), y)
-    cap = TRIM_K * _robust_scale(r0[inc0])
+    # noise scale shared by every candidate model (truncated loss makes their BICs comparable),
+    # from successive differences around the median slope: a step or outliers barely move it
+    cap = TRIM_K * _difference_scale(t, y)
     best = _fit_model(t, y, (), None, cap)
     bic_linear = best[3]
     steps: list[float] = []
@@ -507,11 +526,14 @@ def consensus_select(t: np.ndarray, C: np.ndarray, H: np.ndarray, y: np.ndarray,
     if slope.size == 0:
         return y, 0
     Cf = np.where(np.isfinite(C), C, np.inf)
+    Hf = np.where(np.isfinite(H), np.maximum(H, 0.0), 0.0)
     best_score, best_line = -1.0, None
     for s0 in range(0, slope.size, 256):
         pred = icpt[s0:s0 + 256, None] + slope[s0:s0 + 256, None] * t[None, :]
-        dist = np.min(np.abs(Cf[None, :, :] - pred[:, :, None]), axis=2)
-        score = (dist <= CONSENSUS_TOL).sum(axis=1) - 1e-3 * np.minimum(dist, CONSENSUS_TOL).sum(axis=1)
+        near = np.abs(Cf[None, :, :] - pred[:, :, None]) <= CONSENSUS_TOL
+        # score: summed correlation of the peaks on the line. Lines one gait step off the truth
+        # collect as many blocks, but the true lag's peaks are higher on average.
+        score = np.max(np.where(near, Hf[None, :, :], 0.0), axis=2).sum(axis=1)
         m = int(np.argmax(score))
         if score[m] > best_score:
             best_score, best_line = float(score[m]), (icpt[s0 + m], slope[s0 + m])

@@ -130,3 +130,17 @@ def test_mcap_log_gives_the_same_windows_and_report_as_its_recording(tmp_path):
         assert da["input"][k] == db["input"][k] > 0
     assert da["gap_initial_mg"] == db["gap_initial_mg"]
     assert [s["effect"] for s in da["steps"]] == [s["effect"] for s in db["steps"]]
+
+
+def test_table_without_temperature_skips_temperature_candidates_with_a_reason(hidden_table, capsys,
+                                                                              tmp_path):
+    rows = (hidden_table / "features.csv").read_text().splitlines()
+    notemp = tmp_path / "notemp.csv"
+    notemp.write_text("\n".join(",".join(r.split(",")[:7]) for r in rows) + "\n")
+    assert main(["discrepancy", str(notemp), "--json", "--no-plots"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["input"]["temperature_available"] is False
+    skipped = {(c["effect"], c["reason"]) for c in d["candidates_skipped"]}
+    assert ("temperature_offset", "no usable temperature") in skipped
+    assert ("thermal_lag", "no usable temperature") in skipped
+    assert all(s["effect"] not in ("temperature_offset", "temperature_gain") for s in d["steps"])

@@ -108,8 +108,12 @@ def print_human(est, out=None, title: str = "") -> None:
     elif est.error_after_mg is None:
         w(f"  error        {est.error_before_mg:.2f} mg (not calibrated)\n")
     else:
+        ggir = ""
+        if "error_before_g" in est.extra and "error_after_g" in est.extra:
+            ggir = (f"  (GGIR prints {est.extra['error_before_g']:g} g -> "
+                    f"{est.extra['error_after_g']:g} g)")
         w(f"  error        {est.error_before_mg:.2f} mg before -> "
-          f"{est.error_after_mg:.2f} mg after\n")
+          f"{est.error_after_mg:.2f} mg after{ggir}\n")
     w("  offset (g)   " + "  ".join(f"{a} {v:+.6f}" for a, v in zip("xyz", est.offset)) + "\n")
     w("  scale        " + "  ".join(f"{a} {v:.6f}" for a, v in zip("xyz", est.scale)) + "\n")
     w("  tempoffset   " + "  ".join(f"{a} {v * 1000:+.4f}" for a, v in zip("xyz", est.tempoffset))

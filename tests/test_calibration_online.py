@@ -123,3 +123,18 @@ def test_failed_iteration_is_identity(monkeypatch, rec):
     est = fit_calibration(rec.features)
     assert est.status == "failed" and est.method == "identity"
     assert np.all(est.offset == 0) and "non-finite" in est.reason
+
+
+def test_prior_with_temperature_term_and_no_temperature_now():
+    """A stored C2 prior cannot be evaluated when the new data have no temperature: the first
+    good fit (C1) replaces it instead of being rejected forever."""
+    from stillpoint.engine.calibration import CalibrationEstimate
+
+    truth = random_truth(np.random.default_rng(81), tempoffset_mg_per_c=0.0)
+    rec = synthetic_recording(14, truth, seed=82, temperature="missing")
+    prior = CalibrationEstimate(offset=[0.01, 0, 0], tempoffset=[1e-3, 0, 0], temperature_ref=25,
+                                status="ok", method="autocal-c2")
+    cal = OnlineCalibrator(prior=prior, chunk_hours=6)
+    pub = cal.add(rec.features)
+    assert pub[0].method == "autocal-c1" and pub[0].extra["accepted"]
+    assert pub[0].extra["in_force_error_mg"] is None and cal.current is not prior

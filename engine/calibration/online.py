@@ -18,7 +18,7 @@ import numpy as np
 
 from ..features import WindowFeatures
 from .estimate import CalibrationEstimate
-from .fit import WINDOW_S, estimate_error_mg, fit_calibration
+from .fit import MIN_WINDOWS, WINDOW_S, estimate_error_mg, fit_calibration
 from .schedule import CHUNK_HOURS
 from .select import MAX_ABS_MEAN_G, SD_THRESHOLD_G, select_calibration_windows
 
@@ -135,10 +135,15 @@ class OnlineCalibrator:
         est.effective_from_ns = int(effective_ns)
         est.extra["mode"] = "online"
         if est.status in APPLICABLE and len(wins):
+            # compare both on the same windows (those with a temperature if either needs it)
+            if est.uses_temperature or self.current.uses_temperature:
+                with_t = wins.select(np.isfinite(wins.temperature))
+                if len(with_t) >= MIN_WINDOWS:
+                    wins = with_t
             new_err, _ = estimate_error_mg(est, wins)
             cur_err, _ = estimate_error_mg(self.current, wins)
-            est.extra["in_force_error_mg"] = cur_err
-            if new_err < cur_err:
+            est.extra["in_force_error_mg"] = cur_err if np.isfinite(cur_err) else None
+            if np.isfinite(new_err) and (not np.isfinite(cur_err) or new_err < cur_err):
                 est.extra["accepted"] = True
                 est.reason = "accepted: " + est.reason
                 self.current = est

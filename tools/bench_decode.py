@@ -38,8 +38,9 @@ cmd = json.loads(sys.argv[1])
 t = time.perf_counter()
 p = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 wall = time.perf_counter() - t
-rss_kb = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
-print(json.dumps({"wall": wall, "rss_mb": rss_kb / 1024, "rc": p.returncode,
+ru = resource.getrusage(resource.RUSAGE_CHILDREN)
+print(json.dumps({"wall": wall, "rss_mb": ru.ru_maxrss / 1024, "cpu": ru.ru_utime + ru.ru_stime,
+                  "rc": p.returncode,
                   "out": p.stdout[-400:], "err": p.stderr[-400:]}))
 """
 
@@ -137,6 +138,7 @@ def best_of(cmd: list[str], repeat: int) -> dict:
     runs = [measure(cmd) for _ in range(repeat)]
     best = min(runs, key=lambda r: r["wall"])
     best["rss_mb"] = max(r["rss_mb"] for r in runs)
+    best["cpu"] = min(r["cpu"] for r in runs)
     return best
 
 
@@ -144,7 +146,9 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--days", type=float, nargs="+", default=[7.0, 14.0])
     ap.add_argument("--dir", default="/tmp/stillpoint-bench")
-    ap.add_argument("--repeat", type=int, default=2, help="runs per measurement (best wall, max RSS)")
+    ap.add_argument("--repeat", type=int, default=2,
+                    help="runs per measurement (best wall and CPU, max RSS); CPU time (user+sys) is "
+                         "less sensitive to other load than wall time")
     ap.add_argument("--all-peers", action="store_true", help="also time actipy and skdh (slow, GBs)")
     ap.add_argument("--keep", action="store_true", help="keep the generated files")
     args = ap.parse_args(argv)
@@ -178,7 +182,8 @@ def main(argv=None) -> int:
             r = best_of(cmd, args.repeat)
             res[name] = r
             status = "" if r["rc"] == 0 else f"  FAILED rc={r['rc']}: {r['err'].strip().splitlines()[-1:]}"
-            print(f"  {name:28s} {r['wall']:7.2f} s  {r['rss_mb']:7.0f} MB peak RSS{status}")
+            print(f"  {name:28s} {r['wall']:7.2f} s wall {r['cpu']:7.2f} s CPU {r['rss_mb']:7.0f} MB peak RSS"
+                  f"{status}")
         results[days] = res
         if not args.keep:
             path.unlink()
@@ -189,7 +194,7 @@ def main(argv=None) -> int:
     for name, r in first.items():
         if name != "stillpoint inspect --json" and r["rc"] == 0:
             print(f"  {name:28s} wall x{r['wall'] / ours['wall']:5.2f} of inspect, "
-                  f"RSS x{r['rss_mb'] / ours['rss_mb']:5.1f}")
+                  f"CPU x{r['cpu'] / ours['cpu']:5.2f}, RSS x{r['rss_mb'] / ours['rss_mb']:5.1f}")
     ok = True
     if "cwa-reader-rs" in first and first["cwa-reader-rs"]["rc"] == 0:
         speed = first["cwa-reader-rs"]["wall"] / ours["wall"]

@@ -6,10 +6,10 @@ Topics (see engine/mcap_schemas.py for the CDR layouts; ``json`` topics carry a 
 ==================== ============================ =============================================
 topic                encoding / schema            one message per
 ==================== ============================ =============================================
-/raw/accel           cdr AccelBatchRaw            block handed through the pipeline (<= 10 s)
-/raw/gyro            cdr GyroBatchRaw (AX6 only)  same block
-/corrected/accel     cdr AccelBatch (float32 g)   corrected batch
-/temperature         cdr Temperature              raw block (mean of its units)
+/raw/accel           cdr AccelBatchRaw            cell (10 s of data) of whole sectors/pages
+/raw/gyro            cdr GyroBatchRaw (AX6 only)  same samples as /raw/accel
+/corrected/accel     cdr AccelBatch (float32 g)   cell and segment
+/temperature         cdr Temperature              raw message (mean of its units)
 /metrics/epoch       cdr EpochMetrics             epoch (plot-friendly preview, one value each)
 /calibration         json                         estimate published (with fit range, effect)
 /qc                  json                         QC event (reader and engine)
@@ -18,10 +18,17 @@ topic                encoding / schema            one message per
 Metadata records: ``device`` (DeviceInfo fields), ``settings`` (the run's settings, JSON in the
 value ``json``), and at the end ``summary`` and ``calibration`` (the estimate applied).
 
-Durability: the sink flushes the chunk in progress whenever data time has advanced by
-``flush_every_s`` (default 10 s) since the last flush, so a killed process loses at most that
-much; the file is fsynced at those flushes at most once per ``fsync_every_wall_s`` of wall time
-(SIGKILL only loses what Python had not handed to the OS; fsync protects against power loss).
+Cells: data time is cut into cells of ``flush_every_s`` (default 10 s) on the UTC grid. Raw
+messages hold the whole sectors/pages that start in a cell; corrected messages hold the samples
+of one cell and segment (so replay reproduces the message layout exactly). The sink flushes the
+chunk in progress each time a new cell begins, so a killed process loses at most the cell in
+progress (plus the correction's one-unit lag); chunks carry no per-message index (readers scan
+the small chunks), which keeps the writer's summary bookkeeping small.
+Corrected values are rounded to ``corrected_quantum_g`` (2^-16 g = 15 µg, 1/256 of the finest
+AX3 count) before float32: float noise below the sensor's resolution does not compress, and
+without it the corrected stream alone would be twice the size of the raw one.
+The file is fsynced at flushes at most once per ``fsync_every_wall_s`` of wall time (SIGKILL
+only loses what Python had not handed to the OS; fsync protects against power loss).
 ``recover`` salvages every complete chunk of a file that was never finished.
 
 Writing happens in a writer process by default (``writer="process"``: the mcap library's
@@ -42,7 +49,7 @@ from dataclasses import asdict, is_dataclass
 from typing import Optional
 
 import numpy as np
-from mcap.writer import CompressionType, Writer
+from mcap.writer import CompressionType, IndexType, Writer
 
 from .blocks import Block, DeviceInfo, PER_SAMPLE_BUTTON, PER_SAMPLE_LIGHT_RAW
 from .calibration.estimate import CalibrationEstimate
@@ -166,7 +173,11 @@ class _WriterCore:
     def __init__(self, path: str, chunk_size: int, compression: str, fsync_every_wall_s: float):
         self.fsync_every_wall_s = fsync_every_wall_s
         self._f = open(path, "wb")
-        self._w = Writer(self._f, chunk_size=chunk_size, compression=_COMPRESSION[compression])
+        # no per-message index: 16 B + a Python record per message per chunk, and the per-chunk
+        # index dicts the writer keeps for the summary would grow with the number of flushes;
+        # readers scan our small (one-cell) chunks instead (specs/mcap-python.md §3)
+        self._w = Writer(self._f, chunk_size=chunk_size, compression=_COMPRESSION[compression],
+                         index_types=IndexType.CHUNK | IndexType.METADATA | IndexType.ATTACHMENT)
         self._w.start(profile="", library=LIBRARY)
         self._schemas = {t.name: self._w.register_schema(t.name, "ros2msg", t.schema_text().encode())
                          for t in ALL_TYPES}
@@ -236,7 +247,8 @@ def _writer_process_main(conn, core_args) -> None:
             return
         if item is None:
             core.abandon()
-            conn.send(("done",))
+            import resource
+            conn.send(("done", resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0))
             return
         try:
             core.execute(*item)
@@ -268,6 +280,7 @@ class McapSink:
         self._corr_cell: Optional[int] = None
         self.flushes = 0
         self.messages = 0
+        self.writer_maxrss_mb: Optional[float] = None  # writer process peak RSS (process mode)
         self._error: Optional[str] = None
         self._q: Optional[queue.Queue] = None
         self._thread = None
@@ -491,6 +504,7 @@ class McapSink:
                         self._error = msg[1]
                     elif msg[0] == "done":
                         done = True
+                        self.writer_maxrss_mb = msg[1]
             except (EOFError, OSError):
                 pass
             if not done and self._error is None:

@@ -350,6 +350,9 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
     sink.close()
     summary["mcap_messages"] = sink.messages
     summary["mcap_flushes"] = sink.flushes
+    import resource
+    summary["peak_rss_mb"] = {"engine": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+                              "writer": sink.writer_maxrss_mb}
     return summary
 
 

@@ -134,6 +134,11 @@ def main(argv=None) -> int:
         rows.append(("skdh read + autocalibration", res["skdh"]))
     for name, r in rows:
         print(f"{name:44s} {r['wall_s']:8.2f} {r['cpu_s']:8.2f} {r['maxrss_mb']:12.0f}")
+    rss = s.get("peak_rss_mb") or {}
+    if rss.get("writer"):
+        print(f"  process peak RSS: engine {rss['engine']:.0f} MB + writer process {rss['writer']:.0f} MB "
+              f"= {rss['engine'] + rss['writer']:.0f} MB (upper bound: pages shared since the fork "
+              f"count twice)")
     print("ratios (same run):")
     print(f"  process / plain decode                      = {pr['wall_s'] / dec['wall_s']:.1f}x wall")
     if have_skdh:
@@ -151,9 +156,17 @@ def main(argv=None) -> int:
         for d in days:
             p = recording(wd, d, args.rate)
             o = wd / f"bench_rss_{d:g}d.mcap"
-            r = pr if p == path else measure(sp + ["process", p, "-o", o, "--mode", "batch", "-q"])
+            sj = wd / f"bench_rss_{d:g}d.json"
+            if p == path:
+                r, ss = pr, s
+            else:
+                r = measure(sp + ["process", p, "-o", o, "--mode", "batch", "-q", "--summary", sj])
+                ss = json.loads(sj.read_text())
+            rr = ss.get("peak_rss_mb") or {}
+            both = (f" (engine {rr['engine']:.0f} + writer {rr['writer']:.0f} = "
+                    f"{rr['engine'] + rr['writer']:.0f} MB)") if rr.get("writer") else ""
             print(f"  {d:5g} days ({p.stat().st_size / 1e6:5.0f} MB .cwa): {r['maxrss_mb']:6.0f} MB "
-                  f"peak RSS, {r['wall_s']:6.1f} s wall")
+                  f"peak RSS of the largest process{both}, {r['wall_s']:6.1f} s wall")
             if o.exists():
                 o.unlink()
     out.unlink(missing_ok=True)

@@ -29,6 +29,7 @@ from typing import Callable, Optional
 import numpy as np
 
 from stillpoint.drivers import open_recording
+from stillpoint.drivers.errors import StillpointError
 
 from .blocks import Block
 from .calibration import OnlineCalibrator, fit_batch_schedule
@@ -43,6 +44,21 @@ from .operators.metrics import EPOCH_S, EpochMetrics, MetricsOperator
 from .operators.nonmovement import NonmovementOperator
 from .operators.windows import WINDOW_S, WindowFeaturesOperator
 from .pipeline import Pipeline, PipelineStats
+
+class OutputError(StillpointError):
+    """The output cannot be written where asked (missing directory, no permission, ...)."""
+
+
+def check_output(out: Path) -> None:
+    import os
+    parent = out.parent if str(out.parent) else Path(".")
+    if not parent.is_dir():
+        raise OutputError(f"{out}: directory {parent} does not exist")
+    if out.is_dir():
+        raise OutputError(f"{out}: is a directory")
+    if not os.access(parent, os.W_OK):
+        raise OutputError(f"{out}: directory {parent} is not writable")
+
 
 APPLIED_STATUSES = ("ok", "high_error")  # fit outcomes whose parameters are applied (H5's rule)
 
@@ -229,6 +245,7 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
     s = settings or RunSettings()
     path, out = Path(path), Path(out)
     opts = source_options or {}
+    check_output(out)
     t_start = time.perf_counter()
     src = open_recording(path, **opts)  # raises a StillpointError (exit 2) on unreadable input
     info = src.info

@@ -274,3 +274,14 @@ def test_progress_bar_only_on_a_terminal():
     p = Progress(enabled=True, stream=buf)
     p("pass 2/2", PipelineStats(samples=10, first_ns=0, last_ns=7200 * 10**9, fraction=0.5))
     assert "pass 2/2" in buf.getvalue() and "50.0%" in buf.getvalue() and "2.0 h" in buf.getvalue()
+
+
+def test_empty_recording_and_bad_output_path(tmp_path, capsys):
+    from stillpoint.drivers.cwa import CwaWriter
+    empty = tmp_path / "empty.cwa"
+    CwaWriter(empty).close()
+    for mode in ("batch", "online"):
+        s = process_file(empty, tmp_path / f"e_{mode}.mcap", RunSettings(mode=mode))
+        assert s["samples"] == 0 and s["epochs"] == 0 and s["enmo_mean_mg"] is None
+    assert cli(["process", str(empty), "-o", str(tmp_path / "no" / "such" / "dir.mcap")]) == 2
+    assert "does not exist" in capsys.readouterr().err

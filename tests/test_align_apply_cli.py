@@ -108,7 +108,7 @@ def test_cli_aligns_cwa_files_and_writes_json_mcap_and_plot(cwa_pair, tmp_path, 
     pair, ref, oth = cwa_pair
     out, png = tmp_path / "al.mcap", tmp_path / "al.png"
     rc = main(["align", ref, oth, "-o", str(out), "--json", "--plot", str(png),
-               "--interpolation", "linear"])
+               "--interpolation", "linear", "--online"])
     assert rc == 0
     d = json.loads(capsys.readouterr().out)
     for k in ("initial_offset_s", "drift_s_per_day", "drift_day7_s", "blocks_used",
@@ -124,6 +124,9 @@ def test_cli_aligns_cwa_files_and_writes_json_mcap_and_plot(cwa_pair, tmp_path, 
     assert len(lags) == d["blocks_total"]
     est = read_topic_json(out, TOPIC_ESTIMATE)
     assert est[-1]["final"] and est[-1]["initial_offset_s"] == pytest.approx(d["initial_offset_s"])
+    online = est[:-1]  # --online: the estimate refreshed as blocks arrived
+    assert len(online) >= 3 and not any(e["final"] for e in online)
+    assert abs(online[-1]["initial_offset_s"] - d["initial_offset_s"]) < 2 / RATE
     t, a = read_aligned(out)
     assert t.size > 0.9 * 0.75 * 86400 * 25
     # the aligned other stream lines up with the reference: same movement at the same time

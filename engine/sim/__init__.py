@@ -4,7 +4,8 @@
 Modules: ``model`` (effects, JSON model files, the pure deterministic sensor function),
 ``wearer`` (behaviour schedule and motion at a body site), ``temperature`` (device temperature),
 ``clock`` (RTC model), ``sensor`` (the full sensor incl. noise, clipping, quantisation),
-``record`` (streaming generation, writers, truth), ``source`` (SimSource: the simulator as a
+``device`` (one device: tracks, chunks), ``truth`` (truth JSON, labels CSV), ``record``
+(files through the writers, pairs), ``source`` (SimSource: the simulator as a
 Source of Blocks, no file), ``corrupt`` (damaging .bin pages).
 """
 

@@ -17,7 +17,7 @@ import numpy as np
 from stillpoint.drivers import constants as C
 
 from ..blocks import Block, DeviceInfo, QCEvent, QCReport
-from .record import DeviceSim, make_devices
+from .device import DeviceSim, make_devices
 
 
 class SimSource:
@@ -26,7 +26,7 @@ class SimSource:
     def __init__(self, *, device: str = "ax3", site: str = "wrist", days: float = 1.0,
                  hz: float = 100.0, effects=None, seed: int = 1, sim: DeviceSim = None, **kw):
         if sim is None:
-            from .record import build_model
+            from .device import build_model
             [sim] = make_devices(sites=[site], devices=[device], days=days, hz=hz,
                                  effects=effects if effects is not None else build_model(None),
                                  seed=seed, **kw)

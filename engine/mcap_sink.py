@@ -102,28 +102,41 @@ def device_metadata(info: DeviceInfo) -> dict[str, str]:
     return rec
 
 
-def raw_message(block: Block) -> bytes:
-    n = block.n
+def raw_message(block: Block, a: int = 0, b: Optional[int] = None, ua: int = 0,
+                ub: Optional[int] = None, dt: Optional[np.ndarray] = None) -> bytes:
+    """AccelBatchRaw of samples [a, b) whose units are [ua, ub) (whole units; no Block copy)."""
+    b = block.n if b is None else b
+    ub = block.m if ub is None else ub
+    if b <= a:
+        return b""
     z = np.zeros(0)
     ps = block.per_sample
+    acc = block.accel[a:b]
+    t0 = int(block.time_ns[a])
     return ACCEL_BATCH_RAW.encode({
-        "stamp": int(block.time_ns[0]), "t0_ns": int(block.time_ns[0]), "segment": block.segment,
-        "first_sample": block.first_sample, "counts_per_g": block.accel_counts_per_g,
-        "zero_counts": block.accel_zero, "dt_ns": time_deltas(block.time_ns),
-        "x": block.accel[:, 0], "y": block.accel[:, 1], "z": block.accel[:, 2],
-        "unit_index": block.unit_index, "unit_sequence": block.unit_sequence,
-        "unit_start": block.unit_start, "temperature_c": block.temperature_c,
-        "temperature_raw": block.temperature_raw, "light": block.light,
-        "battery_v": block.battery_v, "events": block.events,
-        "light_raw": ps.get(PER_SAMPLE_LIGHT_RAW, z), "button": ps.get(PER_SAMPLE_BUTTON, z),
-    }) if n else b""
+        "stamp": t0, "t0_ns": t0, "segment": block.segment,
+        "first_sample": block.first_sample + a, "counts_per_g": block.accel_counts_per_g,
+        "zero_counts": block.accel_zero,
+        "dt_ns": time_deltas(block.time_ns[a:b]) if dt is None else dt,
+        "x": acc[:, 0], "y": acc[:, 1], "z": acc[:, 2],
+        "unit_index": block.unit_index[ua:ub], "unit_sequence": block.unit_sequence[ua:ub],
+        "unit_start": block.unit_start[ua:ub] - a, "temperature_c": block.temperature_c[ua:ub],
+        "temperature_raw": block.temperature_raw[ua:ub], "light": block.light[ua:ub],
+        "battery_v": block.battery_v[ua:ub], "events": block.events[ua:ub],
+        "light_raw": ps[PER_SAMPLE_LIGHT_RAW][a:b] if PER_SAMPLE_LIGHT_RAW in ps else z,
+        "button": ps[PER_SAMPLE_BUTTON][a:b] if PER_SAMPLE_BUTTON in ps else z,
+    })
 
 
-def gyro_message(block: Block) -> bytes:
+def gyro_message(block: Block, a: int = 0, b: Optional[int] = None,
+                 dt: Optional[np.ndarray] = None) -> bytes:
+    b = block.n if b is None else b
+    g = block.gyro[a:b]
+    t0 = int(block.time_ns[a])
     return GYRO_BATCH_RAW.encode({
-        "stamp": int(block.time_ns[0]), "t0_ns": int(block.time_ns[0]),
-        "dps_per_count": float(block.gyro_dps_per_count), "dt_ns": time_deltas(block.time_ns),
-        "x": block.gyro[:, 0], "y": block.gyro[:, 1], "z": block.gyro[:, 2]})
+        "stamp": t0, "t0_ns": t0, "dps_per_count": float(block.gyro_dps_per_count),
+        "dt_ns": time_deltas(block.time_ns[a:b]) if dt is None else dt,
+        "x": g[:, 0], "y": g[:, 1], "z": g[:, 2]})
 
 
 def quantize(accel: np.ndarray, quantum_g: float) -> np.ndarray:
@@ -245,6 +258,15 @@ def _writer_process_main(conn, core_args) -> None:
         except (EOFError, OSError):  # the engine process died: leave the file recoverable
             core.abandon()
             return
+        if isinstance(item, list):
+            try:
+                for it in item:
+                    core.execute(*it)
+            except BaseException as e:
+                core.abandon()
+                conn.send(("error", f"{type(e).__name__}: {e}"))
+                return
+            continue
         if item is None:
             core.abandon()
             import resource
@@ -286,6 +308,7 @@ class McapSink:
         self._thread = None
         self._conn = None
         self._proc = None
+        self._batch: list = []
         core_args = (self.path, chunk_size, compression, fsync_every_wall_s)
         if writer == "process":
             import multiprocessing as mp
@@ -318,6 +341,17 @@ class McapSink:
                 except BaseException as e:  # reported on the caller's next call
                     self._error = f"{type(e).__name__}: {e}"
 
+    def _send_batch(self):
+        if not self._batch:
+            return
+        self._check()
+        batch, self._batch = self._batch, []
+        try:
+            self._conn.send(batch)
+        except (BrokenPipeError, OSError):
+            self._check()
+            raise RuntimeError(f"writing {self.path} failed: the writer process ended") from None
+
     def _check(self):
         if self._conn is not None and self._error is None and self._conn.poll():
             msg = self._conn.recv()
@@ -334,13 +368,15 @@ class McapSink:
             self.messages += len(item[4])
         elif op == "flush":
             self.flushes += 1
-        self._check()
         if self._conn is not None:
-            try:
-                self._conn.send(item)
-            except (BrokenPipeError, OSError):
-                self._check()
-                raise RuntimeError(f"writing {self.path} failed: the writer process ended") from None
+            # batch operations up to each flush (one pipe write per cell, not per message)
+            self._batch.append(item)
+            if op in ("flush", "finish", "metadata") or len(self._batch) >= 256:
+                self._send_batch()
+            return
+        self._check()
+        if False:
+            pass
         elif self._q is None:
             self._core.execute(*item)
         else:
@@ -350,22 +386,30 @@ class McapSink:
         self._do("msg", topic, encoding, schema, log_time, data)
 
     # ------------------------------------------------------------------ API
-    def write_raw(self, block: Block) -> None:
-        """Log one Block losslessly (split further if a time step does not fit int32 ns)."""
-        if block.n == 0:
+    def write_raw(self, block: Block, a: int = 0, b: Optional[int] = None, ua: int = 0,
+                  ub: Optional[int] = None) -> None:
+        """Log samples [a, b) of a Block (units [ua, ub), whole) losslessly; a time step that
+        does not fit int32 ns splits the message."""
+        b = block.n if b is None else b
+        ub = block.m if ub is None else ub
+        if b <= a:
             return
-        if not max_step_ok(block.time_ns):
-            d = np.abs(np.diff(block.time_ns))
-            cut = int(np.argmax(d > 2**31 - 1)) + 1
-            self.write_raw(block.slice(0, cut))
-            self.write_raw(block.slice(cut, block.n))
+        d = np.diff(block.time_ns[a:b])
+        if d.size and (d.max() > 2**31 - 1 or d.min() < -(2**31 - 1)):
+            # rare (a clock jump inside a segment): split where the step does not fit
+            cut = a + int(np.argmax(np.abs(d) > 2**31 - 1)) + 1
+            self.write_raw(block.slice(a, cut))
+            self.write_raw(block.slice(cut, b))
             return
-        t0 = int(block.time_ns[0])
-        self._msg(TOPIC_RAW, "cdr", ACCEL_BATCH_RAW.name, t0, raw_message(block))
+        dt = np.empty(b - a, np.int32)
+        dt[0] = 0
+        dt[1:] = d
+        t0 = int(block.time_ns[a])
+        self._msg(TOPIC_RAW, "cdr", ACCEL_BATCH_RAW.name, t0, raw_message(block, a, b, ua, ub, dt))
         if block.gyro is not None:
-            self._msg(TOPIC_GYRO, "cdr", GYRO_BATCH_RAW.name, t0, gyro_message(block))
-        if block.m:
-            tc = block.temperature_c
+            self._msg(TOPIC_GYRO, "cdr", GYRO_BATCH_RAW.name, t0, gyro_message(block, a, b, dt))
+        if ub > ua:
+            tc = block.temperature_c[ua:ub]
             ok = np.isfinite(tc)
             if ok.any():
                 self._msg(TOPIC_TEMPERATURE, "cdr", TEMPERATURE.name, t0,
@@ -415,7 +459,8 @@ class McapSink:
             starts = block.unit_start if block.m else np.zeros(1, np.int64)
             ucell = block.time_ns[starts] // w
             first = np.concatenate([[0], np.flatnonzero(ucell[1:] != ucell[:-1]) + 1])
-            raw_cut = (ucell[first], np.append(starts[first][1:], block.n), starts[first])
+            raw_cut = (ucell[first], np.append(starts[first][1:], block.n), starts[first],
+                       first, np.append(first[1:], len(starts)))
             cells.append(ucell[first])
         if len(epochs):
             cells.append(epochs.start_ns // w)
@@ -442,7 +487,11 @@ class McapSink:
             if raw_cut is not None:
                 k = int(np.searchsorted(raw_cut[0], cell))
                 if k < len(raw_cut[0]) and raw_cut[0][k] == cell:
-                    self.write_raw(block.slice(int(raw_cut[2][k]), int(raw_cut[1][k])))
+                    if block.m:
+                        self.write_raw(block, int(raw_cut[2][k]), int(raw_cut[1][k]),
+                                       int(raw_cut[3][k]), int(raw_cut[4][k]))
+                    else:
+                        self.write_raw(block, int(raw_cut[2][k]), int(raw_cut[1][k]), 0, 0)
             if len(epochs):
                 a, b = np.searchsorted(epochs.start_ns, [lo, hi])
                 if b > a:
@@ -482,6 +531,7 @@ class McapSink:
 
     def abort(self) -> None:
         """Stop writing without finishing (the file stays recoverable up to the last flush)."""
+        self._batch = []
         self._stop()
         if self._core is not None:
             self._core.abandon()

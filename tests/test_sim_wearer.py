@@ -101,3 +101,16 @@ def test_resolved_random_halts_start_after_day_one():
     m = resolve_model(SensorModel({"halts": {"count": 3}}), seed=1, duration_s=7 * 86400.0)
     ev = m.effects["halts"]["events"]
     assert len(ev) == 3 and all(e["start_s"] >= 86400 and 2 <= e["duration_s"] <= 400 for e in ev)
+
+
+def test_still_windows_of_a_week_cover_the_sphere_on_every_axis():
+    from stillpoint.engine.sim.device import build_model, make_devices
+    [sim] = make_devices(sites=["wrist"], devices=["ax3"], days=7, hz=100, seed=21,
+                         effects=build_model("offset,gain,temperature_offset,noise"))
+    sw = sim.still_windows()  # no samples rendered: fast
+    g = sw["gravity"]
+    assert g.shape[0] > 7 * 8640 * 0.3  # a third of the windows are still
+    for k in range(3):
+        assert (g[:, k] < -0.3).sum() > 100 and (g[:, k] > 0.3).sum() > 100
+    # and the device temperature spans a useful range for the temperature term
+    assert np.ptp(sw["temperature_c"]) > 5

@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import itertools
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, fields as dc_fields
 from pathlib import Path
 from typing import Callable, Iterator, Optional, Union
 
@@ -117,23 +117,33 @@ def decode_hex_samples(hex_bytes: bytes, n_samples: int):
 
 
 @dataclass
-class _Page:
-    """One page that passed the structural checks, decoded."""
+class _Run:
+    """Consecutive pages that passed the structural checks, decoded (a fast-path run or one page)."""
 
-    index: int  # position among the pages of the file (0-based)
-    seq: int
-    t_ms: int  # Page Time, device clock, ms since 1970
-    temperature: float
-    battery: float
-    freq: Optional[float]
-    accel: np.ndarray  # (n, 3) int16
-    light: np.ndarray  # (n,) uint16
-    button: np.ndarray  # (n,) uint8
-    partial: Union[bool, str] = False  # "cut" (file ends mid-line) or "terminated" (short last page)
+    index: np.ndarray  # (P,) int64 position among the pages of the file (0-based)
+    seq: np.ndarray  # (P,) int64 Sequence Number
+    t_ms: np.ndarray  # (P,) int64 Page Time, device clock, ms since 1970
+    temperature: np.ndarray  # (P,) float64
+    battery: np.ndarray  # (P,) float64
+    freq: np.ndarray  # (P,) float64 page Measurement Frequency, NaN when absent
+    counts: np.ndarray  # (P,) int64 samples per page (300, fewer only for a last partial page)
+    accel: np.ndarray  # (N, 3) int16
+    light: np.ndarray  # (N,) uint16
+    button: np.ndarray  # (N,) uint8
 
     @property
-    def n(self) -> int:
-        return int(self.accel.shape[0])
+    def pages(self) -> int:
+        return int(self.seq.shape[0])
+
+    def offsets(self) -> np.ndarray:
+        return np.concatenate([[0], np.cumsum(self.counts)]).astype(np.int64)
+
+    @staticmethod
+    def single(index, seq, t_ms, temperature, battery, freq, accel, light, button) -> "_Run":
+        return _Run(np.array([index], np.int64), np.array([seq], np.int64), np.array([t_ms], np.int64),
+                    np.array([temperature], np.float64), np.array([battery], np.float64),
+                    np.array([np.nan if freq is None else freq], np.float64),
+                    np.array([accel.shape[0]], np.int64), accel, light, button)
 
 
 @dataclass
@@ -142,6 +152,38 @@ class _Skip:
 
     index: int
     desync: bool = False  # text that was not a page (how many pages it held is unknown)
+
+
+def _slice_run(run: _Run, lo: int, hi: int) -> _Run:
+    """Pages [lo, hi) of a run."""
+    off = run.offsets()
+    a, b = int(off[lo]), int(off[hi])
+    return _Run(run.index[lo:hi], run.seq[lo:hi], run.t_ms[lo:hi], run.temperature[lo:hi],
+                run.battery[lo:hi], run.freq[lo:hi], run.counts[lo:hi], run.accel[a:b], run.light[a:b],
+                run.button[a:b])
+
+
+def _merge_runs(items: list) -> list:
+    """Join consecutive runs (e.g. pages of the general parser) so later stages see few, long runs."""
+    out: list = []
+    group: list = []
+
+    def flush():
+        if len(group) == 1:
+            out.append(group[0])
+        elif group:
+            cat = np.concatenate
+            out.append(_Run(*(cat([getattr(r, f.name) for r in group]) for f in dc_fields(_Run))))
+        group.clear()
+
+    for x in items:
+        if isinstance(x, _Run):
+            group.append(x)
+        elif x is not None:
+            flush()
+            out.append(x)
+    flush()
+    return out
 
 
 def _open_stream(path: Path, follow: bool, follow_done, follow_idle_timeout: float):
@@ -237,25 +279,32 @@ class GeneactivReader:
                                 detail=f"more than {MAX_QC_EVENTS} QC events; later ones are counted "
                                        "in total/skipped but not listed"))
 
+    def _nominal_steps(self, freq: np.ndarray) -> np.ndarray:
+        """ns that 300 samples take at each page's own rate (the header's when a page has none)."""
+        rate = np.where(np.isfinite(freq) & (freq > 0), freq, self.info.sample_rate_nominal)
+        return np.rint(GNA_SAMPLES_PER_PAGE / rate * 1e9).astype(np.int64)
+
     def _blocks(self) -> Iterator[Block]:
-        info = self.info
-        tz_ns = info.timezone_offset_s * 10**9
-        nominal_rate = info.sample_rate_nominal
+        """Segment and time the page runs (vectorised per run), then cut them into Blocks.
+
+        Every page is timed with the step to the next page's Page Time; the last page seen is held
+        back until the next page (or the end) decides its step. A pair of consecutive pages breaks
+        the segment on a sequence gap, a time jump, skipped pages or skipped text; a page followed by
+        a break takes the previous step of its segment, or 300/rate.
+        """
+        tz_ns = self.info.timezone_offset_s * 10**9
+        nominal_rate = self.info.sample_rate_nominal
         tol = self.time_tolerance
         per_page = GNA_SAMPLES_PER_PAGE
         header_freq_text = self.header.get("Measurement Frequency", "Configuration Info")
         freq_warned = False
-
-        batch: list[tuple[_Page, int, int]] = []  # (page, step_ns, segment)
-        prev: Optional[_Page] = None
-        prev_step: Optional[int] = None  # step of the page before `prev`, same segment
-        skipped = 0  # pages skipped since `prev`
-        desynced = False  # non-page text skipped since `prev`
+        held: Optional[_Run] = None  # the last page seen (one-page run), its step not known yet
+        held_prev_step: Optional[int] = None  # step of the page before `held`, same segment
+        skipped = 0  # pages skipped since `held`
+        desynced = False  # non-page text skipped since `held`
         segment = 0
-
-        def nominal_step(page: _Page) -> int:
-            rate = page.freq or nominal_rate
-            return int(round(per_page / rate * 1e9))
+        self._pending: list = []  # (run, lo, hi, steps, segments) awaiting emission
+        self._pending_pages = 0
 
         for item in self._pages():
             if isinstance(item, _Skip):
@@ -264,45 +313,69 @@ class GeneactivReader:
                 else:
                     skipped += 1
                 continue
-            page = item
-            if page.freq and nominal_rate and abs(page.freq - nominal_rate) > 1e-6 * nominal_rate \
-                    and not freq_warned:
-                freq_warned = True
-                self._event(page.index, "frequency_mismatch",
-                            f"page Measurement Frequency {page.freq:g} Hz differs from the header's "
-                            f"{header_freq_text!r}; pages are timed with their own value")
-            if prev is not None:
-                step = (page.t_ms - prev.t_ms) * 1_000_000
-                expect = nominal_step(prev)
-                reasons = []
-                # after skipped pages, expect the sequence and the time to have moved on by as many
-                # pages; after a desync nothing is known (the desync event explains the break)
-                if not desynced and page.seq != prev.seq + 1 + skipped:
-                    reasons.append(("sequence_gap", f"Sequence Number {prev.seq} -> {page.seq}"))
-                if not desynced and abs(step - (1 + skipped) * expect) > max(2_000_000, tol * expect):
-                    reasons.append(("time_jump",
-                                    f"Page Time step {step / 1e9:.3f} s where {per_page} samples at "
-                                    f"{(page.freq or nominal_rate):g} Hz take {expect / 1e9:.3f} s"))
-                if reasons or skipped or desynced:
-                    batch.append((prev, prev_step if prev_step is not None else expect, segment))
-                    for reason, detail in reasons:
-                        self._event(page.index, reason, detail + "; new segment",
-                                    time_ns=page.t_ms * 1_000_000 - tz_ns)
-                    segment += 1
-                    prev_step = None
-                else:
-                    batch.append((prev, step, segment))
-                    prev_step = step
-            prev = page
+            run = item
+            if not freq_warned and nominal_rate:
+                bad = np.flatnonzero(np.isfinite(run.freq)
+                                     & (np.abs(run.freq - nominal_rate) > 1e-6 * nominal_rate))
+                if bad.size:
+                    freq_warned = True
+                    self._event(int(run.index[bad[0]]), "frequency_mismatch",
+                                f"page Measurement Frequency {run.freq[bad[0]]:g} Hz differs from the "
+                                f"header's {header_freq_text!r}; pages are timed with their own value")
+            h = 1 if held is not None else 0
+            cat = np.concatenate
+            seq = cat([held.seq, run.seq]) if h else run.seq
+            t = cat([held.t_ms, run.t_ms]) if h else run.t_ms
+            freq = cat([held.freq, run.freq]) if h else run.freq
+            q = seq.shape[0]
+            expect = self._nominal_steps(freq[:-1])
+            step = (t[1:] - t[:-1]) * 1_000_000
+            mult = np.ones(q - 1, np.int64)
+            if h:
+                mult[0] += skipped  # after skipped pages, expect as many more pages
+            seq_bad = seq[1:] != seq[:-1] + mult
+            time_bad = np.abs(step - mult * expect) > np.maximum(2_000_000, tol * expect)
+            if h and desynced:  # how many pages the skipped text held is unknown: no checks
+                seq_bad[0] = time_bad[0] = False
+            brk = seq_bad | time_bad
+            if h and (skipped or desynced):
+                brk[0] = True
+            # steps of pages 0..q-2: their own, or (before a break) the previous step of the segment
+            prev_in_seg = np.empty(q - 1, np.int64)
+            if q > 1:
+                prev_in_seg[0] = held_prev_step if (h and held_prev_step is not None) else expect[0]
+                prev_in_seg[1:] = np.where(brk[:-1], expect[1:], step[:-1])
+            steps = np.where(brk, prev_in_seg, step)
+            segs = segment + cat([[0], np.cumsum(brk)]).astype(np.int64)
+            for k in np.flatnonzero(seq_bad | time_bad).tolist():
+                pidx = int(run.index[k + 1 - h])
+                when = int(t[k + 1]) * 1_000_000 - tz_ns
+                if seq_bad[k]:
+                    self._event(pidx, "sequence_gap",
+                                f"Sequence Number {seq[k]} -> {seq[k + 1]}; new segment", time_ns=when)
+                if time_bad[k]:
+                    self._event(pidx, "time_jump",
+                                f"Page Time step {step[k] / 1e9:.3f} s where {per_page} samples at "
+                                f"{(freq[k + 1] if np.isfinite(freq[k + 1]) else nominal_rate):g} Hz "
+                                f"take {expect[k] / 1e9:.3f} s; new segment", time_ns=when)
+            # everything but the last page is timed now
+            if h:
+                self._queue(held, 0, 1, steps[:1], segs[:1])
+            if run.pages > 1:
+                self._queue(run, 0, run.pages - 1, steps[h:], segs[h:-1])
+            last = run.pages - 1
+            held = _slice_run(run, last, last + 1)
+            held_prev_step = int(step[-1]) if (q > 1 and not brk[-1]) else None
+            segment = int(segs[-1])
             skipped, desynced = 0, False
-            if len(batch) >= self.batch_pages:
-                yield from self._emit(batch, tz_ns)
-                batch = []
-        if prev is not None:
-            batch.append((prev, prev_step if prev_step is not None else nominal_step(prev), segment))
-        if batch:
-            yield from self._emit(batch, tz_ns)
-        self.qc.segments = segment + 1 if (prev is not None) else 0
+            while self._pending_pages >= self.batch_pages:
+                yield from self._emit(self.batch_pages, tz_ns)
+        if held is not None:
+            step = held_prev_step if held_prev_step is not None else int(self._nominal_steps(held.freq)[0])
+            self._queue(held, 0, 1, np.array([step], np.int64), np.array([segment], np.int64))
+        while self._pending_pages:
+            yield from self._emit(self.batch_pages, tz_ns)
+        self.qc.segments = segment + 1 if (held is not None) else 0
         n_hdr = self.info.header.get("number_of_pages")
         if n_hdr is not None and n_hdr != self.qc.total:
             self._event(self.qc.total, "page_count_mismatch",
@@ -317,44 +390,69 @@ class GeneactivReader:
             raise CorruptRecordingError(
                 self.path, f"none of the {self.qc.total} page(s) after the header is readable ({why})")
 
-    def _emit(self, batch, tz_ns) -> Iterator[Block]:
-        """Blocks from (page, step, segment) triples: one Block per run of one segment."""
-        start = 0
-        while start < len(batch):
-            seg = batch[start][2]
-            stop = start
-            while stop < len(batch) and batch[stop][2] == seg:
-                stop += 1
-            yield self._block(batch[start:stop], seg, tz_ns)
-            start = stop
+    def _queue(self, run: _Run, lo: int, hi: int, steps: np.ndarray, segs: np.ndarray) -> None:
+        if hi > lo:
+            self._pending.append((run, lo, hi, steps, segs))
+            self._pending_pages += hi - lo
 
-    def _block(self, run, segment: int, tz_ns: int) -> Block:
-        pages = [p for p, _, _ in run]
-        counts = np.array([p.n for p in pages], np.int64)
-        starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
-        t0 = np.array([p.t_ms for p in pages], np.int64) * 1_000_000 - tz_ns
-        steps = np.array([s for _, s, _ in run], np.int64)
+    def _emit(self, max_pages: int, tz_ns: int) -> Iterator[Block]:
+        """Take up to ``max_pages`` timed pages off the queue; one Block per segment among them."""
+        take, need = [], max_pages
+        while need and self._pending:
+            run, lo, hi, steps, segs = self._pending[0]
+            n = min(need, hi - lo)
+            take.append((run, lo, lo + n, steps[:n], segs[:n]))
+            if n == hi - lo:
+                self._pending.pop(0)
+            else:
+                self._pending[0] = (run, lo + n, hi, steps[n:], segs[n:])
+            need -= n
+            self._pending_pages -= n
+        # split the taken pages where the segment changes
+        parts: list = []
+        for run, lo, hi, steps, segs in take:
+            cuts = np.flatnonzero(segs[1:] != segs[:-1]) + 1
+            edges = [0] + cuts.tolist() + [hi - lo]
+            for a, b in zip(edges[:-1], edges[1:]):
+                seg = int(segs[a])
+                if parts and parts[-1][0] == seg:
+                    parts[-1][1].append((run, lo + a, lo + b, steps[a:b]))
+                else:
+                    parts.append((seg, [(run, lo + a, lo + b, steps[a:b])]))
+        for seg, pieces in parts:
+            yield self._block(pieces, seg, tz_ns)
+
+    def _block(self, pieces, segment: int, tz_ns: int) -> Block:
+        cat = np.concatenate
+        counts = cat([r.counts[lo:hi] for r, lo, hi, _ in pieces])
+        starts = cat([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+        t0 = cat([r.t_ms[lo:hi] for r, lo, hi, _ in pieces]) * 1_000_000 - tz_ns
+        steps = cat([s for _, _, _, s in pieces]).astype(np.int64)
         n = int(counts.sum())
         within = np.arange(n, dtype=np.int64) - np.repeat(starts, counts)
         # linear between page anchors: t_k + i * step_k / 300 (floor to whole ns)
         time_ns = np.repeat(t0, counts) + (within * np.repeat(steps, counts)) // GNA_SAMPLES_PER_PAGE
-        accel = np.concatenate([p.accel for p in pages])
-        light = np.concatenate([p.light for p in pages])
-        button = np.concatenate([p.button for p in pages])
+        sl = []
+        for r, lo, hi, _ in pieces:
+            off = r.offsets()
+            sl.append((r, int(off[lo]), int(off[hi])))
+        accel = cat([r.accel[a:b] for r, a, b in sl])
+        light = cat([r.light[a:b] for r, a, b in sl])
+        button = cat([r.button[a:b] for r, a, b in sl])
         hdr = self.info.header
         block = Block(
             time_ns=time_ns,
             accel=accel,
             accel_counts_per_g=np.asarray(hdr["gains"], np.float64) / 100.0,
             accel_zero=np.asarray(hdr["offsets"], np.float64) / 100.0,
-            unit_index=np.array([p.index for p in pages], np.int64),
-            unit_sequence=np.array([p.seq for p in pages], np.int64),
+            unit_index=cat([r.index[lo:hi] for r, lo, hi, _ in pieces]).astype(np.int64),
+            unit_sequence=cat([r.seq[lo:hi] for r, lo, hi, _ in pieces]).astype(np.int64),
             unit_start=starts,
-            temperature_c=np.array([p.temperature for p in pages], np.float64),
-            temperature_raw=np.full(len(pages), -1, np.int32),
-            light=np.array([int(p.light[0]) for p in pages], np.int32),
-            battery_v=np.array([p.battery for p in pages], np.float64),
-            events=np.zeros(len(pages), np.uint8),
+            temperature_c=cat([r.temperature[lo:hi] for r, lo, hi, _ in pieces]).astype(np.float64),
+            temperature_raw=np.full(counts.shape[0], -1, np.int32),
+            light=light[starts].astype(np.int32),
+            battery_v=cat([r.battery[lo:hi] for r, lo, hi, _ in pieces]).astype(np.float64),
+            events=np.zeros(counts.shape[0], np.uint8),
             per_sample={PER_SAMPLE_LIGHT_RAW: light, PER_SAMPLE_BUTTON: button},
             segment=segment,
             first_sample=self._samples,
@@ -363,7 +461,7 @@ class GeneactivReader:
         return block
 
     # ------------------------------------------------------------------ page parsing
-    def _pages(self) -> Iterator[Union[_Page, _Skip]]:
+    def _pages(self) -> Iterator[Union[_Run, _Skip]]:
         """Pages in file order (decoded) and _Skip markers, from the byte stream in batches."""
         chunk_bytes = self.batch_pages * APPROX_PAGE_BYTES
         buf = self._rest
@@ -407,7 +505,7 @@ class GeneactivReader:
 
         Stops before an incomplete page unless at end of file.
         """
-        out: list[Union[_Page, _Skip]] = []
+        out: list[Union[_Run, _Skip]] = []
         cand: list[tuple] = []  # (index, fields, hex, partial, position in out)
         L = len(lines)
         i = 0
@@ -500,7 +598,7 @@ class GeneactivReader:
             index += 1
             i = k + 1
         self._decode_candidates(cand, out)
-        return [x for x in out if x is not None], i, index
+        return _merge_runs(out), i, index
 
     def _fast_pages(self, lines: list[bytes], i: int, L: int, index: int, out: list) -> int:
         """Decode the run of standard pages starting at line ``i`` with whole-run numpy operations.
@@ -542,9 +640,11 @@ class GeneactivReader:
 
         try:
             seq = np.array(values(2, b"Sequence Number:").split()).astype(np.int64)
-            temp = np.array(values(5, b"Temperature:").split()).astype(np.float64)
-            batt = np.array(values(6, b"Battery voltage:").split()).astype(np.float64)
-            freq = np.array(values(8, b"Measurement Frequency:").split()).astype(np.float64)
+            # numbers may use a comma decimal separator ("21,5"), as parse_number accepts
+            temp = np.array(values(5, b"Temperature:").replace(b",", b".").split()).astype(np.float64)
+            batt = np.array(values(6, b"Battery voltage:").replace(b",", b".").split()).astype(np.float64)
+            freq = np.array(values(8, b"Measurement Frequency:").replace(b",", b".").split()
+                            ).astype(np.float64)
             tbytes = values(3, b"Page Time:")
             if not (seq.shape[0] == temp.shape[0] == batt.shape[0] == freq.shape[0] == P
                     and len(tbytes) == 24 * P - 1):
@@ -555,29 +655,34 @@ class GeneactivReader:
         freq = np.where(np.abs(freq - 85.7) < 1e-6, GNA_RATE_85_7, freq)
         hexes = np.frombuffer(b"".join(lines[i + 9:end:10]), np.uint8).reshape(P, -1)[:, :cut]
         acc, light, button, badhex = decode_hex_samples(np.ascontiguousarray(hexes), P * GNA_SAMPLES_PER_PAGE)
-        acc = acc.reshape(P, GNA_SAMPLES_PER_PAGE, 3)
-        light = light.reshape(P, GNA_SAMPLES_PER_PAGE)
-        button = button.reshape(P, GNA_SAMPLES_PER_PAGE)
-        badpage = badhex.reshape(P, GNA_SAMPLES_PER_PAGE).any(axis=1) if badhex.any() else None
+        badpage = badhex.reshape(P, GNA_SAMPLES_PER_PAGE).any(axis=1) if badhex.any() else np.zeros(P, bool)
         self.qc.total += P
-        seq_l, t_l, temp_l, batt_l, freq_l = (seq.tolist(), tms.tolist(), temp.tolist(), batt.tolist(),
-                                             freq.tolist())
-        for j in range(P):
-            if badpage is not None and badpage[j]:
-                self.qc.skipped += 1
+        good = ~badpage & tok
+        index_arr = np.arange(index, index + P, dtype=np.int64)
+        counts = np.full(P, GNA_SAMPLES_PER_PAGE, np.int64)
+        per = GNA_SAMPLES_PER_PAGE
+        j = 0
+        while j < P:  # runs of good pages, and the bad pages between them, in file order
+            if good[j]:
+                k = j
+                while k < P and good[k]:
+                    k += 1
+                out.append(_Run(index_arr[j:k], seq[j:k], tms[j:k], temp[j:k], batt[j:k], freq[j:k],
+                                counts[j:k], acc[j * per:k * per], light[j * per:k * per],
+                                button[j * per:k * per]))
+                self.qc.valid += k - j
+                j = k
+                continue
+            self.qc.skipped += 1
+            if badpage[j]:
                 self._event(index + j, "bad_hex", "data line holds characters that are not hex digits",
                             samples=GNA_SAMPLES_PER_PAGE)
-                out.append(_Skip(index + j))
-            elif not tok[j]:
-                self.qc.skipped += 1
+            else:
                 v = lines[i + 10 * j + 3].strip(_VALUE_STRIP)[10:].decode("latin-1")
                 self._event(index + j, "bad_page_time", f"Page Time {v!r} is not a valid time",
                             samples=GNA_SAMPLES_PER_PAGE)
-                out.append(_Skip(index + j))
-            else:
-                self.qc.valid += 1
-                out.append(_Page(index + j, seq_l[j], t_l[j], temp_l[j], batt_l[j], freq_l[j],
-                                 acc[j], light[j], button[j]))
+            out.append(_Skip(index + j))
+            j += 1
         return P
 
     def _decode_candidates(self, cand, out) -> None:
@@ -653,9 +758,8 @@ class GeneactivReader:
                 self._event(index, "partial_page",
                             f"the last page holds {n} of {GNA_SAMPLES_PER_PAGE} samples "
                             f"({len(hexline)} hex characters); they are returned")
-            out[pos] = _Page(index=index, seq=seq, t_ms=t, temperature=_num(fields.get(b"Temperature")),
-                             battery=_num(fields.get(b"Battery voltage")), freq=freq_cache[fv],
-                             accel=acc, light=light, button=button, partial=partial)
+            out[pos] = _Run.single(index, seq, t, _num(fields.get(b"Temperature")),
+                                   _num(fields.get(b"Battery voltage")), freq_cache[fv], acc, light, button)
 
 
 _NUM_CACHE: dict[bytes, float] = {}

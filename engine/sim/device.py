@@ -122,7 +122,11 @@ class DeviceSim:
         self.Ta_grid = (first_order_lag(self.T_grid, self.t_grid, float(self.model.get("thermal_lag", "tau_s")))
                         if self.model.on("thermal_lag") else self.T_grid)
         self.bias_grid = bias_track(self.model, self.t_grid, dev_seed)
-        self._bias_axes = np.ascontiguousarray(self.bias_grid.T)
+        # float32 copies of the slow tracks for the per-sample interpolation (the clock stays
+        # float64: it needs nanoseconds over days)
+        self._bias_axes = np.ascontiguousarray(self.bias_grid.T, dtype=np.float32)
+        self._T32 = self.T_grid.astype(np.float32)
+        self._Ta32 = self.Ta_grid.astype(np.float32)
         self.clock: ClockModel = make_clock(self.model, self.t_grid, self.T_grid, self.hz)
         r = np.random.default_rng(np.random.SeedSequence([self.seed, 4, self.dev_index]))
         self.gyro_bias = r.normal(0, GYRO_BIAS_SD_DPS, 3)
@@ -154,13 +158,14 @@ class DeviceSim:
         """Stage 2 of chunk k: the sensor (noise from chunk k's own seed) and the device clock."""
         t, f, w, restarts = rendered
         gi, fr = _grid_pos(t, self.t_grid.shape[0])
-        T = _lerp(self.T_grid, gi, fr)
-        Ta = _lerp(self.Ta_grid, gi, fr) if self.Ta_grid is not self.T_grid else T
+        fr32 = fr.astype(np.float32)
+        T = _lerp(self._T32, gi, fr32)
+        Ta = _lerp(self._Ta32, gi, fr32) if self.Ta_grid is not self.T_grid else T
         bias = None
         if self.model.on("bias_instability"):
             bias = np.empty((t.shape[0], 3), np.float32)
             for j in range(3):  # 1-D gathers from contiguous per-axis tracks (2-D gathers are slow)
-                bias[:, j] = _lerp(self._bias_axes[j], gi, fr)
+                bias[:, j] = _lerp(self._bias_axes[j], gi, fr32)
         rng = np.random.default_rng(np.random.SeedSequence([self.seed, 3, self.dev_index, k]))
         meas, counts = measure(f, self.model, self.spec, temperature_c=T, time_s=t,
                                accel_temperature_c=Ta, bias_g=bias, rng=rng, rate_hz=self.hz)

@@ -279,6 +279,11 @@ def _cos(x: np.ndarray) -> np.ndarray:
     return np.cos(r.astype(np.float32))
 
 
+def _cross3(a, b) -> np.ndarray:
+    """Cross product of two 3-vectors (np.cross has a large per-call overhead)."""
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+
+
 def _outer(a: np.ndarray, b) -> np.ndarray:
     """(n,) x (3,) -> (n, 3) by broadcasting (np.outer has per-call overhead)."""
     return np.asarray(a)[:, None] * np.asarray(b)
@@ -609,7 +614,7 @@ class SiteModel:
         if sp.radius > 0:  # pendulum: device at radius r below the pivot, rotating about axis
             ddang = -ang * wv * wv
             u0 = np.array([0.0, 0.0, -sp.radius])  # perpendicular to the swing axis
-            u1 = np.cross(sp.axis, u0)
+            u1 = _cross3(sp.axis, u0)
             c, s = _cos(ang), _sin(ang)
             alpha = -ddang * s - dang * dang * c
             beta = ddang * c - dang * dang * s
@@ -629,7 +634,7 @@ def _device_force(ang: np.ndarray, axis: np.ndarray, R_ref: np.ndarray,
     oc = f32(1.0) - c
     kR = (axis @ R_ref).astype(f32)
     g0 = R_ref[2, :].astype(f32)
-    g1 = (np.cross(axis, [0.0, 0.0, 1.0]) @ R_ref).astype(f32)
+    g1 = (np.array([axis[1], -axis[0], 0.0]) @ R_ref).astype(f32)  # axis x e_z
     g2 = (axis[2] * kR).astype(f32)
     out = _outer(c, g0)
     out -= _outer(s, g1)

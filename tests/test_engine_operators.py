@@ -144,3 +144,13 @@ def test_metrics_independent_of_block_cuts(seed):
         m = metrics_of(corrected(recut(blocks, how, seed)))
         for name in ("start_ns", "n", "enmo_mg", "bfen_mg", "mad_mg", "mean", "temperature", "segment"):
             assert np.array_equal(getattr(m, name), getattr(ref, name), equal_nan=True), name
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.lists(st.integers(0, 3000), max_size=12), st.sampled_from([(0.2, 15.0), (0.5, 15.0)]))
+def test_streaming_filter_independent_of_cuts(cuts, band):
+    x = np.random.default_rng(len(cuts)).normal(size=(3000, 3))
+    sos = bandpass_sos(RATE, band)
+    f = SosStream(sos)
+    y = np.concatenate([f.push(p) for p in np.split(x, sorted(cuts))])
+    assert np.array_equal(y, signal.sosfilt(sos, x, axis=0))

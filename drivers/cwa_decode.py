@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import constants as C
-from .cwa_layout import FORMATS, SECTOR_DTYPE, unpack_timestamps
+from .cwa_layout import FORMATS, unpack_timestamps
 
 _NS = 1_000_000_000
 

@@ -8,7 +8,6 @@ Pure encode/decode helpers shared by the reader (``cwa_reader``) and the writer
 
 from __future__ import annotations
 
-import calendar
 import re
 import urllib.parse
 from datetime import datetime, timezone

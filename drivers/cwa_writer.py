@@ -15,7 +15,6 @@ and ``patch_sector`` (rewrite header fields of a sector and fix its checksum).
 
 from __future__ import annotations
 
-import io
 import os
 from datetime import datetime, timezone
 from typing import BinaryIO, Optional, Union

@@ -134,12 +134,20 @@ def measure(cmd: list[str]) -> dict:
     return json.loads(out)
 
 
-def best_of(cmd: list[str], repeat: int) -> dict:
-    runs = [measure(cmd) for _ in range(repeat)]
-    best = min(runs, key=lambda r: r["wall"])
-    best["rss_mb"] = max(r["rss_mb"] for r in runs)
-    best["cpu"] = min(r["cpu"] for r in runs)
-    return best
+def best_of(cmds: dict[str, list[str]], repeat: int) -> dict[str, dict]:
+    """Run the commands interleaved (A B C, A B C, ...) so slow phases of a busy machine hit all
+    of them alike; per command: best wall and CPU, max RSS."""
+    runs: dict[str, list] = {name: [] for name in cmds}
+    for _ in range(repeat):
+        for name, cmd in cmds.items():
+            runs[name].append(measure(cmd))
+    out = {}
+    for name, rs in runs.items():
+        best = dict(min(rs, key=lambda r: r["wall"]))
+        best["rss_mb"] = max(r["rss_mb"] for r in rs)
+        best["cpu"] = min(r["cpu"] for r in rs)
+        out[name] = best
+    return out
 
 
 def main(argv=None) -> int:
@@ -177,10 +185,8 @@ def main(argv=None) -> int:
                 if args.all_peers:
                     cmds["actipy"] = [PEERS_PY, "-c", ACTIPY, str(path)]
                     cmds["skdh"] = [PEERS_PY, "-c", SKDH, str(path)]
-        res = {}
-        for name, cmd in cmds.items():
-            r = best_of(cmd, args.repeat)
-            res[name] = r
+        res = best_of(cmds, args.repeat)
+        for name, r in res.items():
             status = "" if r["rc"] == 0 else f"  FAILED rc={r['rc']}: {r['err'].strip().splitlines()[-1:]}"
             print(f"  {name:28s} {r['wall']:7.2f} s wall {r['cpu']:7.2f} s CPU {r['rss_mb']:7.0f} MB peak RSS"
                   f"{status}")

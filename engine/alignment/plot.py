@@ -27,11 +27,20 @@ def plot_alignment(result: AlignmentResult, path, max_correlograms: int = 40) ->
     fit = result.fit
     excluded = set()
     if fit is not None:
-        excluded = {int(i) for i, inc in zip(fit.block_index, fit.included) if not inc}
-    t_used = np.array([_t(b, result) / 3600 for b in valid if b.index not in excluded])
-    y_used = np.array([b.lag / rate for b in valid if b.index not in excluded])
-    t_exc = np.array([_t(b, result) / 3600 for b in valid if b.index in excluded])
-    y_exc = np.array([b.lag / rate for b in valid if b.index in excluded])
+        # the lags the fit saw (robust: the consensus-chosen peak of blocks passing its gates)
+        inc = fit.included
+        excluded = {int(i) for i, k in zip(fit.block_index, inc) if not k}
+        t_used, y_used = fit.t[inc] / 3600, fit.y[inc] / rate
+        t_exc, y_exc = fit.t[~inc] / 3600, fit.y[~inc] / rate
+        seen = set(int(i) for i in fit.block_index)
+        other = [b for b in valid if b.index not in seen]
+        if other:
+            ax1.plot([_t(b, result) / 3600 for b in other], [b.lag / rate for b in other], ".",
+                     color="0.7", ms=3, label=f"not used (low correlation, {len(other)})")
+    else:
+        t_used = np.array([_t(b, result) / 3600 for b in valid])
+        y_used = np.array([b.lag / rate for b in valid])
+        t_exc = y_exc = np.zeros(0)
     ax1.plot(t_used, y_used, "o", ms=4, color="tab:blue", label=f"block lag ({t_used.size} used)")
     if t_exc.size:
         ax1.plot(t_exc, y_exc, "x", ms=6, color="tab:red", label=f"excluded ({t_exc.size})")
@@ -55,7 +64,9 @@ def plot_alignment(result: AlignmentResult, path, max_correlograms: int = 40) ->
     ax1.grid(alpha=0.3)
     ax1.legend(fontsize=8, loc="best")
     # correlograms of the blocks used
-    used = [b for b in valid if b.correlogram is not None and b.index not in excluded]
+    fitted = set(int(i) for i in fit.block_index) if fit is not None else {b.index for b in valid}
+    used = [b for b in valid if b.correlogram is not None and b.index in fitted
+            and b.index not in excluded]
     if len(used) > max_correlograms:
         used = [used[i] for i in np.linspace(0, len(used) - 1, max_correlograms).astype(int)]
     if used:

@@ -1,8 +1,9 @@
 """Hidden-effect scenarios for testing the discrepancy workflow (CI tests and the 20-seed table).
 
 Each scenario: a simulated wrist recording whose sensor has the per-seed typical offset and gain
-(engine.sim.model.resolve_model) and the default bias instability (0.3 mg Gauss-Markov wander,
-1 h correlation time: correlated noise the library cannot name) plus the hidden effect at a realistic size, analysed from a
+(engine.sim.model.resolve_model), the default bias instability (0.3 mg Gauss-Markov wander, 1 h
+correlation time), AX3 noise and quantisation (correlated errors the library cannot name), plus the
+hidden effect at a realistic size, analysed from a
 starting model that lacks it. An outcome passes when the workflow names the effect (and axis)
 first, recovers the parameter within the stated tolerance and brings the held-out gap within 1.2x
 of the gap the true model gives; any further (extra) names are counted separately, and the null
@@ -14,6 +15,11 @@ temperature offset 1.5 mg/degC on z (van Hees 2014: up to ~4); temperature gain 
 y-from-x (symmetric part 0.8 %; datasheet +-1 %); thermal lag 600 s (simulator 300-1200 s) behind
 a 1.5 mg/degC temperature offset; offset drift 1.0 mg/day on y (simulator clips at 1.5);
 nonlinearity 5 mg/g^2 on x (simulator clips at 8).
+
+Quantisation: by default the 1/256 g step of AX3 unpacked (GENEActiv and AX6 are as fine), where
+the noise dithers window means completely. With the AX3 packed +-8 g step (4/256 g) the noise does
+not: window means keep an orientation-dependent bias of up to ~2.6 mg, and a device lying still on
+a table while it cools makes that bias look like a temperature effect on z. ``lsb_g`` selects it.
 """
 
 from __future__ import annotations
@@ -29,7 +35,7 @@ from . import discrepancy
 from .inputs import prepare
 from .simmodel import from_sim, to_sim
 from .sensor_fit import norm_residual
-from .synthetic import simulate_windows
+from .synthetic import WearerSettings, simulate_windows
 
 GAP_RATIO_LIMIT = 1.2
 
@@ -71,8 +77,8 @@ SCENARIOS: Dict[str, List[Hidden]] = {
 
 def models(name: str, seed: int) -> Tuple[sim.SensorModel, sim.SensorModel]:
     """(truth, start) simulator models for a scenario and seed."""
-    base = sim.resolve_model(sim.SensorModel({"offset": {}, "gain": {}, "bias_instability": {}}),
-                             seed=seed)
+    base = sim.resolve_model(sim.SensorModel({"offset": {}, "gain": {}, "bias_instability": {},
+                                              "noise": {}, "quantisation": {}}), seed=seed)
     truth = base
     start = sim.SensorModel({"offset": {}, "gain": {}})
     for h in SCENARIOS[name]:
@@ -139,9 +145,14 @@ def expected_order(name: str, seed: int, truth: sim.SensorModel, data) -> List[T
     return [(h.effect, h.axis) for _, h in sorted(zip(size, hs), key=lambda z: -z[0])]
 
 
-def run(name: str, seed: int, days: float = 7.0, folds: int = 5) -> Outcome:
+LSB_UNPACKED_G = 1.0 / 256.0  # AX3 unpacked / ADXL345 full resolution (cwa-format.md section 6)
+LSB_PACKED_8G_G = 4.0 / 256.0  # AX3 packed at +-8 g: two low bits dropped (section 6.1)
+
+
+def run(name: str, seed: int, days: float = 7.0, folds: int = 5,
+        lsb_g: float = LSB_UNPACKED_G) -> Outcome:
     truth, start = models(name, seed)
-    feats, _ = simulate_windows(truth, days=days, seed=seed)
+    feats, _ = simulate_windows(truth, days=days, seed=seed, settings=WearerSettings(lsb_g=lsb_g))
     prepared = prepare(feats, source=f"simulated {name} seed {seed}")
     res = discrepancy.run(prepared, start_model=from_sim(start), truth=from_sim(truth), folds=folds)
     final = to_sim(res.final_fit.model, res.final_fit.stderr)

@@ -1,15 +1,18 @@
 """Window-level simulation of a wrist recording for the discrepancy workflow's hidden-effect tests.
 
 Simulating raw samples for a week takes seconds per seed; the workflow only sees 10 s window
-features, so for many seeds we simulate at that level: a wearer timeline (sleep with posture changes,
-daytime still bouts, nonwear on a table), the device temperature (skin-coupled when worn, a daily
-cycle, cooling towards ambient in nonwear), the true orientation of every still window, then the simulator's sensor model's
-deterministic part (``engine.sim.model.apply_deterministic``) plus window-level noise: the
-model's bias instability (Gauss-Markov wander, when on) and micro-movements within the 13 mg still
-criterion. Moving windows are emitted too (large SD)
-so that still selection and dT/dt estimation run exactly as on a recording.
+features, so for many seeds we simulate at that level: a wearer timeline (sleep with posture
+changes, daytime still bouts, nonwear on a table), the device temperature (skin-coupled when worn,
+a daily cycle, cooling towards ambient in nonwear), the true orientation of every still window,
+then the simulator's sensor model's deterministic part (``engine.sim.model.apply_deterministic``)
+plus window-level errors: the model's bias instability (Gauss-Markov wander, when on), the bias
+that quantisation leaves in a window mean when the noise does not dither it (when
+``quantisation`` is on; step ``WearerSettings.lsb_g``, AX3 unpacked 1/256 g by default, packed
++-8 g is 4/256 g), and micro-movements within the 13 mg still criterion. Moving windows are emitted
+too (large SD) so that still selection and dT/dt estimation run exactly as on a recording.
 
-``simulate_windows(truth, days, seed)`` -> (WindowFeatures, still mask); truth is an engine.sim SensorModel.
+``simulate_windows(truth, days, seed)`` -> (WindowFeatures, still mask); truth is an engine.sim
+SensorModel.
 """
 
 from __future__ import annotations
@@ -45,6 +48,20 @@ class WearerSettings:
     micro_motion_mg: float = 1.5  # SD of a still window's mean from micro-movements, per axis
     noise_mg: float = 4.5  # SD of white noise of single samples (for the window SD feature)
     samples_per_window: int = 1000
+    rate_hz: float = 100.0  # for the model's noise density -> sample SD
+    lsb_g: float = 1.0 / 256.0  # quantisation step when on: AX3 unpacked (packed +-8 g: 4/256)
+
+
+def quantisation_bias(x: np.ndarray, lsb: float, sigma: np.ndarray, harmonics: int = 6) -> np.ndarray:
+    """E[Q(x + n)] - x for a rounding quantiser of step ``lsb`` and Gaussian noise of SD ``sigma``
+    (the noise and movement within a window): the window mean of quantised samples is biased by
+    a periodic function of the true value, damped as the noise dithers it. From the sawtooth's
+    Fourier series, Q(v) = v + (lsb / pi) sum_k (-1)^k sin(2 pi k v / lsb) / k."""
+    out = np.zeros_like(x)
+    for k in range(1, harmonics + 1):
+        damp = np.exp(-2.0 * (np.pi * k * sigma / lsb) ** 2)
+        out += ((-1) ** k / k) * damp * np.sin(2.0 * np.pi * k * x / lsb)
+    return out * (lsb / np.pi)
 
 
 def _random_unit(rng, n):
@@ -154,11 +171,16 @@ def simulate_windows(truth: sim.SensorModel, days: float = 7.0, seed: int = 0,
         e[0] = rng.normal(size=3) * sig
         mean = mean + lfilter([1.0], [1.0, -a], e, axis=0)
     mm = s.micro_motion_mg / 1000.0
-    mean = mean + np.where(state[:, None] == 1, rng.normal(scale=mm, size=(n, 3)),
-                           rng.normal(scale=0.2 * mm, size=(n, 3)))
-    white = s.noise_mg / 1000.0
+    if truth.on("noise"):
+        white = truth.axis_vector("noise", "ug_per_rthz") * 1e-6 * np.sqrt(s.rate_hz / 2.0)
+    else:
+        white = np.full(3, s.noise_mg / 1000.0)
     sd = np.sqrt(white ** 2 + np.where(state[:, None] == 1, (3 * mm) ** 2, 0.0)
                  ) * rng.uniform(0.9, 1.1, size=(n, 3))
+    if truth.on("quantisation") and s.lsb_g > 0:
+        mean = mean + quantisation_bias(mean, s.lsb_g, sd)
+    mean = mean + np.where(state[:, None] == 1, rng.normal(scale=mm, size=(n, 3)),
+                           rng.normal(scale=0.2 * mm, size=(n, 3)))
     # moving windows: dynamic acceleration, large SD, mean somewhere near 1 g
     moving = ~still
     k = int(moving.sum())

@@ -10,7 +10,7 @@ to the callback (the batch mode simply uses the last one).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable, Iterator, Optional
 
 import numpy as np
@@ -34,7 +34,7 @@ class AlignConfig:
     """Settings of the alignment (defaults: the paper's, except where the method says)."""
 
     method: str = "robust"  # "brond" (the paper) or "robust"
-    rate: float = COMMON_RATE_HZ
+    rate: Optional[float] = COMMON_RATE_HZ  # None: the reference's native (nominal) rate
     block_s: Optional[float] = None  # default: 1 h (brond), 10 min (robust)
     max_lag_s: Optional[float] = None  # default: 1000 samples (brond), 600 s (robust)
     block_time: str = "start"  # brond: "start" (authors' code), "centre" or "centroid"
@@ -66,8 +66,8 @@ class AlignConfig:
     def max_lag(self) -> int:
         if self.max_lag_s is not None:
             return int(round(self.max_lag_s * self.rate))
-        if self.method == "brond":
-            return MAX_LAG_SAMPLES
+        if self.method == "brond":  # +-1000 samples at 30 Hz = 33.3 s, at any rate
+            return int(round(MAX_LAG_SAMPLES / COMMON_RATE_HZ * self.rate))
         return int(round(ROBUST_MAX_LAG_S * self.rate))
 
     @property
@@ -218,10 +218,13 @@ def estimate_alignment(reference, other, config: Optional[AlignConfig] = None,
         return AlignmentResult(config, 0, reference.info, other.info, [],
                                reason="the reference recording has no samples")
     t0_ns = int(first.time_ns[0])
+    if config.rate is None:
+        config = replace(config, rate=float(reference.info.sample_rate_nominal))
     rs = {"ref": GridResampler(t0_ns, config.rate, reference.info.sample_rate_nominal),
           "other": GridResampler(t0_ns, config.rate, other.info.sample_rate_nominal)}
     temps = {"ref": TemperatureTrack(), "other": TemperatureTrack()}
-    est = LagEstimator(config.rate, config.block_length_s, config.max_lag, centred=True,
+    est = LagEstimator(config.rate, config.block_length_s, config.max_lag,
+                       centred=config.method != "brond",
                        subsample=config.use_subsample,
                        sub_blocks=SUB_BLOCKS if config.block_length_s > 1200 else 0,
                        keep_correlograms=config.keep_correlograms)
@@ -300,6 +303,8 @@ def run_alignment(open_reference: Callable[[], object], open_other: Callable[[],
     sink = AlignmentMcap(out_mcap) if out_mcap is not None else None
     t0 = {"ns": 0}
     ref, oth = open_reference(), open_other()
+    if config.rate is None:
+        config = replace(config, rate=float(ref.info.sample_rate_nominal))
     try:
         def on_block(bl: BlockLag):
             if sink is not None:

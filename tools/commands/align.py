@@ -36,7 +36,9 @@ def add_arguments(p) -> None:
                         "+-600 s search, trimmed fit with CIs, halt/step detection, temperature term")
     p.add_argument("--interpolation", choices=("previous", "linear", "cubic"), default="previous",
                    help="resampling of OTHER (default previous: keeps amplitudes, as the paper)")
-    p.add_argument("--rate", type=float, default=30.0, help="common rate, Hz (default 30)")
+    p.add_argument("--rate", default="30",
+                   help="common rate, Hz (default 30, the paper's), or 'native': the reference's "
+                        "own rate (sub-sample lags at the native rate; slower)")
     p.add_argument("--out-rate", type=float, default=None,
                    help="rate of the aligned stream (default: OTHER's nominal rate)")
     p.add_argument("--block-minutes", type=float, default=None,
@@ -80,7 +82,8 @@ def run(args) -> int:
     from stillpoint.drivers import open_recording
     from stillpoint.engine.alignment.operator import AlignConfig, run_alignment
 
-    config = AlignConfig(method=args.method, rate=args.rate,
+    config = AlignConfig(method=args.method,
+                         rate=None if str(args.rate).lower() == "native" else float(args.rate),
                          block_s=None if args.block_minutes is None else args.block_minutes * 60.0,
                          max_lag_s=args.max_lag_s, block_time=args.block_time,
                          min_blocks=args.min_blocks, temperature=not args.no_temperature,

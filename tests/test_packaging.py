@@ -23,3 +23,17 @@ def test_cli_help_lists_commands():
     out = subprocess.run([sys.executable, "-m", "stillpoint.tools", "--help"],
                          capture_output=True, text=True, check=True).stdout
     assert "COMMAND" in out
+
+
+def test_running_one_command_imports_only_that_command_module():
+    code = ("import sys; from stillpoint.tools import cli; cli.build_parser(cli._requested_module(['inspect','x']));"
+            "print(sorted(m for m in sys.modules if m.startswith('stillpoint.tools.commands.')))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert "stillpoint.tools.commands.inspect" in out
+    assert "stillpoint.tools.commands.align" not in out
+
+
+def test_unknown_command_is_a_usage_error():
+    r = subprocess.run([sys.executable, "-m", "stillpoint.tools", "no-such-command"],
+                       capture_output=True, text=True)
+    assert r.returncode == 2 and "invalid choice" in r.stderr

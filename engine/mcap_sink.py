@@ -49,7 +49,6 @@ from dataclasses import asdict, is_dataclass
 from typing import Optional
 
 import numpy as np
-from mcap.writer import CompressionType, IndexType, Writer
 
 from .blocks import Block, DeviceInfo, PER_SAMPLE_BUTTON, PER_SAMPLE_LIGHT_RAW
 from .calibration.estimate import CalibrationEstimate
@@ -66,10 +65,7 @@ TOPIC_METRICS = "/metrics/epoch"
 TOPIC_CALIBRATION = "/calibration"
 TOPIC_QC = "/qc"
 
-LIBRARY = "stillpoint"
-CHUNK_SIZE = 4 << 20  # 4 MiB uncompressed chunks (specs/mcap-python.md §7.1)
-
-_COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
+from .mcap_writer import CHUNK_SIZE, LIBRARY, _WriterCore, _writer_process_main  # noqa: F401
 
 
 def _jsonable(x):
@@ -179,107 +175,6 @@ def estimate_message(est: CalibrationEstimate, applied: bool) -> dict:
     return d
 
 
-class _WriterCore:
-    """The mcap Writer and the file: executes write operations (in-process, in a thread, or in
-    a writer process)."""
-
-    def __init__(self, path: str, chunk_size: int, compression: str, fsync_every_wall_s: float):
-        self.fsync_every_wall_s = fsync_every_wall_s
-        self._f = open(path, "wb")
-        # no per-message index: 16 B + a Python record per message per chunk, and the per-chunk
-        # index dicts the writer keeps for the summary would grow with the number of flushes;
-        # readers scan our small (one-cell) chunks instead (specs/mcap-python.md §3)
-        self._w = Writer(self._f, chunk_size=chunk_size, compression=_COMPRESSION[compression],
-                         index_types=IndexType.CHUNK | IndexType.METADATA | IndexType.ATTACHMENT)
-        self._w.start(profile="", library=LIBRARY)
-        self._schemas = {t.name: self._w.register_schema(t.name, "ros2msg", t.schema_text().encode())
-                         for t in ALL_TYPES}
-        self._channels: dict[str, int] = {}
-        self._seq: dict[str, int] = {}
-        self._last_fsync = time.monotonic()
-
-    def _channel(self, topic: str, encoding: str, schema: Optional[str]) -> int:
-        cid = self._channels.get(topic)
-        if cid is None:
-            sid = self._schemas[schema] if schema else 0
-            cid = self._w.register_channel(topic, encoding, sid)
-            self._channels[topic] = cid
-            self._seq[topic] = 0
-        return cid
-
-    def execute(self, op, *args):
-        if op == "msg":
-            topic, encoding, schema, log_time, data = args
-            cid = self._channel(topic, encoding, schema)
-            seq = self._seq[topic]
-            self._seq[topic] = seq + 1
-            t = max(0, int(log_time))
-            self._w.add_message(cid, t, data, t, seq)
-        elif op == "msgs":
-            topic, encoding, schema, items = args
-            cid = self._channel(topic, encoding, schema)
-            seq = self._seq[topic]
-            for t, data in items:
-                t = max(0, int(t))
-                self._w.add_message(cid, t, data, t, seq)
-                seq += 1
-            self._seq[topic] = seq
-        elif op == "metadata":
-            self._w.add_metadata(args[0], args[1])
-        elif op == "flush":
-            self._w.flush()
-            now = time.monotonic()
-            if args[0] or now - self._last_fsync >= self.fsync_every_wall_s:
-                os.fsync(self._f.fileno())
-                self._last_fsync = now
-        elif op == "finish":
-            self._w.finish()
-            self._f.flush()
-            os.fsync(self._f.fileno())
-            self._f.close()
-
-    def abandon(self) -> None:
-        """Stop without finishing: what was flushed stays on disk, recoverable."""
-        try:
-            self._f.close()
-        except Exception:
-            pass
-
-
-def _writer_process_main(conn, core_args) -> None:
-    try:
-        core = _WriterCore(*core_args)
-    except BaseException as e:
-        conn.send(("error", f"{type(e).__name__}: {e}"))
-        return
-    while True:
-        try:
-            item = conn.recv()
-        except (EOFError, OSError):  # the engine process died: leave the file recoverable
-            core.abandon()
-            return
-        if isinstance(item, list):
-            try:
-                for it in item:
-                    core.execute(*it)
-            except BaseException as e:
-                core.abandon()
-                conn.send(("error", f"{type(e).__name__}: {e}"))
-                return
-            continue
-        if item is None:
-            core.abandon()
-            import resource
-            conn.send(("done", resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0))
-            return
-        try:
-            core.execute(*item)
-        except BaseException as e:
-            core.abandon()
-            conn.send(("error", f"{type(e).__name__}: {e}"))
-            return
-
-
 class McapSink:
     """Writes one run's MCAP (see module docstring). Use as a context manager or call close().
 
@@ -312,7 +207,8 @@ class McapSink:
         core_args = (self.path, chunk_size, compression, fsync_every_wall_s)
         if writer == "process":
             import multiprocessing as mp
-            ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
+            # spawn: a fresh, small writer process (a fork would inherit the engine's heap)
+            ctx = mp.get_context("spawn")
             parent, child = ctx.Pipe()
             self._proc = ctx.Process(target=_writer_process_main, args=(child, core_args),
                                      name="mcap-writer", daemon=True)

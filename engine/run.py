@@ -367,9 +367,8 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
     sink.close()
     summary["mcap_messages"] = sink.messages
     summary["mcap_flushes"] = sink.flushes
-    import resource
-    summary["peak_rss_mb"] = {"engine": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
-                              "writer": sink.writer_maxrss_mb}
+    from .mcap_writer import peak_rss_mb
+    summary["peak_rss_mb"] = {"engine": peak_rss_mb(), "writer": sink.writer_maxrss_mb}
     return summary
 
 

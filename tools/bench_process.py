@@ -137,8 +137,7 @@ def main(argv=None) -> int:
     rss = s.get("peak_rss_mb") or {}
     if rss.get("writer"):
         print(f"  process peak RSS: engine {rss['engine']:.0f} MB + writer process {rss['writer']:.0f} MB "
-              f"= {rss['engine'] + rss['writer']:.0f} MB (upper bound: pages shared since the fork "
-              f"count twice)")
+              f"= {rss['engine'] + rss['writer']:.0f} MB (each process's VmHWM)")
     print("ratios (same run):")
     print(f"  process / plain decode                      = {pr['wall_s'] / dec['wall_s']:.1f}x wall")
     if have_skdh:

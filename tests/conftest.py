@@ -8,6 +8,16 @@ from pathlib import Path
 
 import pytest
 
+try:  # CI runs the property tests on a fixed set of examples so a green run is reproducible;
+    # locally they explore new random examples each run.
+    from hypothesis import settings as _hyp_settings
+
+    _hyp_settings.register_profile("ci", derandomize=True, print_blob=True)
+    if os.environ.get("CI"):
+        _hyp_settings.load_profile("ci")
+except ImportError:  # hypothesis is in the test extra; without it only the property tests fail
+    pass
+
 REAL_DATA_ENV = "STILLPOINT_REAL_DATA"
 
 

@@ -236,7 +236,7 @@ def test_online_applies_each_accepted_estimate_from_its_boundary(recording, tmp_
 def test_demo_command_runs(tmp_path, capsys):
     assert cli(["demo", "--hours", "2", "--keep", str(tmp_path)]) == 0
     text = capsys.readouterr().out
-    assert "sensor errors" in text and "ENMO mean: truth" in text
+    assert "sensor errors" in text and "ENMO mean: perfect sensor" in text
     assert (tmp_path / "demo.mcap").is_file() and (tmp_path / "demo.cwa").is_file()
 
 

@@ -62,7 +62,8 @@ def _schedule(rng, hours):
 
 
 def make_recording(path: Path, hours: float = HOURS, rate: float = RATE_HZ, seed: int = 7) -> dict:
-    """Write the demo .cwa; return truth (ENMO of the true and of the uncorrected signal)."""
+    """Write the demo .cwa; return truth: ENMO of a perfect sensor (same motion and noise, no
+    offset/gain/temperature errors) and of the uncorrected recording."""
     from stillpoint.drivers.cwa import CwaWriter
     rng = np.random.default_rng(seed)
     t0 = 1_700_000_000 * 10**9  # 2023-11-14 22:13:20 UTC
@@ -85,12 +86,13 @@ def make_recording(path: Path, hours: float = HOURS, rate: float = RATE_HZ, seed
             elif kind == "fidget":
                 g = g + rng.normal(0, 0.05, size=g.shape)
             temp = 29.0 + 4.0 * np.sin(2 * np.pi * ts / 86400.0) + (kind == "sleep") * 1.5
-            meas = g * GAIN + BIAS_G + (temp - T_REF_C)[:, None] * TEMP_COEF_G_PER_C
-            meas += rng.normal(0, NOISE_G, size=meas.shape)
+            ideal = g + rng.normal(0, NOISE_G, size=g.shape)  # a perfect sensor: noise only
+            meas = ideal * GAIN + BIAS_G + (temp - T_REF_C)[:, None] * TEMP_COEF_G_PER_C
             counts = np.clip(np.round(meas * 256), -32768, 32767).astype(np.int16)
             code = np.round((temp + 50.0) * 256 / 75).astype(np.int32)
             w.write(t0 + i * step, counts, temperature_raw=code)
-            enmo_true += float(np.maximum(np.linalg.norm(g, axis=1) - 1, 0).sum())
+            enmo_true += float(np.maximum(np.linalg.norm(np.round(ideal * 256) / 256, axis=1) - 1,
+                                          0).sum())
             enmo_raw += float(np.maximum(np.linalg.norm(counts / 256.0, axis=1) - 1, 0).sum())
             n_total += n
             i0 += n
@@ -145,7 +147,7 @@ def run(args) -> int:
                   f"{c['error_after_mg']:.1f} mg after")
         else:
             print(f"\ncalibration not applied: {c['status']}")
-        print(f"ENMO mean: truth {truth['enmo_true_mg']:.2f} mg | uncorrected "
+        print(f"ENMO mean: perfect sensor {truth['enmo_true_mg']:.2f} mg | uncorrected "
               f"{truth['enmo_uncorrected_mg']:.2f} mg | calibrated {s['enmo_mean_mg']:.2f} mg")
         if args.keep:
             print(f"\nfiles kept in {d} (open demo.mcap in Foxglove; topics /metrics/epoch, "

@@ -97,6 +97,10 @@ def distributions(base: SensorModel, final: SensorModel, data: WindowData,
                 entry["model_noise_mg"] = round(nm, 3)
                 entry["ratio_p5_to_model"] = round(q[0] / nm, 3) if nm > 0 else None
                 entry["agrees"] = bool(nm > 0 and 0.8 <= q[0] / nm <= 1.25) and not quantised
+                entry["verdict"] = ("quantisation dominates" if quantised else "agrees" if entry["agrees"]
+                                    else "below the model noise (quantisation, or less noise "
+                                         "than modelled)" if q[0] < 0.8 * nm
+                                    else "above the model noise (more noise than modelled)")
             per_axis[ax] = entry
         out["still_window_sd_mg"] = per_axis
         out["still_window_sd_note"] = (

@@ -129,9 +129,9 @@ def text(d: dict) -> str:
     if sd:
         L.append("Still-window SD (mg), p5 / median / p95: " + "; ".join(
             f"{ax} {v['p5']:.2f} / {v['median']:.2f} / {v['p95']:.2f}"
-            + (" (quantisation dominates)" if v.get("quantisation_dominates") else
-               f" (model noise {v['model_noise_mg']:.2f}: {'agrees' if v['agrees'] else 'DISAGREES'})"
-               if "model_noise_mg" in v else "") for ax, v in sd.items()))
+            + (f" (model noise {v['model_noise_mg']:.2f}: {v['verdict']})" if "verdict" in v else
+               " (quantisation dominates)" if v.get("quantisation_dominates") else "")
+            for ax, v in sd.items()))
     L.append("")
     L.append("Final model: " + ", ".join(
         f"{k}" for k in d["final_model"]["effects"]))

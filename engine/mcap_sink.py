@@ -65,7 +65,7 @@ TOPIC_METRICS = "/metrics/epoch"
 TOPIC_CALIBRATION = "/calibration"
 TOPIC_QC = "/qc"
 
-from .mcap_writer import CHUNK_SIZE, LIBRARY, _WriterCore, _writer_process_main  # noqa: F401
+from .mcap_writer import CHUNK_SIZE, LIBRARY, WriterProcess, _WriterCore  # noqa: F401
 
 
 def _jsonable(x):
@@ -202,19 +202,11 @@ class McapSink:
         self._q: Optional[queue.Queue] = None
         self._thread = None
         self._conn = None
-        self._proc = None
         self._batch: list = []
         core_args = (self.path, chunk_size, compression, fsync_every_wall_s)
         if writer == "process":
-            import multiprocessing as mp
-            # spawn: a fresh, small writer process (a fork would inherit the engine's heap)
-            ctx = mp.get_context("spawn")
-            parent, child = ctx.Pipe()
-            self._proc = ctx.Process(target=_writer_process_main, args=(child, core_args),
-                                     name="mcap-writer", daemon=True)
-            self._proc.start()
-            child.close()
-            self._conn = parent
+            # a fresh, small writer process (~30 MB; a fork would inherit the engine's heap)
+            self._conn = WriterProcess(core_args)
             self._core = None
         else:
             self._core = _WriterCore(*core_args)
@@ -455,7 +447,6 @@ class McapSink:
                 pass
             if not done and self._error is None:
                 self._error = "the writer process ended unexpectedly"
-            self._proc.join()
             self._conn.close()
             self._conn = None
 

@@ -147,34 +147,81 @@ class _WriterCore:
             pass
 
 
-def _writer_process_main(conn, core_args) -> None:
+def _writer_loop(rconn, wconn, core_args) -> None:
+    """Serve write operations from ``rconn`` until ``None`` (then report) or EOF (engine died:
+    leave the file unfinished and recoverable)."""
     try:
         core = _WriterCore(*core_args)
     except BaseException as e:
-        conn.send(("error", f"{type(e).__name__}: {e}"))
+        wconn.send(("error", f"{type(e).__name__}: {e}"))
         return
     while True:
         try:
-            item = conn.recv()
-        except (EOFError, OSError):  # the engine process died: leave the file recoverable
+            item = rconn.recv()
+        except (EOFError, OSError):
             core.abandon()
             return
-        if isinstance(item, list):
-            try:
-                for it in item:
-                    core.execute(*it)
-            except BaseException as e:
-                core.abandon()
-                conn.send(("error", f"{type(e).__name__}: {e}"))
-                return
-            continue
         if item is None:
             core.abandon()
-            conn.send(("done", peak_rss_mb()))
+            wconn.send(("done", peak_rss_mb()))
             return
         try:
-            core.execute(*item)
+            for it in (item if isinstance(item, list) else [item]):
+                core.execute(*it)
         except BaseException as e:
             core.abandon()
-            conn.send(("error", f"{type(e).__name__}: {e}"))
+            wconn.send(("error", f"{type(e).__name__}: {e}"))
             return
+
+
+class WriterProcess:
+    """A writer in a child process started with ``python -m stillpoint.engine.mcap_writer``:
+    no multiprocessing (so no re-import of the caller's ``__main__`` and no "daemonic processes
+    cannot have children" inside process pools), operations pickled over its stdin, replies on
+    its stdout."""
+
+    def __init__(self, core_args):
+        import json
+        import subprocess
+        import sys
+        from multiprocessing.connection import Connection
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "stillpoint.engine.mcap_writer", json.dumps(list(core_args))],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, close_fds=True)
+        self._w = Connection(os.dup(self.proc.stdin.fileno()), readable=False)
+        self._r = Connection(os.dup(self.proc.stdout.fileno()), writable=False)
+        self.proc.stdin.close()
+        self.proc.stdout.close()
+
+    def send(self, obj) -> None:
+        self._w.send(obj)
+
+    def poll(self) -> bool:
+        return self._r.poll()
+
+    def recv(self):
+        return self._r.recv()
+
+    def close(self) -> None:
+        for c in (self._w, self._r):
+            try:
+                c.close()
+            except OSError:
+                pass
+        self.proc.wait()
+
+
+def _main() -> None:  # the writer process
+    import json
+    import signal
+    import sys
+    from multiprocessing.connection import Connection
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the engine decides what an interrupt means
+    rconn = Connection(os.dup(0), writable=False)
+    wconn = Connection(os.dup(1), readable=False)
+    os.dup2(2, 1)  # stray output must not corrupt the reply channel
+    _writer_loop(rconn, wconn, json.loads(sys.argv[1]))
+
+
+if __name__ == "__main__":
+    _main()

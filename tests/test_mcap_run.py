@@ -285,3 +285,17 @@ def test_empty_recording_and_bad_output_path(tmp_path, capsys):
         assert s["samples"] == 0 and s["epochs"] == 0 and s["enmo_mean_mg"] is None
     assert cli(["process", str(empty), "-o", str(tmp_path / "no" / "such" / "dir.mcap")]) == 2
     assert "does not exist" in capsys.readouterr().err
+
+
+def _job(args):
+    src, out = args
+    return process_file(src, out, RunSettings(mode="online"))["samples"]
+
+
+def test_per_file_job_runs_inside_a_process_pool(recording, tmp_path):
+    """Cohort use: the job is a pure function run by pool workers (daemonic processes)."""
+    import multiprocessing as mp
+    with mp.get_context("spawn").Pool(2) as pool:
+        n = pool.map(_job, [(str(recording), str(tmp_path / f"p{i}.mcap")) for i in range(2)])
+    assert n[0] == n[1] > 0
+    assert compare(tmp_path / "p0.mcap", tmp_path / "p1.mcap")["/corrected/accel"]["identical"]

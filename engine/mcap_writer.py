@@ -78,6 +78,25 @@ class _CompactChunkIndexes:
                              message_index_offsets=self._offsets.get(i, {}), **vals)
 
 
+class _ReusedZstd:
+    """Stand-in for the ``zstandard`` module inside ``mcap.writer`` (writer process only): one
+    reused compressor context instead of a new one per chunk (``zstandard.compress`` builds a
+    context each call, a fixed cost that matters with a chunk every 10 s of data)."""
+
+    def __init__(self, level: int = 3):
+        import zstandard
+        self._c = zstandard.ZstdCompressor(level=level)
+
+    def compress(self, data: bytes) -> bytes:
+        return self._c.compress(data)
+
+
+def use_reused_zstd(level: int = 3) -> None:
+    import mcap.writer as mw
+    if getattr(mw, "zstandard", None) is not None and not isinstance(mw.zstandard, _ReusedZstd):
+        mw.zstandard = _ReusedZstd(level)
+
+
 class _WriterCore:
     """The mcap Writer and the file: executes write operations (in-process, in a thread, or in
     a writer process)."""
@@ -220,6 +239,7 @@ def _main() -> None:  # the writer process
     rconn = Connection(os.dup(0), writable=False)
     wconn = Connection(os.dup(1), readable=False)
     os.dup2(2, 1)  # stray output must not corrupt the reply channel
+    use_reused_zstd(int(os.environ.get("STILLPOINT_ZSTD_LEVEL", "3")))
     _writer_loop(rconn, wconn, json.loads(sys.argv[1]))
 
 

@@ -1,9 +1,9 @@
 """`stillpoint demo`: make a recording with known sensor errors, process it, show before/after.
 
-No arguments, no downloads. Writes a 30-hour AX3 recording (50 Hz) of a simulated wearer (still
-postures in many orientations, walking bouts, a night of sleep, a day/night temperature cycle)
-whose accelerometer has known offset, gain and temperature errors, then runs `process --mode
-batch` on it and prints what the calibration recovered against the truth, and ENMO before/after.
+No arguments, no downloads. Simulates a 30-hour AX3 recording (50 Hz) of an adult wrist wearer
+(engine/sim: sleep, sitting, standing, walking, nonwear, a skin-coupled device temperature) whose
+accelerometer has known offset, gain and temperature errors, then runs `process --mode batch` on
+it and prints what the calibration recovered against the truth, and ENMO before/after.
 Files go to a temporary directory (or ``--keep DIR``).
 """
 
@@ -23,86 +23,65 @@ from ._runopts import Progress, human_summary
 NAME = "demo"
 HELP = "simulate a recording with known sensor errors, process it and print before/after"
 
-# The demo device's errors (sensor form: measured = true * gain + bias + (T - T_REF) * temp_coef)
-GAIN = np.array([1.015, 0.985, 1.008])
-BIAS_G = np.array([0.035, -0.025, 0.060])
-TEMP_COEF_G_PER_C = np.array([0.0008, -0.0005, 0.0010])
-T_REF_C = 25.0
-NOISE_G = 0.004
+# The demo device's errors, as simulator effects (engine/sim/model.py): offsets and gains of the
+# size van Hees 2014 reports, a temperature drift of up to 1 mg/degC, the AX3's own noise, and
+# 1/256 g quantisation (AX3 unpacked, DATAMODE 20).
+EFFECTS = {
+    "offset": {"x_mg": 35.0, "y_mg": -25.0, "z_mg": 60.0},
+    "gain": {"x_pct": 1.5, "y_pct": -1.5, "z_pct": 0.8},
+    "temperature_offset": {"x_mg_per_c": 0.8, "y_mg_per_c": -0.5, "z_mg_per_c": 1.0,
+                           "reference_c": 25.0},
+    "noise": {},  # typical AX3 (ADXL345) noise density, filled in by the simulator
+    "clipping": {},
+    "quantisation": {"mode": "nearest"},
+}
 RATE_HZ = 50.0
 HOURS = 30.0
+SEED = 7
 
 
-def true_correction(temperature_ref: float):
-    """The GGIR-form parameters that undo the demo's errors (for a given reference temperature):
-    cal = (raw + offset) * scale + (T - Tref) * tempoffset."""
-    scale = 1.0 / GAIN
-    # raw = true*gain + bias + (T - T_REF)*c  ->  true = (raw - bias - (T - T_REF)*c) / gain
-    # with T - T_REF = (T - Tref) + (Tref - T_REF):
-    offset = -(BIAS_G + (temperature_ref - T_REF_C) * TEMP_COEF_G_PER_C)
-    tempoffset = -TEMP_COEF_G_PER_C / GAIN
-    return offset, scale, tempoffset
+def _sim_args(hours: float, rate: float, seed: int) -> dict:
+    return dict(device="ax3", site="wrist", days=hours / 24.0, hz=rate, effects=EFFECTS,
+                seed=seed, packed=False)
 
 
-def _schedule(rng, hours):
-    """(kind, seconds, orientation) bouts: still postures, walking, and a night of sleep."""
-    bouts, t, total = [], 0.0, hours * 3600
-    while t < total:
-        hour = (t / 3600 + 8) % 24  # the recording starts at 08:00
-        if hour >= 23 or hour < 7:
-            kind, dur = "sleep", rng.uniform(20, 60) * 60
-        else:
-            kind = rng.choice(["still", "walk", "still", "fidget"])
-            dur = rng.uniform(1, 15) * 60
-        v = rng.normal(size=3)
-        v /= np.linalg.norm(v)
-        bouts.append((kind, min(dur, total - t), v))
-        t += dur
-    return bouts
+def make_recording(path: Path, hours: float = HOURS, rate: float = RATE_HZ, seed: int = SEED) -> dict:
+    """Simulate an adult wrist wearer with the demo's sensor errors and write it as an AX3 .cwa.
 
+    Returns the truth: the sensor model, and mean ENMO of the uncorrected recording and of the
+    same recording corrected with the *true* parameters (what a perfect calibration gives).
+    """
+    from stillpoint.engine.sim import ggir_equivalent, iter_chunks, simulate_recording
 
-def make_recording(path: Path, hours: float = HOURS, rate: float = RATE_HZ, seed: int = 7) -> dict:
-    """Write the demo .cwa; return truth: ENMO of a perfect sensor (same motion and noise, no
-    offset/gain/temperature errors) and of the uncorrected recording."""
-    from stillpoint.drivers.cwa import CwaWriter
-    rng = np.random.default_rng(seed)
-    t0 = 1_700_000_000 * 10**9  # 2023-11-14 22:13:20 UTC
-    step = int(round(1e9 / rate))
-    enmo_true = enmo_raw = 0.0
+    truth = simulate_recording(path, truth_path=False, labels_path=False,
+                               **_sim_args(hours, rate, seed))
+    true_cal = ggir_equivalent(truth.sensor_model, 25.0)
+    off, sc, to = (np.asarray(true_cal[k]) for k in ("offset", "scale", "tempoffset"))
+    enmo_raw = enmo_true = 0.0
     n_total = 0
-    with CwaWriter(path, device_type="AX3", device_id=4242, session_id=1, rate_hz=rate, range_g=8,
-                   packed=False) as w:
-        i0 = 0
-        for kind, dur, v in _schedule(rng, hours):
-            n = int(dur * rate)
-            if n <= 0:
-                continue
-            i = np.arange(i0, i0 + n)
-            ts = i / rate
-            g = np.tile(v, (n, 1))
-            if kind == "walk":
-                g = g + 0.35 * np.sin(2 * np.pi * 1.9 * ts)[:, None] * np.array([0.3, 0.9, 0.3])
-                g += rng.normal(0, 0.08, size=g.shape)
-            elif kind == "fidget":
-                g = g + rng.normal(0, 0.05, size=g.shape)
-            temp = 29.0 + 4.0 * np.sin(2 * np.pi * ts / 86400.0) + (kind == "sleep") * 1.5
-            ideal = g + rng.normal(0, NOISE_G, size=g.shape)  # a perfect sensor: noise only
-            meas = ideal * GAIN + BIAS_G + (temp - T_REF_C)[:, None] * TEMP_COEF_G_PER_C
-            counts = np.clip(np.round(meas * 256), -32768, 32767).astype(np.int16)
-            code = np.round((temp + 50.0) * 256 / 75).astype(np.int32)
-            w.write(t0 + i * step, counts, temperature_raw=code)
-            enmo_true += float(np.maximum(np.linalg.norm(np.round(ideal * 256) / 256, axis=1) - 1,
-                                          0).sum())
-            enmo_raw += float(np.maximum(np.linalg.norm(counts / 256.0, axis=1) - 1, 0).sum())
-            n_total += n
-            i0 += n
-    return {"samples": n_total, "enmo_true_mg": enmo_true / n_total * 1000,
-            "enmo_uncorrected_mg": enmo_raw / n_total * 1000}
+    for c in iter_chunks(**_sim_args(hours, rate, seed)):  # same seed: the same samples again
+        g = c.counts / 256.0  # AX3 unpacked: 256 counts per g (drivers/constants.py)
+        enmo_raw += float(np.maximum(np.linalg.norm(g, axis=1) - 1.0, 0.0).sum())
+        cal = (g + off) * sc + (c.temperature_c - 25.0)[:, None] * to
+        enmo_true += float(np.maximum(np.linalg.norm(cal, axis=1) - 1.0, 0.0).sum())
+        n_total += c.n
+    return {"samples": n_total, "model": truth.sensor_model,
+            "enmo_true_mg": enmo_true / n_total * 1000.0,
+            "enmo_uncorrected_mg": enmo_raw / n_total * 1000.0}
+
+
+def true_correction(model, temperature_ref: float):
+    """The GGIR-form parameters that exactly undo the demo's errors at ``temperature_ref``."""
+    from stillpoint.engine.sim import ggir_equivalent
+
+    d = ggir_equivalent(model, temperature_ref)
+    return d["offset"], d["scale"], d["tempoffset"]
 
 
 def add_arguments(p) -> None:
     p.add_argument("--keep", type=Path, metavar="DIR", help="keep the recording and outputs in DIR")
     p.add_argument("--hours", type=float, default=HOURS, help=f"recording length (default {HOURS:g})")
+    p.add_argument("--seed", type=int, default=SEED, help=f"simulation seed (default {SEED})")
 
 
 def run(args) -> int:
@@ -116,13 +95,15 @@ def run(args) -> int:
     try:
         t = time.perf_counter()
         rec = d / "demo.cwa"
-        truth = make_recording(rec, hours=args.hours)
+        truth = make_recording(rec, hours=args.hours, seed=args.seed)
         t_make = time.perf_counter() - t
-        print(f"made {rec.name}: AX3 {RATE_HZ:g} Hz, {args.hours:g} h, {truth['samples']:,} samples "
-              f"({rec.stat().st_size / 1e6:.1f} MB) in {t_make:.1f} s")
-        print("  sensor errors: gain " + " ".join(f"{x:.3f}" for x in GAIN)
-              + " | bias " + " ".join(f"{x * 1000:+.0f}" for x in BIAS_G) + " mg"
-              + " | temperature " + " ".join(f"{x * 1000:+.1f}" for x in TEMP_COEF_G_PER_C) + " mg/degC")
+        print(f"simulated {rec.name}: adult wrist, AX3 {RATE_HZ:g} Hz, {args.hours:g} h, "
+              f"{truth['samples']:,} samples ({rec.stat().st_size / 1e6:.1f} MB) in {t_make:.1f} s")
+        e = EFFECTS
+        print("  sensor errors: gain " + " ".join(f"{e['gain'][a + '_pct']:+.1f}" for a in "xyz") + " %"
+              + " | offset " + " ".join(f"{e['offset'][a + '_mg']:+.0f}" for a in "xyz") + " mg"
+              + " | temperature " + " ".join(f"{e['temperature_offset'][a + '_mg_per_c']:+.1f}"
+                                             for a in "xyz") + " mg/degC")
         progress = Progress()
         t = time.perf_counter()
         try:
@@ -134,7 +115,7 @@ def run(args) -> int:
         print(human_summary(s))
         c = s["calibration"]
         if c["status"] in ("ok", "high_error"):
-            off, sc, to = true_correction(c["temperature_ref"])
+            off, sc, to = true_correction(truth["model"], c["temperature_ref"])
             print("\n                 x          y          z")
             print("offset  true  " + " ".join(f"{x:+.5f}  " for x in off))
             print("        fit   " + " ".join(f"{x:+.5f}  " for x in c["offset"]))
@@ -147,8 +128,8 @@ def run(args) -> int:
                   f"{c['error_after_mg']:.1f} mg after")
         else:
             print(f"\ncalibration not applied: {c['status']}")
-        print(f"ENMO mean: perfect sensor {truth['enmo_true_mg']:.2f} mg | uncorrected "
-              f"{truth['enmo_uncorrected_mg']:.2f} mg | calibrated {s['enmo_mean_mg']:.2f} mg")
+        print(f"ENMO mean: uncorrected {truth['enmo_uncorrected_mg']:.2f} mg | calibrated "
+              f"{s['enmo_mean_mg']:.2f} mg | with the true parameters {truth['enmo_true_mg']:.2f} mg")
         if args.keep:
             print(f"\nfiles kept in {d} (open demo.mcap in Foxglove; topics /metrics/epoch, "
                   f"/corrected/accel, /calibration)")

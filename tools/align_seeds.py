@@ -197,9 +197,11 @@ def main(argv=None) -> int:
                            for r in ok)
                 msg = f"offset within 1 sample and day-7 within 0.1 s: {good}/{len(sel)}"
                 if sc == "temperature" and m == "robust":
+                    chosen = sum(r["model"].endswith("temperature") for r in ok)
                     better = sum((r.get("heldout_with") or 9e9) < (r.get("heldout_without") or 0)
                                  for r in ok)
-                    msg += f"; temperature term chosen & held-out RMSE lower: {better}/{len(sel)}"
+                    msg += (f"; temperature term chosen (dBIC + held-out) {chosen}/{len(sel)}, "
+                            f"held-out RMSE with < without {better}/{len(sel)}")
             else:
                 good = sum(r.get("halt_found", False) and abs(r["day7_err_s"]) < 0.5 for r in ok)
                 msg = f"halt found within one block and day-7 error < 0.5 s: {good}/{len(sel)}"

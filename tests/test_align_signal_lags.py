@@ -3,8 +3,6 @@ and invariance of the streaming estimator to how the input is cut."""
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 import pytest
 

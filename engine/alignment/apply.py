@@ -81,7 +81,7 @@ def aligned_chunks(other, fit: ClockFit, t0_ns: int, out_rate: Optional[float] =
     ab = np.zeros((0, 3))
     k_next: Optional[int] = None
 
-    def emit(limit_u: float, final: bool):
+    def emit(limit_u: float):
         nonlocal k_next, tb, ab
         if tb.size == 0:
             return
@@ -134,5 +134,5 @@ def aligned_chunks(other, fit: ClockFit, t0_ns: int, out_rate: Optional[float] =
         tb = np.concatenate([tb, t])
         ab = np.concatenate([ab, a])
         if tb.size > margin + 1:
-            yield from emit(tb[-1 - margin], False)
-    yield from emit(tb[-1] if tb.size else -np.inf, True)
+            yield from emit(tb[-1 - margin])
+    yield from emit(tb[-1] if tb.size else -np.inf)

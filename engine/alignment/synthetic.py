@@ -19,7 +19,7 @@ from typing import Iterator, Optional
 
 import numpy as np
 
-from stillpoint.drivers.constants import RTC_CRYSTAL_PARABOLA_PPM_PER_C2, RTC_CRYSTAL_TURNOVER_C
+from stillpoint.drivers.constants import RTC_CRYSTAL_TURNOVER_C
 from stillpoint.engine.blocks import Block, DeviceInfo, QCReport
 
 COUNTS_PER_G = 256.0  # AX3 at +-8 g: 1/256 g per count
@@ -174,7 +174,6 @@ class SyntheticPair:
 
     def blocks(self, site: int) -> Iterator[Block]:
         rate = self.rate_ref if site == 0 else self.rate_other
-        clock = self.clock_ref if site == 0 else self.clock_other
         rng = np.random.default_rng(self.seed * 7919 + site)
         c0 = self.first_sample_clock(site)
         c_end = float(self.clock(site, self.duration_s))
@@ -199,7 +198,6 @@ class SyntheticPair:
                         temperature_raw=np.full(starts.size, -1, np.int32),
                         light=np.zeros(starts.size, np.int32), battery_v=np.full(starts.size, np.nan),
                         events=np.zeros(starts.size, np.uint8), first_sample=int(k0))
-        del clock
 
     def source(self, site: int) -> "SyntheticSource":
         return SyntheticSource(self, site)

@@ -56,6 +56,14 @@ def test_feature_table_json_report_names_the_hidden_effect(hidden_table, capsys,
     assert m.effects["temperature_offset"]["z_mg_per_c"] == pytest.approx(1.5, abs=0.2)
     sim.resolve_model(m, seed=0)
     assert (out / "report.txt").read_text().startswith("stillpoint discrepancy")
+    # per window: what the final model predicts the sensor read is what it read, up to the norm
+    # residual (the prediction is 1 g in the corrected direction)
+    w = np.genfromtxt(out / "windows.csv", delimiter=",", names=True)
+    assert w.size == d["input"]["windows_nonmovement"] - d["input"]["duplicates_dropped"]
+    meas = np.column_stack([w["meanx"], w["meany"], w["meanz"]])
+    pred = np.column_stack([w["final_x"], w["final_y"], w["final_z"]])
+    dist = np.linalg.norm(meas - pred, axis=1) * 1000
+    assert np.allclose(dist, np.abs(w["residual_final_mg"]), rtol=0.05, atol=0.05)
     pngs = sorted(p.name for p in out.glob("*.png"))
     pytest.importorskip("matplotlib")
     assert "step1_temperature_offset_z.png" in pngs and "locate_initial.png" in pngs

@@ -100,10 +100,26 @@ class DiscrepancyResult:
     input_info: dict
     folds: int
     last_scores: List[CandidateScore]
+    data: Optional[WindowData] = None  # the nonmovement windows compared (for per-window output)
 
     @property
     def named(self) -> List[tuple]:
         return [(s.candidate.effect, s.candidate.component) for s in self.steps]
+
+
+def per_window(res: "DiscrepancyResult") -> dict:
+    """What the sensor should have read in each nonmovement window (1 g in the window's
+    orientation, at its temperature and time) under the start and the final model, next to what
+    it read. The orientation is the measured mean corrected by the final model, normalised."""
+    d = res.data
+    u = invert(res.final_fit.model, d)
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    from .sensor_fit import forward
+    return {"t_days": d.t_days, "temperature": d.temperature, "measured": d.mean,
+            "predicted_start": forward(res.base_fit.model, u, d),
+            "predicted_final": forward(res.final_fit.model, u, d),
+            "residual_start_mg": res.base_fit.residual * 1000.0,
+            "residual_final_mg": res.final_fit.residual * 1000.0}
 
 
 def _r(x, nd=4):
@@ -262,4 +278,4 @@ def run(prepared: PreparedInput, start_model: Optional[SensorModel] = None,
         locate_final=locate(current.model, data, current.residual),
         distributions=distributions(base_fit.model, current.model, data, noise_model_mg,
                                     rate_hz if rate_hz is not None else prepared.rate_hz),
-        skipped=skipped_all, input_info=info, folds=folds, last_scores=scores)
+        skipped=skipped_all, input_info=info, folds=folds, last_scores=scores, data=data)

@@ -145,7 +145,8 @@ def _span(b):
 
 def write(res: DiscrepancyResult, out_dir, carry: Optional[sim.SensorModel] = None, source: str = "",
           truth: Optional[sim.SensorModel] = None, plots: bool = True) -> dict:
-    """Write report.json, report.txt, final_model.json and the PNGs into ``out_dir``."""
+    """Write report.json, report.txt, final_model.json, windows.csv (per-window measured vs
+    predicted) and the PNGs into ``out_dir``."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     d = to_dict(res, carry, source, truth)
@@ -156,10 +157,25 @@ def write(res: DiscrepancyResult, out_dir, carry: Optional[sim.SensorModel] = No
         except ImportError:
             d["figures_note"] = "matplotlib is not installed (pip install 'stillpoint[plot]'): no PNGs"
     d["figures"] = figures
+    if res.data is not None:
+        write_windows(res, out / "windows.csv")
+        d["windows_csv"] = "windows.csv"
     (out / "report.json").write_text(json.dumps(d, indent=1) + "\n")
     (out / "final_model.json").write_text(json.dumps(d["final_model"], indent=2) + "\n")
     (out / "report.txt").write_text(text(d) + "\n")
     return d
+
+
+def write_windows(res: DiscrepancyResult, path) -> None:
+    """Per nonmovement window: measured mean, what the start and final models say the sensor
+    should have read, and the norm residual under each (g, mg)."""
+    from .discrepancy import per_window
+    w = per_window(res)
+    cols = [w["t_days"], w["temperature"], *w["measured"].T, *w["predicted_start"].T,
+            *w["predicted_final"].T, w["residual_start_mg"], w["residual_final_mg"]]
+    header = ("t_days,temperature,meanx,meany,meanz,start_x,start_y,start_z,final_x,final_y,"
+              "final_z,residual_start_mg,residual_final_mg")
+    np.savetxt(path, np.column_stack(cols), delimiter=",", header=header, comments="", fmt="%.7g")
 
 
 def draw(res: DiscrepancyResult, out: Path) -> List[str]:

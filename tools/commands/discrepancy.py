@@ -3,7 +3,8 @@ sensor model and the measured nonmovement windows disagree, name the missing eff
 show the held-out gap shrink. INPUT is a recording (.cwa/.bin, gzip ok), a stillpoint MCAP log or a
 CSV of window features (meanx,meany,meanz,sdx,sdy,sdz,temperature).
 
-Without ``-o`` nothing is written; with it the directory gets report.json, report.txt,
+Without ``-o`` nothing is written; with it the directory gets report.json, report.txt, windows.csv
+(per nonmovement window: measured mean, what the start and final models predict, residuals),
 final_model.json (the simulator's model format, accepted by ``stillpoint simulate`` as-is) and PNGs
 (needs matplotlib: ``pip install 'stillpoint[plot]'``).
 """
@@ -70,6 +71,6 @@ def run(args) -> int:
     else:
         print(text(d))
         if args.output:
-            print(f"\nreport written to {args.output}/ (report.json, report.txt, final_model.json"
+            print(f"\nreport written to {args.output}/ (report.json, report.txt, windows.csv, final_model.json"
                   + (", " + ", ".join(d.get("figures", [])) if d.get("figures") else "") + ")")
     return 0

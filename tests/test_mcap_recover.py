@@ -21,7 +21,7 @@ from stillpoint.engine.operators.metrics import EpochMetrics
 from stillpoint.engine.recover import is_finished, recover
 from stillpoint.engine.run import RunSettings, process_file
 from stillpoint.tools.cli import main as cli
-from stillpoint.tools.commands.demo import make_recording
+from synthetic_recording import make_recording
 
 TOPICS = ["/raw/accel", "/corrected/accel", "/metrics/epoch", "/temperature"]
 

@@ -5,6 +5,7 @@ export, CLI."""
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 
@@ -21,7 +22,7 @@ from stillpoint.engine.mcap_compare import compare
 from stillpoint.engine.mcap_schemas import ACCEL_BATCH, times_from_deltas
 from stillpoint.engine.run import RunSettings, process_file
 from stillpoint.tools.cli import main as cli
-from stillpoint.tools.commands.demo import make_recording
+from synthetic_recording import make_recording
 
 
 @pytest.fixture(scope="module")
@@ -233,11 +234,17 @@ def test_online_applies_each_accepted_estimate_from_its_boundary(recording, tmp_
     assert np.any(ref.time_ns < first) and np.any(ref.time_ns >= first)
 
 
-def test_demo_command_runs(tmp_path, capsys):
-    assert cli(["demo", "--hours", "2", "--keep", str(tmp_path)]) == 0
+def test_demo_command_runs_and_recovers_the_simulated_errors(tmp_path, capsys):
+    assert cli(["demo", "--keep", str(tmp_path)]) == 0  # the README's main command, as is
     text = capsys.readouterr().out
-    assert "sensor errors" in text and "ENMO mean: perfect sensor" in text
+    assert "sensor errors" in text
     assert (tmp_path / "demo.mcap").is_file() and (tmp_path / "demo.cwa").is_file()
+    m = re.search(r"calibration error: ([\d.]+) mg before -> ([\d.]+) mg after", text)
+    assert m and float(m.group(1)) > 20.0 and float(m.group(2)) < 1.0
+    m = re.search(r"ENMO mean: uncorrected ([\d.]+) mg \| calibrated ([\d.]+) mg \| with the true "
+                  r"parameters ([\d.]+) mg", text)
+    raw, cal, true = map(float, m.groups())
+    assert cal < raw and abs(cal - true) < 0.01 * true  # calibration removes the ENMO inflation
 
 
 def test_store_feeds_the_online_prior_and_is_recorded(recording, tmp_path, capsys):

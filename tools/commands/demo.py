@@ -37,7 +37,7 @@ EFFECTS = {
 }
 RATE_HZ = 50.0
 HOURS = 30.0
-SEED = 7
+SEED = 3  # a typical day: true mean ENMO ~30 mg (seeds range ~12-35 mg; seed 7 has a run, ~107 mg)
 
 
 def _sim_args(hours: float, rate: float, seed: int) -> dict:

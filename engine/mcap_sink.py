@@ -31,11 +31,13 @@ The file is fsynced at flushes at most once per ``fsync_every_wall_s`` of wall t
 only loses what Python had not handed to the OS; fsync protects against power loss).
 ``recover`` salvages every complete chunk of a file that was never finished.
 
-Writing happens in a writer process by default (``writer="process"``: the mcap library's
-per-record Python work and zstd compression run on another core, in parallel with the pipeline's
-numeric work; the pipe gives back-pressure), or on a thread / inline. Records are written in the
-order of the calls, so the file is deterministic. If the engine process dies, the writer
-process sees the pipe close and leaves the file unfinished (recoverable), like a crash.
+The sink builds each chunk's records itself (engine/mcap_chunks.py: one ``struct.pack`` per
+message, one numpy pass for a cell's epochs); the writer (engine/mcap_writer.py) compresses and
+writes chunks and the summary. It runs in a writer process by default (``writer="process"``:
+compression runs on another core, in parallel with the pipeline; one pipe write per chunk, the
+pipe gives back-pressure), or on a thread / inline. Records are written in the order of the
+calls, so the file is deterministic. If the engine process dies, the writer process sees the
+pipe close and leaves the file unfinished (recoverable), like a crash.
 """
 
 from __future__ import annotations
@@ -65,7 +67,8 @@ TOPIC_METRICS = "/metrics/epoch"
 TOPIC_CALIBRATION = "/calibration"
 TOPIC_QC = "/qc"
 
-from .mcap_writer import CHUNK_SIZE, LIBRARY, WriterProcess, _WriterCore  # noqa: F401
+from .mcap_chunks import ChunkBuilder
+from .mcap_writer import CHUNK_SIZE, LIBRARY, ZSTD_LEVEL, WriterProcess, _WriterCore  # noqa: F401
 
 
 def _jsonable(x):
@@ -154,8 +157,8 @@ _EPOCH_DTYPE = np.dtype([("hdr", "V4"), ("sec", "<i4"), ("nsec", "<u4"), ("n", "
                          ("y", "<f4"), ("z", "<f4"), ("temp", "<f4")])  # packed, all 4-aligned
 
 
-def epoch_messages(m: EpochMetrics) -> list[bytes]:
-    """EPOCH_METRICS payloads for every row, encoded in one vectorised pass (fixed layout)."""
+def epoch_records(m: EpochMetrics) -> np.ndarray:
+    """EPOCH_METRICS payloads of every row as one structured array (one vectorised pass)."""
     k = len(m)
     a = np.zeros(k, _EPOCH_DTYPE)
     a["hdr"] = np.void(b"\x00\x01\x00\x00")
@@ -164,9 +167,14 @@ def epoch_messages(m: EpochMetrics) -> list[bytes]:
     a["enmo"], a["bfen"], a["mad"] = m.enmo_mg, m.bfen_mg, m.mad_mg
     a["x"], a["y"], a["z"] = m.mean[:, 0], m.mean[:, 1], m.mean[:, 2]
     a["temp"] = m.temperature
-    buf = a.tobytes()
+    return a
+
+
+def epoch_messages(m: EpochMetrics) -> list[bytes]:
+    """EPOCH_METRICS payloads for every row (fixed layout)."""
+    buf = epoch_records(m).tobytes()
     w = _EPOCH_DTYPE.itemsize
-    return [buf[i * w:(i + 1) * w] for i in range(k)]
+    return [buf[i * w:(i + 1) * w] for i in range(len(m))]
 
 
 def estimate_message(est: CalibrationEstimate, applied: bool) -> dict:
@@ -196,14 +204,15 @@ class McapSink:
         self._pending_corr: list[CorrectedBatch] = []
         self._corr_cell: Optional[int] = None
         self.flushes = 0
-        self.messages = 0
         self.writer_maxrss_mb: Optional[float] = None  # writer process peak RSS (process mode)
         self._error: Optional[str] = None
         self._q: Optional[queue.Queue] = None
         self._thread = None
         self._conn = None
-        self._batch: list = []
-        core_args = (self.path, chunk_size, compression, fsync_every_wall_s)
+        self._metadata = 0
+        self._chunk = ChunkBuilder({t.name: ("ros2msg", t.schema_text().encode()) for t in ALL_TYPES},
+                                   chunk_size)
+        core_args = (self.path, compression, fsync_every_wall_s, ZSTD_LEVEL)
         if writer == "process":
             # a fresh, small writer process (~30 MB; a fork would inherit the engine's heap)
             self._conn = WriterProcess(core_args)
@@ -214,8 +223,13 @@ class McapSink:
                 self._q = queue.Queue(maxsize=64)
                 self._thread = threading.Thread(target=self._worker, name="mcap-writer", daemon=True)
                 self._thread.start()
-        self._do("metadata", "device", device_metadata(info))
-        self._do("metadata", "settings", {"json": dumps(settings)})
+        self.write_metadata("device", device_metadata(info))
+        self._send(("metadata", "settings", {"json": dumps(settings)}))
+        self._metadata += 1
+
+    @property
+    def messages(self) -> int:
+        return self._chunk.message_count
 
     # ------------------------------------------------------------------ plumbing
     def _worker(self):
@@ -229,17 +243,6 @@ class McapSink:
                 except BaseException as e:  # reported on the caller's next call
                     self._error = f"{type(e).__name__}: {e}"
 
-    def _send_batch(self):
-        if not self._batch:
-            return
-        self._check()
-        batch, self._batch = self._batch, []
-        try:
-            self._conn.send(batch)
-        except (BrokenPipeError, OSError):
-            self._check()
-            raise RuntimeError(f"writing {self.path} failed: the writer process ended") from None
-
     def _check(self):
         if self._conn is not None and self._error is None and self._conn.poll():
             msg = self._conn.recv()
@@ -248,30 +251,35 @@ class McapSink:
         if self._error is not None:
             raise RuntimeError(f"writing {self.path} failed: {self._error}")
 
-    def _do(self, *item):
-        op = item[0]
-        if op == "msg":
-            self.messages += 1
-        elif op == "msgs":
-            self.messages += len(item[4])
-        elif op == "flush":
-            self.flushes += 1
-        if self._conn is not None:
-            # batch operations up to each flush (one pipe write per cell, not per message)
-            self._batch.append(item)
-            if op in ("flush", "finish", "metadata") or len(self._batch) >= 256:
-                self._send_batch()
-            return
+    def _send(self, item) -> None:
+        """Hand one file operation to the writer (process, thread or inline)."""
         self._check()
-        if False:
-            pass
+        if self._conn is not None:
+            try:
+                self._conn.send(item)
+            except (BrokenPipeError, OSError):
+                self._check()
+                raise RuntimeError(f"writing {self.path} failed: the writer process ended") from None
         elif self._q is None:
             self._core.execute(*item)
         else:
             self._q.put(item)
 
+    def _end_chunk(self, fsync: bool) -> None:
+        c = self._chunk.take()
+        if c is not None:
+            self._send(("chunk", *c, fsync))
+        elif fsync:
+            self._send(("flush", True))
+
     def _msg(self, topic, encoding, schema, log_time, data):
-        self._do("msg", topic, encoding, schema, log_time, data)
+        ch = self._chunk
+        if ch.add(ch.channel(topic, encoding, schema), log_time, data):
+            self._end_chunk(False)
+
+    def _flush_cell(self, fsync: bool = False) -> None:
+        self.flushes += 1
+        self._end_chunk(fsync)
 
     # ------------------------------------------------------------------ API
     def write_raw(self, block: Block, a: int = 0, b: Optional[int] = None, ua: int = 0,
@@ -318,8 +326,10 @@ class McapSink:
 
     def write_epochs(self, m: EpochMetrics) -> None:
         if len(m):
-            self._do("msgs", TOPIC_METRICS, "cdr", EPOCH_METRICS.name,
-                     list(zip(m.start_ns.tolist(), epoch_messages(m))))
+            ch = self._chunk
+            if ch.add_fixed(ch.channel(TOPIC_METRICS, "cdr", EPOCH_METRICS.name), m.start_ns,
+                            epoch_records(m)):
+                self._end_chunk(False)
 
     def write_estimate(self, est: CalibrationEstimate, applied: bool, log_time_ns: int) -> None:
         self._msg(TOPIC_CALIBRATION, "json", None, log_time_ns,
@@ -329,7 +339,9 @@ class McapSink:
         self._msg(TOPIC_QC, "json", None, log_time_ns, dumps(event).encode())
 
     def write_metadata(self, name: str, values: dict) -> None:
-        self._do("metadata", name, {k: (v if isinstance(v, str) else dumps(v)) for k, v in values.items()})
+        self._send(("metadata", name, {k: (v if isinstance(v, str) else dumps(v))
+                                       for k, v in values.items()}))
+        self._metadata += 1
 
     def write_slices(self, block: Optional[Block], corrected: list, epochs: EpochMetrics) -> None:
         """Write what one pipeline step produced, by data time in cells of ``flush_every_s``
@@ -369,7 +381,7 @@ class McapSink:
                 j += 1
             if self._cell is None or cell > self._cell:
                 if self._cell is not None and self.flush_every_ns is not None:
-                    self._do("flush", False)
+                    self._flush_cell(False)
                 self._cell = cell
             lo, hi = cell * w, (cell + 1) * w
             if raw_cut is not None:
@@ -407,19 +419,19 @@ class McapSink:
             i = j
 
     def flush(self, fsync: bool = True) -> None:
-        self._do("flush", fsync)
+        self._flush_cell(fsync)
 
     def close(self) -> None:
         """Finish the file (summary, index, footer) and wait for the writer."""
         self._emit_corrected()
-        self._do("finish")
+        self._end_chunk(False)
+        self._send(("finish", self._chunk.summary(self._metadata)))
         self._stop()
         if self._error is not None:
             raise RuntimeError(f"writing {self.path} failed: {self._error}")
 
     def abort(self) -> None:
         """Stop writing without finishing (the file stays recoverable up to the last flush)."""
-        self._batch = []
         self._stop()
         if self._core is not None:
             self._core.abandon()

@@ -1,27 +1,31 @@
-"""The MCAP writer core: the mcap ``Writer`` and its file, executing write operations.
+"""The MCAP file writer: compresses and writes the chunks the engine built, then the summary.
 
-Kept apart from ``mcap_sink`` so that the writer process (spawned fresh) imports only numpy and
-mcap (~30 MB) and not the engine. Operations: ``("msg", topic, encoding, schema, log_time,
-data)``, ``("msgs", topic, encoding, schema, [(log_time, data), ...])``, ``("metadata", name,
-values)``, ``("flush", fsync)``, ``("finish",)``.
+Kept apart from ``mcap_sink`` so that the writer process (spawned fresh) imports only numpy,
+zstandard and the record encoders (engine/mcap_records.py), not the engine. The engine side
+(engine/mcap_chunks.py) builds each chunk's uncompressed records; this side compresses them
+(one reused zstd context), writes the Chunk record, keeps one row of 6 int64 per chunk for the
+chunk index (flat memory: 56 B per 10 s of data), and at ``finish`` writes Data End, the summary
+(schemas, channels, statistics, chunk indexes, metadata indexes), summary offsets and footer
+(with the summary CRC). No message indexes: readers scan the small one-cell chunks
+(specs/mcap-python.md §3). Every chunk carries the CRC32 of its uncompressed records.
 """
 
 from __future__ import annotations
 
 import os
+import struct
 import time
+import zlib
 from typing import Optional
 
 import numpy as np
-from mcap.records import ChunkIndex
-from mcap.writer import CompressionType, IndexType, Writer
 
-from .mcap_schemas import ALL_TYPES
+from . import mcap_records as rec
 
 LIBRARY = "stillpoint"
-CHUNK_SIZE = 4 << 20  # 4 MiB uncompressed chunks (specs/mcap-python.md §7.1)
-
-_COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
+CHUNK_SIZE = 4 << 20  # 4 MiB uncompressed chunks at most (specs/mcap-python.md §7.1)
+COMPRESSIONS = ("zstd", "lz4", "none")
+ZSTD_LEVEL = 3
 
 
 def peak_rss_mb() -> Optional[float]:
@@ -38,128 +42,141 @@ def peak_rss_mb() -> Optional[float]:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-class _CompactChunkIndexes:
-    """Drop-in for the mcap Writer's list of chunk indexes, stored as int64 rows.
+def _compressor(compression: str, zstd_level: int):
+    if compression == "zstd":
+        import zstandard
+        return zstandard.ZstdCompressor(level=zstd_level).compress  # one reused context
+    if compression == "lz4":
+        import lz4.frame
+        return lz4.frame.compress
+    return None
 
-    The writer keeps one ChunkIndex object per chunk until ``finish()`` writes the summary
-    (~0.6 KB each); with a chunk per 10 s of data that is ~70 MB for 14 days. Rows of 7 int64
-    (56 B) keep the writer's memory flat; iteration rebuilds the records for the summary.
-    """
 
-    _FIELDS = ("chunk_length", "chunk_start_offset", "compressed_size", "message_end_time",
-               "message_index_length", "message_start_time", "uncompressed_size")
+class _ChunkIndexRows:
+    """One int64 row per chunk (start, end, offset, length, compressed, uncompressed); the
+    summary's Chunk Index records are encoded from them in one numpy pass."""
 
     def __init__(self):
-        self._rows = np.zeros((1024, len(self._FIELDS)), np.int64)
+        self._rows = np.zeros((1024, 6), np.int64)
         self._n = 0
-        self._compression: dict[int, str] = {}  # row -> compression, where not the first's
-        self._first_compression: Optional[str] = None
-        self._offsets: dict[int, dict] = {}  # row -> message index offsets (none without them)
 
-    def append(self, ci: ChunkIndex) -> None:
+    def append(self, *row) -> None:
         if self._n == self._rows.shape[0]:
             self._rows = np.concatenate([self._rows, np.zeros_like(self._rows)])
-        self._rows[self._n] = [getattr(ci, f) for f in self._FIELDS]
-        if self._first_compression is None:
-            self._first_compression = ci.compression
-        elif ci.compression != self._first_compression:
-            self._compression[self._n] = ci.compression
-        if ci.message_index_offsets:
-            self._offsets[self._n] = dict(ci.message_index_offsets)
+        self._rows[self._n] = row
         self._n += 1
 
     def __len__(self) -> int:
         return self._n
 
-    def __iter__(self):
-        for i in range(self._n):
-            vals = dict(zip(self._FIELDS, (int(v) for v in self._rows[i])))
-            yield ChunkIndex(compression=self._compression.get(i, self._first_compression),
-                             message_index_offsets=self._offsets.get(i, {}), **vals)
-
-
-class _ReusedZstd:
-    """Stand-in for the ``zstandard`` module inside ``mcap.writer`` (writer process only): one
-    reused compressor context instead of a new one per chunk (``zstandard.compress`` builds a
-    context each call, a fixed cost that matters with a chunk every 10 s of data)."""
-
-    def __init__(self, level: int = 3):
-        import zstandard
-        self._c = zstandard.ZstdCompressor(level=level)
-
-    def compress(self, data: bytes) -> bytes:
-        return self._c.compress(data)
-
-
-def use_reused_zstd(level: int = 3) -> None:
-    import mcap.writer as mw
-    if getattr(mw, "zstandard", None) is not None and not isinstance(mw.zstandard, _ReusedZstd):
-        mw.zstandard = _ReusedZstd(level)
+    def records(self, compression: str) -> bytes:
+        c = compression.encode()
+        fields = [("op", "u1"), ("len", "<u8"), ("start", "<u8"), ("end", "<u8"),
+                  ("offset", "<u8"), ("length", "<u8"), ("mio", "<u4"), ("mil", "<u8"),
+                  ("clen", "<u4")]
+        if c:
+            fields.append(("cname", f"S{len(c)}"))
+        fields += [("csize", "<u8"), ("usize", "<u8")]
+        dt = np.dtype(fields)
+        r = self._rows[:self._n]
+        a = np.zeros(self._n, dt)
+        a["op"] = rec.OP_CHUNK_INDEX
+        a["len"] = dt.itemsize - 9
+        a["start"], a["end"], a["offset"], a["length"] = r[:, 0], r[:, 1], r[:, 2], r[:, 3]
+        a["clen"] = len(c)
+        if c:
+            a["cname"] = c
+        a["csize"], a["usize"] = r[:, 4], r[:, 5]
+        return a.tobytes()
 
 
 class _WriterCore:
-    """The mcap Writer and the file: executes write operations (in-process, in a thread, or in
-    a writer process)."""
+    """The file: writes chunks (compressed here), metadata and, at ``finish``, the summary.
 
-    def __init__(self, path: str, chunk_size: int, compression: str, fsync_every_wall_s: float):
+    Operations: ``("chunk", data, start, end, fsync)``, ``("metadata", name, values)``,
+    ``("flush", fsync)``, ``("finish", summary)`` (``summary`` from ``ChunkBuilder.summary``).
+    Every chunk is handed to the OS as soon as it is written (a killed process loses nothing
+    written before); fsync at most once per ``fsync_every_wall_s`` unless asked.
+    """
+
+    def __init__(self, path: str, compression: str, fsync_every_wall_s: float,
+                 zstd_level: int = ZSTD_LEVEL):
+        if compression not in COMPRESSIONS:
+            raise ValueError(f"compression must be one of {', '.join(COMPRESSIONS)}")
         self.fsync_every_wall_s = fsync_every_wall_s
+        self.compression = "" if compression == "none" else compression
+        self._compress = _compressor(compression, zstd_level)
         self._f = open(path, "wb")
-        # no per-message index: 16 B + a Python record per message per chunk, and the per-chunk
-        # index dicts the writer keeps for the summary would grow with the number of flushes;
-        # readers scan our small (one-cell) chunks instead (specs/mcap-python.md §3)
-        self._w = Writer(self._f, chunk_size=chunk_size, compression=_COMPRESSION[compression],
-                         index_types=IndexType.CHUNK | IndexType.METADATA | IndexType.ATTACHMENT)
-        if isinstance(getattr(self._w, "_Writer__chunk_indices", None), list):
-            self._w._Writer__chunk_indices = _CompactChunkIndexes()
-        self._w.start(profile="", library=LIBRARY)
-        self._schemas = {t.name: self._w.register_schema(t.name, "ros2msg", t.schema_text().encode())
-                         for t in ALL_TYPES}
-        self._channels: dict[str, int] = {}
-        self._seq: dict[str, int] = {}
+        self._pos = 0
+        self._write(rec.MAGIC, rec.header("", LIBRARY))
+        self._chunks = _ChunkIndexRows()
+        self._meta: list[tuple[int, int, str]] = []
         self._last_fsync = time.monotonic()
 
-    def _channel(self, topic: str, encoding: str, schema: Optional[str]) -> int:
-        cid = self._channels.get(topic)
-        if cid is None:
-            sid = self._schemas[schema] if schema else 0
-            cid = self._w.register_channel(topic, encoding, sid)
-            self._channels[topic] = cid
-            self._seq[topic] = 0
-        return cid
+    def _write(self, *parts) -> None:
+        for p in parts:
+            self._f.write(p)
+            self._pos += len(p)
+
+    def _sync(self, force: bool) -> None:
+        self._f.flush()
+        now = time.monotonic()
+        if force or now - self._last_fsync >= self.fsync_every_wall_s:
+            os.fsync(self._f.fileno())
+            self._last_fsync = now
 
     def execute(self, op, *args):
-        if op == "msg":
-            topic, encoding, schema, log_time, data = args
-            cid = self._channel(topic, encoding, schema)
-            seq = self._seq[topic]
-            self._seq[topic] = seq + 1
-            t = max(0, int(log_time))
-            self._w.add_message(cid, t, data, t, seq)
-        elif op == "msgs":
-            topic, encoding, schema, items = args
-            cid = self._channel(topic, encoding, schema)
-            seq = self._seq[topic]
-            for t, data in items:
-                t = max(0, int(t))
-                self._w.add_message(cid, t, data, t, seq)
-                seq += 1
-            self._seq[topic] = seq
+        if op == "chunk":
+            data, start, end, fsync = args
+            comp = self._compress(data) if self._compress else data
+            parts = rec.chunk(start, end, len(data), zlib.crc32(data), self.compression, comp)
+            offset = self._pos
+            self._write(*parts)
+            self._chunks.append(start, end, offset, self._pos - offset, len(comp), len(data))
+            self._sync(fsync)
         elif op == "metadata":
-            self._w.add_metadata(args[0], args[1])
+            name, values = args
+            r = rec.metadata(name, values)
+            self._meta.append((self._pos, len(r), name))
+            self._write(r)
         elif op == "flush":
-            self._w.flush()
-            now = time.monotonic()
-            if args[0] or now - self._last_fsync >= self.fsync_every_wall_s:
-                os.fsync(self._f.fileno())
-                self._last_fsync = now
+            self._sync(args[0])
         elif op == "finish":
-            self._w.finish()
-            self._f.flush()
-            os.fsync(self._f.fileno())
-            self._f.close()
+            self._finish(args[0])
+
+    def _finish(self, summary: dict) -> None:
+        self._write(rec.data_end(0))
+        start = self._pos
+        groups = []  # (opcode, bytes)
+        if summary["schemas"]:
+            groups.append((rec.OP_SCHEMA, b"".join(summary["schemas"])))
+        if summary["channels"]:
+            groups.append((rec.OP_CHANNEL, b"".join(summary["channels"])))
+        groups.append((rec.OP_STATISTICS, summary["statistics"]))
+        if len(self._chunks):
+            groups.append((rec.OP_CHUNK_INDEX, self._chunks.records(self.compression)))
+        if self._meta:
+            groups.append((rec.OP_METADATA_INDEX,
+                           b"".join(rec.metadata_index(o, n, name) for o, n, name in self._meta)))
+        crc = 0
+        offsets = []
+        for op, body in groups:
+            offsets.append(rec.summary_offset(op, self._pos, len(body)))
+            crc = zlib.crc32(body, crc)
+            self._write(body)
+        offset_start = self._pos
+        so = b"".join(offsets)
+        crc = zlib.crc32(so, crc)
+        self._write(so)
+        foot = rec.footer_body_prefix(start, offset_start)
+        crc = zlib.crc32(foot, crc)
+        self._write(foot, struct.pack("<I", crc), rec.MAGIC)
+        self._f.flush()
+        os.fsync(self._f.fileno())
+        self._f.close()
 
     def abandon(self) -> None:
-        """Stop without finishing: what was flushed stays on disk, recoverable."""
+        """Stop without finishing: what was written stays on disk, recoverable."""
         try:
             self._f.close()
         except Exception:
@@ -239,7 +256,6 @@ def _main() -> None:  # the writer process
     rconn = Connection(os.dup(0), writable=False)
     wconn = Connection(os.dup(1), readable=False)
     os.dup2(2, 1)  # stray output must not corrupt the reply channel
-    use_reused_zstd(int(os.environ.get("STILLPOINT_ZSTD_LEVEL", "3")))
     _writer_loop(rconn, wconn, json.loads(sys.argv[1]))
 
 

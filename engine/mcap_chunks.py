@@ -1,0 +1,143 @@
+"""The open MCAP chunk, built in the engine: channel registry, message records, statistics.
+
+``ChunkBuilder`` turns messages into MCAP Message records (one ``struct.pack`` each, or one
+numpy pass for a run of fixed-size messages) appended to the uncompressed chunk in progress,
+and hands the chunk's bytes over at each flush (``take()``); compressing and writing it is the
+writer's job (engine/mcap_writer.py). Schemas and Channels are registered lazily: their records
+go into the chunk where the topic first appears (so a salvaged prefix of the file is
+self-describing), and are repeated in the summary. Message counts per channel and the time range
+feed the summary's Statistics record.
+"""
+
+from __future__ import annotations
+
+from typing import Optional
+
+import numpy as np
+
+from . import mcap_records as rec
+
+_MSG_HEAD = rec.MESSAGE_HEADER
+
+
+class ChunkBuilder:
+    def __init__(self, schemas: dict[str, tuple[str, bytes]], chunk_size: int):
+        """``schemas``: name -> (encoding, schema text) of every schema a channel may use."""
+        self._schema_defs = schemas
+        self.chunk_size = int(chunk_size)
+        self.schema_ids: dict[str, int] = {}
+        self.schema_records: list[bytes] = []
+        self.channel_ids: dict[str, int] = {}
+        self.channel_records: list[bytes] = []
+        self._seq: dict[int, int] = {}
+        self.counts: dict[int, int] = {}
+        self.message_count = 0
+        self.start: Optional[int] = None  # over the whole file
+        self.end: Optional[int] = None
+        self.chunks = 0
+        self._parts: list[bytes] = []
+        self._size = 0
+        self._cstart: Optional[int] = None  # over the open chunk
+        self._cend: Optional[int] = None
+
+    # ------------------------------------------------------------------ registry
+    def channel(self, topic: str, encoding: str, schema: Optional[str]) -> int:
+        cid = self.channel_ids.get(topic)
+        if cid is not None:
+            return cid
+        sid = 0
+        if schema:
+            sid = self.schema_ids.get(schema, 0)
+            if not sid:
+                sid = len(self.schema_ids) + 1
+                self.schema_ids[schema] = sid
+                enc, text = self._schema_defs[schema]
+                r = rec.schema(sid, schema, enc, text)
+                self.schema_records.append(r)
+                self._append(r)
+        cid = len(self.channel_ids) + 1
+        self.channel_ids[topic] = cid
+        r = rec.channel(cid, sid, topic, encoding)
+        self.channel_records.append(r)
+        self._append(r)
+        self._seq[cid] = 0
+        self.counts[cid] = 0
+        return cid
+
+    # ------------------------------------------------------------------ messages
+    def _append(self, b: bytes) -> None:
+        self._parts.append(b)
+        self._size += len(b)
+
+    def _times(self, lo: int, hi: int) -> None:
+        if self._cstart is None:
+            self._cstart, self._cend = lo, hi
+        else:
+            self._cstart = min(self._cstart, lo)
+            self._cend = max(self._cend, hi)
+
+    def add(self, cid: int, log_time: int, data: bytes) -> bool:
+        """Append one message; True when the chunk has reached ``chunk_size`` (take it)."""
+        t = max(0, int(log_time))
+        seq = self._seq[cid]
+        self._seq[cid] = seq + 1
+        self.counts[cid] += 1
+        self.message_count += 1
+        self._parts.append(_MSG_HEAD.pack(rec.OP_MESSAGE, rec.MESSAGE_OVERHEAD + len(data), cid,
+                                          seq & 0xFFFFFFFF, t, t))
+        self._parts.append(data)
+        self._size += _MSG_HEAD.size + len(data)
+        self._times(t, t)
+        return self._size >= self.chunk_size
+
+    def add_fixed(self, cid: int, log_times: np.ndarray, payloads: np.ndarray) -> bool:
+        """Append ``len(log_times)`` messages whose payloads are the rows of ``payloads``
+        (a (k, w) uint8 array or a structured array): all records in one numpy pass."""
+        k = int(log_times.shape[0])
+        if k == 0:
+            return False
+        pay = np.ascontiguousarray(payloads).view(np.uint8).reshape(k, -1)
+        w = pay.shape[1]
+        t = np.maximum(np.asarray(log_times, np.int64), 0).astype("<u8")
+        a = np.zeros(k, np.dtype([("op", "u1"), ("len", "<u8"), ("cid", "<u2"), ("seq", "<u4"),
+                                  ("log", "<u8"), ("pub", "<u8"), ("data", "u1", (w,))]))
+        a["op"] = rec.OP_MESSAGE
+        a["len"] = rec.MESSAGE_OVERHEAD + w
+        a["cid"] = cid
+        seq = self._seq[cid]
+        a["seq"] = (np.arange(seq, seq + k, dtype=np.int64) & 0xFFFFFFFF).astype(np.uint32)
+        a["log"] = t
+        a["pub"] = t
+        a["data"] = pay
+        self._seq[cid] = seq + k
+        self.counts[cid] += k
+        self.message_count += k
+        self._append(a.tobytes())
+        self._times(int(t.min()), int(t.max()))
+        return self._size >= self.chunk_size
+
+    # ------------------------------------------------------------------ chunks
+    @property
+    def pending(self) -> bool:
+        return self._cstart is not None
+
+    def take(self) -> Optional[tuple[bytes, int, int]]:
+        """The open chunk's records and time range (None if it holds no message); starts a new one.
+        Schema/Channel records registered while no message followed stay for the next chunk."""
+        if self._cstart is None:
+            return None
+        data = b"".join(self._parts)
+        lo, hi = self._cstart, self._cend
+        self._parts, self._size, self._cstart, self._cend = [], 0, None, None
+        self.start = lo if self.start is None else min(self.start, lo)
+        self.end = hi if self.end is None else max(self.end, hi)
+        self.chunks += 1
+        return data, lo, hi
+
+    def summary(self, metadata_count: int) -> dict:
+        """What the writer needs for the summary section (plain data, picklable)."""
+        return {"schemas": list(self.schema_records), "channels": list(self.channel_records),
+                "statistics": rec.statistics(self.message_count, len(self.schema_records),
+                                             len(self.channel_records), metadata_count,
+                                             self.chunks, self.start or 0, self.end or 0,
+                                             self.counts)}

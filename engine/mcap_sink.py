@@ -55,7 +55,7 @@ import numpy as np
 from .blocks import Block, DeviceInfo, PER_SAMPLE_BUTTON, PER_SAMPLE_LIGHT_RAW
 from .calibration.estimate import CalibrationEstimate
 from .mcap_schemas import (ACCEL_BATCH, ACCEL_BATCH_RAW, ALL_TYPES, EPOCH_METRICS, GYRO_BATCH_RAW,
-                           TEMPERATURE, max_step_ok, time_deltas)
+                           TEMPERATURE, INT32_MAX, max_step_ok, time_deltas)
 from .operators.correction import CorrectedBatch
 from .operators.metrics import EpochMetrics
 
@@ -181,6 +181,104 @@ def estimate_message(est: CalibrationEstimate, applied: bool) -> dict:
     d = est.to_dict()
     d["applied"] = bool(applied)
     return d
+
+
+class _RawCells:
+    """A Block's raw messages (one per cell of ``cell_ns``: the whole units that start in it),
+    with every array converted to its CDR type once for the block."""
+
+    def __init__(self, block: Block, cell_ns: int):
+        self.block = block
+        n, m = block.n, block.m
+        starts = block.unit_start if m else np.zeros(1, np.int64)
+        ucell = block.time_ns[starts] // cell_ns
+        first = np.concatenate([[0], np.flatnonzero(ucell[1:] != ucell[:-1]) + 1])
+        self.cell = ucell[first]
+        self.a = starts[first].tolist()  # sample ranges [a, b) and unit ranges [ua, ub) per cell
+        self.b = np.append(starts[first][1:], n).tolist()
+        self.ua = first.tolist() if m else [0]
+        self.ub = np.append(first[1:], len(starts)).tolist() if m else [0]
+        d = np.diff(block.time_ns)
+        self.ok = not d.size or (int(d.max()) <= INT32_MAX and int(d.min()) >= -INT32_MAX)
+        if not self.ok:
+            return  # a clock step that does not fit int32 ns: the general path splits there
+        dt = np.empty(n, "<i4")
+        dt[0] = 0
+        dt[1:] = d
+        dt[self.a] = 0  # every message starts its own deltas
+        self.dt = dt
+        self.xyz = np.ascontiguousarray(block.accel.T, "<i2")
+        self.gyro = None if block.gyro is None else np.ascontiguousarray(block.gyro.T, "<i2")
+        if m:
+            rel = starts - np.repeat(np.asarray(self.a, np.int64), np.diff(first.tolist() + [m]))
+            tc = block.temperature_c.astype("<f8")
+            fin = np.isfinite(tc)
+            cnt = np.add.reduceat(fin.astype(np.int64), first)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                self.temp = (np.add.reduceat(np.where(fin, tc, 0.0), first) / cnt).tolist()
+            self.temp_ok = (cnt > 0).tolist()
+            self.units = [block.unit_index.astype("<i8"), block.unit_sequence.astype("<i8"),
+                          rel.astype("<i4"), tc, block.temperature_raw.astype("<i4"),
+                          block.light.astype("<i4"), block.battery_v.astype("<f8"),
+                          block.events.astype("u1")]
+        else:
+            self.temp_ok = [False]
+            self.units = [np.zeros(0, t) for t in ("<i8", "<i8", "<i4", "<f8", "<i4", "<i4", "<f8",
+                                                   "u1")]
+        ps = block.per_sample
+        self.light_raw = ps[PER_SAMPLE_LIGHT_RAW].astype("<u2") if PER_SAMPLE_LIGHT_RAW in ps else None
+        self.button = ps[PER_SAMPLE_BUTTON].astype("u1") if PER_SAMPLE_BUTTON in ps else None
+        self.head = [block.segment, None, np.ascontiguousarray(block.accel_counts_per_g, "<f8"),
+                     np.ascontiguousarray(block.accel_zero, "<f8")]
+        self.empty_u2, self.empty_u1 = np.zeros(0, "<u2"), np.zeros(0, "u1")
+
+    def write(self, sink: "McapSink", k: int) -> None:
+        """Log the raw (and gyro, temperature) messages of cell number ``k`` of this block."""
+        blk = self.block
+        a, b, ua, ub = self.a[k], self.b[k], self.ua[k], self.ub[k]
+        if not self.ok:
+            sink.write_raw(blk, a, b, ua, ub)
+            return
+        if b <= a:
+            return
+        t0 = int(blk.time_ns[a])
+        x = self.xyz
+        u = self.units
+        vals = [t0, t0, self.head[0], blk.first_sample + a, self.head[2], self.head[3],
+                self.dt[a:b], x[0, a:b], x[1, a:b], x[2, a:b]]
+        vals += [arr[ua:ub] for arr in u]
+        vals.append(self.light_raw[a:b] if self.light_raw is not None else self.empty_u2)
+        vals.append(self.button[a:b] if self.button is not None else self.empty_u1)
+        sink._msg(TOPIC_RAW, "cdr", ACCEL_BATCH_RAW.name, t0, ACCEL_BATCH_RAW.encode_values(vals))
+        if self.gyro is not None:
+            g = self.gyro
+            sink._msg(TOPIC_GYRO, "cdr", GYRO_BATCH_RAW.name, t0, GYRO_BATCH_RAW.encode_values(
+                [t0, t0, float(blk.gyro_dps_per_count), self.dt[a:b], g[0, a:b], g[1, a:b], g[2, a:b]]))
+        if ub > ua and self.temp_ok[k]:
+            sink._msg(TOPIC_TEMPERATURE, "cdr", TEMPERATURE.name, t0,
+                      TEMPERATURE.encode_values([t0, self.temp[k]]))
+
+
+class _CorrectedRun:
+    """A CorrectedBatch quantised to float32 and transposed once; messages slice it."""
+
+    def __init__(self, batch: CorrectedBatch, quantum_g: float):
+        self.batch = batch
+        self.segment = batch.segment
+        self.time_ns = batch.time_ns
+        d = np.diff(batch.time_ns)
+        self.ok = not d.size or (int(d.max()) <= INT32_MAX and int(d.min()) >= -INT32_MAX)
+        if self.ok:
+            q = quantize(batch.accel, quantum_g)
+            self.x, self.y, self.z = np.ascontiguousarray(q.T)
+            self.dt = np.empty(batch.n, "<i4")
+            self.dt[0] = 0
+            self.dt[1:] = d
+
+    def cut(self, starts: list) -> None:
+        """Messages will start at these indices: each starts its own deltas."""
+        if self.ok:
+            self.dt[starts] = 0
 
 
 class McapSink:
@@ -350,32 +448,34 @@ class McapSink:
         most the cell in progress (plus the correction's lag of one unit). Corrected samples are
         gathered per cell (and segment) into one message, driven by the corrected stream's own
         time, so the message layout does not depend on how the pipeline was cut (replay
-        reproduces it exactly)."""
+        reproduces it exactly). Arrays are converted to their CDR types once per call
+        (``_RawCells``, ``_CorrectedRun``); a message is then a few slices of them."""
         w = self.cell_ns
         cells = []
-        raw_cut = None
+        raw = None
         if block is not None and block.n:
-            # raw messages hold whole sectors/pages: a unit belongs to the cell of its first sample
-            starts = block.unit_start if block.m else np.zeros(1, np.int64)
-            ucell = block.time_ns[starts] // w
-            first = np.concatenate([[0], np.flatnonzero(ucell[1:] != ucell[:-1]) + 1])
-            raw_cut = (ucell[first], np.append(starts[first][1:], block.n), starts[first],
-                       first, np.append(first[1:], len(starts)))
-            cells.append(ucell[first])
+            raw = _RawCells(block, w)
+            cells.append(raw.cell)
         if len(epochs):
             cells.append(epochs.start_ns // w)
         todo = np.unique(np.concatenate(cells)) if cells else np.zeros(0, np.int64)
-        pieces = []  # (cell, corrected piece) in time order
+        pieces = []  # (cell, corrected run, a, b) in time order
         for c in corrected:
             if c.n == 0:
                 continue
+            run = _CorrectedRun(c, self.quantum)
             cc = c.time_ns // w
-            edges = np.concatenate([[0], np.flatnonzero(cc[1:] != cc[:-1]) + 1, [c.n]])
-            for a, b in zip(edges[:-1].tolist(), edges[1:].tolist()):
-                pieces.append((int(cc[a]), c if (a == 0 and b == c.n) else CorrectedBatch(
-                    c.time_ns[a:b], c.accel[a:b], c.temperature[a:b], c.segment)))
+            edges = np.concatenate([[0], np.flatnonzero(cc[1:] != cc[:-1]) + 1, [c.n]]).tolist()
+            ccl = cc[edges[:-1]].tolist()
+            run.cut(edges[:-1])
+            for k in range(len(edges) - 1):
+                pieces.append((ccl[k], run, edges[k], edges[k + 1]))
+        raw_cells = raw.cell.tolist() if raw is not None else []
+        ep_lo = np.searchsorted(epochs.start_ns, todo * w).tolist() if len(epochs) else None
+        ep_hi = np.searchsorted(epochs.start_ns, (todo + 1) * w).tolist() if len(epochs) else None
         j = 0
-        for cell in todo.tolist():
+        k = 0
+        for i, cell in enumerate(todo.tolist()):
             while j < len(pieces) and pieces[j][0] < cell:  # corrected data of earlier cells
                 self._take_corrected(*pieces[j])
                 j += 1
@@ -383,39 +483,41 @@ class McapSink:
                 if self._cell is not None and self.flush_every_ns is not None:
                     self._flush_cell(False)
                 self._cell = cell
-            lo, hi = cell * w, (cell + 1) * w
-            if raw_cut is not None:
-                k = int(np.searchsorted(raw_cut[0], cell))
-                if k < len(raw_cut[0]) and raw_cut[0][k] == cell:
-                    if block.m:
-                        self.write_raw(block, int(raw_cut[2][k]), int(raw_cut[1][k]),
-                                       int(raw_cut[3][k]), int(raw_cut[4][k]))
-                    else:
-                        self.write_raw(block, int(raw_cut[2][k]), int(raw_cut[1][k]), 0, 0)
-            if len(epochs):
-                a, b = np.searchsorted(epochs.start_ns, [lo, hi])
-                if b > a:
-                    self.write_epochs(EpochMetrics(**{k: getattr(epochs, k)[a:b] for k in (
-                        "start_ns", "n", "enmo_mg", "bfen_mg", "mad_mg", "mean", "temperature",
-                        "segment")}))
+            while k < len(raw_cells) and raw_cells[k] < cell:
+                k += 1
+            if k < len(raw_cells) and raw_cells[k] == cell:
+                raw.write(self, k)
+            if ep_lo is not None and ep_hi[i] > ep_lo[i]:
+                lo, hi = ep_lo[i], ep_hi[i]
+                self.write_epochs(EpochMetrics(**{f: getattr(epochs, f)[lo:hi] for f in (
+                    "start_ns", "n", "enmo_mg", "bfen_mg", "mad_mg", "mean", "temperature",
+                    "segment")}))
         while j < len(pieces):
             self._take_corrected(*pieces[j])
             j += 1
 
-    def _take_corrected(self, cell: int, piece: CorrectedBatch) -> None:
+    def _take_corrected(self, cell: int, run: "_CorrectedRun", a: int, b: int) -> None:
         if self._corr_cell is not None and cell != self._corr_cell:
             self._emit_corrected()
         self._corr_cell = cell
-        self._pending_corr.append(piece)
+        self._pending_corr.append((run, a, b))
 
     def _emit_corrected(self) -> None:
         parts, self._pending_corr = self._pending_corr, []
         i = 0
         while i < len(parts):
             j = i + 1
-            while j < len(parts) and parts[j].segment == parts[i].segment:
+            while j < len(parts) and parts[j][0].segment == parts[i][0].segment:
                 j += 1
-            self.write_corrected(parts[i] if j == i + 1 else CorrectedBatch.concat(parts[i:j]))
+            if j == i + 1 and parts[i][0].ok:
+                run, a, b = parts[i]
+                t0 = int(run.time_ns[a])
+                self._msg(TOPIC_CORRECTED, "cdr", ACCEL_BATCH.name, t0, ACCEL_BATCH.encode_values(
+                    [t0, t0, run.segment, run.dt[a:b], run.x[a:b], run.y[a:b], run.z[a:b]]))
+            else:  # a cell spread over several corrected batches (or a huge time step): rare
+                self.write_corrected(CorrectedBatch.concat([CorrectedBatch(
+                    r.time_ns[a:b], r.batch.accel[a:b], r.batch.temperature[a:b], r.segment)
+                    for r, a, b in parts[i:j]]))
             i = j
 
     def flush(self, fsync: bool = True) -> None:

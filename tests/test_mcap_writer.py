@@ -110,3 +110,89 @@ def test_chunk_size_bound_and_lazy_channel_records():
     assert (lo, hi) == (5, 6)
     assert data.startswith(rec.schema(1, "a/Msg", "ros2msg", b"int32 x\n"))
     assert cb.take() is None
+
+
+# ---------------------------------------------------------------------- the sink's fast paths
+def _block(n_units=30, per=120, step_at=None, gyro=False):
+    from stillpoint.engine.blocks import Block
+    n = n_units * per
+    t = 1_700_000_003 * 10**9 + np.arange(n, dtype=np.int64) * 10_000_000
+    if step_at is not None:
+        t[step_at:] += 5 * 10**9  # a 5 s clock step inside the segment (does not fit int32 ns)
+    rng = np.random.default_rng(4)
+    return Block(time_ns=t, accel=rng.integers(-500, 500, (n, 3)).astype(np.int16),
+                 accel_counts_per_g=np.array([256.0, 256.0, 256.0]), accel_zero=np.zeros(3),
+                 gyro=rng.integers(-900, 900, (n, 3)).astype(np.int16) if gyro else None,
+                 gyro_dps_per_count=0.0076 if gyro else None,
+                 unit_index=np.arange(n_units, dtype=np.int64) + 7,
+                 unit_sequence=np.arange(n_units, dtype=np.int64) + 100,
+                 unit_start=np.arange(n_units, dtype=np.int64) * per,
+                 temperature_c=np.where(np.arange(n_units) % 5 == 1, np.nan, 25.0 + np.arange(n_units) / 8),
+                 temperature_raw=np.arange(n_units, dtype=np.int32), light=np.arange(n_units, dtype=np.int32),
+                 battery_v=np.full(n_units, 4.1), events=np.zeros(n_units, np.uint8), segment=3,
+                 first_sample=1000)
+
+
+@pytest.mark.parametrize("step_at", [None, 1800])
+def test_sink_raw_and_corrected_messages_reproduce_the_block(tmp_path, step_at):
+    from stillpoint.engine.blocks import DeviceInfo
+    from stillpoint.engine.mcap_schemas import (ACCEL_BATCH, ACCEL_BATCH_RAW, GYRO_BATCH_RAW,
+                                                TEMPERATURE, times_from_deltas)
+    from stillpoint.engine.mcap_sink import McapSink, quantize
+    from stillpoint.engine.operators.correction import CorrectedBatch
+    from stillpoint.engine.operators.metrics import EpochMetrics
+    blk = _block(step_at=step_at, gyro=True)
+    p = tmp_path / "s.mcap"
+    sink = McapSink(p, DeviceInfo(path="x", device_type="AX6", device_id="1", session_id=0, firmware=0,
+                                      sample_rate_nominal=100.0, accel_range_g=8.0), {}, writer="inline")
+    g = blk.accel_g()
+    half = blk.n // 2  # the corrected stream arrives in two batches (a cell spans both)
+    cor = [CorrectedBatch(blk.time_ns[a:b], g[a:b], np.zeros(b - a), blk.segment)
+           for a, b in ((0, half), (half, blk.n))]
+    sink.write_slices(blk, cor, EpochMetrics.empty())
+    sink.close()
+    with open(p, "rb") as f:
+        msgs = {}
+        for _s, ch, m in make_reader(f).iter_messages(log_time_order=False):
+            msgs.setdefault(ch.topic, []).append(m.data)
+    raws = [ACCEL_BATCH_RAW.decode(d) for d in msgs["/raw/accel"]]
+    assert len(raws) >= 3  # 10 s cells (and a split at the clock step)
+    t = np.concatenate([times_from_deltas(r["t0_ns"], r["dt_ns"]) for r in raws])
+    assert np.array_equal(t, blk.time_ns)
+    xyz = np.concatenate([np.stack([r["x"], r["y"], r["z"]], 1) for r in raws])
+    assert np.array_equal(xyz, blk.accel)
+    us = np.concatenate([r["unit_start"] + (r["first_sample"] - 1000) for r in raws])
+    assert np.array_equal(us, blk.unit_start)
+    for name in ("unit_index", "unit_sequence", "temperature_raw", "light", "battery_v"):
+        assert np.array_equal(np.concatenate([r[name] for r in raws]), getattr(blk, name)), name
+    gy = [GYRO_BATCH_RAW.decode(d) for d in msgs["/raw/gyro"]]
+    assert np.array_equal(np.concatenate([np.stack([r["x"], r["y"], r["z"]], 1) for r in gy]), blk.gyro)
+    # temperature: mean of each raw message's finite unit temperatures
+    temps = [TEMPERATURE.decode(d)["celsius"] for d in msgs["/temperature"]]
+    want = [np.nanmean(r["temperature_c"]) for r in raws]
+    assert np.allclose(temps, want, rtol=0, atol=1e-12)
+    cs = [ACCEL_BATCH.decode(d) for d in msgs["/corrected/accel"]]
+    tc = np.concatenate([times_from_deltas(c["t0_ns"], c["dt_ns"]) for c in cs])
+    assert np.array_equal(tc, blk.time_ns)
+    ac = np.concatenate([np.stack([c["x"], c["y"], c["z"]], 1) for c in cs])
+    assert np.array_equal(ac, quantize(g, 2.0 ** -16))
+    cells = {int(c["t0_ns"]) // 10**10 for c in cs}
+    assert len(cs) == len(cells) + (step_at is not None)  # one message per cell (+ the split)
+
+
+def test_encode_values_equals_encode_for_every_type():
+    from stillpoint.engine.mcap_schemas import ALL_TYPES, _PRIM, _parse
+    rng = np.random.default_rng(9)
+    for typ in ALL_TYPES:
+        vals = {}
+        for f, t in typ.fields:
+            if t == "time":
+                vals[f] = int(rng.integers(0, 2**62))
+                continue
+            base, k = _parse(t)
+            dt = np.dtype(_PRIM[base])
+            n = 3 if k is None and rng.random() < 0.5 else (int(rng.integers(0, 7)) if k is None else k)
+            arr = (rng.random(n) * 100).astype(dt)
+            vals[f] = arr[0].item() if k == 0 and n else (arr if k != 0 else dt.type(1).item())
+        want = typ.encode(vals)
+        assert typ.encode_values([vals[f] for f, _t in typ.fields]) == want, typ.name

@@ -1,6 +1,6 @@
 """Benchmark: align two 7-day 100 Hz AX3 recordings (simulated wrist + hip pair).
 
-Each measurement runs in a fresh child under /usr/bin/time -v (wall, CPU = user + system, peak
+Each measurement runs in a fresh child under benchlib.measure (wall, CPU = user + system, peak
 RSS of that child):
   1. baseline: decode both files completely (open_recording, every Block's accel_g) - the floor
      any aligner that reads the data must pay;
@@ -18,11 +18,11 @@ from __future__ import annotations
 
 import argparse
 import os
-import re
-import subprocess
 import sys
 import tempfile
 import time
+
+from benchlib import measure
 
 DECODE = r"""
 import sys
@@ -37,20 +37,12 @@ print(n)
 
 
 def timed(cmd: list) -> dict:
-    p = subprocess.run(["/usr/bin/time", "-v", *cmd], capture_output=True, text=True)
-    err = p.stderr
-    def grab(pat, conv=float):
-        m = re.search(pat, err)
-        return conv(m.group(1)) if m else float("nan")
-    wall_txt = re.search(r"Elapsed \(wall clock\) time \(h:mm:ss or m:ss\): ([\d:.]+)", err)
-    wall = float("nan")
-    if wall_txt:
-        parts = [float(x) for x in wall_txt.group(1).split(":")]
-        wall = sum(v * 60 ** i for i, v in enumerate(reversed(parts)))
-    return {"rc": p.returncode, "wall": wall,
-            "cpu": grab(r"User time \(seconds\): ([\d.]+)") + grab(r"System time \(seconds\): ([\d.]+)"),
-            "rss_mb": grab(r"Maximum resident set size \(kbytes\): (\d+)") / 1024.0,
-            "out": p.stdout.strip(), "err": err if p.returncode not in (0, 3) else ""}
+    """One run in a fresh child (benchlib.measure); exit code 3 ("cannot align") is an answer."""
+    r = measure(cmd)
+    r["out"] = r["out"].strip()
+    if r["rc"] in (0, 3):
+        r["err"] = ""
+    return r
 
 
 def main(argv=None) -> int:

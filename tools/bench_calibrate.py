@@ -17,21 +17,12 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-WRAPPER = r"""
-import json, resource, subprocess, sys, time
-t = time.perf_counter()
-p = subprocess.run(sys.argv[1:], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-wall = time.perf_counter() - t
-rss = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
-print(json.dumps({"wall_s": wall, "maxrss_mb": rss / 1024.0, "rc": p.returncode,
-                  "stdout": p.stdout[-4000:], "stderr": p.stderr[-2000:]}))
-"""
+from benchlib import measure, peers_python
 
 SKDH = r"""
 import sys, warnings
@@ -56,12 +47,6 @@ print(n)
 """
 
 
-def measure(cmd) -> dict:
-    out = subprocess.run([sys.executable, "-c", WRAPPER, *cmd], stdout=subprocess.PIPE, text=True,
-                         check=True).stdout
-    return json.loads(out)
-
-
 def make_recording(path: Path, days: float, rate: float, seed: int = 7) -> dict:
     import numpy as np
 
@@ -84,8 +69,8 @@ def main(argv=None) -> int:
     ap.add_argument("--days", type=float, default=7.0)
     ap.add_argument("--rate", type=float, default=100.0)
     ap.add_argument("--workdir", default=os.path.join(tempfile.gettempdir(), "stillpoint_bench"))
-    ap.add_argument("--peers", default="/work/peers/bin/python",
-                    help="python with scikit-digital-health (skipped if missing)")
+    ap.add_argument("--peers", default=None,
+                    help="Python (or venv) with scikit-digital-health (default $STILLPOINT_PEERS_PYTHON or /work/peers; skipped if missing)")
     ap.add_argument("--repeat", type=int, default=1, help="runs per command (best is reported)")
     args = ap.parse_args(argv)
 
@@ -106,40 +91,41 @@ def main(argv=None) -> int:
         runs = [measure(cmd) for _ in range(max(1, args.repeat))]
         for r in runs:
             if r["rc"] != 0:
-                print(f"command failed: {' '.join(map(str, cmd))}\n{r['stderr']}", file=sys.stderr)
+                print(f"command failed: {' '.join(map(str, cmd))}\n{r['err']}", file=sys.stderr)
                 sys.exit(1)
-        return min(runs, key=lambda r: r["wall_s"])
+        return min(runs, key=lambda r: r["wall"])
 
     res = {}
     res["calibrate"] = best(stillpoint + ["calibrate", str(path), "--json"])
     res["calibrate --read-all"] = best(stillpoint + ["calibrate", str(path), "--json",
                                                     "--read-all"])
     res["decode (CwaReader, whole file)"] = best([sys.executable, "-c", DECODE, str(path)])
-    have_skdh = Path(args.peers).exists()
+    peers_py = peers_python(args.peers)
+    have_skdh = peers_py is not None
     if have_skdh:
-        res["skdh read + autocal"] = best([args.peers, "-c", SKDH, str(path)])
+        res["skdh read + autocal"] = best([peers_py, "-c", SKDH, str(path)])
 
-    est = json.loads(res["calibrate"]["stdout"])
+    est = json.loads(res["calibrate"]["out"])
     print(f"\nfile: {path.name}, {args.days:g} days at {args.rate:g} Hz, {size_mb:.0f} MB")
     print(f"{'command':<34} {'wall (s)':>9} {'peak RSS (MB)':>14}")
     for k, r in res.items():
-        print(f"{k:<34} {r['wall_s']:>9.2f} {r['maxrss_mb']:>14.0f}")
+        print(f"{k:<34} {r['wall']:>9.2f} {r['rss_mb']:>14.0f}")
     ours = res["calibrate"]
     print("\nratios (same run):")
     if have_skdh:
         sk = res["skdh read + autocal"]
         print("  skdh read+autocal / stillpoint calibrate      = "
-              f"{sk['wall_s'] / ours['wall_s']:.1f}x"
+              f"{sk['wall'] / ours['wall']:.1f}x"
               "  (target >= 4x)")
         print(f"  skdh read+autocal / calibrate --read-all      = "
-              f"{sk['wall_s'] / res['calibrate --read-all']['wall_s']:.1f}x")
+              f"{sk['wall'] / res['calibrate --read-all']['wall']:.1f}x")
         print(f"  peak RSS skdh / stillpoint                    = "
-              f"{sk['maxrss_mb'] / ours['maxrss_mb']:.1f}x")
+              f"{sk['rss_mb'] / ours['rss_mb']:.1f}x")
     else:
-        print(f"  (skdh not found at {args.peers}: skipped)")
+        print(f"  (peer tools' Python not found ({args.peers or 'default'}): skdh skipped)")
     print(f"  calibrate / plain decode of the whole file    = "
-          f"{ours['wall_s'] / res['decode (CwaReader, whole file)']['wall_s']:.2f}")
-    print(f"  stillpoint calibrate peak RSS                 = {ours['maxrss_mb']:.0f} MB "
+          f"{ours['wall'] / res['decode (CwaReader, whole file)']['wall']:.2f}")
+    print(f"  stillpoint calibrate peak RSS                 = {ours['rss_mb']:.0f} MB "
           "(target < 200 MB)")
     import numpy as np
 
@@ -157,7 +143,7 @@ def main(argv=None) -> int:
           f"{np.max(np.abs(np.subtract(est['tempoffset'], truth['tempoffset']))) * 1e3:.3f} mg/degC"
           " (AX3 temperature is quantised to 0.29 degC)")
     if have_skdh:
-        print(f"  skdh: {res['skdh read + autocal']['stdout'].strip()[:300]}")
+        print(f"  skdh: {res['skdh read + autocal']['out'].strip()[:300]}")
     return 0
 
 

@@ -8,7 +8,7 @@ RSS of that child, via ``getrusage(RUSAGE_CHILDREN)`` in a one-shot meter proces
 * ``stillpoint inspect FILE --json`` (a full pass through ``CwaReader``),
 * a full ``CwaReader`` pass in Python (no CLI around it),
 * a plain numpy whole-file decode (the in-memory baseline: read all, decode all at once),
-* cwa-reader-rs from /work/peers (and, with ``--all-peers``, actipy and scikit-digital-health),
+* cwa-reader-rs from the peers' environment (``--peers``; and, with ``--all-peers``, actipy and scikit-digital-health),
 
 and prints the figures and their ratios measured in the same run (machines are noisy: compare
 ratios, not seconds). With several ``--days`` values (default ``7 14``) it also checks that the
@@ -20,29 +20,14 @@ reader's peak RSS does not grow with the file length. Run:
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import subprocess
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
+from benchlib import best_of, peers_python
 
-PEERS_PY = "/work/peers/bin/python"
 NS = 1_000_000_000
-
-METER = r"""
-import json, resource, subprocess, sys, time
-cmd = json.loads(sys.argv[1])
-t = time.perf_counter()
-p = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-wall = time.perf_counter() - t
-ru = resource.getrusage(resource.RUSAGE_CHILDREN)
-print(json.dumps({"wall": wall, "rss_mb": ru.ru_maxrss / 1024, "cpu": ru.ru_utime + ru.ru_stime,
-                  "rc": p.returncode,
-                  "out": p.stdout[-400:], "err": p.stderr[-400:]}))
-"""
 
 READER_PASS = r"""
 import sys
@@ -128,28 +113,6 @@ def write_recording(path: Path, days: float, rate: float = 100.0, chunk: int = 1
     return n_total, spent
 
 
-def measure(cmd: list[str]) -> dict:
-    out = subprocess.run([sys.executable, "-c", METER, json.dumps(cmd)], capture_output=True,
-                         text=True, check=True).stdout
-    return json.loads(out)
-
-
-def best_of(cmds: dict[str, list[str]], repeat: int) -> dict[str, dict]:
-    """Run the commands interleaved (A B C, A B C, ...) so slow phases of a busy machine hit all
-    of them alike; per command: best wall and CPU, max RSS."""
-    runs: dict[str, list] = {name: [] for name in cmds}
-    for _ in range(repeat):
-        for name, cmd in cmds.items():
-            runs[name].append(measure(cmd))
-    out = {}
-    for name, rs in runs.items():
-        best = dict(min(rs, key=lambda r: r["wall"]))
-        best["rss_mb"] = max(r["rss_mb"] for r in rs)
-        best["cpu"] = min(r["cpu"] for r in rs)
-        out[name] = best
-    return out
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--days", type=float, nargs="+", default=[7.0, 14.0])
@@ -158,13 +121,15 @@ def main(argv=None) -> int:
                     help="runs per measurement (best wall and CPU, max RSS); CPU time (user+sys) is "
                          "less sensitive to other load than wall time")
     ap.add_argument("--all-peers", action="store_true", help="also time actipy and skdh (slow, GBs)")
+    ap.add_argument("--peers", default=None, help="Python of the peer tools' environment (default: $STILLPOINT_PEERS_PYTHON or /work/peers/bin/python)")
     ap.add_argument("--keep", action="store_true", help="keep the generated files")
     args = ap.parse_args(argv)
     d = Path(args.dir)
     d.mkdir(parents=True, exist_ok=True)
     py = sys.executable
     stillpoint = str(Path(py).with_name("stillpoint"))
-    have_peers = Path(PEERS_PY).exists()
+    peers_py = peers_python(args.peers)
+    have_peers = peers_py is not None
     results: dict[float, dict[str, dict]] = {}
     for k, days in enumerate(args.days):
         path = d / f"bench_{days:g}d.cwa"
@@ -181,10 +146,10 @@ def main(argv=None) -> int:
         if k == 0:  # baselines once, on the first (7-day) file
             cmds["numpy whole-file decode"] = [py, "-c", NUMPY_BASELINE, str(path)]
             if have_peers:
-                cmds["cwa-reader-rs"] = [PEERS_PY, "-c", RS, str(path)]
+                cmds["cwa-reader-rs"] = [peers_py, "-c", RS, str(path)]
                 if args.all_peers:
-                    cmds["actipy"] = [PEERS_PY, "-c", ACTIPY, str(path)]
-                    cmds["skdh"] = [PEERS_PY, "-c", SKDH, str(path)]
+                    cmds["actipy"] = [peers_py, "-c", ACTIPY, str(path)]
+                    cmds["skdh"] = [peers_py, "-c", SKDH, str(path)]
         res = best_of(cmds, args.repeat)
         for name, r in res.items():
             status = "" if r["rc"] == 0 else f"  FAILED rc={r['rc']}: {r['err'].strip().splitlines()[-1:]}"

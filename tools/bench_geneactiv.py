@@ -20,27 +20,14 @@ means the same RSS).
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import subprocess
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
+from benchlib import measure, peers_python
 
 HERE = Path(__file__).resolve().parent
-
-WRAPPER = r'''
-import json, resource, subprocess, sys, time
-t = time.perf_counter()
-r = subprocess.run(sys.argv[1:], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-wall = time.perf_counter() - t
-ru = resource.getrusage(resource.RUSAGE_CHILDREN)
-rss = ru.ru_maxrss / 1024.0
-print(json.dumps({"wall": wall, "cpu": ru.ru_utime + ru.ru_stime, "rss_mb": rss, "rc": r.returncode,
-                  "out": r.stdout.decode()[-400:], "err": r.stderr.decode()[-400:]}))
-'''
 
 NUMPY_BASELINE = r'''
 import re, sys, numpy as np
@@ -85,25 +72,20 @@ def write_file(path: Path, days: float, rate: float = 100.0) -> int:
     return (n // 300) * 300
 
 
-def measure(cmd: list[str]) -> dict:
-    r = subprocess.run([sys.executable, "-c", WRAPPER] + cmd, capture_output=True, text=True)
-    return json.loads(r.stdout)
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--days", type=float, default=7.0)
     ap.add_argument("--dir", default="/tmp")
     ap.add_argument("--flat-check", action="store_true", help="also a file twice as long (RSS must not grow)")
     ap.add_argument("--no-peers", action="store_true")
-    ap.add_argument("--peers", default="/work/peers")
+    ap.add_argument("--peers", default=None, help="Python (or venv folder) of the peer tools (default: $STILLPOINT_PEERS_PYTHON or /work/peers)")
     ap.add_argument("--keep", action="store_true", help="keep the written files")
     args = ap.parse_args(argv)
     d = Path(args.dir)
     d.mkdir(parents=True, exist_ok=True)
     py = sys.executable
     stillpoint = [py, "-m", "stillpoint.tools"]
-    peer_py = str(Path(args.peers) / "bin" / "python")
+    peer_py = peers_python(args.peers)
     files = [(args.days, d / f"bench_geneactiv_{args.days:g}d.bin")]
     if args.flat_check:
         files.append((2 * args.days, d / f"bench_geneactiv_{2 * args.days:g}d.bin"))
@@ -117,7 +99,7 @@ def main(argv=None) -> int:
             runs = {"stillpoint inspect": stillpoint + ["inspect", str(path), "--json"]}
             if days == args.days:
                 runs["numpy whole-file"] = [py, "-c", NUMPY_BASELINE, str(path)]
-                if not args.no_peers and os.path.exists(peer_py):
+                if not args.no_peers and peer_py:
                     runs["skdh ReadBin"] = [peer_py, "-c", SKDH, str(path)]
                     runs["actipy read_device"] = [peer_py, "-c", ACTIPY, str(path)]
             for name, cmd in runs.items():

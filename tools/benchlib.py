@@ -1,0 +1,67 @@
+"""Shared pieces of the benchmark scripts (tools/bench_*.py).
+
+* ``measure(cmd)``: run a command in a fresh child under a one-shot meter process and return its
+  wall time, CPU time (user + system) and peak RSS (``getrusage(RUSAGE_CHILDREN)`` of the meter,
+  i.e. of that child alone), exit code and output.
+* ``best_of(cmds, repeat)``: run several commands interleaved (A B C, A B C, ...) so slow phases
+  of a busy machine hit all of them alike; keep the best wall and CPU and the largest RSS.
+* ``peers_python()``: the Python of the separate environment holding the peer tools
+  (cwa-reader-rs, scikit-digital-health, actipy), from ``STILLPOINT_PEERS_PYTHON`` or the
+  ``--peers`` option; peers are only ever run as child processes, never imported.
+
+The scripts import this as a sibling module (``python tools/bench_x.py`` puts tools/ on sys.path).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+from typing import Optional
+
+DEFAULT_PEERS_PYTHON = "/work/peers/bin/python"
+
+METER = r"""
+import json, resource, subprocess, sys, time
+cmd = json.loads(sys.argv[1])
+t = time.perf_counter()
+p = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+wall = time.perf_counter() - t
+ru = resource.getrusage(resource.RUSAGE_CHILDREN)
+print(json.dumps({"wall": wall, "cpu": ru.ru_utime + ru.ru_stime, "rss_mb": ru.ru_maxrss / 1024,
+                  "rc": p.returncode, "out": p.stdout, "err": p.stderr[-2000:]}))
+"""
+
+
+def measure(cmd: list) -> dict:
+    """{"wall", "cpu", "rss_mb", "rc", "out", "err"} of one run of ``cmd`` in a fresh child."""
+    out = subprocess.run([sys.executable, "-c", METER, json.dumps([str(c) for c in cmd])],
+                         capture_output=True, text=True, check=True).stdout
+    return json.loads(out)
+
+
+def best_of(cmds: dict, repeat: int = 1) -> dict:
+    """Per command name: the run with the best wall time, with the best CPU time and the largest
+    peak RSS over the repeats."""
+    runs: dict = {name: [] for name in cmds}
+    for _ in range(max(1, repeat)):
+        for name, cmd in cmds.items():
+            runs[name].append(measure(cmd))
+    out = {}
+    for name, rs in runs.items():
+        best = dict(min(rs, key=lambda r: r["wall"]))
+        best["cpu"] = min(r["cpu"] for r in rs)
+        best["rss_mb"] = max(r["rss_mb"] for r in rs)
+        out[name] = best
+    return out
+
+
+def peers_python(option: Optional[str] = None) -> Optional[str]:
+    """The peer tools' Python (option, else $STILLPOINT_PEERS_PYTHON, else the dev default), or
+    None when it does not exist (the scripts then say the peers were skipped)."""
+    p = option or os.environ.get("STILLPOINT_PEERS_PYTHON") or DEFAULT_PEERS_PYTHON
+    if Path(p).is_dir():  # a virtual environment's folder
+        p = str(Path(p) / "bin" / "python")
+    return p if Path(p).exists() else None

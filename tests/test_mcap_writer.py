@@ -196,3 +196,21 @@ def test_encode_values_equals_encode_for_every_type():
             vals[f] = arr[0].item() if k == 0 and n else (arr if k != 0 else dt.type(1).item())
         want = typ.encode(vals)
         assert typ.encode_values([vals[f] for f, _t in typ.fields]) == want, typ.name
+
+
+def test_writer_modes_write_the_same_messages(tmp_path):
+    from stillpoint.engine.mcap_compare import compare
+    from stillpoint.engine.run import RunSettings, process_file
+    from stillpoint.tools.commands.demo import make_recording
+    rec_path = tmp_path / "r.cwa"
+    make_recording(rec_path, hours=0.25, rate=50.0, seed=5)
+    outs = {}
+    for mode in ("inline", "thread", "process"):
+        outs[mode] = tmp_path / f"{mode}.mcap"
+        s = process_file(rec_path, outs[mode], RunSettings(mode="batch"), writer=mode)
+        assert s["mcap_flushes"] >= 0.25 * 3600 / 10 - 2
+    for mode in ("thread", "process"):
+        res = compare(outs["inline"], outs[mode])
+        assert all(r["identical"] for r in res.values()), (mode, res)
+        assert res["/raw/accel"]["messages"][0] >= 80
+    assert s["peak_rss_mb"]["writer"] is not None  # the process writer reports its own peak

@@ -20,6 +20,15 @@ from . import mcap_records as rec
 _MSG_HEAD = rec.MESSAGE_HEADER
 
 
+class FixedRecords:
+    """Message records framed ahead of time (``ChunkBuilder.prepare_fixed``)."""
+
+    __slots__ = ("cid", "seq0", "data", "width", "times")
+
+    def __init__(self, cid: int, seq0: int, data: bytes, width: int, times: np.ndarray):
+        self.cid, self.seq0, self.data, self.width, self.times = cid, seq0, data, width, times
+
+
 class ChunkBuilder:
     def __init__(self, schemas: dict[str, tuple[str, bytes]], chunk_size: int):
         """``schemas``: name -> (encoding, schema text) of every schema a channel may use."""
@@ -90,15 +99,14 @@ class ChunkBuilder:
         self._times(t, t)
         return self._size >= self.chunk_size
 
-    def add_fixed(self, cid: int, log_times: np.ndarray, payloads: np.ndarray) -> bool:
-        """Append ``len(log_times)`` messages whose payloads are the rows of ``payloads``
-        (a (k, w) uint8 array or a structured array): all records in one numpy pass."""
+    def prepare_fixed(self, cid: int, log_times: np.ndarray, payloads: np.ndarray) -> "FixedRecords":
+        """The Message records of ``len(log_times)`` fixed-size messages (payloads: the rows of a
+        (k, w) uint8 or structured array), framed in one numpy pass; append them in order, in
+        one or more runs, with ``add_prepared``. Sequence numbers continue the channel's."""
         k = int(log_times.shape[0])
-        if k == 0:
-            return False
         pay = np.ascontiguousarray(payloads).view(np.uint8).reshape(k, -1)
         w = pay.shape[1]
-        t = np.maximum(np.asarray(log_times, np.int64), 0).astype("<u8")
+        t = np.maximum(np.asarray(log_times, np.int64), 0)
         a = np.zeros(k, np.dtype([("op", "u1"), ("len", "<u8"), ("cid", "<u2"), ("seq", "<u4"),
                                   ("log", "<u8"), ("pub", "<u8"), ("data", "u1", (w,))]))
         a["op"] = rec.OP_MESSAGE
@@ -109,12 +117,27 @@ class ChunkBuilder:
         a["log"] = t
         a["pub"] = t
         a["data"] = pay
-        self._seq[cid] = seq + k
-        self.counts[cid] += k
+        return FixedRecords(cid, seq, a.tobytes(), a.dtype.itemsize, t)
+
+    def add_prepared(self, fr: "FixedRecords", lo: int, hi: int) -> bool:
+        """Append records [lo, hi) of ``fr`` (runs must follow each other: lo = the last hi)."""
+        if hi <= lo:
+            return False
+        if self._seq[fr.cid] != fr.seq0 + lo:
+            raise RuntimeError("prepared messages appended out of order")
+        k = hi - lo
+        self._seq[fr.cid] += k
+        self.counts[fr.cid] += k
         self.message_count += k
-        self._append(a.tobytes())
-        self._times(int(t.min()), int(t.max()))
+        self._append(fr.data[lo * fr.width:hi * fr.width])
+        tt = fr.times[lo:hi]
+        self._times(int(tt.min()), int(tt.max()))
         return self._size >= self.chunk_size
+
+    def add_fixed(self, cid: int, log_times: np.ndarray, payloads: np.ndarray) -> bool:
+        """Append ``len(log_times)`` fixed-size messages at once (see ``prepare_fixed``)."""
+        k = int(log_times.shape[0])
+        return self.add_prepared(self.prepare_fixed(cid, log_times, payloads), 0, k) if k else False
 
     # ------------------------------------------------------------------ chunks
     @property

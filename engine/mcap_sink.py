@@ -479,6 +479,7 @@ class McapSink:
         ep_hi = np.searchsorted(epochs.start_ns, (todo + 1) * w).tolist() if len(epochs) else None
         j = 0
         k = 0
+        ep_rec = None
         for i, cell in enumerate(todo.tolist()):
             while j < len(pieces) and pieces[j][0] < cell:  # corrected data of earlier cells
                 self._take_corrected(*pieces[j])
@@ -492,10 +493,12 @@ class McapSink:
             if k < len(raw_cells) and raw_cells[k] == cell:
                 raw.write(self, k)
             if ep_lo is not None and ep_hi[i] > ep_lo[i]:
-                lo, hi = ep_lo[i], ep_hi[i]
-                self.write_epochs(EpochMetrics(**{f: getattr(epochs, f)[lo:hi] for f in (
-                    "start_ns", "n", "enmo_mg", "bfen_mg", "mad_mg", "mean", "temperature",
-                    "segment")}))
+                if ep_rec is None:  # every epoch of this call framed at once, appended per cell
+                    ch = self._chunk
+                    ep_rec = ch.prepare_fixed(ch.channel(TOPIC_METRICS, "cdr", EPOCH_METRICS.name),
+                                              epochs.start_ns, epoch_records(epochs))
+                if self._chunk.add_prepared(ep_rec, ep_lo[i], ep_hi[i]):
+                    self._end_chunk(False)
         while j < len(pieces):
             self._take_corrected(*pieces[j])
             j += 1

@@ -98,6 +98,31 @@ def test_streaming_filter_equals_scipy_on_whole_signal():
     assert band_used(20.0) == (0.2, 9.0)
 
 
+def test_bandpass_design_has_scipy_butter_response_and_state_layout():
+    for rate, band in ((100.0, (0.2, 15.0)), (600 / 7, (0.2, 15.0)), (20.0, (0.2, 9.0)),
+                       (200.0, (0.5, 15.0))):
+        ours = bandpass_sos(rate, band)
+        ref = signal.butter(4, band, "bandpass", fs=rate, output="sos")
+        _w, h1 = signal.sosfreqz(ours, 2048, fs=rate)
+        _w, h2 = signal.sosfreqz(ref, 2048, fs=rate)
+        assert np.max(np.abs(h1 - h2)) < 1e-9, (rate, band)
+    # the state reads back in scipy's (sections, 2, channels) layout and continues scipy's filter
+    x = np.random.default_rng(3).normal(size=(1000, 3))
+    f = SosStream(bandpass_sos(100.0))
+    f.push(x[:600])
+    y2, _zi = signal.sosfilt(f.sos, x[600:], axis=0, zi=f.zi)
+    assert np.array_equal(f.push(x[600:]), y2)
+
+
+def test_engine_start_up_does_not_import_scipy_signal():
+    import subprocess
+    import sys
+    code = ("import sys; import stillpoint.engine.run; "
+            "print('scipy.signal' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
+
+
 def metrics_of(batches, band=(0.2, 15.0)):
     return EpochMetrics.concat(run_op(MetricsOperator(RATE, band=band), batches))
 

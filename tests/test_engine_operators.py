@@ -179,3 +179,25 @@ def test_streaming_filter_independent_of_cuts(cuts, band):
     f = SosStream(sos)
     y = np.concatenate([f.push(p) for p in np.split(x, sorted(cuts))])
     assert np.array_equal(y, signal.sosfilt(sos, x, axis=0))
+
+
+def test_column_helpers_are_bit_identical_to_the_broadcast_forms():
+    from stillpoint.engine.calibration.estimate import CalibrationEstimate
+    from stillpoint.engine.blocks import Block
+    from stillpoint.engine.operators.base import accel_g_columns, apply_columns
+    rng = np.random.default_rng(8)
+    n = 5000
+    blk = Block(time_ns=np.arange(n, dtype=np.int64) * 10**7,
+                accel=rng.integers(-2000, 2000, (n, 3)).astype(np.int16),
+                accel_counts_per_g=np.array([256.0, 250.5, 260.25]),
+                accel_zero=np.array([1.5, -2.0, 0.25]))
+    g = accel_g_columns(blk)
+    assert np.array_equal(g, blk.accel_g())
+    temp = 20 + rng.random(n) * 10
+    for tempoffset in ([0.0, 0.0, 0.0], [1e-3, -2e-3, 5e-4]):
+        est = CalibrationEstimate(offset=[0.01, -0.02, 0.03], scale=[0.99, 1.01, 1.002],
+                                  tempoffset=tempoffset, temperature_ref=25.0)
+        assert np.array_equal(apply_columns(est, g, temp), est.apply(g, temp))
+    temp[7] = np.nan  # no temperature term: NaN temperatures do not reach the output
+    est0 = CalibrationEstimate(offset=[0.01, 0, 0], scale=[1, 1, 1], tempoffset=[0, 0, 0])
+    assert np.isfinite(apply_columns(est0, g, temp)).all()

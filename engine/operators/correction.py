@@ -24,7 +24,7 @@ import numpy as np
 from ..blocks import Block
 from ..calibration.estimate import CalibrationEstimate
 from ..ringbuffer import RingBuffer
-from .base import ring_capacity
+from .base import accel_g_columns, apply_columns, ring_capacity
 
 
 @dataclass
@@ -102,7 +102,7 @@ class TemperatureInterpolator:
             us, uidx, utemp = block.unit_start, block.unit_index, block.temperature_c
         else:  # a block without unit arrays: one unit of unknown temperature
             us, uidx, utemp = np.zeros(1, np.int64), np.array([-1]), np.array([np.nan])
-        t, g = block.time_ns, block.accel_g()
+        t, g = block.time_ns, accel_g_columns(block)
         continuing = self._open_unit is not None and uidx[0] == self._open_unit and uidx[0] >= 0
         if continuing and len(us) == 1:
             self._ring.append(time=t, accel=g)
@@ -165,11 +165,12 @@ class EstimateSchedule:
         return list(self._est)
 
     def apply(self, batch: CorrectedBatch) -> CorrectedBatch:
-        """Calibrate a batch of raw g (per-sample estimate in force)."""
-        out = np.empty_like(batch.accel)
+        """Calibrate a batch of raw g (per-sample estimate in force); the result is the (n, 3)
+        view of a (3, n) array (``CalibrationEstimate.apply``'s numbers, column by column)."""
         if len(self._est) == 1:
-            self._est[0].apply(batch.accel, batch.temperature, out=out)
+            out = apply_columns(self._est[0], batch.accel, batch.temperature)
         else:
+            out_t = np.empty((3, batch.n))
             # compare in int64 ns (exact); -inf entries map to the smallest int64
             eff = np.array([np.iinfo(np.int64).min if f == -np.inf else int(e.effective_from_ns)
                             for f, e in zip(self._from, self._est)], np.int64)
@@ -177,7 +178,9 @@ class EstimateSchedule:
             idx = np.maximum(idx, 0)
             bounds = np.concatenate([[0], np.flatnonzero(idx[1:] != idx[:-1]) + 1, [batch.n]])
             for a, b in zip(bounds[:-1], bounds[1:]):
-                self._est[int(idx[a])].apply(batch.accel[a:b], batch.temperature[a:b], out=out[a:b])
+                apply_columns(self._est[int(idx[a])], batch.accel[a:b], batch.temperature[a:b],
+                              out_t[:, a:b])
+            out = out_t.T
         return CorrectedBatch(batch.time_ns, out, batch.temperature, batch.segment)
 
 

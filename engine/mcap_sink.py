@@ -144,7 +144,10 @@ def gyro_message(block: Block, a: int = 0, b: Optional[int] = None,
 def quantize(accel: np.ndarray, quantum_g: float) -> np.ndarray:
     """float32 of ``accel`` rounded to a multiple of ``quantum_g`` (0: plain float32)."""
     if quantum_g:
-        return (np.round(accel * (1.0 / quantum_g)) * quantum_g).astype(np.float32)
+        t = accel * (1.0 / quantum_g)
+        np.round(t, out=t)
+        t *= quantum_g
+        return t.astype(np.float32)
     return accel.astype(np.float32)
 
 

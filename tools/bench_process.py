@@ -1,12 +1,16 @@
 """Benchmark `stillpoint process --mode batch` (two passes, full MCAP log) on long packed AX3 files.
 
     /work/venv/bin/python tools/bench_process.py [--days 7] [--rss-days 1,7,14] [--repeat 1]
+                                                 [--before 81a4d51]
 
-Measured side by side in one run, each command in its own child process (wall time and peak RSS
-of that child via ``getrusage(RUSAGE_CHILDREN)``):
+Measured side by side in one run, each command in its own child process (wall time, CPU time and
+peak RSS of that child and its children via ``getrusage(RUSAGE_CHILDREN)``):
 
 * plain decode: one CwaReader pass over the whole file (the drivers' decode baseline);
-* ``stillpoint process --mode batch`` with the default 10 s flush cadence, and with 60 s;
+* ``stillpoint process --mode batch`` with the default 10 s flush cadence (inline writer), with
+  the writer in a child process (``writer="process"``, API), and with 60 s flushes;
+* the same command at an earlier commit (``--before REV``: ``git archive`` of engine/, drivers/,
+  tools/ into the workdir, run with that tree first on PYTHONPATH), for a before/after table;
 * scikit-digital-health read + autocalibration (if ``--peers`` python has skdh);
 * peak RSS of ``process`` on 1-, 7- and 14-day files (must be flat and < 300 MB);
 * MCAP size against the input .cwa (must be <= 2x).
@@ -59,17 +63,42 @@ print(sorted(r))
 """
 
 
-def measure(cmd) -> dict:
+PROCESS_API = r"""
+import sys
+from stillpoint.engine.run import RunSettings, process_file
+process_file(sys.argv[1], sys.argv[2], RunSettings(mode="batch"), writer=sys.argv[3])
+"""
+
+
+def measure(cmd, env=None) -> dict:
     out = subprocess.run([sys.executable, "-c", WRAPPER, *map(str, cmd)], stdout=subprocess.PIPE,
-                         text=True, check=True).stdout
+                         text=True, check=True, env=env).stdout
     r = json.loads(out)
     if r["rc"] != 0:
         raise SystemExit(f"command failed: {' '.join(map(str, cmd))}\n{r['stderr']}")
     return r
 
 
-def best(cmd, repeat):
-    return min((measure(cmd) for _ in range(max(1, repeat))), key=lambda r: r["wall_s"])
+def best(cmd, repeat, env=None):
+    return min((measure(cmd, env) for _ in range(max(1, repeat))), key=lambda r: r["wall_s"])
+
+
+def before_tree(workdir: Path, rev: str) -> dict:
+    """An environment running the engine as it was at ``rev`` (git archive into the workdir)."""
+    repo = Path(__file__).resolve().parent.parent
+    sha = subprocess.run(["git", "-C", str(repo), "rev-parse", "--short", rev], check=True,
+                         stdout=subprocess.PIPE, text=True).stdout.strip()
+    root = workdir / f"before_{sha}"
+    pkg = root / "stillpoint"
+    if not (pkg / "engine").is_dir():
+        pkg.mkdir(parents=True, exist_ok=True)
+        (pkg / "__init__.py").write_text("")
+        tar = subprocess.run(["git", "-C", str(repo), "archive", sha, "engine", "drivers", "tools"],
+                             check=True, stdout=subprocess.PIPE).stdout
+        subprocess.run(["tar", "-x", "-C", str(pkg)], input=tar, check=True)
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(root) + os.pathsep + env.get("PYTHONPATH", "")
+    return {"env": env, "sha": sha}
 
 
 def recording(workdir: Path, days: float, rate: float) -> Path:
@@ -102,6 +131,8 @@ def main(argv=None) -> int:
     ap.add_argument("--workdir", default=os.path.join(tempfile.gettempdir(), "stillpoint_bench"))
     ap.add_argument("--peers", default="/work/peers/bin/python")
     ap.add_argument("--repeat", type=int, default=1)
+    ap.add_argument("--before", default="", help="also run process at this git revision "
+                    "(e.g. 81a4d51, the engine before the speed work)")
     args = ap.parse_args(argv)
     wd = Path(args.workdir)
     wd.mkdir(parents=True, exist_ok=True)
@@ -118,6 +149,13 @@ def main(argv=None) -> int:
     s = json.loads(summ.read_text())
     res["process60"] = best(sp + ["process", path, "-o", out, "--mode", "batch", "-q",
                                   "--flush-every-s", "60"], args.repeat)
+    res["process_wp"] = best([sys.executable, "-c", PROCESS_API, path, out, "process"], args.repeat)
+    if args.before:
+        bt = before_tree(wd, args.before)
+        res["before"] = best(sp + ["process", path, "-o", wd / "bench_before.mcap", "--mode",
+                                   "batch", "-q"], args.repeat, env=bt["env"])
+        before_mb = (wd / "bench_before.mcap").stat().st_size / 1e6
+        (wd / "bench_before.mcap").unlink()
     have_skdh = Path(args.peers).exists()
     if have_skdh:
         res["skdh"] = best([args.peers, "-c", SKDH, path], args.repeat)
@@ -126,24 +164,33 @@ def main(argv=None) -> int:
     print(f"\nfile: {path.name}: {s['samples']:,} samples, {s['duration_s'] / 86400:.2f} days, "
           f"{cwa_mb:.0f} MB; calibration {s['calibration']['status']} "
           f"({s['calibration']['error_before_mg']:.2f} -> {s['calibration']['error_after_mg']:.2f} mg)")
-    print(f"{'command':44s} {'wall s':>8s} {'cpu s':>8s} {'peak RSS MB':>12s}")
-    rows = [("plain decode (CwaReader, whole file)", dec),
-            ("process --mode batch (flush every 10 s)", pr),
-            ("process --mode batch --flush-every-s 60", pr60)]
+    print(f"{'command':48s} {'wall s':>8s} {'cpu s':>8s} {'peak RSS MB':>12s}")
+    rows = [("plain decode (CwaReader, whole file)", dec)]
+    if args.before:
+        rows.append((f"before ({bt['sha']}): process --mode batch", res["before"]))
+    rows += [("process --mode batch (flush every 10 s)", pr),
+             ("  same, writer in a child process (API)", res["process_wp"]),
+             ("process --mode batch --flush-every-s 60", pr60)]
     if have_skdh:
         rows.append(("skdh read + autocalibration", res["skdh"]))
     for name, r in rows:
-        print(f"{name:44s} {r['wall_s']:8.2f} {r['cpu_s']:8.2f} {r['maxrss_mb']:12.0f}")
+        print(f"{name:48s} {r['wall_s']:8.2f} {r['cpu_s']:8.2f} {r['maxrss_mb']:12.0f}")
     rss = s.get("peak_rss_mb") or {}
     if rss.get("writer"):
         print(f"  process peak RSS: engine {rss['engine']:.0f} MB + writer process {rss['writer']:.0f} MB "
               f"= {rss['engine'] + rss['writer']:.0f} MB (each process's VmHWM)")
     print("ratios (same run):")
-    print(f"  process / plain decode                      = {pr['wall_s'] / dec['wall_s']:.1f}x wall")
+    print(f"  process / plain decode                      = {pr['wall_s'] / dec['wall_s']:.1f}x wall, "
+          f"{pr['cpu_s'] / dec['cpu_s']:.1f}x cpu")
+    if args.before:
+        b = res["before"]
+        print(f"  before / now                                = {b['wall_s'] / pr['wall_s']:.2f}x wall, "
+              f"{b['cpu_s'] / pr['cpu_s']:.2f}x cpu (before's MCAP {before_mb / cwa_mb:.2f}x the .cwa)")
     if have_skdh:
         sk = res["skdh"]
         print(f"  skdh read+autocal / process                 = {sk['wall_s'] / pr['wall_s']:.2f}x wall "
-              f"(target > 1), {sk['wall_s'] / pr60['wall_s']:.2f}x with 60 s flushes")
+              f"(target > 1), {sk['cpu_s'] / pr['cpu_s']:.2f}x cpu, "
+              f"{sk['wall_s'] / pr60['wall_s']:.2f}x wall with 60 s flushes")
         print(f"  peak RSS skdh / process                     = {sk['maxrss_mb'] / pr['maxrss_mb']:.1f}x")
     print(f"  MCAP size / input .cwa                      = {mcap_mb / cwa_mb:.2f}x "
           f"({mcap_mb:.0f} MB; target <= 2x)")

@@ -9,7 +9,7 @@ import pytest
 
 from stillpoint.engine.sim import model as sim
 from stillpoint.engine.workflows import scenarios
-from stillpoint.engine.workflows.synthetic import simulate_windows
+from stillpoint.engine.workflows.simwindows import simulate_windows
 from stillpoint.tools.cli import main
 
 KEYS = {"steps", "final_model", "gap_initial_mg", "gap_final_mg", "noise_floor_mg"}
@@ -28,7 +28,8 @@ def _table(path, feats, still):
 def hidden_table(tmp_path_factory):
     d = tmp_path_factory.mktemp("disc")
     truth, start = scenarios.models("temperature_offset", 5)
-    feats, still = simulate_windows(truth, days=1.5, seed=5)
+    sw = simulate_windows(truth, days=1.5, seed=5)
+    feats, still, truth = sw.features, sw.still, sw.truth
     p = d / "features.csv"
     _table(p, feats, still)
     (d / "truth.json").write_text(truth.to_json())

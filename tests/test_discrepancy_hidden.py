@@ -1,25 +1,27 @@
-"""Hidden-effect tests of the discrepancy workflow, CI size: 2-day wrist recordings simulated at the
-window level through the simulator's sensor model (engine.workflows.scenarios), a few seeds each.
-The full 20-seed, 7-day table is tools/discrepancy_seeds.py.
+"""Hidden-effect tests of the discrepancy workflow, CI size: 4-day wrist recordings simulated with the
+simulator's own wearer, temperature track and sensor model (engine.workflows.simwindows, window noise
+by the exact-moment shortcut), a few seeds each. The full 20-seed, 7-day table is
+tools/discrepancy_seeds.py.
 
 For each library effect: the workflow names that effect and axis first, recovers its parameter
 within the scenario's tolerance and brings the held-out gap within 1.2x of the true model's gap.
 Null control: nothing hidden -> nothing named. Two hidden effects: both named, the larger first.
+
+Why 4 days: the simulator's still windows carry only ~0.1 mg of white noise in their means plus
+its 0.3 mg bias wander, so the true model's gap is ~0.25 mg and 1.2x leaves 0.05 mg for the
+held-out fits' parameter error; with 2-3 days (5 time blocks of 0.4-0.6 day) seed 0 exceeds it
+(thermal lag: 1.31x) and a one-sided y-axis orientation set names a spurious nonlinearity[y].
 """
 
 import pytest
 
 from stillpoint.engine.workflows import scenarios
 
-DAYS = 2.0
-# a 1 mg/day drift needs more than 2 days to stand out of the simulator's 0.3 mg / 1 h bias
-# wander (slope SE ~0.2 mg/day over 2 days); the 7-day table's tolerance is 0.15 mg/day
-DAYS_FOR = {"offset_drift": 4.0, "two": 4.0}
-CI_TOLERANCE = {"offset_drift": 0.3}
+DAYS = 4.0
 
 
 def _check(o, name):
-    tol = [CI_TOLERANCE.get(e, t) for (e, _), t in zip(o.expected, o.tolerances)]
+    tol = o.tolerances
     assert o.named_ok, f"{name} seed {o.seed}: named {o.named}, expected {o.expected} first"
     assert len(o.extra) <= 1, f"{name} seed {o.seed}: extra names {o.extra}"
     for (e, a), r, t, tl in zip(o.expected, o.recovered, o.true_values, tol):
@@ -32,7 +34,7 @@ def _check(o, name):
                                   "thermal_lag", "offset_drift", "nonlinearity"])
 @pytest.mark.parametrize("seed", [0, 1])
 def test_hidden_effect_is_named_recovered_and_closes_the_gap(name, seed):
-    o = scenarios.run(name, seed, days=DAYS_FOR.get(name, DAYS))
+    o = scenarios.run(name, seed, days=DAYS)
     _check(o, name)
 
 
@@ -45,6 +47,6 @@ def test_null_control_names_nothing(seed):
 
 @pytest.mark.parametrize("seed", [0])
 def test_two_hidden_effects_both_named_larger_first(seed):
-    o = scenarios.run("two", seed, days=DAYS_FOR["two"])
+    o = scenarios.run("two", seed, days=DAYS)
     assert len(o.expected) == 2
     _check(o, "two")

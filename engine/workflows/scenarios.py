@@ -1,10 +1,11 @@
 """Hidden-effect scenarios for testing the discrepancy workflow (CI tests and the 20-seed table).
 
-Each scenario: a simulated wrist recording whose sensor has the per-seed typical offset and gain
+Each scenario: a wrist recording simulated by engine.sim (its wearer, temperature track and sensor
+model; window features by engine.workflows.simwindows), whose sensor has the per-seed typical offset and gain
 (engine.sim.model.resolve_model), the default bias instability (0.3 mg Gauss-Markov wander, 1 h
 correlation time), AX3 noise and quantisation (correlated errors the library cannot name), plus the
-hidden effect at a realistic size, analysed from a
-starting model that lacks it. An outcome passes when the workflow names the effect (and axis)
+hidden effect at a realistic size (every parameter of it explicit, so the simulator does not
+draw the unlisted ones), analysed from a starting model that lacks it. An outcome passes when the workflow names the effect (and axis)
 first, recovers the parameter within the stated tolerance and brings the held-out gap within 1.2x
 of the gap the true model gives; any further (extra) names are counted separately, and the null
 scenario (nothing hidden) passes only when nothing is named.
@@ -19,7 +20,7 @@ nonlinearity 5 mg/g^2 on x (simulator clips at 8).
 Quantisation: by default the 1/256 g step of AX3 unpacked (GENEActiv and AX6 are as fine), where
 the noise dithers window means completely. With the AX3 packed +-8 g step (4/256 g) the noise does
 not: window means keep an orientation-dependent bias of up to ~2.6 mg, and a device lying still on
-a table while it cools makes that bias look like a temperature effect on z. ``lsb_g`` selects it.
+a table while it cools makes that bias look like a temperature effect on z. ``packed=True`` selects it.
 """
 
 from __future__ import annotations
@@ -30,12 +31,13 @@ from typing import Dict, List, Optional, Tuple
 import numpy as np
 
 from stillpoint.engine.sim import model as sim
+from stillpoint.engine.sim.wearer import A, WearerParams
 
 from . import discrepancy
 from .inputs import prepare
 from .simmodel import from_sim, to_sim
 from .sensor_fit import norm_residual
-from .synthetic import WearerSettings, simulate_windows
+from .simwindows import simulate_windows
 
 GAP_RATIO_LIMIT = 1.2
 
@@ -83,10 +85,17 @@ def models(name: str, seed: int) -> Tuple[sim.SensorModel, sim.SensorModel]:
     start = sim.SensorModel({"offset": {}, "gain": {}})
     for h in SCENARIOS[name]:
         for e, p in h.start_extra.items():
-            truth = truth.with_effect(e, **p)
+            truth = truth.with_effect(e, **_complete(e, p))
             start = start.with_effect(e)
-        truth = truth.with_effect(h.effect, **h.params)
+        truth = truth.with_effect(h.effect, **_complete(h.effect, h.params))
     return truth, start
+
+
+def _complete(effect: str, params: dict) -> dict:
+    """Every parameter explicit (unlisted ones 0): the simulator fills missing ones with draws."""
+    out = {p.key: 0.0 for p in sim.EFFECTS[effect]["params"] if p.key != "reference_c"}
+    out.update(params)
+    return out
 
 
 @dataclass
@@ -102,6 +111,9 @@ class Outcome:
     gap_final_mg: float
     floor_mg: float
     windows: int
+    stderr: List[Optional[float]] = field(default_factory=list)  # of each recovered parameter
+    nonwear_bouts: int = 0  # off-body bouts (the big temperature transitions)
+    seconds_with_fast_temperature: float = 0.0  # time with |dT/dt| > 1 degC / 10 min
 
     @property
     def named_ok(self) -> bool:
@@ -145,21 +157,29 @@ def expected_order(name: str, seed: int, truth: sim.SensorModel, data) -> List[T
     return [(h.effect, h.axis) for _, h in sorted(zip(size, hs), key=lambda z: -z[0])]
 
 
-LSB_UNPACKED_G = 1.0 / 256.0  # AX3 unpacked / ADXL345 full resolution (cwa-format.md section 6)
-LSB_PACKED_8G_G = 4.0 / 256.0  # AX3 packed at +-8 g: two low bits dropped (section 6.1)
-
-
-def run(name: str, seed: int, days: float = 7.0, folds: int = 5,
-        lsb_g: float = LSB_UNPACKED_G) -> Outcome:
+def run(name: str, seed: int, days: float = 7.0, folds: int = 5, packed: bool = False,
+        method: str = "moments", wear_24_7: bool = False) -> Outcome:
+    """One scenario and seed. ``wear_24_7``: the wearer never takes the device off (no shower or
+    drawer bouts; many study protocols ask for this), which removes the largest temperature
+    transitions."""
     truth, start = models(name, seed)
-    feats, _ = simulate_windows(truth, days=days, seed=seed, settings=WearerSettings(lsb_g=lsb_g))
-    prepared = prepare(feats, source=f"simulated {name} seed {seed}")
+    wearer = WearerParams(shower_per_day=0.0, drawer_per_day=0.0) if wear_24_7 else None
+    sw = simulate_windows(truth, days=days, seed=seed, packed=packed, method=method, wearer=wearer)
+    truth = sw.truth
+    prepared = prepare(sw.features, source=f"simulated {name} seed {seed}")
     res = discrepancy.run(prepared, start_model=from_sim(start), truth=from_sim(truth), folds=folds)
     final = to_sim(res.final_fit.model, res.final_fit.stderr)
-    rec = []
+    rec, ses = [], []
     for h in SCENARIOS[name]:
         p = final.effects.get(h.effect)
         rec.append(None if p is None else float(p.get(h.key)))
+        se = None if p is None else p.get("uncertainty", {}).get(h.key)
+        ses.append(None if se is None else float(se))
+    sch = sw.device.schedule
+    nonwear = np.isin(sch.activity, (A["nonwear_table"], A["nonwear_drawer"]))
+    fast = np.abs(np.diff(sw.device.T_grid)) / np.diff(sw.device.t_grid) > 1.0 / 600.0
     return Outcome(name, seed, res.named, expected_order(name, seed, truth, prepared.data), rec,
                    [h.true_value for h in SCENARIOS[name]], [h.tolerance for h in SCENARIOS[name]],
-                   res.gap_initial_mg, res.gap_final_mg, res.noise_floor_mg, len(prepared.data))
+                   res.gap_initial_mg, res.gap_final_mg, res.noise_floor_mg, len(prepared.data),
+                   ses, int(np.count_nonzero(nonwear[1:] & ~nonwear[:-1]) + int(nonwear[0])),
+                   float(np.count_nonzero(fast) * np.diff(sw.device.t_grid[:2])[0]))

@@ -34,12 +34,14 @@ drops them) so that dT/dt is estimated from the whole window sequence, as on a r
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Optional
 
 import numpy as np
 from scipy.special import ndtr
 
 from stillpoint.engine.sim import model as sim
 from stillpoint.engine.sim.device import DeviceSim, make_devices
+from stillpoint.engine.sim.wearer import WearerParams
 from stillpoint.engine.sim.sensor import DeviceSpec, noise_sd_g, standard_normals
 
 from ..features import WindowFeatures
@@ -114,16 +116,18 @@ def _window_temperature(dev: DeviceSim, w0: np.ndarray) -> np.ndarray:
 
 
 def simulate_windows(truth: sim.SensorModel, days: float = 7.0, seed: int = 0, *,
-                     packed: bool = False, method: str = "moments") -> SimWindows:
+                     packed: bool = False, method: str = "moments",
+                     wearer: Optional[WearerParams] = None) -> SimWindows:
     """Window features of a ``days``-long wrist recording whose sensor is ``truth``.
 
     ``truth`` is resolved per device by the simulator (explicit values kept). ``packed``: AX3
     packed mode (4/256 g step at +-8 g) instead of unpacked (1/256 g). ``method``: "moments"
-    or "samples" (see the module docstring)."""
+    or "samples" (see the module docstring). ``wearer``: the simulator's behaviour parameters
+    (default: its typical adult)."""
     if method not in ("moments", "samples"):
         raise ValueError(f"method must be 'moments' or 'samples', got {method!r}")
     dev = make_devices(sites=["wrist"], devices=["ax3"], days=days, hz=RATE_HZ, seed=seed,
-                       models=[truth], range_g=RANGE_G, packed=packed)[0]
+                       models=[truth], range_g=RANGE_G, packed=packed, wearer=wearer)[0]
     model = dev.model
     sw = dev.still_windows()
     idx = sw["window"]

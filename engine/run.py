@@ -281,6 +281,7 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
                 raise AssertionError("nonmovement operator and calibration selection disagree")
         est.effective_from_ns = None
         windows, nonmove = feat.windows.windows, feat.nonmovement.count
+        del feat  # the window table (~0.8 MB a day) is not needed in pass 2: memory stays flat
         # ---------------------------------------------------------------- pass 2
         src = open_recording(path, **opts)
         sink = McapSink(out, src.info, meta_settings, flush_every_s=s.flush_every_s,

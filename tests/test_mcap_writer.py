@@ -214,3 +214,24 @@ def test_writer_modes_write_the_same_messages(tmp_path):
         assert all(r["identical"] for r in res.values()), (mode, res)
         assert res["/raw/accel"]["messages"][0] >= 80
     assert s["peak_rss_mb"]["writer"] is not None  # the process writer reports its own peak
+
+
+@pytest.mark.parametrize("compression", ["zstd", ""])
+def test_chunk_index_records_in_pieces_equal_one_piece(compression):
+    from mcap.data_stream import RecordBuilder
+    from mcap.records import ChunkIndex
+
+    from stillpoint.engine.mcap_writer import _ChunkIndexRows
+    rows = _ChunkIndexRows()
+    for i in range(2050):  # grows past its first allocation
+        rows.append(i, i + 5, 100 * i, 90, 80 + i % 7, 1000 + i)
+    whole = b"".join(rows.records(compression, rows=10**6))
+    assert b"".join(rows.records(compression, rows=7)) == whole
+    assert len(whole) == 2050 * rows.record_size(compression)
+    # each record is what the mcap package itself would write for that chunk
+    b = RecordBuilder()
+    ChunkIndex(message_start_time=3, message_end_time=8, chunk_start_offset=300, chunk_length=90,
+               message_index_offsets={}, message_index_length=0, compression=compression,
+               compressed_size=80 + 3 % 7, uncompressed_size=1003).write(b)
+    w = rows.record_size(compression)
+    assert whole[3 * w:4 * w] == b.end()

@@ -38,8 +38,8 @@ is compressed and handed to the OS as its cell ends, so a killed run loses only 
 progress. ``writer="process"`` runs the writer in a child process (compression on another core;
 pays off only on an otherwise idle machine: every chunk crosses a pipe; if the engine dies, the
 writer still writes what it received), ``"thread"`` on a thread (at most one chunk queued).
-Measured (tools/bench_process.py, 7-day AX3 on a loaded 2-core machine): inline 13.0 s CPU,
-thread 14.8 s, process 14.8 s (plus the pipe copies). Records are written in the order of the
+Measured (tools/bench_process.py, 7-day 100 Hz AX3, 2 cores shared with other jobs): inline
+12.6 s wall / 11.1 s CPU, writer process 14.4 s wall / 14.1 s CPU (the pipe copies). Records are written in the order of the
 calls, so the file is deterministic.
 """
 

@@ -50,3 +50,16 @@ def test_two_hidden_effects_both_named_larger_first(seed):
     o = scenarios.run("two", seed, days=DAYS)
     assert len(o.expected) == 2
     _check(o, "two")
+
+
+def test_thermal_lag_uncertainty_reflects_the_temperature_transitions():
+    """The lag shows only while the temperature changes fast; without off-body bouts (worn 24/7)
+    the same wearer gives fewer such hours and a larger standard error, and the estimate stays
+    within about 3 of its own standard errors of the truth."""
+    a = scenarios.run("thermal_lag", 0, days=DAYS)
+    b = scenarios.run("thermal_lag", 0, days=DAYS, wear_24_7=True)
+    assert a.nonwear_bouts > 0 and b.nonwear_bouts == 0
+    assert b.seconds_with_fast_temperature < a.seconds_with_fast_temperature
+    assert b.stderr[0] > 1.3 * a.stderr[0]
+    for o in (a, b):
+        assert abs(o.recovered[0] - 600.0) < 3 * o.stderr[0]

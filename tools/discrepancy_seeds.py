@@ -8,7 +8,7 @@ effect, and check that it (1) names exactly the hidden effect(s) and axis, large
 recovers the parameter within tolerance, (3) brings the held-out gap within 1.2x of the true model's.
 
     /work/venv/bin/python tools/discrepancy_seeds.py [--seeds 20] [--days 7] [--only thermal_lag,none]
-        [--jobs 2] [--packed] [--method samples|moments]
+        [--jobs 2] [--packed] [--method samples|moments] [--wear-24-7]
 
 Prints one row per scenario (counts out of the seeds, parameter error, gap ratio, time per seed)
 and exits 1 when a scenario falls short of 19/20 (scaled to the seed count).
@@ -26,10 +26,10 @@ import numpy as np
 
 
 def _one(args):
-    name, seed, days, packed, method = args
+    name, seed, days, packed, method, wear = args
     from stillpoint.engine.workflows import scenarios
     t = time.perf_counter()
-    o = scenarios.run(name, seed, days=days, packed=packed, method=method)
+    o = scenarios.run(name, seed, days=days, packed=packed, method=method, wear_24_7=wear)
     return o, time.perf_counter() - t
 
 
@@ -46,11 +46,13 @@ def main(argv=None) -> int:
     ap.add_argument("--method", choices=("samples", "moments"), default="samples",
                     help="noise + quantisation of window means: draw every sample (default) or "
                          "the exact-moment shortcut the CI tests use")
+    ap.add_argument("--wear-24-7", action="store_true",
+                    help="the wearer never takes the device off (no shower/drawer bouts)")
     ap.add_argument("-v", "--verbose", action="store_true", help="print every failing seed")
     a = ap.parse_args(argv)
     names = a.only.split(",") if a.only else list(scenarios.SCENARIOS)
     need = math.ceil(19 / 20 * a.seeds)
-    work = [(n, s, a.days, a.packed, a.method) for n in names for s in range(a.seeds)]
+    work = [(n, s, a.days, a.packed, a.method, a.wear_24_7) for n in names for s in range(a.seeds)]
     t0 = time.perf_counter()
     if a.jobs > 1:
         with ProcessPoolExecutor(a.jobs) as ex:
@@ -60,7 +62,7 @@ def main(argv=None) -> int:
     print(f"discrepancy workflow, hidden-effect table: {a.seeds} seeds x {a.days:g}-day wrist "
           f"recordings (engine.sim wearer, temperature and sensor; AX3 +-8 g "
           f"{'packed 15.6' if a.packed else 'unpacked 3.9'} mg step; window noise by "
-          f"{a.method}); pass needs >= {need}/{a.seeds}")
+          f"{a.method}{'; worn 24/7' if a.wear_24_7 else ''}); pass needs >= {need}/{a.seeds}")
     hdr = (f"{'scenario':<19}{'named':>7}{'param':>7}{'gap':>7}{'all':>7}  "
            f"{'param err (median, max)':<28}{'gap/true (max)':>15}{'windows':>9}{'s/seed':>8}")
     print(hdr)

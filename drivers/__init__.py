@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .byteio import open_bytes, read_exact
+from .byteio import check_recording_path, open_bytes, read_exact
 from .errors import (CorruptRecordingError, RecordingError, StillpointError,
                      TruncatedRecordingError, UnsupportedFormatError)
 
@@ -22,12 +22,7 @@ MCAP_MAGIC = b"\x89MCAP0\r\n"
 def sniff_format(path) -> str:
     """Return "cwa", "geneactiv" or "mcap" from the first bytes of the (possibly gzipped) file."""
     p = Path(path)
-    if not p.exists():
-        raise RecordingError(p, "no such file")
-    if p.is_dir():
-        raise RecordingError(p, "is a directory, not a recording")
-    if p.stat().st_size == 0:
-        raise TruncatedRecordingError(p, "file is empty (0 bytes)")
+    check_recording_path(p)
     try:
         with open_bytes(p) as f:
             head = read_exact(f, 512)

@@ -71,6 +71,20 @@ class FollowingReader(io.RawIOBase):
         super().close()
 
 
+def check_recording_path(path, *, allow_empty: bool = False) -> None:
+    """Raise the typed error for a path that cannot hold a recording: missing, a directory, or
+    empty (an empty file is allowed when following a file that is about to be written)."""
+    from .errors import RecordingError, TruncatedRecordingError
+
+    p = os.fspath(path)
+    if not os.path.exists(p):
+        raise RecordingError(p, "no such file")
+    if os.path.isdir(p):
+        raise RecordingError(p, "is a directory, not a recording")
+    if not allow_empty and os.path.getsize(p) == 0:
+        raise TruncatedRecordingError(p, "file is empty (0 bytes)")
+
+
 def file_size(path) -> Optional[int]:
     try:
         return os.path.getsize(path)

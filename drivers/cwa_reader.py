@@ -52,7 +52,7 @@ import numpy as np
 
 from ..engine.blocks import Block, DeviceInfo, QCEvent, QCReport
 from . import constants as C
-from .byteio import FollowingReader, is_gzip, open_bytes, read_exact
+from .byteio import FollowingReader, check_recording_path, is_gzip, open_bytes, read_exact
 from .cwa_decode import (EMPTY, ERASED, REASONS, classify, decode_samples, interpolate_times,
                          max_samples, sector_anchors)
 from .cwa_layout import FORMATS, SECTOR_DTYPE, parse_header, parse_timezone
@@ -68,12 +68,7 @@ AXIS_SWAP_TOL_G = 0.2  # |mean vector| within 1 +- this of 1 g counts as "gravit
 
 # ----------------------------------------------------------------------------- header
 def _open_header(path: Path, follow: bool, idle_s: float):
-    if not path.exists():
-        raise RecordingError(path, "no such file")
-    if path.is_dir():
-        raise RecordingError(path, "is a directory, not a recording")
-    if not follow and path.stat().st_size == 0:
-        raise TruncatedRecordingError(path, "file is empty (0 bytes)")
+    check_recording_path(path, allow_empty=follow)
     if follow and path.stat().st_size >= 2 and is_gzip(path):
         raise UnsupportedFormatError(path, "follow mode reads a plain .cwa that is still being "
                                            "written; a gzip file cannot be followed")

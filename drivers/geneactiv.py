@@ -43,7 +43,7 @@ import numpy as np
 
 from ..engine.blocks import (PER_SAMPLE_BUTTON, PER_SAMPLE_LIGHT_RAW, Block, DeviceInfo, QCEvent,
                              QCReport)
-from .byteio import FollowingReader, is_gzip, open_bytes, read_exact
+from .byteio import FollowingReader, check_recording_path, is_gzip, open_bytes, read_exact
 from .constants import (GNA_HEX_PER_SAMPLE, GNA_LIGHT_SHIFT, GNA_PAGE_MARKER, GNA_RATE_85_7,
                         GNA_SAMPLES_PER_PAGE, gna_rate_hz)
 from .errors import (CorruptRecordingError, RecordingError, TruncatedRecordingError,
@@ -216,7 +216,7 @@ class GeneactivReader:
             raise ValueError("batch_pages must be >= 1")
         self.batch_pages = int(batch_pages)
         self.time_tolerance = float(time_tolerance)
-        self._check_file()
+        check_recording_path(self.path)
         self._f = _open_stream(self.path, follow, follow_done, follow_idle_timeout)
         try:
             self.header, self._rest = _read_header(self._f, self.path)
@@ -257,15 +257,6 @@ class GeneactivReader:
             self.close()
 
     # ------------------------------------------------------------------ internals
-    def _check_file(self) -> None:
-        p = self.path
-        if not p.exists():
-            raise RecordingError(p, "no such file")
-        if p.is_dir():
-            raise RecordingError(p, "is a directory, not a recording")
-        if p.stat().st_size == 0:
-            raise TruncatedRecordingError(p, "file is empty (0 bytes)")
-
     def _event(self, index: int, reason: str, detail: str = "", time_ns=None, samples: int = 0,
                always: bool = False):
         """Log a QC event. The list is capped at MAX_QC_EVENTS (memory stays bounded on a file that

@@ -23,6 +23,7 @@ import json
 import numpy as np
 from mcap.writer import CompressionType, Writer
 
+from stillpoint.engine.jsonsafe import jsonable
 from stillpoint.engine.mcap_schemas import ACCEL_BATCH, max_step_ok, time_deltas
 
 TOPIC_BLOCK_LAG = "/alignment/block_lag"
@@ -32,28 +33,9 @@ MESSAGE_SAMPLES = 1000
 
 
 def _dumps(obj) -> bytes:
-    return json.dumps(obj, sort_keys=True, allow_nan=False, default=_default).encode()
+    return json.dumps(jsonable(obj), sort_keys=True, allow_nan=False).encode()
 
 
-def _default(x):
-    if isinstance(x, np.integer):
-        return int(x)
-    if isinstance(x, np.floating):
-        return float(x) if np.isfinite(x) else None
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    raise TypeError(f"not JSON serialisable: {type(x)}")
-
-
-def _clean(obj):
-    """Replace non-finite floats by None (JSON has no NaN)."""
-    if isinstance(obj, dict):
-        return {k: _clean(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_clean(v) for v in obj]
-    if isinstance(obj, (float, np.floating)):
-        return float(obj) if np.isfinite(obj) else None
-    return obj
 
 
 class AlignmentMcap:
@@ -83,10 +65,10 @@ class AlignmentMcap:
         self.messages += 1
 
     def write_json(self, topic: str, t_ns: int, obj: dict) -> None:
-        self._add(topic, t_ns, _dumps(_clean(obj)))
+        self._add(topic, t_ns, _dumps(obj))
 
     def write_metadata(self, name: str, obj: dict) -> None:
-        self._w.add_metadata(name, {"json": _dumps(_clean(obj)).decode()})
+        self._w.add_metadata(name, {"json": _dumps(obj).decode()})
 
     def write_aligned(self, time_ns: np.ndarray, accel_g: np.ndarray, segment: int = 0) -> None:
         ok = np.isfinite(accel_g).all(axis=1)

@@ -16,6 +16,7 @@ from typing import Callable, Iterator, Optional
 import numpy as np
 
 from stillpoint.engine.blocks import DeviceInfo
+from stillpoint.engine.jsonsafe import jsonable
 
 from .fit import CannotAlign, ClockFit, TemperatureRegressor, fit_brond, fit_robust
 from .lags import SUB_BLOCKS, BlockLag, LagEstimator
@@ -151,7 +152,7 @@ class AlignmentResult:
                 "ci": fit.ci(),
                 "iterations": fit.iterations,
                 "thresholds": fit.thresholds,
-                "diagnostics": _jsonable(fit.diagnostics),
+                "diagnostics": jsonable(fit.diagnostics),
             })
         d["blocks_total"] = len(self.blocks)
         d["blocks_valid"] = sum(1 for b in self.blocks if b.valid)
@@ -160,7 +161,7 @@ class AlignmentResult:
         d["other_span_s"] = list(self.other_span_s)
         if any(self.samples_dropped.values()):
             d["samples_dropped_nonincreasing_time"] = self.samples_dropped
-        return _jsonable(d)
+        return jsonable(d)
 
 
 def _info_dict(info: DeviceInfo) -> dict:
@@ -168,19 +169,6 @@ def _info_dict(info: DeviceInfo) -> dict:
             "session_id": info.session_id, "sample_rate_nominal": info.sample_rate_nominal,
             "path": info.path}
 
-
-def _jsonable(x):
-    if isinstance(x, dict):
-        return {k: _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, (np.floating, float)):
-        return float(x) if np.isfinite(x) else None
-    if isinstance(x, (np.integer,)):
-        return int(x)
-    if isinstance(x, np.bool_):
-        return bool(x)
-    return x
 
 
 def fit_blocks(blocks: list[BlockLag], config: AlignConfig,

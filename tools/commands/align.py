@@ -11,6 +11,8 @@ from __future__ import annotations
 import json
 import sys
 
+from stillpoint.engine.jsonsafe import jsonable
+
 NAME = "align"
 HELP = "align two recordings worn together (clock offset, drift, halts; Brønd et al. 2021)"
 DESCRIPTION = (
@@ -96,7 +98,7 @@ def run(args) -> int:
     d = res.as_dict()
     d["reference"]["path"] = str(args.reference)
     d["other"]["path"] = str(args.other)
-    text = json.dumps(d, indent=1, allow_nan=False, default=_default)
+    text = json.dumps(jsonable(d), indent=1, allow_nan=False)
     if args.json_out:
         with open(args.json_out, "w") as f:
             f.write(text + "\n")
@@ -112,14 +114,3 @@ def run(args) -> int:
             print(f"stillpoint align: not aligned: {res.reason}", file=sys.stderr)
         return EXIT_CANNOT_ALIGN
     return 0
-
-
-def _default(x):
-    import numpy as np
-    if isinstance(x, np.integer):
-        return int(x)
-    if isinstance(x, np.floating):
-        return float(x) if np.isfinite(x) else None
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    raise TypeError(type(x))

@@ -17,8 +17,9 @@ with ``status: "error"`` and the exit code is 2.
 from __future__ import annotations
 
 import json
-import math
 import sys
+
+from stillpoint.engine.jsonsafe import jsonable
 
 NAME = "calibrate"
 HELP = "autocalibrate a recording (fit only, no corrected output; --json, --plot, --store)"
@@ -76,17 +77,8 @@ def estimate_json(est) -> dict:
               "read_to_end", "recording_hours", "rejected_fit"):
         if k in extra:
             out[k] = extra[k]
-    return _finite(out)
+    return jsonable(out)
 
-
-def _finite(x):
-    if isinstance(x, float) and not math.isfinite(x):
-        return None
-    if isinstance(x, dict):
-        return {k: _finite(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_finite(v) for v in x]
-    return x
 
 
 def fmt_hours(h: float) -> str:

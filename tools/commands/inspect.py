@@ -20,6 +20,7 @@ import numpy as np
 
 from stillpoint.drivers import open_recording, sniff_format
 from stillpoint.drivers.errors import StillpointError
+from stillpoint.engine.jsonsafe import jsonable
 
 NAME = "inspect"
 HELP = "summarise a recording (device, samples, rate, times, QC); --json for machine-readable output"
@@ -177,29 +178,6 @@ def inspect_recording(path, *, header_only: bool = False, timezone=None) -> dict
     return out
 
 
-def _jsonable(o):
-    if isinstance(o, (np.integer,)):
-        return int(o)
-    if isinstance(o, (np.floating,)):
-        return float(o)
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, (bytes, bytearray)):
-        return o.decode("latin-1")
-    if isinstance(o, (set, frozenset)):
-        return sorted(o)
-    return str(o)
-
-
-def _finite(x):
-    """JSON has no NaN/inf: write null."""
-    if isinstance(x, float) and not math.isfinite(x):
-        return None
-    if isinstance(x, dict):
-        return {k: _finite(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_finite(v) for v in x]
-    return x
 
 
 def format_text(d: dict) -> str:
@@ -254,7 +232,7 @@ def format_text(d: dict) -> str:
 
 def _print(d: dict, as_json: bool) -> None:
     if as_json:
-        json.dump(_finite(d), sys.stdout, default=_jsonable)
+        json.dump(jsonable(d), sys.stdout, default=str)
         sys.stdout.write("\n")
     else:
         print(format_text(d))

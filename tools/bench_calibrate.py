@@ -22,30 +22,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from benchlib import measure, peers_python
-
-SKDH = r"""
-import sys, warnings
-warnings.simplefilter("ignore")
-from skdh.io import ReadCwa
-from skdh.preprocessing import CalibrateAccelerometer
-d = ReadCwa().predict(file=sys.argv[1])
-r = CalibrateAccelerometer().predict(time=d["time"], accel=d["accel"], fs=d.get("fs"),
-                                     temperature=d.get("temperature"))
-print({k: (v.tolist() if hasattr(v, "tolist") else v) for k, v in r.items()
-       if k in ("offset", "scale", "temperature scale", "temp_scale")})
-"""
-
-DECODE = r"""
-import sys
-from stillpoint.drivers import open_recording
-n = 0
-with open_recording(sys.argv[1]) as src:
-    for b in src:
-        n += b.n
-print(n)
-"""
-
+from benchlib import DECODE_PASS, SKDH_READ_AUTOCAL, measure, peers_python
 
 def make_recording(path: Path, days: float, rate: float, seed: int = 7) -> dict:
     import numpy as np
@@ -99,11 +76,11 @@ def main(argv=None) -> int:
     res["calibrate"] = best(stillpoint + ["calibrate", str(path), "--json"])
     res["calibrate --read-all"] = best(stillpoint + ["calibrate", str(path), "--json",
                                                     "--read-all"])
-    res["decode (CwaReader, whole file)"] = best([sys.executable, "-c", DECODE, str(path)])
+    res["decode (CwaReader, whole file)"] = best([sys.executable, "-c", DECODE_PASS, str(path)])
     peers_py = peers_python(args.peers)
     have_skdh = peers_py is not None
     if have_skdh:
-        res["skdh read + autocal"] = best([peers_py, "-c", SKDH, str(path)])
+        res["skdh read + autocal"] = best([peers_py, "-c", SKDH_READ_AUTOCAL, str(path)])
 
     est = json.loads(res["calibrate"]["out"])
     print(f"\nfile: {path.name}, {args.days:g} days at {args.rate:g} Hz, {size_mb:.0f} MB")

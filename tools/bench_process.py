@@ -31,37 +31,7 @@ import tempfile
 import time
 from pathlib import Path
 
-WRAPPER = r"""
-import json, resource, subprocess, sys, time
-t = time.perf_counter()
-p = subprocess.run(sys.argv[1:], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-wall = time.perf_counter() - t
-ru = resource.getrusage(resource.RUSAGE_CHILDREN)
-print(json.dumps({"wall_s": wall, "cpu_s": ru.ru_utime + ru.ru_stime, "maxrss_mb": ru.ru_maxrss / 1024.0,
-                  "rc": p.returncode, "stdout": p.stdout[-4000:], "stderr": p.stderr[-2000:]}))
-"""
-
-DECODE = r"""
-import sys
-from stillpoint.drivers import open_recording
-n = 0
-with open_recording(sys.argv[1]) as src:
-    for b in src:
-        n += b.n
-print(n)
-"""
-
-SKDH = r"""
-import sys, warnings
-warnings.simplefilter("ignore")
-from skdh.io import ReadCwa
-from skdh.preprocessing import CalibrateAccelerometer
-d = ReadCwa().predict(file=sys.argv[1])
-r = CalibrateAccelerometer().predict(time=d["time"], accel=d["accel"], fs=d.get("fs"),
-                                     temperature=d.get("temperature"))
-print(sorted(r))
-"""
-
+from benchlib import DECODE_PASS, SKDH_READ_AUTOCAL, measure, peers_python
 
 PROCESS_API = r"""
 import sys
@@ -70,17 +40,15 @@ process_file(sys.argv[1], sys.argv[2], RunSettings(mode="batch"), writer=sys.arg
 """
 
 
-def measure(cmd, env=None) -> dict:
-    out = subprocess.run([sys.executable, "-c", WRAPPER, *map(str, cmd)], stdout=subprocess.PIPE,
-                         text=True, check=True, env=env).stdout
-    r = json.loads(out)
+def measure_ok(cmd, env=None) -> dict:
+    r = measure(cmd, env)
     if r["rc"] != 0:
-        raise SystemExit(f"command failed: {' '.join(map(str, cmd))}\n{r['stderr']}")
+        raise SystemExit(f"command failed: {' '.join(map(str, cmd))}\n{r['err']}")
     return r
 
 
 def best(cmd, repeat, env=None):
-    return min((measure(cmd, env) for _ in range(max(1, repeat))), key=lambda r: r["wall_s"])
+    return min((measure_ok(cmd, env) for _ in range(max(1, repeat))), key=lambda r: r["wall"])
 
 
 def before_tree(workdir: Path, rev: str) -> dict:
@@ -129,7 +97,7 @@ def main(argv=None) -> int:
     ap.add_argument("--rate", type=float, default=100.0)
     ap.add_argument("--rss-days", default="1,7,14", help="file lengths for the peak-RSS check ('' skips)")
     ap.add_argument("--workdir", default=os.path.join(tempfile.gettempdir(), "stillpoint_bench"))
-    ap.add_argument("--peers", default="/work/peers/bin/python")
+    ap.add_argument("--peers", default=None, help="Python (or venv) of the peer tools (default $STILLPOINT_PEERS_PYTHON or /work/peers)")
     ap.add_argument("--repeat", type=int, default=1)
     ap.add_argument("--before", default="", help="also run process at this git revision "
                     "(e.g. 81a4d51, the engine before the speed work)")
@@ -142,7 +110,7 @@ def main(argv=None) -> int:
     out = wd / "bench_process.mcap"
     summ = wd / "bench_process.json"
 
-    res = {"decode": best([sys.executable, "-c", DECODE, path], args.repeat)}
+    res = {"decode": best([sys.executable, "-c", DECODE_PASS, path], args.repeat)}
     res["process"] = best(sp + ["process", path, "-o", out, "--mode", "batch", "-q", "--summary", summ],
                           args.repeat)
     mcap_mb = out.stat().st_size / 1e6
@@ -156,9 +124,10 @@ def main(argv=None) -> int:
                                    "batch", "-q"], args.repeat, env=bt["env"])
         before_mb = (wd / "bench_before.mcap").stat().st_size / 1e6
         (wd / "bench_before.mcap").unlink()
-    have_skdh = Path(args.peers).exists()
+    peers_py = peers_python(args.peers)
+    have_skdh = peers_py is not None
     if have_skdh:
-        res["skdh"] = best([args.peers, "-c", SKDH, path], args.repeat)
+        res["skdh"] = best([peers_py, "-c", SKDH_READ_AUTOCAL, path], args.repeat)
 
     dec, pr, pr60 = res["decode"], res["process"], res["process60"]
     print(f"\nfile: {path.name}: {s['samples']:,} samples, {s['duration_s'] / 86400:.2f} days, "
@@ -174,24 +143,24 @@ def main(argv=None) -> int:
     if have_skdh:
         rows.append(("skdh read + autocalibration", res["skdh"]))
     for name, r in rows:
-        print(f"{name:48s} {r['wall_s']:8.2f} {r['cpu_s']:8.2f} {r['maxrss_mb']:12.0f}")
+        print(f"{name:48s} {r['wall']:8.2f} {r['cpu']:8.2f} {r['rss_mb']:12.0f}")
     rss = s.get("peak_rss_mb") or {}
     if rss.get("writer"):
         print(f"  process peak RSS: engine {rss['engine']:.0f} MB + writer process {rss['writer']:.0f} MB "
               f"= {rss['engine'] + rss['writer']:.0f} MB (each process's VmHWM)")
     print("ratios (same run):")
-    print(f"  process / plain decode                      = {pr['wall_s'] / dec['wall_s']:.1f}x wall, "
-          f"{pr['cpu_s'] / dec['cpu_s']:.1f}x cpu")
+    print(f"  process / plain decode                      = {pr['wall'] / dec['wall']:.1f}x wall, "
+          f"{pr['cpu'] / dec['cpu']:.1f}x cpu")
     if args.before:
         b = res["before"]
-        print(f"  before / now                                = {b['wall_s'] / pr['wall_s']:.2f}x wall, "
-              f"{b['cpu_s'] / pr['cpu_s']:.2f}x cpu (before's MCAP {before_mb / cwa_mb:.2f}x the .cwa)")
+        print(f"  before / now                                = {b['wall'] / pr['wall']:.2f}x wall, "
+              f"{b['cpu'] / pr['cpu']:.2f}x cpu (before's MCAP {before_mb / cwa_mb:.2f}x the .cwa)")
     if have_skdh:
         sk = res["skdh"]
-        print(f"  skdh read+autocal / process                 = {sk['wall_s'] / pr['wall_s']:.2f}x wall "
-              f"(target > 1), {sk['cpu_s'] / pr['cpu_s']:.2f}x cpu, "
-              f"{sk['wall_s'] / pr60['wall_s']:.2f}x wall with 60 s flushes")
-        print(f"  peak RSS skdh / process                     = {sk['maxrss_mb'] / pr['maxrss_mb']:.1f}x")
+        print(f"  skdh read+autocal / process                 = {sk['wall'] / pr['wall']:.2f}x wall "
+              f"(target > 1), {sk['cpu'] / pr['cpu']:.2f}x cpu, "
+              f"{sk['wall'] / pr60['wall']:.2f}x wall with 60 s flushes")
+        print(f"  peak RSS skdh / process                     = {sk['rss_mb'] / pr['rss_mb']:.1f}x")
     print(f"  MCAP size / input .cwa                      = {mcap_mb / cwa_mb:.2f}x "
           f"({mcap_mb:.0f} MB; target <= 2x)")
     print(f"  MCAP flushes                                = {s.get('mcap_flushes', 'n/a')}")
@@ -206,13 +175,13 @@ def main(argv=None) -> int:
             if p == path:
                 r, ss = pr, s
             else:
-                r = measure(sp + ["process", p, "-o", o, "--mode", "batch", "-q", "--summary", sj])
+                r = measure_ok(sp + ["process", p, "-o", o, "--mode", "batch", "-q", "--summary", sj])
                 ss = json.loads(sj.read_text())
             rr = ss.get("peak_rss_mb") or {}
             both = (f" (engine {rr['engine']:.0f} + writer {rr['writer']:.0f} = "
                     f"{rr['engine'] + rr['writer']:.0f} MB)") if rr.get("writer") else ""
-            print(f"  {d:5g} days ({p.stat().st_size / 1e6:5.0f} MB .cwa): {r['maxrss_mb']:6.0f} MB "
-                  f"peak RSS of the largest process{both}, {r['wall_s']:6.1f} s wall")
+            print(f"  {d:5g} days ({p.stat().st_size / 1e6:5.0f} MB .cwa): {r['rss_mb']:6.0f} MB "
+                  f"peak RSS of the largest process{both}, {r['wall']:6.1f} s wall")
             if o.exists():
                 o.unlink()
     out.unlink(missing_ok=True)

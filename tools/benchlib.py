@@ -35,10 +35,35 @@ print(json.dumps({"wall": wall, "cpu": ru.ru_utime + ru.ru_stime, "rss_mb": ru.r
 """
 
 
-def measure(cmd: list) -> dict:
+# A full pass of the drivers over a recording (every Block decoded): the decode baseline.
+DECODE_PASS = r"""
+import sys
+from stillpoint.drivers import open_recording
+n = 0
+with open_recording(sys.argv[1]) as src:
+    for b in src:
+        n += b.n
+print(n)
+"""
+
+# scikit-digital-health's read + autocalibration of a .cwa (run with the peers' Python).
+SKDH_READ_AUTOCAL = r"""
+import sys, warnings
+warnings.simplefilter("ignore")
+from skdh.io import ReadCwa
+from skdh.preprocessing import CalibrateAccelerometer
+d = ReadCwa().predict(file=sys.argv[1])
+r = CalibrateAccelerometer().predict(time=d["time"], accel=d["accel"], fs=d.get("fs"),
+                                     temperature=d.get("temperature"))
+print({k: (v.tolist() if hasattr(v, "tolist") else v) for k, v in r.items()
+       if k in ("offset", "scale", "temperature scale", "temp_scale")})
+"""
+
+
+def measure(cmd: list, env: Optional[dict] = None) -> dict:
     """{"wall", "cpu", "rss_mb", "rc", "out", "err"} of one run of ``cmd`` in a fresh child."""
     out = subprocess.run([sys.executable, "-c", METER, json.dumps([str(c) for c in cmd])],
-                         capture_output=True, text=True, check=True).stdout
+                         capture_output=True, text=True, check=True, env=env).stdout
     return json.loads(out)
 
 

@@ -54,12 +54,19 @@ def test_sigkill_then_recover_keeps_everything_up_to_the_last_flush(long_recordi
     rec, full = long_recording
     out = tmp_path / "killed.mcap"
     rng = random.Random(os.getpid())
-    p = subprocess.Popen([sys.executable, "-m", "stillpoint.tools", "process", str(rec), "-o",
-                          str(out), "--mode", "online", "-q"])
+    # The per-file job that `stillpoint process` runs, in a child whose progress callback pauses
+    # 50 ms per pipeline block: the run then lasts over a second on any machine, so the kill
+    # lands mid-run however fast the engine is (a plain CLI run of 4 h finishes in well under a
+    # second on a quiet machine, before a kill could reach it).
+    child = ("import sys, time\n"
+             "from stillpoint.engine.run import RunSettings, process_file\n"
+             "process_file(sys.argv[1], sys.argv[2], RunSettings(mode='online'),\n"
+             "             progress=lambda label, stats: time.sleep(0.05))\n")
+    p = subprocess.Popen([sys.executable, "-c", child, str(rec), str(out)])
     deadline = time.time() + 60
     while time.time() < deadline and (not out.exists() or out.stat().st_size < 200_000):
         time.sleep(0.005)
-    time.sleep(rng.uniform(0.0, 0.3))
+    time.sleep(rng.uniform(0.0, 0.4))
     p.send_signal(signal.SIGKILL)
     p.wait()
     assert p.returncode == -signal.SIGKILL, "process finished before it could be killed"

@@ -133,6 +133,9 @@ def run(args) -> int:
         if args.keep:
             print(f"\nfiles kept in {d} (open demo.mcap in Foxglove; topics /metrics/epoch, "
                   f"/corrected/accel, /calibration)")
+        else:
+            print("\n(the files above were temporary and are deleted now; `stillpoint demo --keep DIR` "
+                  "keeps demo.cwa and demo.mcap)")
     finally:
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)

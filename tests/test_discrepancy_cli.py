@@ -103,6 +103,10 @@ def test_simulated_recording_end_to_end(tmp_path, capsys):
     # windows read a constant value on some axis and the check says so
     sd = d["distributions"]["still_window_sd_mg"]
     assert max(v["zero_fraction"] for v in sd.values()) > 0.05
+    # the step measured from the counts: AX3 packed at +-8 g stores multiples of 4/256 g, and the
+    # model noise at 25 Hz (~1.4-1.9 mg) cannot dither it: window means can be biased by ~3-4 mg
+    assert d["input"]["quantisation_step_mg"] == [15.625] * 3
+    assert all(3.0 < v["quantisation_bias_max_mg"] < 5.0 for v in sd.values())
 
 
 def test_bad_inputs_exit_2_with_one_line(tmp_path, capsys):

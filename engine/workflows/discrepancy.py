@@ -122,6 +122,11 @@ def per_window(res: "DiscrepancyResult") -> dict:
             "residual_final_mg": res.final_fit.residual * 1000.0}
 
 
+def _step_mg(prepared):
+    step = getattr(prepared, "count_step_g", None)
+    return None if step is None else np.asarray(step, np.float64) * 1000.0
+
+
 def _r(x, nd=4):
     return None if x is None else float(round(float(x), nd))
 
@@ -277,5 +282,6 @@ def run(prepared: PreparedInput, start_model: Optional[SensorModel] = None,
         noise_floor_mg=noise_floor, locate_initial=loc0,
         locate_final=locate(current.model, data, current.residual),
         distributions=distributions(base_fit.model, current.model, data, noise_model_mg,
-                                    rate_hz if rate_hz is not None else prepared.rate_hz),
+                                    rate_hz if rate_hz is not None else prepared.rate_hz,
+                                    _step_mg(prepared)),
         skipped=skipped_all, input_info=info, folds=folds, last_scores=scores, data=data)

@@ -40,6 +40,7 @@ class PreparedInput:
     source: str
     rate_hz: Optional[float] = None  # sample rate when known (recordings, MCAP logs)
     device: Optional[str] = None
+    count_step_g: Optional[np.ndarray] = None  # (3,) quantisation step of the stored values
 
     def describe(self) -> dict:
         return {"source": self.source, "windows_total": self.windows_total,
@@ -47,7 +48,9 @@ class PreparedInput:
                 "duplicates_dropped": self.duplicates_dropped, "hours": round(self.hours, 3),
                 "temperature_available": self.temperature_available,
                 "dtdt_from_all_windows": self.dtdt_from_all_windows,
-                "rate_hz": self.rate_hz, "device": self.device}
+                "rate_hz": self.rate_hz, "device": self.device,
+                "quantisation_step_mg": (None if self.count_step_g is None else
+                                         [round(float(v) * 1000.0, 4) for v in self.count_step_g])}
 
 
 def temperature_rate(t_s: np.ndarray, temp: np.ndarray, half_span_s: float = DTDT_HALF_SPAN_S,
@@ -186,5 +189,5 @@ def load(path, sd_threshold: float = SD_THRESHOLD_G) -> PreparedInput:
     sf = stream_features(path)
     what = "MCAP log" if kind == "mcap" else "recording"
     p = prepare(sf.features, source=f"{what} {Path(path).name}", sd_threshold=sd_threshold)
-    p.rate_hz, p.device = sf.rate_hz, sf.device
+    p.rate_hz, p.device, p.count_step_g = sf.rate_hz, sf.device, sf.count_step_g
     return p

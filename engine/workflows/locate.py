@@ -73,10 +73,24 @@ def locate(model: SensorModel, data: WindowData, residual: np.ndarray) -> list:
     return rows
 
 
+def quantisation_bias_bound_mg(step_mg, noise_mg):
+    """Largest bias (mg) that rounding to ``step_mg`` leaves in the mean of many samples of a
+    constant value under Gaussian noise of SD ``noise_mg``: the first harmonic of the sawtooth's
+    Fourier series, (step / pi) exp(-2 pi^2 (noise / step)^2) (higher harmonics are damped far
+    more). ~0 when the noise dithers the step (noise >~ step / 2)."""
+    step = np.asarray(step_mg, np.float64)
+    sig = np.asarray(noise_mg, np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = np.where(step > 0, step / np.pi * np.exp(-2.0 * np.pi ** 2 * (sig / np.where(step > 0, step, 1.0)) ** 2), 0.0)
+    return out
+
+
 def distributions(base: SensorModel, final: SensorModel, data: WindowData,
-                  noise_model_mg=None, rate_hz: Optional[float] = None) -> dict:
+                  noise_model_mg=None, rate_hz: Optional[float] = None, step_mg=None) -> dict:
     """Distribution checks: SD of still windows per axis vs the model's noise; the measured norm
-    against the model's prediction (1 g exactly for a perfect deterministic model)."""
+    against the model's prediction (1 g exactly for a perfect deterministic model); with the
+    quantisation step of the stored values (``step_mg``) and the model's noise, the largest bias
+    that the step can leave in a still window's mean."""
     out = {}
     if data.sd is not None and len(data):
         sd = data.sd * 1000.0
@@ -101,6 +115,11 @@ def distributions(base: SensorModel, final: SensorModel, data: WindowData,
                                     else "below the model noise (quantisation, or less noise "
                                          "than modelled)" if q[0] < 0.8 * nm
                                     else "above the model noise (more noise than modelled)")
+            if step_mg is not None:
+                st = float(np.broadcast_to(np.asarray(step_mg, float), (3,))[k])
+                entry["quantisation_step_mg"] = round(st, 4)
+                if noise_model_mg is not None:
+                    entry["quantisation_bias_max_mg"] = round(float(quantisation_bias_bound_mg(st, nm)), 4)
             per_axis[ax] = entry
         out["still_window_sd_mg"] = per_axis
         out["still_window_sd_note"] = (

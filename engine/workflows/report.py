@@ -21,6 +21,8 @@ METRIC = ("mean | ||a|| - 1 | in mg over held-out nonmovement windows (a: window
 RULE = (f"a candidate is named only if dBIC < {BIC_THRESHOLD:g} (n = independent windows) and the "
         "held-out gap falls; the lowest dBIC among those is named; repeat until none passes")
 
+QUANTISATION_WARN_MG = 0.5  # warn when the step can bias still-window means by this much
+
 
 def _clean(x):
     if isinstance(x, dict):
@@ -132,6 +134,14 @@ def text(d: dict) -> str:
             + (f" (model noise {v['model_noise_mg']:.2f}: {v['verdict']})" if "verdict" in v else
                " (quantisation dominates)" if v.get("quantisation_dominates") else "")
             for ax, v in sd.items()))
+        qb = {ax: v["quantisation_bias_max_mg"] for ax, v in sd.items() if "quantisation_bias_max_mg" in v}
+        if qb and max(qb.values()) >= QUANTISATION_WARN_MG:
+            L.append("WARNING: quantisation step " + ", ".join(
+                f"{ax} {sd[ax]['quantisation_step_mg']:.1f}" for ax in qb) + " mg is not dithered by the "
+                "model noise: a still window's mean can be biased by up to " + ", ".join(
+                f"{ax} {b:.2f}" for ax, b in qb.items()) + " mg (depending on its orientation), which "
+                "the effect library cannot name; effects named here may be quantisation artefacts "
+                "(simulated AX3 packed +-8 g: the null control named an effect in 3 of 20 seeds)")
     L.append("")
     L.append("Final model: " + ", ".join(
         f"{k}" for k in d["final_model"]["effects"]))

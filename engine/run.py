@@ -328,7 +328,7 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
         feat = FeatureStage(s, rate, on_features=lambda f: publish(cal.add(f)))
 
         def gate():
-            nb = cal._next_boundary
+            nb = cal.next_boundary_ns
             if nb is None:  # no window yet: the first boundary is at least a chunk away
                 return (feat.last_block_ns or 0) - window_ns + cal.chunk_ns
             return nb

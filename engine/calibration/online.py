@@ -68,6 +68,11 @@ class OnlineCalibrator:
 
     # ------------------------------------------------------------------ state
     @property
+    def next_boundary_ns(self) -> Optional[int]:
+        """Data time of the next 12 h refit boundary (None until the first window arrives)."""
+        return self._next_boundary
+
+    @property
     def windows(self) -> WindowFeatures:
         """The nonmovement windows accumulated so far."""
         if len(self._parts) > 1:

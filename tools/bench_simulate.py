@@ -69,79 +69,10 @@ def run_child(code: str, *args) -> tuple[float, float, float, str]:
 
 def realism(days: float, hz: float, seed: int) -> dict:
     """Realism statistics of one simulated wrist recording (AX3 unpacked, in memory)."""
-    import numpy as np
-    from stillpoint.engine.sim.model import ggir_equivalent
-    from stillpoint.engine.sim.record import build_model, make_devices
-    from stillpoint.engine.sim.sensor import noise_sd_g
+    from stillpoint.engine.sim.realism import realism_stats, realism_summary, van_hees_wrist
 
-    model = (build_model("default").with_effect("offset", x_mg=35.0, y_mg=-40.0, z_mg=75.0)
-             .with_effect("gain", x_pct=1.2, y_pct=-0.8, z_pct=1.5))
-    [sim] = make_devices(sites=["wrist"], devices=["ax3"], days=days, hz=hz, seed=seed,
-                         effects=model, packed=False)
-    g = ggir_equivalent(sim.model.without("bias_instability", "noise", "clipping", "quantisation",
-                                          "rate_error", "clock"), 25.0)
-    nw, ne = int(np.ceil(sim.duration_s / 10)), int(np.ceil(sim.duration_s / 5))
-    s1, s2, cnt = np.zeros((nw, 3)), np.zeros((nw, 3)), np.zeros(nw)
-    c1 = np.zeros((nw, 3))  # window sums of the truly calibrated signal
-    eu, ec, en = np.zeros(ne), np.zeros(ne), np.zeros(ne)
-    peaks = []
-    sch = sim.schedule
-    for c in sim.chunks():
-        a = sim.spec.to_g(c.counts)
-        w = (c.true_s // 10).astype(int)
-        cnt += np.bincount(w, minlength=nw)
-        for j in range(3):
-            s1[:, j] += np.bincount(w, a[:, j], nw)
-            s2[:, j] += np.bincount(w, a[:, j] ** 2, nw)
-        cal = (a + g["offset"]) * g["scale"] + (c.temperature_c - 25.0)[:, None] * np.array(g["tempoffset"])
-        for j in range(3):
-            c1[:, j] += np.bincount(w, cal[:, j], nw)
-        e = (c.true_s // 5).astype(int)
-        en += np.bincount(e, minlength=ne)
-        eu += np.bincount(e, np.maximum(np.linalg.norm(a, axis=1) - 1, 0), ne)
-        ec += np.bincount(e, np.maximum(np.linalg.norm(cal, axis=1) - 1, 0), ne)
-        seg = sch.segment_at(c.true_s)
-        for i in np.unique(seg[sch.activity[seg] == 6]):  # walking bouts >= 60 s in this chunk
-            m = (seg == i) & (c.true_s > sch.start[i] + 5) & (c.true_s < sch.end[i] - 5)
-            if m.sum() >= 60 * hz:
-                x = np.linalg.norm(a[m], axis=1)
-                x = x - x.mean()
-                spec = np.abs(np.fft.rfft(x * np.hanning(x.size))) ** 2
-                f = np.fft.rfftfreq(x.size, 1 / hz)
-                band = (f > 0.5) & (f < 6)
-                peaks.append((float(f[band][np.argmax(spec[band])]), float(sch.step_hz[i])))
-    mean = s1 / cnt[:, None]
-    sd = np.sqrt(np.maximum(s2 / cnt[:, None] - mean ** 2, 0) * (cnt / (cnt - 1))[:, None])
-    lab = sim.labels(np.zeros((nw, 3)), np.zeros((nw, 3)), cnt.astype(np.int64))
-    low = (sd < 0.013).all(axis=1)
-    hour = (sch.start_hour + lab["true_start_s"] / 3600) % 24
-    night = (hour >= 23) | (hour < 7)
-    still = lab["still"] == 1
-    floor = np.sqrt(noise_sd_g(sim.model, hz) ** 2 + sim.spec.lsb_g ** 2 / 12)
-    ok = en > 0
-    err_u = np.abs(np.linalg.norm(mean[low], axis=1) - 1)  # GGIR's calibration error on
-    err_c = np.abs(np.linalg.norm(c1[low] / cnt[low, None], axis=1) - 1)  # the low-SD windows
-    u, cc = eu[ok] / en[ok], ec[ok] / en[ok]
-    worn = lab["activity"] > 1
-    pk = np.array(peaks) if peaks else np.zeros((0, 2))
-    return {
-        "days": days, "hz": hz, "seed": seed,
-        "low_sd_window_share": round(float(low.mean()), 3),
-        "low_sd_share_at_night_23_07": round(float((low & night).sum() / max(low.sum(), 1)), 3),
-        "still_sd_median_mg": [round(float(x) * 1000, 2) for x in np.median(sd[still], axis=0)],
-        "noise_floor_mg": [round(float(x) * 1000, 2) for x in floor],
-        "calibration_error_mg_uncal_cal": [round(float(err_u.mean()) * 1000, 1), round(float(err_c.mean()) * 1000, 2)],
-        "enmo_mean_mg_uncal_cal": [round(float(u.mean()) * 1000, 1), round(float(cc.mean()) * 1000, 1)],
-        "enmo_p25_p50_p75_p95_uncal": [round(float(x) * 1000, 1) for x in np.percentile(u, [25, 50, 75, 95])],
-        "enmo_p25_p50_p75_p95_cal": [round(float(x) * 1000, 1) for x in np.percentile(cc, [25, 50, 75, 95])],
-        "walking_bouts_ge_60s": int(pk.shape[0]),
-        "walking_step_hz_min_max": [round(float(pk[:, 1].min()), 2), round(float(pk[:, 1].max()), 2)] if pk.size else None,
-        # share of walking bouts whose vector-magnitude spectrum peaks at their step frequency
-        # (+-0.1 Hz); the others peak at the stride frequency (half of it)
-        "walking_peak_at_step_hz_share": round(float(np.mean(np.abs(pk[:, 0] - pk[:, 1]) < 0.1)), 3) if pk.size else None,
-        "walking_peak_in_1p6_2p2_hz_share": round(float(np.mean((pk[:, 0] >= 1.6) & (pk[:, 0] <= 2.2))), 3) if pk.size else None,
-        "worn_temperature_c_p5_p95": [round(float(x), 1) for x in np.percentile(lab["temperature_c"][worn], [5, 95])],
-    }
+    stats = realism_stats(van_hees_wrist(days, hz, seed), hz)
+    return {"days": days, "hz": hz, "seed": seed, **realism_summary(stats, hz)}
 
 
 def main(argv=None) -> int:

@@ -20,7 +20,7 @@ from mcap.reader import make_reader
 
 from stillpoint.engine.blocks import (Block, DeviceInfo, PER_SAMPLE_BUTTON, PER_SAMPLE_LIGHT_RAW,
                                       QCEvent, QCReport)
-from stillpoint.engine.mcap_schemas import ACCEL_BATCH_RAW, GYRO_BATCH_RAW, times_from_deltas
+from stillpoint.engine.mcap.schemas import ACCEL_BATCH_RAW, GYRO_BATCH_RAW, times_from_deltas
 
 from .errors import CorruptRecordingError, RecordingError, UnsupportedFormatError
 

@@ -37,7 +37,7 @@ from .calibration.estimate import CalibrationEstimate
 from .calibration.schedule import CHUNK_HOURS, FIRST_HOURS
 from .calibration.select import MAX_ABS_MEAN_G, SD_THRESHOLD_G
 from .features import WindowFeatures
-from .mcap_sink import CHUNK_SIZE, ZSTD_LEVEL, McapSink
+from .mcap.sink import CHUNK_SIZE, ZSTD_LEVEL, McapSink
 from .operators.correction import CorrectionOperator
 from .operators.filters import BFEN_BAND_GGIR, band_used
 from .operators.metrics import EPOCH_S, EpochMetrics, MetricsOperator
@@ -371,7 +371,7 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
     sink.close()
     summary["mcap_messages"] = sink.messages
     summary["mcap_flushes"] = sink.flushes
-    from .mcap_writer import peak_rss_mb
+    from .mcap.writer import peak_rss_mb
     summary["peak_rss_mb"] = {"engine": peak_rss_mb(), "writer": sink.writer_maxrss_mb}
     return summary
 

@@ -166,14 +166,14 @@ def test_export_mcap_dispatch(tmp_path, capsys, monkeypatch):
     p.write_bytes(b"\x89MCAP0\r\n" + b"\x00" * 64)
     out = tmp_path / "o.csv"
     # the engine's exporter missing: one clear line, exit 2
-    monkeypatch.setitem(sys.modules, "stillpoint.engine.mcap_export", None)
+    monkeypatch.setitem(sys.modules, "stillpoint.engine.mcap.export", None)
     code, _, err = run_cli(["export", str(p), "-o", str(out)], capsys)
-    assert code == 2 and "mcap_export" in err and len(err.strip().splitlines()) == 1
+    assert code == 2 and "mcap.export" in err and len(err.strip().splitlines()) == 1
     # present: called with (path, out, topics)
     calls = []
-    fake = types.ModuleType("stillpoint.engine.mcap_export")
+    fake = types.ModuleType("stillpoint.engine.mcap.export")
     fake.export_mcap = lambda path, o, topics: calls.append((str(path), str(o), topics)) or 5
-    monkeypatch.setitem(sys.modules, "stillpoint.engine.mcap_export", fake)
+    monkeypatch.setitem(sys.modules, "stillpoint.engine.mcap.export", fake)
     code, _, _ = run_cli(["export", str(p), "-o", str(out), "--topic", "/a", "--topic", "/b"], capsys)
     assert code == 0 and calls == [(str(p), str(out), ["/a", "/b"])]
 

@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from stillpoint.engine.mcap_schemas import (ACCEL_BATCH, ACCEL_BATCH_RAW, ALL_TYPES, EPOCH_METRICS,
+from stillpoint.engine.mcap.schemas import (ACCEL_BATCH, ACCEL_BATCH_RAW, ALL_TYPES, EPOCH_METRICS,
                                             TEMPERATURE)
-from stillpoint.engine.mcap_sink import epoch_messages
+from stillpoint.engine.mcap.sink import epoch_messages
 from stillpoint.engine.operators.metrics import EpochMetrics
 from stillpoint.engine.recover import is_finished, recover
 from stillpoint.engine.run import RunSettings, process_file

@@ -18,8 +18,8 @@ from stillpoint.drivers.cwa import corrupt_sector
 from stillpoint.drivers.mcap_replay import McapRawSource
 from stillpoint.engine.blocks import Block
 from stillpoint.engine.calibration.estimate import CalibrationEstimate
-from stillpoint.engine.mcap_compare import compare
-from stillpoint.engine.mcap_schemas import ACCEL_BATCH, times_from_deltas
+from stillpoint.engine.mcap.compare import compare
+from stillpoint.engine.mcap.schemas import ACCEL_BATCH, times_from_deltas
 from stillpoint.engine.run import RunSettings, process_file
 from stillpoint.tools.cli import main as cli
 from synthetic_recording import make_recording

@@ -1,4 +1,4 @@
-"""Our MCAP writer (engine/mcap_chunks.py + engine/mcap_writer.py) against the mcap package's
+"""Our MCAP writer (engine/mcap/chunks.py + engine/mcap/writer.py) against the mcap package's
 reader: valid records, chunk CRCs, summary CRC, statistics, chunk and metadata indexes, every
 compression; the vectorised fixed-size message path equals the one-by-one path."""
 
@@ -12,9 +12,9 @@ import pytest
 from mcap.reader import make_reader
 from mcap.stream_reader import StreamReader
 
-from stillpoint.engine import mcap_records as rec
-from stillpoint.engine.mcap_chunks import ChunkBuilder
-from stillpoint.engine.mcap_writer import _WriterCore
+from stillpoint.engine.mcap import records as rec
+from stillpoint.engine.mcap.chunks import ChunkBuilder
+from stillpoint.engine.mcap.writer import _WriterCore
 
 SCHEMAS = {"a/Msg": ("ros2msg", b"int32 x\n"), "b/Other": ("ros2msg", b"float64 y\n")}
 
@@ -136,9 +136,9 @@ def _block(n_units=30, per=120, step_at=None, gyro=False):
 @pytest.mark.parametrize("step_at", [None, 1800])
 def test_sink_raw_and_corrected_messages_reproduce_the_block(tmp_path, step_at):
     from stillpoint.engine.blocks import DeviceInfo
-    from stillpoint.engine.mcap_schemas import (ACCEL_BATCH, ACCEL_BATCH_RAW, GYRO_BATCH_RAW,
+    from stillpoint.engine.mcap.schemas import (ACCEL_BATCH, ACCEL_BATCH_RAW, GYRO_BATCH_RAW,
                                                 TEMPERATURE, times_from_deltas)
-    from stillpoint.engine.mcap_sink import McapSink, quantize
+    from stillpoint.engine.mcap.sink import McapSink, quantize
     from stillpoint.engine.operators.correction import CorrectedBatch
     from stillpoint.engine.operators.metrics import EpochMetrics
     blk = _block(step_at=step_at, gyro=True)
@@ -181,7 +181,7 @@ def test_sink_raw_and_corrected_messages_reproduce_the_block(tmp_path, step_at):
 
 
 def test_encode_values_equals_encode_for_every_type():
-    from stillpoint.engine.mcap_schemas import ALL_TYPES, _PRIM, _parse
+    from stillpoint.engine.mcap.schemas import ALL_TYPES, _PRIM, _parse
     rng = np.random.default_rng(9)
     for typ in ALL_TYPES:
         vals = {}
@@ -199,7 +199,7 @@ def test_encode_values_equals_encode_for_every_type():
 
 
 def test_writer_modes_write_the_same_messages(tmp_path):
-    from stillpoint.engine.mcap_compare import compare
+    from stillpoint.engine.mcap.compare import compare
     from stillpoint.engine.run import RunSettings, process_file
     from stillpoint.tools.commands.demo import make_recording
     rec_path = tmp_path / "r.cwa"
@@ -221,7 +221,7 @@ def test_chunk_index_records_in_pieces_equal_one_piece(compression):
     from mcap.data_stream import RecordBuilder
     from mcap.records import ChunkIndex
 
-    from stillpoint.engine.mcap_writer import _ChunkIndexRows
+    from stillpoint.engine.mcap.writer import _ChunkIndexRows
     rows = _ChunkIndexRows()
     for i in range(2050):  # grows past its first allocation
         rows.append(i, i + 5, 100 * i, 90, 80 + i % 7, 1000 + i)

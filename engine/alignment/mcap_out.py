@@ -9,11 +9,11 @@ topic                encoding / schema            one message per
 /aligned/accel       cdr stillpoint/msg/AccelBatch up to ``MESSAGE_SAMPLES`` aligned samples
 ==================== ============================ ==========================================
 
-The aligned stream uses the engine's AccelBatch layout (engine/mcap_schemas.py): times are on the
+The aligned stream uses the engine's AccelBatch layout (engine/mcap/schemas.py): times are on the
 *reference* clock; points with no data (gaps, step windows) are left out rather than NaN-filled.
 Metadata records: ``reference`` and ``other`` (device info) and ``alignment`` (final result, JSON
 under ``json``). Written with the ``mcap`` package directly (zstd chunks); the run's sink
-(engine/mcap_sink.py) has no generic JSON topic API, so this small writer keeps the alignment
+(engine/mcap/sink.py) has no generic JSON topic API, so this small writer keeps the alignment
 topics separate from the engine's calibration log.
 """
 
@@ -24,7 +24,7 @@ import numpy as np
 from mcap.writer import CompressionType, Writer
 
 from stillpoint.engine.jsonsafe import jsonable
-from stillpoint.engine.mcap_schemas import ACCEL_BATCH, max_step_ok, time_deltas
+from stillpoint.engine.mcap.schemas import ACCEL_BATCH, max_step_ok, time_deltas
 
 TOPIC_BLOCK_LAG = "/alignment/block_lag"
 TOPIC_ESTIMATE = "/alignment/estimate"
@@ -110,7 +110,7 @@ def read_topic_json(path, topic: str) -> list[dict]:
 def read_aligned(path) -> tuple[np.ndarray, np.ndarray]:
     """(time_ns, accel_g (n, 3)) of the aligned stream."""
     from mcap.reader import make_reader
-    from stillpoint.engine.mcap_schemas import times_from_deltas
+    from stillpoint.engine.mcap.schemas import times_from_deltas
     ts, xs = [], []
     with open(path, "rb") as f:
         for _, _, m in make_reader(f).iter_messages(topics=[TOPIC_ALIGNED]):

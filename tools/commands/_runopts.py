@@ -117,6 +117,6 @@ def human_summary(s: dict) -> str:
 
 
 def write_summary(summary: dict, path) -> None:
-    from stillpoint.engine.mcap_sink import dumps
+    from stillpoint.engine.mcap.sink import dumps
     with open(path, "w") as f:
         f.write(json.dumps(json.loads(dumps(summary)), indent=2, sort_keys=True) + "\n")

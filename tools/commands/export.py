@@ -20,7 +20,7 @@ goes; NPZ columns are streamed to temporary files next to the output and then co
 so memory stays flat however long the recording. The output appears under its name only when
 complete (written as ``OUT.partial`` and renamed).
 
-An MCAP input (a run's log) is exported by ``stillpoint.engine.mcap_export.export_mcap`` with
+An MCAP input (a run's log) is exported by ``stillpoint.engine.mcap.export.export_mcap`` with
 ``--topic`` selecting channels.
 
 API: ``export_recording(path, out, *, time_format="iso", timezone=None, compress=False) -> dict``.
@@ -291,10 +291,10 @@ def _output_kind(out: Path) -> str:
 def export_mcap(path, out, topics):
     """Hand an MCAP input to the engine's exporter (imported lazily: it may not be installed)."""
     try:
-        from stillpoint.engine.mcap_export import export_mcap as _export
+        from stillpoint.engine.mcap.export import export_mcap as _export
     except ImportError:
         raise UnsupportedFormatError(
-            path, "exporting an MCAP log needs stillpoint.engine.mcap_export, which this installation "
+            path, "exporting an MCAP log needs stillpoint.engine.mcap.export, which this installation "
                   "does not have yet") from None
     return _export(path, out, topics)
 

@@ -39,7 +39,7 @@ def run(args) -> int:
     settings = build_settings(args, logged)
     rc = execute(args, settings, out)
     if args.check:
-        from stillpoint.engine.mcap_compare import compare
+        from stillpoint.engine.mcap.compare import compare
         res = compare(args.file, out)
         same = all(r["identical"] for r in res.values())
         for t, r in res.items():

@@ -1,8 +1,8 @@
 """The MCAP file writer: compresses and writes the chunks the engine built, then the summary.
 
-Kept apart from ``mcap_sink`` so that the writer process (spawned fresh) imports only numpy,
-zstandard and the record encoders (engine/mcap_records.py), not the engine. The engine side
-(engine/mcap_chunks.py) builds each chunk's uncompressed records; this side compresses them
+Kept apart from ``mcap.sink`` so that the writer process (spawned fresh) imports only numpy,
+zstandard and the record encoders (engine/mcap/records.py), not the engine. The engine side
+(engine/mcap/chunks.py) builds each chunk's uncompressed records; this side compresses them
 (one reused zstd context), writes the Chunk record, keeps one row of 6 int64 per chunk for the
 chunk index (flat memory: 56 B per 10 s of data), and at ``finish`` writes Data End, the summary
 (schemas, channels, statistics, chunk indexes, metadata indexes), summary offsets and footer
@@ -20,7 +20,7 @@ from typing import Optional
 
 import numpy as np
 
-from . import mcap_records as rec
+from . import records as rec
 
 LIBRARY = "stillpoint"
 CHUNK_SIZE = 4 << 20  # 4 MiB uncompressed chunks at most (specs/mcap-python.md §7.1)
@@ -230,7 +230,7 @@ def _writer_loop(rconn, wconn, core_args) -> None:
 
 
 class WriterProcess:
-    """A writer in a child process started with ``python -m stillpoint.engine.mcap_writer``:
+    """A writer in a child process started with ``python -m stillpoint.engine.mcap.writer``:
     no multiprocessing (so no re-import of the caller's ``__main__`` and no "daemonic processes
     cannot have children" inside process pools), operations pickled over its stdin, replies on
     its stdout."""
@@ -241,7 +241,7 @@ class WriterProcess:
         import sys
         from multiprocessing.connection import Connection
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "stillpoint.engine.mcap_writer", json.dumps(list(core_args))],
+            [sys.executable, "-m", "stillpoint.engine.mcap.writer", json.dumps(list(core_args))],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, close_fds=True)
         self._w = Connection(os.dup(self.proc.stdin.fileno()), readable=False)
         self._r = Connection(os.dup(self.proc.stdout.fileno()), writable=False)

@@ -3,7 +3,7 @@
 ``ChunkBuilder`` turns messages into MCAP Message records (one ``struct.pack`` each, or one
 numpy pass for a run of fixed-size messages) appended to the uncompressed chunk in progress,
 and hands the chunk's bytes over at each flush (``take()``); compressing and writing it is the
-writer's job (engine/mcap_writer.py). Schemas and Channels are registered lazily: their records
+writer's job (engine/mcap/writer.py). Schemas and Channels are registered lazily: their records
 go into the chunk where the topic first appears (so a salvaged prefix of the file is
 self-describing), and are repeated in the summary. Message counts per channel and the time range
 feed the summary's Statistics record.
@@ -15,7 +15,7 @@ from typing import Optional
 
 import numpy as np
 
-from . import mcap_records as rec
+from . import records as rec
 
 _MSG_HEAD = rec.MESSAGE_HEADER
 

@@ -1,7 +1,7 @@
 """The MCAP log of record: raw stream (lossless), corrected stream, temperature, epoch metrics,
 calibration estimates, QC events, device metadata and the run's settings.
 
-Topics (see engine/mcap_schemas.py for the CDR layouts; ``json`` topics carry a JSON object):
+Topics (see engine/mcap/schemas.py for the CDR layouts; ``json`` topics carry a JSON object):
 
 ==================== ============================ =============================================
 topic                encoding / schema            one message per
@@ -31,8 +31,8 @@ The file is fsynced at flushes at most once per ``fsync_every_wall_s`` of wall t
 only loses what Python had not handed to the OS; fsync protects against power loss).
 ``recover`` salvages every complete chunk of a file that was never finished.
 
-The sink builds each chunk's records itself (engine/mcap_chunks.py: one ``struct.pack`` per
-message, one numpy pass for a cell's epochs); the writer (engine/mcap_writer.py) compresses and
+The sink builds each chunk's records itself (engine/mcap/chunks.py: one ``struct.pack`` per
+message, one numpy pass for a cell's epochs); the writer (engine/mcap/writer.py) compresses and
 writes chunks and the summary. By default that happens inline (``writer="inline"``): each chunk
 is compressed and handed to the OS as its cell ends, so a killed run loses only the cell in
 progress. ``writer="process"`` runs the writer in a child process (compression on another core;
@@ -55,12 +55,12 @@ from typing import Optional
 
 import numpy as np
 
-from .blocks import Block, DeviceInfo, PER_SAMPLE_BUTTON, PER_SAMPLE_LIGHT_RAW
-from .calibration.estimate import CalibrationEstimate
-from .mcap_schemas import (ACCEL_BATCH, ACCEL_BATCH_RAW, ALL_TYPES, EPOCH_METRICS, GYRO_BATCH_RAW,
+from ..blocks import Block, DeviceInfo, PER_SAMPLE_BUTTON, PER_SAMPLE_LIGHT_RAW
+from ..calibration.estimate import CalibrationEstimate
+from .schemas import (ACCEL_BATCH, ACCEL_BATCH_RAW, ALL_TYPES, EPOCH_METRICS, GYRO_BATCH_RAW,
                            TEMPERATURE, INT32_MAX, max_step_ok, time_deltas)
-from .operators.correction import CorrectedBatch
-from .operators.metrics import EpochMetrics
+from ..operators.correction import CorrectedBatch
+from ..operators.metrics import EpochMetrics
 
 TOPIC_RAW = "/raw/accel"
 TOPIC_GYRO = "/raw/gyro"
@@ -70,8 +70,8 @@ TOPIC_METRICS = "/metrics/epoch"
 TOPIC_CALIBRATION = "/calibration"
 TOPIC_QC = "/qc"
 
-from .mcap_chunks import ChunkBuilder
-from .mcap_writer import CHUNK_SIZE, LIBRARY, ZSTD_LEVEL, WriterProcess, _WriterCore  # noqa: F401
+from .chunks import ChunkBuilder
+from .writer import CHUNK_SIZE, LIBRARY, ZSTD_LEVEL, WriterProcess, _WriterCore  # noqa: F401
 
 
 def _jsonable(x):

@@ -34,7 +34,7 @@ from mcap.reader import make_reader
 
 from stillpoint.drivers.errors import CorruptRecordingError, StillpointError
 
-from .mcap_schemas import (ACCEL_BATCH, ACCEL_BATCH_RAW, EPOCH_METRICS, GYRO_BATCH_RAW, TEMPERATURE,
+from .schemas import (ACCEL_BATCH, ACCEL_BATCH_RAW, EPOCH_METRICS, GYRO_BATCH_RAW, TEMPERATURE,
                            times_from_deltas)
 
 DEFAULT_NPZ_TOPICS = ("/corrected/accel", "/metrics/epoch", "/temperature", "/calibration")

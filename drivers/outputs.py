@@ -1,0 +1,219 @@
+"""Output files that are never written in place.
+
+Every output stillpoint writes (MCAP logs, exports, simulated recordings, summaries, store
+records, downloads) goes to ``<name>.part`` in the destination folder and is renamed onto
+``<name>`` only when complete: flushed, fsync'ed, renamed atomically, the folder fsync'ed. So
+an existing complete output is never destroyed by an interrupted run, and a file without the
+``.part`` suffix is always complete.
+
+A second writer to the same output is refused: the ``.part`` file is held with an exclusive
+``flock`` for as long as it is being written. A ``.part`` left by a killed run (nobody holds its
+lock) is kept, renamed to ``<name>.part.<UTC time>``, so nothing already written is lost; its
+new name is reported in ``AtomicOutput.set_aside``.
+
+``check_output_path`` validates a destination before any work starts (folder exists, is a
+folder, is writable, the name can be encoded), so a long run cannot fail at its end for a
+reason that was knowable at its start.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import time
+from contextlib import contextmanager
+from pathlib import Path
+from typing import BinaryIO, Iterator, Optional
+
+from .errors import StillpointError
+
+try:  # POSIX; on other systems the second-writer guard is skipped
+    import fcntl
+except ImportError:  # pragma: no cover
+    fcntl = None  # type: ignore[assignment]
+
+PART_SUFFIX = ".part"
+
+
+class OutputError(StillpointError, OSError):
+    """An output could not be written. The message names the file and what was wrong."""
+
+    def __init__(self, path, message: str):
+        self.path = str(path)
+        self.message = message
+        super().__init__(f"{self.path}: {message}")
+
+
+def describe_os_error(e: OSError) -> str:
+    """A short human reason for an OS error (``no space left on device``, ``read-only
+    file system``, ``permission denied``...)."""
+    if e.errno == errno.ENOSPC:
+        return "no space left on device"
+    if e.errno == errno.EROFS:
+        return "read-only file system"
+    if e.errno in (errno.EACCES, errno.EPERM):
+        return "permission denied"
+    if e.errno == errno.ENOENT:
+        return "folder does not exist"
+    if e.errno == errno.ENOTDIR:
+        return "a part of the path is not a folder"
+    if e.errno == errno.EISDIR:
+        return "is a folder"
+    return e.strerror or str(e)
+
+
+def partial_path(path) -> Path:
+    """Where an output is written while incomplete: ``<name>.part`` beside it."""
+    p = Path(path)
+    return p.with_name(p.name + PART_SUFFIX)
+
+
+def check_output_path(path, *, what: str = "output") -> Path:
+    """Refuse, before any work, an output that cannot be written: the folder is missing or
+    not a folder or not writable, the path is a folder, or the name cannot be encoded for the
+    file system. Returns the path as a ``Path``."""
+    p = Path(path)
+    try:
+        os.fsencode(p.name)
+    except UnicodeError:
+        raise OutputError(path, f"{what} file name cannot be encoded on this system") from None
+    folder = p.parent if str(p.parent) else Path(".")
+    if not folder.exists():
+        raise OutputError(path, f"{what} folder {folder} does not exist")
+    if not folder.is_dir():
+        raise OutputError(path, f"{what} folder {folder} is not a folder")
+    if p.is_dir():
+        raise OutputError(path, f"{what} path is a folder")
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise OutputError(path, f"{what} folder {folder} is not writable")
+    return p
+
+
+def fsync_folder(folder) -> None:
+    """Make a rename in ``folder`` durable (best effort where folders cannot be opened)."""
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+class AtomicOutput:
+    """One output being written: ``fd``/``file`` point at ``<name>.part`` (locked); ``commit()``
+    makes it ``<name>``; ``abandon()`` closes it and leaves the partial file (or removes it
+    if nothing was written).
+
+    ``binary=False`` opens a text file (UTF-8, ``newline=""`` so CSV writers control line
+    ends)."""
+
+    def __init__(self, path, *, binary: bool = True, what: str = "output"):
+        self.path = check_output_path(path, what=what)
+        self.part = partial_path(self.path)
+        self.set_aside: Optional[Path] = None
+        self.committed = False
+        try:
+            fd = os.open(self.part, os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), 0o644)
+        except OSError as e:
+            raise OutputError(self.part, f"cannot create: {describe_os_error(e)}") from None
+        fd = self._lock(fd)
+        try:
+            os.ftruncate(fd, 0)
+        except OSError as e:
+            os.close(fd)
+            raise OutputError(self.part, f"cannot write: {describe_os_error(e)}") from None
+        self.fd = fd
+        self.file = (os.fdopen(fd, "wb", buffering=0, closefd=False) if binary else
+                     open(fd, "w", encoding="utf-8", newline="", closefd=False))
+
+    def _lock(self, fd: int) -> int:
+        if fcntl is None:
+            return fd
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            os.close(fd)
+            raise OutputError(self.path, "another stillpoint run is writing this output "
+                                         f"({self.part.name} is locked)") from None
+        if os.fstat(fd).st_size > 0:  # left by a killed run: keep it under a new name
+            stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime(os.fstat(fd).st_mtime))
+            aside = self.part.with_name(f"{self.part.name}.{stamp}")
+            n = 1
+            while aside.exists():
+                aside = self.part.with_name(f"{self.part.name}.{stamp}-{n}")
+                n += 1
+            os.rename(self.part, aside)
+            self.set_aside = aside
+            os.close(fd)
+            fd = os.open(self.part, os.O_RDWR | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0),
+                         0o644)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:  # pragma: no cover - a racing writer won the new name
+                os.close(fd)
+                raise OutputError(self.path, "another stillpoint run is writing this output") from None
+        return fd
+
+    def commit(self) -> Path:
+        """Flush and fsync the partial file, rename it onto the final name, fsync the folder."""
+        try:
+            self.file.flush()
+            os.fsync(self.fd)
+        except OSError as e:
+            self.abandon()
+            raise OutputError(self.part, f"cannot finish writing: {describe_os_error(e)}; "
+                                         "the partial file is kept") from None
+        self.file.close()
+        os.replace(self.part, self.path)
+        fsync_folder(self.path.parent)
+        os.close(self.fd)  # releases the lock after the rename: no window for a second writer
+        self.fd = -1
+        self.committed = True
+        return self.path
+
+    def abandon(self, *, remove_if_empty: bool = True) -> Optional[Path]:
+        """Stop writing; the partial file stays (``None`` if it was empty and removed)."""
+        if self.fd < 0:
+            return None if self.committed else self.part
+        try:
+            self.file.close()
+        except OSError:
+            pass
+        empty = False
+        try:
+            empty = os.fstat(self.fd).st_size == 0
+        except OSError:
+            pass
+        if empty and remove_if_empty:
+            try:
+                os.unlink(self.part)
+            except OSError:
+                pass
+        os.close(self.fd)
+        self.fd = -1
+        return None if (empty and remove_if_empty) else self.part
+
+
+@contextmanager
+def atomic_output(path, *, binary: bool = True, what: str = "output") -> Iterator[BinaryIO]:
+    """``with atomic_output("x.csv", binary=False) as f: ...`` writes ``x.csv.part`` and renames
+    it onto ``x.csv`` when the block ends without an exception. On an exception the partial
+    file stays (removed if empty) and the exception propagates; OS errors while writing
+    become an ``OutputError`` naming the partial file."""
+    out = AtomicOutput(path, binary=binary, what=what)
+    try:
+        yield out.file
+    except OSError as e:
+        kept = out.abandon()
+        if isinstance(e, StillpointError):
+            raise
+        where = f"; the partial file {kept} is kept" if kept else ""
+        raise OutputError(path, f"{describe_os_error(e)}{where}") from None
+    except BaseException:
+        out.abandon()
+        raise
+    out.commit()

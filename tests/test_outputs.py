@@ -1,0 +1,78 @@
+"""Outputs are never written in place: drivers/outputs.py."""
+
+import os
+
+import pytest
+
+from stillpoint.drivers.outputs import (AtomicOutput, OutputError, atomic_output,
+                                        check_output_path, partial_path)
+
+
+def test_complete_output_replaces_only_at_commit(tmp_path):
+    out = tmp_path / "a.csv"
+    out.write_text("old complete\n")
+    with atomic_output(out, binary=False) as f:
+        f.write("new\n")
+        assert out.read_text() == "old complete\n"  # untouched while writing
+        assert partial_path(out).exists()
+    assert out.read_text() == "new\n" and not partial_path(out).exists()
+
+
+def test_interrupted_write_keeps_previous_output_and_partial(tmp_path):
+    out = tmp_path / "a.bin"
+    out.write_bytes(b"previous")
+    with pytest.raises(KeyboardInterrupt):
+        with atomic_output(out) as f:
+            f.write(b"half")
+            raise KeyboardInterrupt
+    assert out.read_bytes() == b"previous"
+    assert partial_path(out).read_bytes() == b"half"
+
+
+def test_empty_partial_removed_on_error(tmp_path):
+    out = tmp_path / "a.bin"
+    with pytest.raises(RuntimeError):
+        with atomic_output(out):
+            raise RuntimeError("before any byte")
+    assert not partial_path(out).exists() and not out.exists()
+
+
+def test_second_writer_refused(tmp_path):
+    out = tmp_path / "a.mcap"
+    first = AtomicOutput(out)
+    with pytest.raises(OutputError, match="another stillpoint run"):
+        AtomicOutput(out)
+    first.file.write(b"x")
+    first.commit()
+    assert out.read_bytes() == b"x"
+
+
+def test_stale_partial_of_killed_run_is_kept_aside(tmp_path):
+    out = tmp_path / "a.mcap"
+    partial_path(out).write_bytes(b"salvageable")
+    w = AtomicOutput(out)
+    assert w.set_aside is not None and w.set_aside.read_bytes() == b"salvageable"
+    w.file.write(b"fresh")
+    w.commit()
+    assert out.read_bytes() == b"fresh"
+
+
+@pytest.mark.parametrize("case", ["missing", "notdir", "isdir", "readonly"])
+def test_bad_destinations_refused_before_work(tmp_path, case):
+    if case == "missing":
+        p = tmp_path / "nope" / "a.mcap"
+    elif case == "notdir":
+        (tmp_path / "f").write_text("")
+        p = tmp_path / "f" / "a.mcap"
+    elif case == "isdir":
+        p = tmp_path
+    else:
+        if os.geteuid() == 0:
+            pytest.skip("root can write into a read-only folder (permission bits are not enforced)")
+        ro = tmp_path / "ro"
+        ro.mkdir()
+        ro.chmod(0o500)
+        p = ro / "a.mcap"
+    with pytest.raises(OutputError) as e:
+        check_output_path(p)
+    assert str(p) in str(e.value) or str(p.parent) in str(e.value)

@@ -444,10 +444,13 @@ class CwaReader:
             runs = np.flatnonzero(fmts[1:] != fmts[:-1]) + 1
             bounds = np.concatenate([[0], runs, [m]])
             parts_a, parts_g = [], []
+            # a batch may mix 6-axis and 3-axis sectors (a format change, so never one segment):
+            # 3-axis rows get a zero gyro placeholder that no Block ever carries
+            gyro_cols = 3 if any(FORMATS[int(fmts[a])][0] == 6 for a in bounds[:-1]) else 0
             for a, b in zip(bounds[:-1], bounds[1:]):
                 pa, pg = decode_samples(sec[a:b], int(fmts[a]), count[a:b])
                 parts_a.append(pa)
-                parts_g.append(pg if pg is not None else np.zeros((pa.shape[0], 0), np.int16))
+                parts_g.append(pg if pg is not None else np.zeros((pa.shape[0], gyro_cols), np.int16))
             accel = parts_a[0] if len(parts_a) == 1 else np.concatenate(parts_a)
             gyro = parts_g[0] if len(parts_g) == 1 else np.concatenate(parts_g)
             if self._check_swap:

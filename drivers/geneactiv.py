@@ -367,6 +367,7 @@ class GeneactivReader:
         while self._pending_pages:
             yield from self._emit(self.batch_pages, tz_ns)
         self.qc.segments = segment + 1 if (held is not None) else 0
+        self.qc.events.sort(key=lambda e: e.index)  # stable: batch-size independent order
         n_hdr = self.info.header.get("number_of_pages")
         if n_hdr is not None and n_hdr != self.qc.total:
             self._event(self.qc.total, "page_count_mismatch",

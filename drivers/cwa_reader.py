@@ -23,7 +23,8 @@ index in the file, 0 = the sector right after the 1024-byte header):
   one), ``bad_count`` (sampleCount above capacity, clamped), ``device_overflow`` (event bits 0x10/0x20:
   the device lost samples), ``axis_swap`` (AX6 firmware < 56: accel/gyro triplets look swapped;
   the data are not changed), ``truncated`` (file ends inside a sector), ``read_error`` (a damaged
-  gzip stream: everything before it is returned).
+  or truncated gzip stream: everything decompressible before it is returned),
+  ``follow_idle_stop`` (follow mode stopped after ``follow_idle_s`` without growth).
 
 Every event carries ``time_ns``: the anchor time for a segment break, otherwise the data time next
 to it (interpolated by sector index inside a Block, else the last valid sample before it). Events
@@ -52,7 +53,8 @@ import numpy as np
 
 from ..engine.blocks import Block, DeviceInfo, QCEvent, QCReport
 from . import constants as C
-from .byteio import FollowingReader, check_recording_path, is_gzip, open_bytes, read_exact
+from .byteio import (FollowingReader, check_recording_path, is_gzip, open_bytes, read_exact,
+                     stream_damage)
 from .cwa_decode import (EMPTY, ERASED, REASONS, classify, decode_samples, interpolate_times,
                          max_samples, sector_anchors)
 from .cwa_layout import FORMATS, SECTOR_DTYPE, parse_header, parse_timezone
@@ -356,6 +358,11 @@ class CwaReader:
             if eof:
                 break
         self._flush_erased()
+        why = stream_damage(f)
+        if why:  # a damaged gzip stream or a follow-mode idle stop: all bytes before it were used
+            reason = "follow_idle_stop" if getattr(f, "idle_stop", None) else "read_error"
+            self._event(index, reason, f"reading stopped after data sector {index - 1}: {why}"
+                        + (f" ({have} bytes of a partial sector follow)" if have else ""))
         if have:
             self._event(index, "truncated",
                         f"file ends {have} bytes into data sector {index}; the partial sector is ignored")

@@ -1,0 +1,135 @@
+"""Every damaged input in tests/data/fuzz/ (README there: what each is and what stillpoint used to
+do) as a regression test: what is readable is read, the defect is logged as QC, or the file is
+refused with one clear line (exit 2) - never a traceback, never silent wrong values."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from stillpoint.drivers import open_recording
+from stillpoint.drivers.errors import CorruptRecordingError, StillpointError
+
+FUZZ = Path(__file__).parent / "data" / "fuzz"
+
+
+def cli(*args, cwd=None):
+    r = subprocess.run([sys.executable, "-m", "tools", *map(str, args)], capture_output=True,
+                       text=True, cwd=cwd, timeout=300)
+    return r.returncode, r.stdout, r.stderr
+
+
+def read(name, **kw):
+    with open_recording(FUZZ / name, **kw) as src:
+        blocks = list(src)
+    return src, blocks
+
+
+def reasons(src):
+    return [e.reason for e in src.qc.events]
+
+
+def assert_one_line_error(rc, err, name):
+    assert rc == 2, err
+    assert "Traceback" not in err
+    lines = [ln for ln in err.strip().splitlines() if ln]
+    assert len(lines) == 1 and name in lines[0], err
+
+
+# ----------------------------------------------------------------------------- gzip damage
+def test_truncated_cwa_gz_returns_everything_before_the_cut():
+    src, blocks = read("ax3_truncated.cwa.gz")
+    assert src.qc.valid == 77  # every complete sector before the cut
+    assert sum(b.n for b in blocks) == 77 * 120
+    assert "read_error" in reasons(src)
+
+
+def test_truncated_bin_gz_returns_everything_before_the_cut():
+    src, blocks = read("geneactiv_truncated.bin.gz")
+    assert sum(b.n for b in blocks) == 33 * 300 + 175
+    assert "read_error" in reasons(src) and "truncated_page" in reasons(src)
+
+
+def test_corrupt_deflate_is_one_clear_line():
+    with pytest.raises(CorruptRecordingError, match="damaged gzip data"):
+        read("ax3_corrupt_deflate.cwa.gz")
+    rc, _, err = cli("inspect", FUZZ / "ax3_corrupt_deflate.cwa.gz")
+    assert_one_line_error(rc, err, "ax3_corrupt_deflate.cwa.gz")
+
+
+def test_gzip_damage_mid_stream_keeps_the_prefix(tmp_path):
+    """Damage in the middle of the deflate data: the bytes before it still come out."""
+    import gzip
+    from stillpoint.drivers.byteio import open_bytes, read_exact, stream_damage
+    rng = np.random.default_rng(0)
+    plain = rng.integers(0, 4, 400_000, dtype=np.uint8).tobytes()
+    z = bytearray(gzip.compress(plain))
+    mid = len(z) // 2
+    for i in range(mid, mid + 20):
+        z[i] ^= 0x55
+    p = tmp_path / "d.gz"
+    p.write_bytes(bytes(z))
+    with open_bytes(p) as f:
+        got = read_exact(f, len(plain))
+        why = stream_damage(f)
+    assert why and "damaged gzip" in why
+    assert len(got) < len(plain)
+    # deflate cannot say where damage starts, only where it is detected: the bytes up to the
+    # damaged spot are exact (what follows it until detection may be garbled; the .cwa sector
+    # checksums reject such sectors)
+    a = np.frombuffer(got, np.uint8)
+    first_diff = int(np.flatnonzero(a != np.frombuffer(plain[:len(got)], np.uint8))[0]) \
+        if (a != np.frombuffer(plain[:len(got)], np.uint8)).any() else len(got)
+    assert first_diff > 0.4 * len(plain)
+
+
+# ----------------------------------------------------------------------------- AX3/AX6
+def test_ax6_mixed_sector_formats_read_both_and_log_the_change():
+    src, blocks = read("ax6_mixed_0x62_0x32_sector.cwa")
+    assert sum(b.n for b in blocks) == 800
+    assert reasons(src).count("format_change") == 2
+    assert [b.gyro is None for b in blocks] == [False, True, False]
+
+
+# ----------------------------------------------------------------------------- GENEActiv
+@pytest.mark.parametrize("name, what", [
+    ("geneactiv_gain_inf.bin", "x gain is inf"),
+    ("geneactiv_pagetime_2300.bin", "bad_page_time"),
+    ("geneactiv_pagetime_1600.bin", "bad_page_time"),
+    ("geneactiv_rate_tiny.bin", "not a plausible rate"),
+    ("geneactiv_rate_milli.bin", "not a plausible rate"),
+    ("geneactiv_rate_huge.bin", "not a plausible rate"),
+    ("geneactiv_rate_inf.bin", "not a plausible rate"),
+])
+def test_geneactiv_refused_with_a_clear_line(name, what):
+    with pytest.raises(StillpointError, match=what):
+        read(name)
+    rc, _, err = cli("inspect", FUZZ / name)
+    assert_one_line_error(rc, err, name)
+
+
+@pytest.mark.parametrize("name, reason", [
+    ("geneactiv_seq_overflow.bin", "bad_page_header"),
+    ("geneactiv_temperature_inf.bin", "bad_value"),
+    ("geneactiv_pagetime_1960.bin", "implausible_time"),
+    ("geneactiv_page_freq_tiny.bin", "bad_page_frequency"),
+    ("geneactiv_serial_non_latin1.bin", "serial_mismatch"),
+])
+def test_geneactiv_defect_logged_as_qc(name, reason):
+    src, blocks = read(name)
+    assert reason in reasons(src)
+    t = np.concatenate([b.time_ns for b in blocks])
+    assert (np.diff(t) > 0).all()
+    for b in blocks:
+        assert not np.isinf(b.temperature_c).any() and not np.isinf(b.battery_v).any()
+
+
+def test_geneactiv_page_rate_tiny_is_timed_with_the_header_rate():
+    src, blocks = read("geneactiv_page_freq_tiny.bin")
+    t = np.concatenate([b.time_ns for b in blocks])
+    dt = np.diff(t[-300:])
+    assert np.allclose(dt, 1e9 / src.info.sample_rate_nominal, atol=1)

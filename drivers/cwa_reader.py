@@ -17,7 +17,9 @@ index in the file, 0 = the sector right after the 1024-byte header):
 * a new segment starts (no samples dropped): ``restart`` (sequence id back to 0),
   ``session_change``, ``format_change`` (rate code, packing/channels or scale codes),
   ``sequence_gap`` (any step other than +1, incl. out-of-order and repeated ids), ``time_jump``
-  (anchor times disagree with the nominal rate by more than 10 % + 50 ms);
+  (anchor times disagree with the nominal rate by more than 10 % + 50 ms, or do not increase);
+* logged: ``rate_mismatch`` (the header's rate differs from the first valid sector's rate code:
+  the sectors' rate is ``info.sample_rate_nominal``);
 * kept, flagged: ``bad_timestamp`` (invalid date or 0: the sector's anchor is ignored, its samples
   are timed from the neighbouring anchors), ``bad_anchor`` (anchor index not after the previous
   one), ``bad_count`` (sampleCount above capacity, clamped), ``device_overflow`` (event bits 0x10/0x20:
@@ -217,6 +219,7 @@ class CwaReader:
             head = _read_or_fail(self.path, f, C.CWA_HEADER_BYTES)
             _check_header(self.path, head)
             first_fmt = None
+            first_rate = None  # (data-sector index, Hz) of the first valid sector
             ends = {}
             if not self.follow:
                 peek = _read_or_fail(self.path, f, 16 * C.CWA_SECTOR_BYTES)
@@ -227,6 +230,7 @@ class CwaReader:
                     if ok.size:
                         s = sec[ok[0]]
                         first_fmt = (int(s["num_axes_bps"]), int(s["light_scale"]))
+                        first_rate = (int(ok[0]), C.cwa_rate_hz(int(s["rate_code"])))
                         ends["first"] = sec[ok[0]:ok[0] + 1]
                 if not is_gzip(self.path):  # plain file: also look at the last 16 sectors
                     ends.update(_tail_sectors(self.path))
@@ -235,6 +239,16 @@ class CwaReader:
         self._header = parse_header(head, self.tz_s)
         self._header.update(_quick_span(ends, self.tz_s))
         self.info = _device_info(self.path, self._header, self.tz_s, first_fmt)
+        self._rate_note = None
+        if first_rate is not None and first_rate[1] != self.info.sample_rate_nominal:
+            # the sectors carry their own rate code: it decides (a wrong header rate would size
+            # every downstream window for the wrong number of samples)
+            self._header["header_rate_hz"] = self.info.sample_rate_nominal
+            self._rate_note = (first_rate[0], f"the header says {self.info.sample_rate_nominal:g} Hz, "
+                                              f"the data sectors {first_rate[1]:g} Hz; the sectors' "
+                                              "rate is used")
+            self.info = replace(self.info, sample_rate_nominal=first_rate[1],
+                                header={**self.info.header, "header_rate_hz": self._header["sample_rate_hz"]})
         self.qc = QCReport(unit="sector")
         self._closed = False
         self._started = False
@@ -258,6 +272,8 @@ class CwaReader:
             raise RuntimeError("a CwaReader is single-pass; open the file again for another pass")
         self._started = True
         self._init_state()
+        if self._rate_note is not None:
+            self._event(self._rate_note[0], "rate_mismatch", self._rate_note[1])
         try:
             for sec, first_index, final in self._batches():
                 yield from self._process(sec, first_index, final)
@@ -565,7 +581,7 @@ class CwaReader:
             return None
         dt = np.diff(t_all)
         expected = dg * (_NS / seg.rate_hz)
-        if (np.abs(dt - expected) > TIME_JUMP_REL_TOL * expected + TIME_JUMP_ABS_TOL_NS).any():
+        if ((dt <= 0) | (np.abs(dt - expected) > TIME_JUMP_REL_TOL * expected + TIME_JUMP_ABS_TOL_NS)).any():
             return None
         self._accept_anchors(seg, g.tolist(), t.tolist())
         seg.n = int(s0[-1] + count[-1])
@@ -635,7 +651,9 @@ class CwaReader:
                 dg = g - seg.ag[-1]
                 if dg > 0:
                     exp = dg * (_NS / seg.rate_hz)
-                    if abs((t - seg.at[-1]) - exp) > TIME_JUMP_REL_TOL * exp + TIME_JUMP_ABS_TOL_NS:
+                    # time must move forward between anchors, and near the nominal rate
+                    if (t <= seg.at[-1]
+                            or abs((t - seg.at[-1]) - exp) > TIME_JUMP_REL_TOL * exp + TIME_JUMP_ABS_TOL_NS):
                         reason = "time_jump"
                         detail = (f"anchor time moved {(t - seg.at[-1]) / _NS:+.3f} s over {dg} samples "
                                   f"({exp / _NS:.3f} s expected at {seg.rate_hz:g} Hz)")

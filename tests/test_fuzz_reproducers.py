@@ -133,3 +133,23 @@ def test_geneactiv_page_rate_tiny_is_timed_with_the_header_rate():
     t = np.concatenate([b.time_ns for b in blocks])
     dt = np.diff(t[-300:])
     assert np.allclose(dt, 1e9 / src.info.sample_rate_nominal, atol=1)
+
+
+def test_anchor_going_back_in_time_starts_a_segment():
+    src, blocks = read("ax3_3200hz_anchor_back_52ms.cwa")
+    assert "time_jump" in reasons(src)
+    for b in blocks:  # inside a segment time only moves forward
+        assert (np.diff(b.time_ns) > 0).all()
+    seg = np.concatenate([np.full(b.n, b.segment) for b in blocks])
+    t = np.concatenate([b.time_ns for b in blocks])
+    for s in np.unique(seg):
+        assert (np.diff(t[seg == s]) > 0).all()
+
+
+def test_header_rate_differs_from_sector_rate_uses_the_sectors(tmp_path):
+    src, blocks = read("ax3_header_6p25hz_sectors_3200hz.cwa")
+    assert src.info.sample_rate_nominal == 3200
+    assert "rate_mismatch" in reasons(src)
+    rc, out, err = cli("process", FUZZ / "ax3_header_6p25hz_sectors_3200hz.cwa", "-o", tmp_path / "o.mcap")
+    assert rc == 0, err
+    assert "rate_mismatch" in out

@@ -38,6 +38,10 @@ def cwa_rate_hz(code: int) -> float:
     return 3200.0 / (1 << (15 - (code & 0x0F)))
 
 
+# rate codes 6..15 (low nibble) are the ones a data sector may carry: 6.25..3200 Hz [CWA] §5.2
+CWA_RATE_RANGE_HZ = (6.25, 3200.0)
+
+
 def cwa_range_g(code: int) -> int:
     """Accelerometer range from the rate code: 16 >> (code >> 6) g. [CWA] §5.2"""
     return 16 >> ((code >> 6) & 0x03)

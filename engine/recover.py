@@ -2,8 +2,9 @@
 
 Before ``finish()`` an MCAP has no summary, footer or trailing magic, and seeking readers refuse
 it. The records of every *complete* chunk are intact, though: ``recover`` reads the file linearly
-(``mcap.stream_reader.StreamReader``), keeps every Schema, Channel, Message, Metadata and
-Attachment record until the first torn or unreadable record, and writes them into a new, finished
+(``engine.mcap.reading.walk_records``), keeps every Schema, Channel, Message, Metadata and
+Attachment record up to a torn tail, skipping (and reporting) any complete record that is
+unreadable, e.g. a chunk whose CRC is wrong, and writes them into a new, finished
 and indexed MCAP (ids re-mapped; records a finished file repeats in its summary are not
 duplicated). The input is never modified; the output is written to a temporary name and renamed
 when complete. A file that is already finished is copied record by record all the same.
@@ -18,10 +19,10 @@ from pathlib import Path
 
 from mcap.exceptions import McapError
 from mcap.records import (Attachment, Channel, DataEnd, Footer, Message, Metadata, Schema)
-from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
 from stillpoint.drivers.errors import CorruptRecordingError, RecordingError
+from stillpoint.engine.mcap.reading import BadRecord, TornTail, walk_records
 
 MAGIC = b"\x89MCAP0\r\n"
 
@@ -37,6 +38,7 @@ class RecoveryReport:
     attachments: int = 0
     last_log_time_ns: int = 0
     stopped_at: str = ""  # why reading stopped ("" when the file ended cleanly)
+    bad_records: list = field(default_factory=list)  # unreadable records skipped (e.g. a bad chunk)
     per_topic: dict = field(default_factory=dict)
 
     def as_dict(self) -> dict:
@@ -69,9 +71,14 @@ def recover(path, out, *, compression: str = "zstd") -> RecoveryReport:
     with open(path, "rb") as fin, open(tmp, "wb") as fout:
         w = Writer(fout, compression=comp, chunk_size=4 << 20)
         w.start(profile="", library="stillpoint-recover")
-        reader = StreamReader(fin, validate_crcs=True)
         try:
-            for rec in reader.records:
+            for rec in walk_records(fin):
+                if isinstance(rec, BadRecord):
+                    rep.bad_records.append(rec.describe())
+                    continue
+                if isinstance(rec, TornTail):
+                    rep.stopped_at = rec.describe()
+                    break
                 if isinstance(rec, Schema):
                     if rec.id not in schema_map:
                         schema_map[rec.id] = w.register_schema(rec.name, rec.encoding, rec.data)

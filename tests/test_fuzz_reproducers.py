@@ -153,3 +153,82 @@ def test_header_rate_differs_from_sector_rate_uses_the_sectors(tmp_path):
     rc, out, err = cli("process", FUZZ / "ax3_header_6p25hz_sectors_3200hz.cwa", "-o", tmp_path / "o.mcap")
     assert rc == 0, err
     assert "rate_mismatch" in out
+
+
+# ----------------------------------------------------------------------------- MCAP
+@pytest.mark.parametrize("cmd", [["inspect"], ["export", "--topic", "/raw/gyro"], ["replay", "--check"]])
+def test_flipped_bit_in_a_chunk_is_never_read_silently(cmd, tmp_path):
+    name = "ax6_one_flipped_byte_in_middle_chunk.mcap"
+    extra = ["-o", tmp_path / ("o.csv" if cmd[0] == "export" else "o.mcap")] if cmd[0] != "inspect" else []
+    rc, out, err = cli(cmd[0], FUZZ / name, *cmd[1:], *extra)
+    assert_one_line_error(rc, err, name)
+    assert "crc" in err.lower() and "chunk 23" in err
+
+
+def test_recover_salvages_good_chunks_around_a_bad_one(tmp_path):
+    from stillpoint.engine.mcap.compare import topic_digests
+    from stillpoint.engine.recover import recover
+    rep = recover(FUZZ / "ax6_one_flipped_byte_in_middle_chunk.mcap", tmp_path / "r.mcap")
+    assert len(rep.bad_records) == 1 and "chunk 23" in rep.bad_records[0]
+    assert rep.stopped_at == ""
+    # one chunk of 45 lost: everything else (incl. the chunks after it) is kept
+    assert rep.per_topic["/raw/accel"] == 44 and rep.per_topic["/raw/gyro"] == 44
+    assert topic_digests(tmp_path / "r.mcap")["/raw/gyro"][0] == 44
+    rc, out, err = cli("recover", FUZZ / "ax6_one_flipped_byte_in_middle_chunk.mcap", "-o", tmp_path / "r2.mcap")
+    assert rc == 0 and "chunk 23" in out
+
+
+def test_recover_torn_tail_still_works(tmp_path):
+    from stillpoint.engine.recover import recover
+    rep = recover(FUZZ / "ax6_torn_tail_mid_chunk.mcap", tmp_path / "r.mcap")
+    assert rep.per_topic["/raw/accel"] == 22 and "runs past the end" in rep.stopped_at
+
+
+def test_replay_check_compares_every_topic(tmp_path):
+    """Every topic is compared, /raw/gyro included (it used to be skipped), and a difference on
+    /raw/gyro alone is reported."""
+    from stillpoint.engine.mcap.compare import compare
+    from stillpoint.engine.recover import recover
+    recover(FUZZ / "ax6_one_flipped_byte_in_middle_chunk.mcap", tmp_path / "a.mcap")
+    res = compare(tmp_path / "a.mcap", tmp_path / "a.mcap")
+    assert {"/raw/gyro", "/raw/accel", "/qc", "/temperature", "/corrected/accel",
+            "/metrics/epoch", "/calibration"} <= set(res)
+    assert all(r["identical"] for r in res.values())
+    # b: the same log with one /raw/gyro message left out
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+    with open(tmp_path / "a.mcap", "rb") as fa, open(tmp_path / "b.mcap", "wb") as fb:
+        r = make_reader(fa)
+        w = Writer(fb)
+        w.start()
+        ids, dropped = {}, False
+        for sch, ch, m in r.iter_messages(log_time_order=False):
+            if ch.id not in ids:
+                sid = w.register_schema(sch.name, sch.encoding, sch.data) if sch else 0
+                ids[ch.id] = w.register_channel(ch.topic, ch.message_encoding, sid)
+            if ch.topic == "/raw/gyro" and not dropped:
+                dropped = True
+                continue
+            w.add_message(ids[ch.id], m.log_time, m.data, m.publish_time)
+        w.finish()
+    res = compare(tmp_path / "a.mcap", tmp_path / "b.mcap")
+    assert [t for t, r in res.items() if not r["identical"]] == ["/raw/gyro"]
+
+
+@pytest.mark.parametrize("name, what", [
+    ("qc_message_not_json.mcap", "channel /qc, message 0"),
+    ("qc_message_not_utf8.mcap", "channel /qc, message 0"),
+    ("raw_unit_start_int32_min.mcap", "channel /raw/accel, message 0"),
+    ("device_rate_1hz.mcap", "sample_rate_nominal"),
+])
+@pytest.mark.parametrize("cmd", ["inspect", "replay", "export", "calibrate"])
+def test_damaged_mcap_fields_are_typed_errors(name, what, cmd, tmp_path):
+    extra = {"replay": ["-o", tmp_path / "o.mcap"], "export": ["--topic", "/qc", "-o", tmp_path / "o.csv"]
+             if "qc" in name else ["--topic", "/raw/accel", "-o", tmp_path / "o.csv"]}.get(cmd, [])
+    rc, out, err = cli(cmd, FUZZ / name, *extra)
+    if cmd == "export" and name in ("device_rate_1hz.mcap", "qc_message_not_json.mcap"):
+        # export copies messages as text: it does not use the device record or parse /qc
+        assert rc == 0, err
+        return
+    assert_one_line_error(rc, err, name)
+    assert what in err

@@ -59,6 +59,31 @@ def build_parser(only=None) -> argparse.ArgumentParser:
     return parser
 
 
+def _partial_note(args) -> str:
+    """Where an interrupted run's partial MCAP is and how to salvage it (or that none exists)."""
+    if args.command not in ("process", "replay", "align"):
+        return ""
+    try:
+        from pathlib import Path
+
+        from stillpoint.engine.recover import is_finished
+        out = getattr(args, "output", None)
+        if out is None and args.command in ("process", "replay"):
+            from .commands.process import default_output
+            out = default_output(Path(args.file))
+        if out is None:
+            return ""
+        out = Path(out)
+        for cand in (out.with_name(out.name + ".part"), out):
+            if cand.is_file() and cand.stat().st_size and not is_finished(cand):
+                return (f"; the partial log {cand} keeps every chunk written so far: "
+                        f"`stillpoint recover {cand} -o FIXED.mcap` salvages it")
+        return (f"; no partial log was left (batch mode writes {out} only in its second pass; "
+                "an existing complete output is untouched)")
+    except Exception:  # the note is a courtesy: never mask the interruption
+        return ""
+
+
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     parser = build_parser(_only_requested(argv))
@@ -72,10 +97,15 @@ def main(argv=None) -> int:
         print(f"stillpoint {args.command}: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("stillpoint: interrupted", file=sys.stderr)
+        print(f"stillpoint {args.command}: interrupted{_partial_note(args)}", file=sys.stderr)
         return 130
     except BrokenPipeError:
         return 0
+    except OSError as e:  # a file system failure no command anticipated: still one line
+        from stillpoint.drivers.outputs import describe_os_error
+        where = f"{e.filename}: " if getattr(e, "filename", None) else ""
+        print(f"stillpoint {args.command}: error: {where}{describe_os_error(e)}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":  # pragma: no cover

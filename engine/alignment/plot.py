@@ -86,8 +86,11 @@ def plot_alignment(result: AlignmentResult, path, max_correlograms: int = 40) ->
     else:
         ax2.text(0.5, 0.5, "no correlograms", ha="center", va="center", transform=ax2.transAxes)
     fig.tight_layout()
-    fig.savefig(str(path), dpi=110)
-    plt.close(fig)
+    from ..plotfile import save_figure
+    try:
+        save_figure(fig, path, dpi=110)
+    finally:
+        plt.close(fig)
     return str(path)
 
 

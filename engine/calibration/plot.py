@@ -115,9 +115,11 @@ def plot_calibration(windows: WindowFeatures, estimate: CalibrationEstimate, pat
     ax.set_title("distance to the 1 g sphere", fontsize=9)
     ax.legend(fontsize=8)
     fig.tight_layout(rect=(0, 0, 1, 0.95))
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    from ..plotfile import save_figure
+    try:
+        save_figure(fig, path, dpi=110)
+    finally:
+        plt.close(fig)
     return path
 
 

@@ -97,6 +97,16 @@ class CalibrationStore:
     def _path(self, device_key: str) -> Path:
         return self.dir / device_file_name(device_key)
 
+    def check(self) -> None:
+        """Refuse, before any work, a store that cannot be used (root or folder is a file, or
+        not writable)."""
+        self._check_root()
+        p = self.dir
+        while not p.exists() and p != p.parent:
+            p = p.parent
+        if not os.access(p, os.W_OK | os.X_OK):
+            raise CalibrationStoreError(f"{p}: the calibration store folder is not writable")
+
     def _check_root(self) -> None:
         for p in (self.root, self.dir):
             if p.exists() and not p.is_dir():
@@ -125,17 +135,14 @@ class CalibrationStore:
         return validate_estimate(record["estimate"], f"{self._path(device_key)} record {i}")
 
     def _write(self, path: Path, doc: dict) -> None:
+        from stillpoint.drivers.outputs import OutputError, atomic_output
         self._mkdir()
-        fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".json", dir=self.dir)
+        text = json.dumps(doc, indent=1, sort_keys=True) + "\n"
         try:
-            with os.fdopen(fd, "w", encoding="utf-8") as f:
-                json.dump(doc, f, indent=1, sort_keys=True)
-                f.write("\n")
-            os.replace(tmp, path)
-        except BaseException:
-            with contextlib.suppress(OSError):
-                os.unlink(tmp)
-            raise
+            with atomic_output(path, binary=False, what="calibration store file") as f:
+                f.write(text)
+        except OutputError as e:
+            raise CalibrationStoreError(str(e)) from None
 
     # ------------------------------------------------------------------ write
     def add(self, estimate: CalibrationEstimate, *, device_key: Optional[str] = None,

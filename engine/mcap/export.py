@@ -15,7 +15,8 @@ Columns per topic: ``time_ns`` (int64, exact) and, in CSV, ``time`` (ISO 8601 UT
 
 Streaming: messages are decoded one at a time and written as they come (CSV text formatted with
 numpy per message; NPZ columns streamed into temporary files, then copied into the zip), so memory
-stays flat. The output appears under its name only when complete.
+stays flat. The output is written as ``<name>.part`` and renamed when complete
+(``stillpoint.drivers.outputs``).
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 from stillpoint.drivers.errors import StillpointError
+from stillpoint.drivers.outputs import atomic_output, check_output_path
 
 from .reading import McapReadError, check_raw_message, decode, iter_messages, text
 
@@ -102,11 +104,13 @@ def _messages(path, topics):
     yield from iter_messages(path, topics)
 
 
-def _export_csv(path, out: Path, topic: str) -> int:
-    opener = gzip.open if out.name.lower().endswith(".gz") else open
+def _export_csv(path, raw, topic: str, gz: bool) -> int:
+    """Rows of ``topic`` as CSV text into the binary file ``raw`` (left open)."""
     rows = 0
     header = None
-    with opener(out, "wt", newline="") as f:
+    inner = gzip.GzipFile(fileobj=raw, mode="wb", compresslevel=6) if gz else io.BufferedWriter(raw, 1 << 20)
+    f = io.TextIOWrapper(inner, encoding="utf-8", newline="")
+    try:
         for _t, i, msg in _messages(path, [topic]):
             cols = _rows(topic, msg.data, msg.log_time, path, i)
             if header is None:
@@ -118,10 +122,19 @@ def _export_csv(path, out: Path, topic: str) -> int:
                 lines = np.char.add(np.char.add(lines, ","), p)
             f.write("\n".join(lines.tolist()) + "\n")
             rows += len(cols["time_ns"])
+    finally:
+        f.flush()
+        f.detach()
+        if gz:
+            inner.close()  # writes the gzip trailer; ``raw`` stays open
+        else:
+            inner.flush()
+            inner.detach()
     return rows
 
 
 def _export_npz(path, out: Path, topics) -> dict:
+    check_output_path(out)
     tmpdir = Path(tempfile.mkdtemp(prefix=".export-", dir=out.parent))
     files: dict[str, tuple] = {}  # name -> (file, dtype, count)
     counts: dict[str, int] = {}
@@ -141,8 +154,7 @@ def _export_npz(path, out: Path, topics) -> dict:
                 ent = files.setdefault(name, [open(tmpdir / f"{len(files)}.bin", "wb"), v.dtype, 0])
                 ent[0].write(np.ascontiguousarray(v, ent[1]).tobytes())
                 ent[2] += len(v)
-        partial = out.with_name(out.name + ".partial")
-        with zipfile.ZipFile(partial, "w", zipfile.ZIP_STORED, allowZip64=True) as z:
+        with atomic_output(out) as raw, zipfile.ZipFile(raw, "w", zipfile.ZIP_STORED, allowZip64=True) as z:
             for name, (fh, dtype, n) in files.items():
                 fh.close()
                 if dtype == "json":
@@ -164,7 +176,6 @@ def _export_npz(path, out: Path, topics) -> dict:
                     dst.write(hdr.getvalue())
                     with open(fh.name, "rb") as src:
                         shutil.copyfileobj(src, dst, 1 << 20)
-        os.replace(partial, out)
     finally:
         for fh, _d, _n in files.values():
             fh.close()
@@ -184,9 +195,9 @@ def export_mcap(path, out, topics=None) -> dict:
         _rows(topic, b"", 0) if topic not in ("/corrected/accel", "/raw/accel", "/raw/gyro",
                                               "/metrics/epoch", "/temperature", "/calibration",
                                               "/qc") else None
-        partial = out.with_name(out.name + ".partial")
-        n = _export_csv(path, partial, topic)
-        os.replace(partial, out)
+        check_output_path(out)
+        with atomic_output(out) as raw:
+            n = _export_csv(path, raw, topic, name.endswith(".gz"))
         return {topic: n}
     if name.endswith(".npz"):
         for t in topics:

@@ -319,7 +319,9 @@ def load_model(path) -> SensorModel:
 
 
 def save_model(model: SensorModel, path) -> None:
-    Path(path).write_text(model.to_json() + "\n")
+    from stillpoint.drivers.outputs import atomic_output
+    with atomic_output(path, binary=False, what="model") as f:
+        f.write(model.to_json() + "\n")
 
 
 # ----------------------------------------------------------------------------- the pure function

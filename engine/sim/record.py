@@ -39,16 +39,34 @@ from .wearer import ACTIVITIES, WearerParams
 
 # ----------------------------------------------------------------------------- writing
 class _FileSink:
-    """A device's writer plus the label accumulators."""
+    """A device's writer plus the label accumulators.
 
-    def __init__(self, sim: DeviceSim, path, *, labels_path=None, session_id: int = 1):
+    Every output (recording, labels CSV, truth JSON) is written as ``<name>.part``
+    (``stillpoint.drivers.outputs``) and renamed only by ``commit()``, once all of them are
+    complete, the recording last: a run that fails (full disk, kill) leaves no file that looks
+    complete. ``abandon()`` stops and keeps the partial files aside."""
+
+    def __init__(self, sim: DeviceSim, path, *, labels_path=None, truth_path=None,
+                 session_id: int = 1):
         self.sim = sim
         self.path = Path(path)
         self.labels_path = Path(labels_path) if labels_path else None
+        self.truth_path = Path(truth_path) if truth_path else None
+        self._outs = []  # AtomicOutputs in commit order: labels, truth, recording
+        try:
+            if self.labels_path is not None:
+                self._labels_out = self._open(self.labels_path, binary=False, what="labels")
+            self._truth_out = (self._open(self.truth_path, binary=False, what="truth")
+                               if self.truth_path is not None else None)
+            self._rec_out = self._open(self.path, binary=True, what="recording")
+        except BaseException:
+            self.abandon()
+            raise
         # a .gz output is written plain first (corrupt sectors are applied to the plain file),
-        # then compressed on close
+        # then compressed into the locked partial file on close
         self.gz = self.path.name.endswith(".gz")
-        self.plain = self.path.with_name(self.path.name[:-3] + ".part") if self.gz else self.path
+        self.plain = (self.path.with_name(self.path.name[:-3] + ".plain.part") if self.gz
+                      else self._rec_out.part)
         spec = sim.spec
         if spec.kind in ("ax3", "ax6"):
             from stillpoint.drivers.cwa import CwaWriter
@@ -69,7 +87,7 @@ class _FileSink:
         self._labels_f = None
         self._in_memory = [] if self.labels_path is None else None
         if self.labels_path is not None:
-            self._labels_f = open(self.labels_path, "w")
+            self._labels_f = self._labels_out.file
             self._labels_f.write(",".join(LABEL_COLUMNS) + "\n")
         self.stats = {"still": 0, "windows": 0, "activity": np.zeros(len(ACTIVITIES), np.int64),
                       "worn_T": []}
@@ -141,10 +159,17 @@ class _FileSink:
                               temperature_c=np.round(c.temperature_c[a:b], 1),
                               battery_v=np.round(sim.battery_v(sim.t_grid), 4)[gi])
 
+    def _open(self, path: Path, *, binary: bool, what: str):
+        from stillpoint.drivers.outputs import AtomicOutput
+        out = AtomicOutput(path, binary=binary, what=what)
+        self._outs.append(out)
+        return out
+
     def close(self) -> list:
+        """Finish writing (nothing is renamed yet: see ``commit``)."""
         self._emit_until(self.nw)
         if self._labels_f is not None:
-            self._labels_f.close()
+            self._labels_f.flush()
         self.writer.close()
         corrupt = []
         m = self.sim.model
@@ -153,10 +178,37 @@ class _FileSink:
         if self.gz:
             import gzip
             import shutil
-            with open(self.plain, "rb") as src, gzip.GzipFile(self.path, "wb", compresslevel=6, mtime=0) as dst:
+            # the name in the gzip header is the final one (same bytes as a direct write)
+            with open(self.plain, "rb") as src, gzip.GzipFile(str(self.path), "wb", compresslevel=6,
+                                                              mtime=0, fileobj=self._rec_out.file) as dst:
                 shutil.copyfileobj(src, dst, 1 << 20)
             self.plain.unlink()
         return corrupt
+
+    def write_truth(self, text: str) -> None:
+        self._truth_out.file.write(text)
+
+    def commit(self) -> None:
+        """Rename every output into place, the recording last."""
+        for out in self._outs:
+            out.commit()
+
+    def abandon(self) -> None:
+        """Stop after a failure: the partial files stay (``*.part``), nothing looks complete."""
+        try:
+            w = getattr(self, "writer", None)
+            if w is not None and getattr(w, "_f", None) is not None:
+                w._f.close()
+        except Exception:
+            pass
+        for out in self._outs:
+            if not out.committed:
+                out.abandon()
+        if getattr(self, "gz", False) and self.plain.exists():
+            try:
+                self.plain.unlink()
+            except OSError:
+                pass
 
     def _corrupt(self, p: dict) -> list:
         if self.sim.spec.kind == "geneactiv":
@@ -219,7 +271,7 @@ def _finish(sim: DeviceSim, sink: _FileSink, corrupt: list, truth_path: Optional
     if truth_path is not None:
         truth.labels_path = str(sink.labels_path)
         truth.truth_path = str(truth_path)
-        truth.save(truth_path)
+        sink.write_truth(truth.to_json_text())
     else:
         parts = sink._in_memory
         truth._labels = {k: np.concatenate([p[k] for p in parts]) for k in LABEL_COLUMNS} if parts else None
@@ -255,13 +307,29 @@ def simulate_recording(path, *, device: str = "ax3", site: str = "wrist", days: 
                          start=start, range_g=range_g, packed=packed, gyro_range_dps=gyro_range_dps,
                          wearer=wearer, temperature=temperature)
     tp, lp = _paths(path, truth_path, labels_path)
-    sink = _FileSink(sim, path, labels_path=lp)
+    sink = _FileSink(sim, path, labels_path=lp, truth_path=tp)
     try:
         for c in sim.chunks():
             sink.push(c)
-    finally:
         corrupt = sink.close()
-    return _finish(sim, sink, corrupt, tp)
+        truth = _finish(sim, sink, corrupt, tp)
+        sink.commit()
+    except BaseException as e:
+        sink.abandon()
+        _reraise(e, [sink])
+    return truth
+
+
+def _reraise(e: BaseException, sinks) -> None:
+    """An OS error while writing (full disk, folder removed) becomes an ``OutputError`` naming
+    the output; every other exception propagates unchanged."""
+    from stillpoint.drivers.errors import StillpointError
+    from stillpoint.drivers.outputs import OutputError, describe_os_error
+    if isinstance(e, OSError) and not isinstance(e, StillpointError):
+        names = ", ".join(str(s.path) for s in sinks)
+        raise OutputError(names, f"{describe_os_error(e)}; nothing was completed (partial files "
+                                 "end in .part)") from None
+    raise e
 
 
 def simulate_pair(path_a, path_b, *, site_a: str = "wrist", site_b: str = "hip",
@@ -285,17 +353,22 @@ def simulate_pair(path_a, path_b, *, site_a: str = "wrist", site_b: str = "hip",
                             hz=_device_hz(b.spec.kind, hz_b), duration_s=b.duration_s, start_ns=b.start_ns,
                             temperature=temperature, device_id=b.device_id)
     paths = [_paths(path_a, truth_a, None), _paths(path_b, truth_b, None)]
-    sinks = [_FileSink(sims[0], path_a, labels_path=paths[0][1]),
-             _FileSink(sims[1], path_b, labels_path=paths[1][1])]
+    sinks = [_FileSink(sims[0], path_a, labels_path=paths[0][1], truth_path=paths[0][0])]
     try:
+        sinks.append(_FileSink(sims[1], path_b, labels_path=paths[1][1], truth_path=paths[1][0]))
         for k in range(max(s.n_chunks for s in sims)):
             for s, sink in zip(sims, sinks):
                 c = s.chunk(k) if k < s.n_chunks else None
                 if c is not None and c.n:
                     sink.push(c)
-    finally:
         corrupt = [sink.close() for sink in sinks]
-    pair = {"sites": [site_a, site_b], "paths": [str(path_a), str(path_b)]}
-    ta = _finish(sims[0], sinks[0], corrupt[0], paths[0][0], dict(pair, this=0))
-    tb = _finish(sims[1], sinks[1], corrupt[1], paths[1][0], dict(pair, this=1))
+        pair = {"sites": [site_a, site_b], "paths": [str(path_a), str(path_b)]}
+        ta = _finish(sims[0], sinks[0], corrupt[0], paths[0][0], dict(pair, this=0))
+        tb = _finish(sims[1], sinks[1], corrupt[1], paths[1][0], dict(pair, this=1))
+        for sink in sinks:
+            sink.commit()
+    except BaseException as e:
+        for sink in sinks:
+            sink.abandon()
+        _reraise(e, sinks)
     return ta, tb

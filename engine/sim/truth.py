@@ -56,8 +56,14 @@ class Truth:
             "wearer": self.wearer, "temperature": self.temperature, "summary": self.summary,
             "pair": self.pair})
 
+    def to_json_text(self) -> str:
+        return json.dumps(self.to_dict(), indent=1) + "\n"
+
     def save(self, path) -> None:
-        Path(path).write_text(json.dumps(self.to_dict(), indent=1) + "\n")
+        """Write the truth JSON atomically (``<path>.part``, then renamed)."""
+        from stillpoint.drivers.outputs import atomic_output
+        with atomic_output(path, binary=False, what="truth") as f:
+            f.write(self.to_json_text())
 
     @property
     def labels(self) -> Optional[dict]:
@@ -114,7 +120,8 @@ def load_labels(path) -> dict:
 
 def write_labels(path, labels: dict) -> None:
     """Labels CSV: integer columns as integers, others with 6 decimals (nan for empty windows)."""
-    with open(path, "w") as f:
+    from stillpoint.drivers.outputs import atomic_output
+    with atomic_output(path, binary=False, what="labels") as f:
         f.write(",".join(LABEL_COLUMNS) + "\n")
         _write_label_rows(f, labels)
 

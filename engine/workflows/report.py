@@ -6,11 +6,13 @@ against every covariate). matplotlib is an optional extra, imported only when fi
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 from typing import List, Optional
 
 import numpy as np
 
+from stillpoint.drivers.outputs import OutputError, atomic_output, check_output_path, describe_os_error
 from stillpoint.engine.sim import model as sim
 
 from .discrepancy import BIC_THRESHOLD, DiscrepancyResult
@@ -157,8 +159,7 @@ def write(res: DiscrepancyResult, out_dir, carry: Optional[sim.SensorModel] = No
           truth: Optional[sim.SensorModel] = None, plots: bool = True) -> dict:
     """Write report.json, report.txt, final_model.json, windows.csv (per-window measured vs
     predicted) and the PNGs into ``out_dir``."""
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    out = prepare_report_dir(out_dir)
     d = to_dict(res, carry, source, truth)
     figures = []
     if plots:
@@ -170,10 +171,27 @@ def write(res: DiscrepancyResult, out_dir, carry: Optional[sim.SensorModel] = No
     if res.data is not None:
         write_windows(res, out / "windows.csv")
         d["windows_csv"] = "windows.csv"
-    (out / "report.json").write_text(json.dumps(d, indent=1) + "\n")
-    (out / "final_model.json").write_text(json.dumps(d["final_model"], indent=2) + "\n")
-    (out / "report.txt").write_text(text(d) + "\n")
+    for name, body in (("report.json", json.dumps(d, indent=1)),
+                       ("final_model.json", json.dumps(d["final_model"], indent=2)),
+                       ("report.txt", text(d))):
+        with atomic_output(out / name, binary=False, what="report") as f:
+            f.write(body + "\n")
     return d
+
+
+def prepare_report_dir(out_dir) -> Path:
+    """The report folder, created if needed; an ``OutputError`` naming it when it cannot be
+    (a file in the way, read-only parent, full disk). Call before the work starts."""
+    out = Path(out_dir)
+    try:
+        os.fsencode(str(out))
+        out.mkdir(parents=True, exist_ok=True)
+    except UnicodeError:
+        raise OutputError(out, "report folder name cannot be encoded on this system") from None
+    except OSError as e:
+        raise OutputError(out, f"cannot create the report folder: {describe_os_error(e)}") from None
+    check_output_path(out / "report.json", what="report")
+    return out
 
 
 def write_windows(res: DiscrepancyResult, path) -> None:
@@ -185,7 +203,8 @@ def write_windows(res: DiscrepancyResult, path) -> None:
             *w["predicted_final"].T, w["residual_start_mg"], w["residual_final_mg"]]
     header = ("t_days,temperature,meanx,meany,meanz,start_x,start_y,start_z,final_x,final_y,"
               "final_z,residual_start_mg,residual_final_mg")
-    np.savetxt(path, np.column_stack(cols), delimiter=",", header=header, comments="", fmt="%.7g")
+    with atomic_output(path, binary=False, what="report") as f:
+        np.savetxt(f, np.column_stack(cols), delimiter=",", header=header, comments="", fmt="%.7g")
 
 
 def draw(res: DiscrepancyResult, out: Path) -> List[str]:
@@ -194,6 +213,7 @@ def draw(res: DiscrepancyResult, out: Path) -> List[str]:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from ..plotfile import save_figure
     names = []
     for i, s in enumerate(res.steps, 1):
         fig, axes = plt.subplots(1, 2, figsize=(10, 4), sharey=True)
@@ -215,8 +235,10 @@ def draw(res: DiscrepancyResult, out: Path) -> List[str]:
         fig.suptitle(f"step {i}: {c.effect}" + ("" if c.component == "all" else f" [{c.component}]"))
         fig.tight_layout()
         name = f"step{i}_{c.effect}_{c.component}.png"
-        fig.savefig(out / name, dpi=90)
-        plt.close(fig)
+        try:
+            save_figure(fig, out / name, dpi=90)
+        finally:
+            plt.close(fig)
         names.append(name)
     rows = [r for r in res.locate_initial if r["bins"]["y_mean"]][:9]
     if rows:
@@ -230,7 +252,9 @@ def draw(res: DiscrepancyResult, out: Path) -> List[str]:
             ax.axis("off")
         axes[1, 0].set_ylabel("residual ||a||-1 (mg), start model")
         fig.tight_layout()
-        fig.savefig(out / "locate_initial.png", dpi=80)
-        plt.close(fig)
+        try:
+            save_figure(fig, out / "locate_initial.png", dpi=80)
+        finally:
+            plt.close(fig)
         names.append("locate_initial.png")
     return names

@@ -8,6 +8,8 @@ import time
 
 from stillpoint.drivers.errors import StillpointError
 
+from ._numbers import EPOCH_S, HOURS, MG, SECONDS_DAY
+
 
 class OptionError(StillpointError):
     """A command-line option value is unusable."""
@@ -27,16 +29,16 @@ def add_setting_arguments(p, *, defaults_from_input: bool = False) -> None:
                    default=d(None), help="fit offset and scale only (no temperature term)")
     g.add_argument("--ggir-compatible", dest="ggir_compatible", action="store_const", const=True,
                    default=d(None), help="GGIR's stopping rule and error rounding (batch only)")
-    g.add_argument("--first-hours", type=float, default=None,
+    g.add_argument("--first-hours", type=HOURS, default=None,
                    help="batch schedule: hours of data in the first fit (default 72; GGIR>=3.0 uses 168)")
-    g.add_argument("--chunk-hours", type=float, default=None,
+    g.add_argument("--chunk-hours", type=HOURS, default=None,
                    help="hours added per refit (batch) / between refits (online); default 12")
-    g.add_argument("--sd-threshold-mg", type=float, default=None,
+    g.add_argument("--sd-threshold-mg", type=MG, default=None,
                    help="nonmovement: window SD below this on all axes (default 13 mg)")
-    g.add_argument("--epoch-s", type=float, default=None, help="metric epoch length (default 5 s)")
+    g.add_argument("--epoch-s", type=EPOCH_S, default=None, help="metric epoch length (default 5 s)")
     g.add_argument("--bfen-band", choices=("ggir", "vanhees"), default=None,
                    help="BFEN band-pass: ggir = 0.2-15 Hz (default), vanhees = 0.5-15 Hz")
-    g.add_argument("--flush-every-s", type=float, default=None,
+    g.add_argument("--flush-every-s", type=SECONDS_DAY, default=None,
                    help="flush the MCAP every N s of data time (default 10: a kill loses <= 10 s)")
     g.add_argument("--compression", choices=("zstd", "lz4", "none"), default=None,
                    help="MCAP chunk compression (default zstd)")
@@ -117,6 +119,8 @@ def human_summary(s: dict) -> str:
 
 
 def write_summary(summary: dict, path) -> None:
+    """The run summary as JSON, written atomically (``<path>.part``, then renamed)."""
+    from stillpoint.drivers.outputs import atomic_output
     from stillpoint.engine.mcap.sink import dumps
-    with open(path, "w") as f:
+    with atomic_output(path, binary=False, what="summary") as f:
         f.write(json.dumps(json.loads(dumps(summary)), indent=2, sort_keys=True) + "\n")

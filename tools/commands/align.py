@@ -11,6 +11,8 @@ from __future__ import annotations
 import json
 import sys
 
+from ._numbers import RATE_HZ, SECONDS_DAY, number
+from stillpoint.drivers.outputs import atomic_output, check_output_path
 from stillpoint.engine.jsonsafe import jsonable
 
 NAME = "align"
@@ -41,15 +43,15 @@ def add_arguments(p) -> None:
     p.add_argument("--rate", default="30",
                    help="common rate, Hz (default 30, the paper's), or 'native': the reference's "
                         "own rate (sub-sample lags at the native rate; slower)")
-    p.add_argument("--out-rate", type=float, default=None,
+    p.add_argument("--out-rate", type=RATE_HZ, default=None,
                    help="rate of the aligned stream (default: OTHER's nominal rate)")
-    p.add_argument("--block-minutes", type=float, default=None,
+    p.add_argument("--block-minutes", type=number(0, 10_080, lo_open=True, unit="min"), default=None,
                    help="block length (default 60 for brond, 10 for robust)")
-    p.add_argument("--max-lag-s", type=float, default=None,
+    p.add_argument("--max-lag-s", type=SECONDS_DAY, default=None,
                    help="lag search half-width, s (default 1000 samples for brond, 600 s robust)")
     p.add_argument("--block-time", choices=("start", "centre", "centroid"), default="start",
                    help="brond: time given to a block's lag (default start, as the authors' code)")
-    p.add_argument("--min-blocks", type=int, default=None,
+    p.add_argument("--min-blocks", type=number(1, 100_000, integer=True), default=None,
                    help="valid blocks needed (default 4 for brond, 12 ten-minute blocks robust)")
     p.add_argument("--no-temperature", action="store_true",
                    help="robust: do not consider the crystal-temperature drift term")
@@ -75,6 +77,10 @@ def _summary(d: dict) -> str:
         lo, hi = ci["drift_day7_s"]
         lines.append(f"95% CI day 7     [{lo:+.3f}, {hi:+.3f}] s")
     for s in d.get("steps", []):
+        if s.get("kind") == "gap":  # a sampling interruption: no lag step, only its place
+            lines.append(f"sampling gap     {s['duration_s']:.3f} s on the {s['device']} device at "
+                         f"{s['time_s'] / 3600:.2f} h")
+            continue
         lines.append(f"step             {s['size_s']:+.3f} s at {s['time_s'] / 3600:.2f} h "
                      f"(within {s['window_s'][0] / 3600:.2f}-{s['window_s'][1] / 3600:.2f} h)")
     return "\n".join(lines)
@@ -90,8 +96,12 @@ def run(args) -> int:
                          max_lag_s=args.max_lag_s, block_time=args.block_time,
                          min_blocks=args.min_blocks, temperature=not args.no_temperature,
                          detect_steps=not args.no_steps, keep_correlograms=bool(args.plot))
-    open_recording(args.reference)  # fail early (exit 2) on unreadable input
-    open_recording(args.other)
+    open_recording(args.reference).close()  # fail early (exit 2) on unreadable input
+    open_recording(args.other).close()
+    for path, what in ((args.output, "MCAP output"), (args.json_out, "JSON output"),
+                       (args.plot, "plot")):
+        if path:
+            check_output_path(path, what=what)  # before the work, not after it
     res = run_alignment(lambda: open_recording(args.reference), lambda: open_recording(args.other),
                         config, out_mcap=args.output, interpolation=args.interpolation,
                         out_rate=args.out_rate, online=args.online)
@@ -100,7 +110,7 @@ def run(args) -> int:
     d["other"]["path"] = str(args.other)
     text = json.dumps(jsonable(d), indent=1, allow_nan=False)
     if args.json_out:
-        with open(args.json_out, "w") as f:
+        with atomic_output(args.json_out, binary=False, what="JSON output") as f:
             f.write(text + "\n")
     if args.json:
         print(text)

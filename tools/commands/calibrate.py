@@ -20,6 +20,7 @@ import json
 import sys
 
 from stillpoint.engine.jsonsafe import jsonable
+from ._numbers import HOURS, MG, number
 
 NAME = "calibrate"
 HELP = "autocalibrate a recording (fit only, no corrected output; --json, --plot, --store)"
@@ -46,13 +47,13 @@ def add_arguments(parser) -> None:
     parser.add_argument("file", nargs="+",
                         help="recording(s): .cwa (AX3/AX6), .bin (GENEActiv), .mcap; .gz ok")
     add_fit_arguments(parser)
-    parser.add_argument("--jobs", "-j", type=int, default=1,
+    parser.add_argument("--jobs", "-j", type=number(1, 256, integer=True), default=1,
                         help="files processed in parallel (processes; default 1)")
-    parser.add_argument("--first-hours", type=float, default=72.0,
+    parser.add_argument("--first-hours", type=HOURS, default=72.0,
                         help="first load of the schedule in hours (default 72; GGIR >= 3.0: 168)")
-    parser.add_argument("--chunk-hours", type=float, default=12.0,
+    parser.add_argument("--chunk-hours", type=HOURS, default=12.0,
                         help="data added per refit when the first load is not enough (default 12)")
-    parser.add_argument("--sd-threshold-mg", type=float, default=13.0,
+    parser.add_argument("--sd-threshold-mg", type=MG, default=13.0,
                         help="nonmovement threshold on each axis' SD (default 13 mg)")
     parser.add_argument("--read-all", action="store_true",
                         help="read the whole file even when the schedule is satisfied early")
@@ -159,6 +160,8 @@ def _calibrate_safe(path: str, opts: dict) -> tuple:
         return _calibrate_one(path, opts), None
     except StillpointError as e:
         return None, str(e)
+    except Exception as e:  # one file's failure never stops the others
+        return None, f"{path}: unexpected {type(e).__name__}: {e}"
 
 
 def _plot_path(args, path: str, many: bool):
@@ -168,9 +171,23 @@ def _plot_path(args, path: str, many: bool):
         return args.plot
     from pathlib import Path
 
-    d = Path(args.plot)
-    d.mkdir(parents=True, exist_ok=True)
-    return str(d / (Path(path).name + ".png"))
+    return str(Path(args.plot) / (Path(path).name + ".png"))
+
+
+def _check_outputs(args, many: bool) -> None:
+    """Plot destination and store are checked before any file is read."""
+    from pathlib import Path
+
+    from stillpoint.drivers.outputs import OutputError, check_output_path, describe_os_error
+    if args.plot and many:  # --plot names a folder: one PNG per file
+        d = Path(args.plot)
+        try:
+            d.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise OutputError(d, f"cannot create the plot folder: {describe_os_error(e)}") from None
+        check_output_path(d / "plot.png", what="plot")
+    elif args.plot:
+        check_output_path(args.plot, what="plot")
 
 
 def run(args) -> int:
@@ -187,29 +204,41 @@ def run(args) -> int:
                 temperature=not args.no_temperature, ggir_compatible=args.ggir_compatible,
                 variant=args.variant, sd_threshold=args.sd_threshold_mg / 1000.0,
                 read_all=args.read_all)
+    _check_outputs(args, many)
     jobs = [(f, dict(base, plot=_plot_path(args, f, many), title=f)) for f in files]
     store = None
     if args.store:
         from stillpoint.engine.calibration.store import CalibrationStore
 
         store = CalibrationStore(args.store_dir)
+        store.check()
 
     def results():
         if args.jobs == 1 or not many:
             for f, o in jobs:
                 try:
-                    yield f, _calibrate_one(f, o), None
+                    out = _calibrate_one(f, o)
                 except StillpointError as e:
                     if not many:
                         raise
                     yield f, None, e
+                    continue
+                except Exception as e:  # one file's failure never stops the others
+                    if not many:
+                        raise
+                    yield f, None, f"{f}: unexpected {type(e).__name__}: {e}"
+                    continue
+                yield f, out, None
         else:
             from concurrent.futures import ProcessPoolExecutor
 
             with ProcessPoolExecutor(max_workers=min(args.jobs, len(jobs))) as ex:
                 futs = [(f, ex.submit(_calibrate_safe, f, o)) for f, o in jobs]
                 for f, fut in futs:
-                    out, err = fut.result()
+                    try:
+                        out, err = fut.result()
+                    except Exception as e:  # e.g. a worker killed by the system
+                        out, err = None, f"{f}: the worker failed ({type(e).__name__}: {e})"
                     yield f, out, err
 
     failed = 0

@@ -84,7 +84,8 @@ def run(args) -> int:
     if action == "export":
         doc = json.dumps(store.export(), indent=1)
         if args.output:
-            with open(args.output, "w", encoding="utf-8") as f:
+            from stillpoint.drivers.outputs import atomic_output
+            with atomic_output(args.output, binary=False, what="store export") as f:
                 f.write(doc + "\n")
             print(f"exported {len(store.devices())} device(s) to {args.output}", file=sys.stderr)
         else:

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from stillpoint.engine.run import RunSettings, process_file
+from ._numbers import SEED, number
 
 from ._runopts import Progress, human_summary
 
@@ -80,8 +81,8 @@ def true_correction(model, temperature_ref: float):
 
 def add_arguments(p) -> None:
     p.add_argument("--keep", type=Path, metavar="DIR", help="keep the recording and outputs in DIR")
-    p.add_argument("--hours", type=float, default=HOURS, help=f"recording length (default {HOURS:g})")
-    p.add_argument("--seed", type=int, default=SEED, help=f"simulation seed (default {SEED})")
+    p.add_argument("--hours", type=number(0, 24 * 31, lo_open=True, unit="h"), default=HOURS, help=f"recording length (default {HOURS:g})")
+    p.add_argument("--seed", type=SEED, default=SEED, help=f"simulation seed (default {SEED})")
 
 
 def run(args) -> int:

@@ -15,6 +15,7 @@ import json
 import sys
 
 from stillpoint.drivers.errors import RecordingError, StillpointError
+from ._numbers import MG, RATE_HZ, number
 
 NAME = "discrepancy"
 HELP = "name the sensor effects the model misses (held-out gap, dBIC) and write the fitted model"
@@ -30,14 +31,14 @@ def add_arguments(parser) -> None:
     parser.add_argument("--truth", metavar="TRUTH.json",
                         help="the true model (e.g. from `stillpoint simulate --truth`): reports "
                              "noise_floor_mg, the gap the true model gives")
-    parser.add_argument("--folds", type=int, default=5, help="contiguous time blocks for the "
+    parser.add_argument("--folds", type=number(2, 100, integer=True), default=5, help="contiguous time blocks for the "
                                                             "held-out gap (default 5)")
-    parser.add_argument("--max-steps", type=int, default=8, help="most effects to add (default 8)")
+    parser.add_argument("--max-steps", type=number(0, 50, integer=True), default=8, help="most effects to add (default 8)")
     parser.add_argument("--effects", help="comma-separated candidate effects to consider "
                                           "(default: the whole library)")
-    parser.add_argument("--sd-threshold-mg", type=float, default=13.0,
+    parser.add_argument("--sd-threshold-mg", type=MG, default=13.0,
                         help="nonmovement criterion: SD below this on every axis (default 13)")
-    parser.add_argument("--rate", type=float, help="sample rate (Hz) for the noise check of a "
+    parser.add_argument("--rate", type=RATE_HZ, help="sample rate (Hz) for the noise check of a "
                                                    "feature table (recordings know theirs)")
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
 
@@ -56,6 +57,9 @@ def run(args) -> int:
                                   f"{', '.join(LIBRARY)}")
     if args.folds < 2:
         raise StillpointError("--folds must be at least 2")
+    if args.output:
+        from stillpoint.engine.workflows.report import prepare_report_dir
+        prepare_report_dir(args.output)  # before the work: a missing/read-only folder fails now
     try:
         _, d = analyse(args.input, model=args.model, truth=args.truth, out_dir=args.output,
                        folds=args.folds, max_steps=args.max_steps, effects=effects,

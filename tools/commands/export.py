@@ -18,7 +18,7 @@ string: device, header fields, QC log).
 Streaming: CSV text is formatted with numpy block by block (no per-sample Python) and written as it
 goes; NPZ columns are streamed to temporary files next to the output and then copied into the zip,
 so memory stays flat however long the recording. The output appears under its name only when
-complete (written as ``OUT.partial`` and renamed).
+complete (written as ``OUT.part`` and renamed; see ``stillpoint.drivers.outputs``).
 
 An MCAP input (a run's log) is exported by ``stillpoint.engine.mcap.export.export_mcap`` with
 ``--topic`` selecting channels.
@@ -29,6 +29,7 @@ API: ``export_recording(path, out, *, time_format="iso", timezone=None, compress
 from __future__ import annotations
 
 import gzip
+import io
 import json
 import os
 import shutil
@@ -42,6 +43,7 @@ import numpy as np
 from stillpoint.drivers import open_recording, sniff_format
 from stillpoint.drivers.constants import cwa_light_lux, gna_light_lux
 from stillpoint.drivers.errors import StillpointError, UnsupportedFormatError
+from stillpoint.drivers.outputs import atomic_output, check_output_path
 from stillpoint.engine.blocks import PER_SAMPLE_BUTTON, PER_SAMPLE_LIGHT_RAW
 
 NAME = "export"
@@ -187,10 +189,12 @@ class CsvSink:
 
     DECIMALS = {"accel": 6, "gyro": 5, "temperature": 4, "light": 3, "battery": 4}
 
-    def __init__(self, path: Path, time_format: str, gz: bool = False):
-        self.path = path
+    def __init__(self, raw, time_format: str, gz: bool = False):
+        """``raw``: the binary output file (left open on close)."""
         self.time_format = time_format
-        self._f = gzip.open(path, "wb", compresslevel=6) if gz else open(path, "wb")
+        self._raw = raw
+        self._f = (gzip.GzipFile(fileobj=raw, mode="wb", compresslevel=6) if gz
+                   else io.BufferedWriter(raw, 1 << 20))
         self._header_written = False
         self.rows = 0
 
@@ -232,16 +236,22 @@ class CsvSink:
     def close(self, info_dict: Optional[dict] = None) -> None:
         if not self._header_written:
             self.write({"time_ns": np.zeros(0, np.int64), "accel": np.zeros((0, 3))})
-        self._f.close()
+        if isinstance(self._f, io.BufferedWriter):
+            self._f.flush()
+            self._f.detach()  # the output file stays open for its atomic commit
+        else:
+            self._f.close()
 
 
 class NpzSink:
     """Columns streamed to temporary raw files, then packed as .npy members of a zip (np.load-able)."""
 
-    def __init__(self, path: Path, compress: bool):
-        self.path = path
+    def __init__(self, raw, folder: Path, compress: bool):
+        """``raw``: the binary output file (left open on close); ``folder``: for column scratch
+        files (beside the output, removed on close)."""
+        self._raw = raw
         self.compress = compress
-        self._dir = tempfile.mkdtemp(prefix=".export-", dir=str(path.parent))
+        self._dir = tempfile.mkdtemp(prefix=".export-", dir=str(folder))
         self._files: dict[str, tuple] = {}  # name -> (file, dtype, trailing shape)
         self.rows = 0
 
@@ -260,7 +270,7 @@ class NpzSink:
     def close(self, info_dict: Optional[dict] = None) -> None:
         comp = zipfile.ZIP_DEFLATED if self.compress else zipfile.ZIP_STORED
         try:
-            with zipfile.ZipFile(self.path, "w", compression=comp, allowZip64=True) as zf:
+            with zipfile.ZipFile(self._raw, "w", compression=comp, allowZip64=True) as zf:
                 for name, (f, dtype, tail) in self._files.items():
                     f.close()
                     header = {"descr": np.lib.format.dtype_to_descr(dtype), "fortran_order": False,
@@ -314,32 +324,26 @@ def export_recording(path, out, *, time_format: str = "iso", timezone=None, comp
     if timezone is not None:
         from .inspect import timezone_option
         opts["timezone"] = timezone_option(timezone, fmt)
+    check_output_path(out)
     src = open_recording(path, **opts)
-    partial = out.with_name(out.name + ".partial")
-    sink = (CsvSink(partial, time_format, gz=out.name.lower().endswith(".gz")) if kind == "csv"
-            else NpzSink(partial, compress))
-    ok = False
+    sink = None
     try:
-        for block in src:
-            sink.write(block_columns(block, src.info))
-        info = src.info
-        info_dict = {"device_type": info.device_type, "device_id": info.device_id,
-                     "session_id": info.session_id, "firmware": info.firmware,
-                     "sample_rate_nominal": info.sample_rate_nominal,
-                     "timezone_offset_s": info.timezone_offset_s, "metadata": info.metadata,
-                     "header": {k: v for k, v in info.header.items()}, "qc": src.qc.as_dict()}
-        sink.close(info_dict)
-        os.replace(partial, out)
-        ok = True
+        with atomic_output(out) as raw:
+            sink = (CsvSink(raw, time_format, gz=out.name.lower().endswith(".gz")) if kind == "csv"
+                    else NpzSink(raw, out.parent, compress))
+            for block in src:
+                sink.write(block_columns(block, src.info))
+            info = src.info
+            info_dict = {"device_type": info.device_type, "device_id": info.device_id,
+                         "session_id": info.session_id, "firmware": info.firmware,
+                         "sample_rate_nominal": info.sample_rate_nominal,
+                         "timezone_offset_s": info.timezone_offset_s, "metadata": info.metadata,
+                         "header": {k: v for k, v in info.header.items()}, "qc": src.qc.as_dict()}
+            sink.close(info_dict)
     finally:
         src.close()
-        if not ok:
-            try:
-                sink.close()
-            except Exception:
-                pass
-            if partial.exists():
-                partial.unlink()
+        if isinstance(sink, NpzSink):
+            shutil.rmtree(sink._dir, ignore_errors=True)
     return {"format": fmt, "output": str(out), "samples": sink.rows, "qc": src.qc.as_dict()}
 
 

@@ -253,6 +253,10 @@ def run(args) -> int:
             failed += 1
             print(f"stillpoint inspect: error: {e}", file=sys.stderr)
             continue
+        except Exception as e:  # one file's failure never stops the others
+            failed += 1
+            print(f"stillpoint inspect: error: {f}: unexpected {type(e).__name__}: {e}", file=sys.stderr)
+            continue
         if i and not args.json:
             print()
         _print(d, args.json)

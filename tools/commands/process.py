@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from stillpoint.drivers.outputs import check_output_path
 from stillpoint.engine.calibration.estimate import CalibrationEstimate
 from stillpoint.engine.run import RunSettings, process_file
 
@@ -60,6 +61,12 @@ def build_settings(args, base: dict | None = None) -> RunSettings:
 
 
 def execute(args, settings: RunSettings, out: Path) -> int:
+    # every output is checked before the work starts: a long run must not fail at its end
+    check_output_path(out, what="MCAP output")
+    if getattr(args, "summary", None):
+        check_output_path(args.summary, what="summary")
+    if getattr(args, "store", None) is not None:
+        _store(args.store).check()
     progress = Progress(enabled=False if args.quiet else None)
     if getattr(args, "store", None) is not None and settings.mode == "online" and settings.prior is None:
         from stillpoint.drivers import open_recording

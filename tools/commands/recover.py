@@ -22,6 +22,8 @@ def run(args) -> int:
     if out.resolve() == args.file.resolve():
         from ._runopts import OptionError
         raise OptionError("recover never overwrites its input: choose another -o")
+    from stillpoint.drivers.outputs import check_output_path
+    check_output_path(out, what="recovered MCAP")
     rep = recover(args.file, out)
     if args.json:
         print(json.dumps(rep.as_dict(), indent=2, sort_keys=True))

@@ -8,6 +8,8 @@ import sys
 import time
 from pathlib import Path
 
+from ._numbers import RATE_HZ, SEED, number
+
 NAME = "simulate"
 HELP = "simulate a free-living recording (AX3/AX6 .cwa or GENEActiv .bin) with ground truth"
 
@@ -44,25 +46,25 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("-o", "--output", required=True, help="output file (.cwa for ax3/ax6, .bin for geneactiv)")
     p.add_argument("--device", default="ax3", choices=("ax3", "ax6", "geneactiv"))
     p.add_argument("--site", default="wrist", choices=("wrist", "hip", "thigh", "ankle"))
-    p.add_argument("--days", type=float, default=7.0, help="duration in days (fractions allowed)")
-    p.add_argument("--hz", type=float, default=100.0, help="nominal sample rate")
-    p.add_argument("--range", dest="range_g", type=int, default=None,
+    p.add_argument("--days", type=number(0, 366, lo_open=True, unit="days"), default=7.0, help="duration in days (fractions allowed)")
+    p.add_argument("--hz", type=RATE_HZ, default=100.0, help="nominal sample rate")
+    p.add_argument("--range", dest="range_g", type=number(1, 16, integer=True), default=None,
                    help="accelerometer range in g (AX: 2, 4, 8, 16; default AX3 8, AX6 16)")
     p.add_argument("--unpacked", action="store_true", help="AX3: 16-bit unpacked sectors instead of packed")
-    p.add_argument("--gyro", type=float, default=2000.0, metavar="DPS",
+    p.add_argument("--gyro", type=number(0, 100_000, lo_open=True, unit="dps"), default=2000.0, metavar="DPS",
                    help="AX6 gyro range in dps (125-2000; 0 = accelerometer only)")
     p.add_argument("--effects", default=None, help="comma-separated effect names (see above)")
     p.add_argument("--effect", action="append", default=[], metavar="NAME:KEY=VALUE,...",
                    help="switch an effect on with parameters (repeatable)")
     p.add_argument("--model", default=None, help="sensor model JSON to start from")
-    p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--seed", type=SEED, default=1)
     p.add_argument("--start", default=None, help="start time, ISO 8601 (default 2025-03-03T10:00Z)")
     p.add_argument("--truth", default=None, help="truth JSON path (default: <output stem>.truth.json)")
     p.add_argument("--pair", default=None, choices=("wrist", "hip", "thigh", "ankle"),
                    help="also simulate a second device at this site on the same body")
     p.add_argument("--pair-output", default=None, help="second device's file (default: <stem>.<site><ext>)")
     p.add_argument("--pair-device", default=None, choices=("ax3", "ax6", "geneactiv"))
-    p.add_argument("--pair-hz", type=float, default=None, help="second device's sample rate (default --hz)")
+    p.add_argument("--pair-hz", type=RATE_HZ, default=None, help="second device's sample rate (default --hz)")
     p.add_argument("--pair-effect", action="append", default=[], metavar="NAME:KEY=VALUE,...",
                    help="an effect for the second device only (e.g. halts:at=30h,duration=120s); "
                         "--effects/--effect/--model apply to both devices, each drawing its own "
@@ -84,6 +86,9 @@ def run(args) -> int:
     if effects is None and args.model is None:
         effects = "default"
     model = build_model(effects, model=args.model, overrides=overrides)
+    if args.save_model:
+        from stillpoint.drivers.outputs import check_output_path
+        check_output_path(args.save_model, what="model")
     common = dict(days=args.days, hz=args.hz, seed=args.seed, start=args.start,
                   range_g=args.range_g, packed=False if args.unpacked else None,
                   gyro_range_dps=args.gyro if args.device == "ax6" else None)
@@ -109,7 +114,9 @@ def run(args) -> int:
         raise ModelError(str(e)) from None
     elapsed = time.perf_counter() - t0
     if args.save_model:
-        Path(args.save_model).write_text(truths[0].sensor_model.to_json() + "\n")
+        from stillpoint.drivers.outputs import atomic_output
+        with atomic_output(args.save_model, binary=False, what="model") as f:
+            f.write(truths[0].sensor_model.to_json() + "\n")
     summary = [{"path": t.path, "truth": t.truth_path,
                 "labels": t.labels_path, "device": t.device["kind"], "site": t.site,
                 "samples": t.samples_written, "effects": list(t.sensor_model.effects),

@@ -1,0 +1,431 @@
+"""Fuzz the readers: mutated .cwa, .bin, gzip and MCAP inputs, each read the way the commands read
+them, counted by outcome.
+
+    python -m tools.fuzz                          # 100,000 inputs per format (cwa, bin, gz, mcap)
+    python -m tools.fuzz --count 2000 --formats cwa,mcap --seed 7
+    python -m tools.fuzz --save-dir fuzz-out      # keep every input that broke a reader
+
+Outcomes: ``ok`` (read to the end), ``typed`` (a ``StillpointError``: one clear line, exit 2 in the
+CLI), ``untyped`` (any other exception: a bug), ``hang`` (over ``--timeout`` s, counted as a bug).
+``ok`` inputs that raised a Python warning are also counted under ``warning``. The goal is 0
+untyped and 0 hang. Deterministic: the same seed gives the same inputs.
+
+Inputs are small seeds (written by the project's own writers, plus the damaged files of
+tests/data/fuzz) with one to a few mutations: bit flips, interesting bytes and integers, cuts,
+deleted / duplicated / inserted spans, splices of two seeds; structure-aware variants fix the
+.cwa sector checksum after a change (so the decoder, not the checksum test, sees it), replace a
+GENEActiv ``key:value`` with a hostile value, or mutate one MCAP message / metadata value and
+rewrite the file with valid CRCs (so the decoders, not the CRC test, see it). The in-process smoke
+test (tests/test_fuzz_smoke.py) runs a few thousand of these per format in CI.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import gzip
+import io
+import os
+import signal
+import sys
+import tempfile
+import time
+import traceback
+import warnings
+from pathlib import Path
+from typing import Callable, Optional
+
+import numpy as np
+
+FORMATS = ("cwa", "bin", "gz", "mcap")
+FUZZ_DATA = Path(__file__).resolve().parent.parent / "tests" / "data" / "fuzz"
+T0 = 1_700_000_000_000_000_000
+
+INTERESTING_INTS = (0, 1, -1, 0x7F, 0x80, 0xFF, 0x7FFF, -0x8000, 0xFFFF, 0x7FFFFFFF, -0x80000000,
+                    0xFFFFFFFF, 2**63 - 1, -(2**63))
+HOSTILE_VALUES = (b"", b"0", b"-1", b"nan", b"inf", b"-inf", b"1e999", b"1e-308", b"1e308",
+                  b"99999999999999999999", b"0.001", b"\xff\xfe", "\u2713".encode(), b"abc",
+                  b"2300-01-01 00:00:00:000", b"1600-01-01 00:00:00:000", b"0000-00-00 00:00:00:000",
+                  b"1,5", b" ", b"\x00" * 8)
+
+
+class Hang(Exception):
+    pass
+
+
+# ----------------------------------------------------------------------------- seeds
+def _cwa_seed(kind: str, n_sectors: int = 8, rate: float = 100.0) -> bytes:
+    from stillpoint.drivers.cwa_writer import CwaWriter
+    rng = np.random.default_rng(len(kind))
+    kw = {"packed": dict(packed=True), "unpacked": dict(packed=False),
+          "ax6": dict(device_type="AX6", gyro_range_dps=500),
+          "ax6_accel": dict(device_type="AX6")}[kind]
+    per = 120 if kind != "ax6" else 40
+    n = per * n_sectors
+    t = T0 + np.rint(np.arange(n) * 1e9 / rate).astype(np.int64)
+    a = rng.integers(-511, 512, (n, 3)) * 4
+    buf = io.BytesIO()
+    w = CwaWriter(buf, rate_hz=rate, **kw)
+    if kind == "ax6":
+        w.write(t, a, gyro_counts=rng.integers(-2000, 2000, (n, 3)))
+    else:
+        w.write(t, a)
+    w.close()
+    return buf.getvalue()
+
+
+def _bin_seed(pages: int = 3, rate: float = 50.0) -> bytes:
+    from stillpoint.drivers.geneactiv_writer import GeneactivWriter
+    rng = np.random.default_rng(3)
+    n = pages * 300
+    t = T0 + np.round(np.arange(n) * 1e9 / rate).astype(np.int64)
+    with tempfile.TemporaryDirectory() as d:
+        p = Path(d) / "s.bin"
+        w = GeneactivWriter(p, rate_hz=rate)
+        w.write(t, rng.integers(-2048, 2048, (n, 3)))
+        w.close()
+        return p.read_bytes()
+
+
+def _mcap_seed(cwa: bytes, compression: str) -> bytes:
+    from stillpoint.engine.run import RunSettings, process_file
+    with tempfile.TemporaryDirectory() as d:
+        src, out = Path(d) / "s.cwa", Path(d) / "s.mcap"
+        src.write_bytes(cwa)
+        process_file(src, out, RunSettings(compression=compression, epoch_s=1.0))
+        return out.read_bytes()
+
+
+def build_seeds() -> dict:
+    """Small seed inputs per format (bytes)."""
+    cwa = [_cwa_seed("packed"), _cwa_seed("unpacked"), _cwa_seed("ax6"), _cwa_seed("ax6_accel"),
+           _cwa_seed("packed", 6, 3200.0)]
+    for name in ("ax6_mixed_0x62_0x32_sector.cwa", "ax3_3200hz_anchor_back_52ms.cwa"):
+        if (FUZZ_DATA / name).exists():
+            cwa.append((FUZZ_DATA / name).read_bytes()[:1024 + 12 * 512])
+    bins = [_bin_seed(), _bin_seed(2, 85.7)]
+    for name in ("geneactiv_temperature_inf.bin", "geneactiv_page_freq_tiny.bin"):
+        if (FUZZ_DATA / name).exists():
+            bins.append((FUZZ_DATA / name).read_bytes())
+    gz = [gzip.compress(cwa[0], mtime=0), gzip.compress(bins[0], mtime=0),
+          gzip.compress(cwa[2], mtime=0)]
+    long_cwa = _cwa_seed("ax6", 30, 25.0)
+    mcap = [_mcap_seed(long_cwa, "none"), _mcap_seed(_cwa_seed("packed", 30, 25.0), "zstd"),
+            _mcap_seed(_cwa_seed("unpacked", 30, 25.0), "lz4")]
+    return {"cwa": cwa, "bin": bins, "gz": gz, "mcap": mcap}
+
+
+# ----------------------------------------------------------------------------- mutators
+def _flip(b: bytearray, r) -> None:
+    for _ in range(int(r.integers(1, 9))):
+        i = int(r.integers(0, len(b)))
+        b[i] ^= 1 << int(r.integers(0, 8))
+
+
+def _byte(b: bytearray, r) -> None:
+    for _ in range(int(r.integers(1, 4))):
+        b[int(r.integers(0, len(b)))] = int(r.choice([0, 0xFF, 0x7F, 0x80, 0x20, 0x0A]))
+
+
+def _int(b: bytearray, r) -> None:
+    size = int(r.choice([1, 2, 4, 8]))
+    if len(b) <= size:
+        return
+    v = int(r.choice(INTERESTING_INTS))
+    i = int(r.integers(0, len(b) - size))
+    b[i:i + size] = (v % (1 << (8 * size))).to_bytes(size, "little")
+
+
+def _cut(b: bytearray, r) -> bytearray:
+    return b[:int(r.integers(0, len(b)))]
+
+
+def _delete(b: bytearray, r) -> bytearray:
+    i = int(r.integers(0, len(b)))
+    k = int(r.integers(1, max(2, min(4096, len(b) - i))))
+    return b[:i] + b[i + k:]
+
+
+def _dup(b: bytearray, r) -> bytearray:
+    i = int(r.integers(0, len(b)))
+    k = int(r.integers(1, max(2, min(4096, len(b) - i))))
+    j = int(r.integers(0, len(b)))
+    return b[:j] + b[i:i + k] + b[j:]
+
+
+def _insert(b: bytearray, r) -> bytearray:
+    j = int(r.integers(0, len(b)))
+    return b[:j] + bytearray(r.integers(0, 256, int(r.integers(1, 64)), dtype=np.uint8).tobytes()) + b[j:]
+
+
+BYTE_MUTATORS = (_flip, _flip, _byte, _int, _int, _cut, _delete, _dup, _insert)
+
+
+def mutate_bytes(data: bytes, r, others=()) -> bytes:
+    b = bytearray(data)
+    for _ in range(int(r.integers(1, 4))):
+        if not b:
+            break
+        m = BYTE_MUTATORS[int(r.integers(0, len(BYTE_MUTATORS)))]
+        out = m(b, r)
+        if out is not None:
+            b = out
+    if others and r.random() < 0.05:  # splice with another seed
+        o = others[int(r.integers(0, len(others)))]
+        cut = int(r.integers(0, max(1, min(len(b), len(o)))))
+        b = b[:cut] + bytearray(o[cut:])
+    return bytes(b)
+
+
+def _fix_cwa_checksums(data: bytes) -> bytes:
+    """Make every whole data sector's checksum valid again (the decoder sees the change)."""
+    from stillpoint.drivers.cwa_layout import sector_checksums
+    k = (len(data) - 1024) // 512
+    if k <= 0:
+        return data
+    b = np.frombuffer(data, np.uint8).copy()
+    sec = b[1024:1024 + k * 512].reshape(k, 512)
+    bad = sector_checksums(sec) != 0
+    for i in np.flatnonzero(bad):
+        w = sec[i].view("<u2")
+        w[255] = np.uint16((-int(w[:255].sum(dtype=np.uint16))) & 0xFFFF)
+    return b.tobytes()
+
+
+def mutate_cwa(data: bytes, r, others=()) -> bytes:
+    out = mutate_bytes(data, r, others)
+    if r.random() < 0.6:
+        out = _fix_cwa_checksums(out)
+    return out
+
+
+def mutate_bin(data: bytes, r, others=()) -> bytes:
+    if r.random() < 0.5:
+        return mutate_bytes(data, r, others)
+    lines = data.split(b"\n")
+    keyed = [i for i, ln in enumerate(lines) if b":" in ln[:40] and len(ln) < 200]
+    for _ in range(int(r.integers(1, 3))):
+        if not keyed:
+            break
+        i = keyed[int(r.integers(0, len(keyed)))]
+        key = lines[i].split(b":", 1)[0]
+        cr = b"\r" if lines[i].endswith(b"\r") else b""
+        lines[i] = key + b":" + HOSTILE_VALUES[int(r.integers(0, len(HOSTILE_VALUES)))] + cr
+    if r.random() < 0.3:  # a hostile data line too
+        data_lines = [i for i, ln in enumerate(lines) if len(ln) > 1000]
+        if data_lines:
+            i = data_lines[int(r.integers(0, len(data_lines)))]
+            ln = bytearray(lines[i])
+            for _ in range(int(r.integers(1, 5))):
+                ln[int(r.integers(0, len(ln)))] = int(r.choice(list(b"0F7fG \x00")))
+            lines[i] = bytes(ln)
+    return b"\n".join(lines)
+
+
+def mutate_gz(data: bytes, r, others=()) -> bytes:
+    if r.random() < 0.3:  # mutate the content, compress again (the reader's checks see it)
+        try:
+            plain = gzip.decompress(data)
+        except Exception:
+            return mutate_bytes(data, r, others)
+        m = mutate_cwa if plain[:2] == b"MD" else mutate_bin
+        return gzip.compress(m(plain, r), mtime=0)
+    return mutate_bytes(data, r, others)
+
+
+def mutate_mcap(data: bytes, r, others=()) -> bytes:
+    if r.random() < 0.4:
+        return mutate_bytes(data, r, others)
+    return _mutate_mcap_messages(data, r)
+
+
+def _mutate_mcap_messages(data: bytes, r) -> bytes:
+    """Rewrite the MCAP with valid CRCs after mutating message payloads / metadata values."""
+    from mcap.reader import make_reader
+    from mcap.writer import CompressionType, Writer
+    f = io.BytesIO(data)
+    reader = make_reader(f)
+    msgs = list(reader.iter_messages(log_time_order=False))
+    meta = [(m.name, dict(m.metadata)) for m in reader.iter_metadata()]
+    out = io.BytesIO()
+    w = Writer(out, compression=CompressionType.NONE)
+    w.start()
+    ids: dict = {}
+    targets = set(r.integers(0, max(1, len(msgs)), int(r.integers(1, 4))).tolist())
+    for j, (sch, ch, m) in enumerate(msgs):
+        if ch.id not in ids:
+            sid = w.register_schema(sch.name, sch.encoding, sch.data) if sch else 0
+            ids[ch.id] = w.register_channel(ch.topic, ch.message_encoding, sid, dict(ch.metadata))
+        payload = m.data
+        if j in targets:
+            payload = mutate_bytes(payload, r) if payload else payload
+        w.add_message(ids[ch.id], m.log_time, payload, m.publish_time)
+    for name, md in meta:
+        if md and r.random() < 0.3:
+            k = list(md)[int(r.integers(0, len(md)))]
+            v = md[k].encode()
+            md[k] = mutate_bytes(v, r).decode("utf-8", "replace") if v else "x"
+        w.add_metadata(name, md)
+    w.finish()
+    return out.getvalue()
+
+
+MUTATORS = {"cwa": mutate_cwa, "bin": mutate_bin, "gz": mutate_gz, "mcap": mutate_mcap}
+SUFFIX = {"cwa": ".cwa", "bin": ".bin", "gz": ".gz", "mcap": ".mcap"}
+
+
+# ----------------------------------------------------------------------------- reading
+def read_recording(path: Path) -> None:
+    """What ``inspect``/``export`` do with a recording: a full pass over every Block."""
+    from stillpoint.drivers import open_recording
+    with open_recording(path) as src:
+        for b in src:
+            b.accel_g()
+            b.unit_of_sample()
+            if b.gyro is not None:
+                b.gyro_dps()
+        src.qc.as_dict()
+
+
+def read_mcap(path: Path) -> None:
+    """Every MCAP read path: replay source, export decoding of every topic, recover's walk."""
+    from stillpoint.drivers.mcap_replay import McapRawSource
+    from stillpoint.engine.mcap.export import _rows
+    from stillpoint.engine.mcap.reading import iter_messages, walk_records
+    try:
+        with McapRawSource(path) as src:
+            for b in src:
+                b.accel_g()
+                b.unit_of_sample()
+    finally:
+        with open(path, "rb") as f:
+            for _ in walk_records(f):
+                pass
+    for topic, i, msg in iter_messages(path):
+        if topic in ("/corrected/accel", "/raw/accel", "/raw/gyro", "/metrics/epoch", "/temperature",
+                     "/calibration", "/qc"):
+            _rows(topic, msg.data, msg.log_time, path, i)
+
+
+READERS = {"cwa": read_recording, "bin": read_recording, "gz": read_recording, "mcap": read_mcap}
+
+
+def classify(fmt: str, path: Path, timeout_s: float) -> tuple[str, str]:
+    """(outcome, detail) of reading one input."""
+    from stillpoint.drivers.errors import StillpointError
+    use_alarm = timeout_s > 0 and hasattr(signal, "SIGALRM")
+    if use_alarm:
+        signal.setitimer(signal.ITIMER_REAL, timeout_s)
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            with np.errstate(all="warn"):
+                READERS[fmt](path)
+        if caught:
+            w = caught[0]
+            return "warning", f"{w.category.__name__} {Path(w.filename).name}:{w.lineno}: {w.message}"
+        return "ok", ""
+    except StillpointError:
+        return "typed", ""
+    except Hang:
+        return "hang", f"over {timeout_s} s"
+    except Exception as e:
+        tb = traceback.extract_tb(e.__traceback__)
+        where = next((f"{Path(fr.filename).name}:{fr.lineno}" for fr in reversed(tb)
+                      if "stillpoint" in fr.filename or "/wt/" in fr.filename or "drivers" in fr.filename
+                      or "engine" in fr.filename), f"{Path(tb[-1].filename).name}:{tb[-1].lineno}" if tb else "?")
+        return "untyped", f"{type(e).__name__} at {where}: {str(e)[:120]}"
+    finally:
+        if use_alarm:
+            signal.setitimer(signal.ITIMER_REAL, 0)
+
+
+def _on_alarm(signum, frame):
+    raise Hang()
+
+
+def run(formats=FORMATS, count: int = 100_000, seed: int = 0, timeout_s: float = 10.0,
+        save_dir: Optional[Path] = None, seeds: Optional[dict] = None,
+        progress: Optional[Callable[[str, int, collections.Counter], None]] = None,
+        time_budget_s: Optional[float] = None) -> dict:
+    """Fuzz ``count`` inputs per format; returns {format: {"counts": Counter, "kinds": Counter,
+    "inputs": n}}. ``time_budget_s`` (per format) stops a format early (the count run is reported)."""
+    seeds = seeds or build_seeds()
+    old = signal.signal(signal.SIGALRM, _on_alarm) if hasattr(signal, "SIGALRM") else None
+    tmp = Path(tempfile.mkdtemp(prefix="stillpoint-fuzz-", dir="/dev/shm" if os.path.isdir("/dev/shm") else None))
+    results = {}
+    try:
+        for fi, fmt in enumerate(formats):
+            r = np.random.default_rng([seed, fi])
+            counts: collections.Counter = collections.Counter()
+            kinds: collections.Counter = collections.Counter()
+            pool = seeds[fmt]
+            path = tmp / f"input{SUFFIX[fmt]}"
+            t0 = time.monotonic()
+            n = 0
+            for n in range(1, count + 1):
+                data = MUTATORS[fmt](pool[int(r.integers(0, len(pool)))], r, pool)
+                path.write_bytes(data)
+                outcome, detail = classify(fmt, path, timeout_s)
+                counts[outcome] += 1
+                if outcome in ("untyped", "hang", "warning"):
+                    kinds[detail.split(":")[0] if outcome == "warning" else detail[:160]] += 1
+                    if save_dir is not None and outcome != "warning":
+                        save_dir.mkdir(parents=True, exist_ok=True)
+                        (save_dir / f"{fmt}-{seed}-{n}{SUFFIX[fmt]}").write_bytes(data)
+                if progress is not None and n % 1000 == 0:
+                    progress(fmt, n, counts)
+                if time_budget_s is not None and time.monotonic() - t0 > time_budget_s:
+                    break
+            results[fmt] = {"counts": counts, "kinds": kinds, "inputs": n,
+                            "seconds": time.monotonic() - t0}
+    finally:
+        if old is not None:
+            signal.signal(signal.SIGALRM, old)
+        for p in tmp.iterdir():
+            p.unlink()
+        tmp.rmdir()
+    return results
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--count", type=int, default=100_000, help="inputs per format (default 100,000)")
+    ap.add_argument("--formats", default=",".join(FORMATS), help="comma list of " + ", ".join(FORMATS))
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--timeout", type=float, default=10.0, help="seconds per input before it is a hang")
+    ap.add_argument("--save-dir", type=Path, help="keep every input with an untyped error or hang here")
+    ap.add_argument("--memory-gb", type=float, default=4.0,
+                    help="address-space limit, so a runaway allocation is an error, not a swap storm")
+    args = ap.parse_args(argv)
+    try:
+        import resource
+        lim = int(args.memory_gb * (1 << 30))
+        resource.setrlimit(resource.RLIMIT_AS, (lim, lim))
+    except (ImportError, ValueError, OSError):
+        pass
+    formats = [f.strip() for f in args.formats.split(",") if f.strip()]
+    t0 = time.monotonic()
+
+    def progress(fmt, n, counts):
+        if n % 10_000 == 0:
+            print(f"  {fmt}: {n:,} inputs, {dict(counts)} ({time.monotonic() - t0:.0f} s)",
+                  file=sys.stderr, flush=True)
+
+    res = run(formats, args.count, args.seed, args.timeout, args.save_dir, progress=progress)
+    total_bad = 0
+    print(f"fuzz: seed {args.seed}, {args.count:,} inputs per format, {time.monotonic() - t0:.0f} s")
+    print(f"{'format':<6} {'inputs':>8} {'ok':>8} {'warning':>8} {'typed':>8} {'untyped':>8} {'hang':>6}")
+    for fmt, d in res.items():
+        c = d["counts"]
+        print(f"{fmt:<6} {d['inputs']:>8,} {c['ok']:>8,} {c['warning']:>8,} {c['typed']:>8,} "
+              f"{c['untyped']:>8,} {c['hang']:>6,}")
+        total_bad += c["untyped"] + c["hang"]
+    for fmt, d in res.items():
+        for kind, k in d["kinds"].most_common(20):
+            print(f"  {fmt} x{k}: {kind}")
+    return 1 if total_bad else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

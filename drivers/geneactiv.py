@@ -198,11 +198,11 @@ def _merge_runs(items: list) -> list:
     return out
 
 
-def _open_stream(path: Path, follow: bool, follow_done, follow_idle_timeout: float):
+def _open_stream(path: Path, follow: bool, follow_done, follow_idle_s: float):
     if follow:
         if is_gzip(path):
-            raise ValueError(f"{path}: follow mode reads a plain .bin being written, not a gzip file")
-        return FollowingReader(path, is_done=follow_done, idle_timeout=follow_idle_timeout)
+            raise UnsupportedFormatError(path, "follow mode reads a plain .bin that is still being written; a gzip file cannot be followed")
+        return FollowingReader(path, is_done=follow_done, idle_timeout=follow_idle_s)
     return open_bytes(path)
 
 
@@ -215,21 +215,21 @@ class GeneactivReader:
 
     ``timezone`` overrides the header's ``Time Zone`` (e.g. "+01:00", "GMT -04:00", seconds).
     ``follow=True`` keeps reading a file that is still being written until ``follow_done()``
-    returns True or no byte arrives for ``follow_idle_timeout`` seconds.
+    returns True or no byte arrives for ``follow_idle_s`` seconds.
     ``time_tolerance``: relative disagreement between a page-time step and 300/rate above which
     the step is treated as a time jump (new segment) instead of being interpolated.
     """
 
     def __init__(self, path, *, batch_pages: int = 256, follow: bool = False,
                  timezone: Union[str, int, None] = None, follow_done: Optional[Callable[[], bool]] = None,
-                 follow_idle_timeout: float = 5.0, time_tolerance: float = 0.01):
+                 follow_idle_s: float = 5.0, time_tolerance: float = 0.01):
         self.path = Path(path)
         if batch_pages < 1:
             raise ValueError("batch_pages must be >= 1")
         self.batch_pages = int(batch_pages)
         self.time_tolerance = float(time_tolerance)
         check_recording_path(self.path)
-        self._f = _open_stream(self.path, follow, follow_done, follow_idle_timeout)
+        self._f = _open_stream(self.path, follow, follow_done, follow_idle_s)
         try:
             self.header, self._rest = _read_header(self._f, self.path)
             self.info = _device_info(self.header, self.path, timezone, self._rest)

@@ -197,7 +197,7 @@ def test_follow_mode_reads_a_file_being_written(tmp_path):
 
     th = threading.Thread(target=writer)
     th.start()
-    r = GeneactivReader(p, follow=True, follow_done=done.is_set, follow_idle_timeout=5.0, batch_pages=2)
+    r = GeneactivReader(p, follow=True, follow_done=done.is_set, follow_idle_s=5.0, batch_pages=2)
     b = Block.concat(list(r))
     th.join()
     assert b.n == 3000

@@ -6,7 +6,8 @@ QC log and the temperature/battery ranges. ``--header-only`` reads the header al
 Several files: one summary each (``--json``: one JSON object per line); a bad file is reported on
 stderr and the others are still inspected (exit code 2 if any failed).
 
-API: ``inspect_recording(path, header_only=False, timezone=None) -> dict`` (the same dict as --json).
+API: ``inspect_recording(path, header_only=False, timezone=None, follow_idle_s=None) -> dict`` (the
+same dict as --json; ``follow_idle_s`` reads a file still being written, CLI ``--follow``).
 """
 
 from __future__ import annotations
@@ -22,6 +23,8 @@ from stillpoint.drivers import open_recording, sniff_format
 from stillpoint.drivers.errors import StillpointError
 from stillpoint.engine.jsonsafe import jsonable
 
+from ._numbers import SECONDS_DAY
+
 NAME = "inspect"
 HELP = "summarise a recording (device, samples, rate, times, QC); --json for machine-readable output"
 
@@ -34,6 +37,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument("--header-only", action="store_true",
                         help="read the header only (fast; no sample counts or QC)")
+    parser.add_argument("--follow", nargs="?", const=5.0, default=None, type=SECONDS_DAY,
+                        metavar="IDLE_S", help="read a file that is still being written (a download "
+                        "in progress) until it has not grown for IDLE_S seconds (default 5)")
     parser.add_argument("--timezone", default=None,
                         help="device clock time zone, e.g. +01:00 (GENEActiv: overrides the header's "
                              "Time Zone; AX: the clock's offset from UTC, default +00:00)")
@@ -46,10 +52,15 @@ def iso_utc(t_ns: Optional[int]) -> Optional[str]:
     return str(np.datetime64(int(t_ns), "ns")) + "Z"
 
 
-def _open(path, fmt: str, timezone):
+def _open(path, fmt: str, timezone, follow_idle_s=None):
     opts = {}
     if timezone is not None:
         opts["timezone"] = timezone_option(timezone, fmt)
+    if follow_idle_s is not None:
+        if fmt == "mcap":
+            raise StillpointError(f"{path}: --follow reads a .cwa/.bin that is still being written, "
+                                  "not an MCAP log")
+        opts.update(follow=True, follow_idle_s=follow_idle_s)
     return open_recording(path, **opts)
 
 
@@ -137,15 +148,29 @@ class _Summary:
         return intervals / (span / 1e9) if span > 0 else None
 
 
-def inspect_recording(path, *, header_only: bool = False, timezone=None) -> dict:
-    """Summary of a recording as a plain dict (see the module docstring)."""
-    fmt = sniff_format(path)
+def follow_format(path) -> str:
+    """The format of a file that may still be empty (a download that has just started): by its
+    first bytes when there are some, else by its name."""
+    import os
+
+    from stillpoint.drivers.byteio import check_recording_path
+    check_recording_path(path, allow_empty=True)
+    if os.path.getsize(path) >= 16:
+        return sniff_format(path)
+    return "geneactiv" if str(path).lower().endswith(".bin") else "cwa"
+
+
+def inspect_recording(path, *, header_only: bool = False, timezone=None,
+                      follow_idle_s: Optional[float] = None) -> dict:
+    """Summary of a recording as a plain dict (see the module docstring). ``follow_idle_s``:
+    read a file that is still being written until it has not grown for that many seconds."""
+    fmt = follow_format(path) if follow_idle_s is not None else sniff_format(path)
     if header_only:
         info = _header_info(path, fmt, timezone)
         out = _info_dict(info, fmt)
         out["header"] = dict(info.header)
         return out
-    src = _open(path, fmt, timezone)
+    src = _open(path, fmt, timezone, follow_idle_s)
     acc = _Summary()
     try:
         for block in src:
@@ -242,13 +267,15 @@ def _print(d: dict, as_json: bool) -> None:
 def run(args) -> int:
     files = args.file
     if len(files) == 1:  # one file: a bad one is the CLI's one-line error (exit 2)
-        _print(inspect_recording(files[0], header_only=args.header_only, timezone=args.timezone),
+        _print(inspect_recording(files[0], header_only=args.header_only, timezone=args.timezone,
+                                 follow_idle_s=args.follow),
                args.json)
         return 0
     failed = 0
     for i, f in enumerate(files):
         try:
-            d = inspect_recording(f, header_only=args.header_only, timezone=args.timezone)
+            d = inspect_recording(f, header_only=args.header_only, timezone=args.timezone,
+                                  follow_idle_s=args.follow)
         except StillpointError as e:
             failed += 1
             print(f"stillpoint inspect: error: {e}", file=sys.stderr)

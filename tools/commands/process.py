@@ -9,6 +9,7 @@ from stillpoint.drivers.outputs import check_output_path
 from stillpoint.engine.calibration.estimate import CalibrationEstimate
 from stillpoint.engine.run import RunSettings, process_file
 
+from ._numbers import SECONDS_DAY
 from ._runopts import (OptionError, Progress, add_setting_arguments, human_summary,
                        settings_overrides, write_summary)
 
@@ -40,6 +41,9 @@ def add_arguments(p) -> None:
                    help="use the calibration store (default location, or DIR): online takes its "
                         "prior from it; the final estimate is added to it")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar and no text summary")
+    p.add_argument("--follow", nargs="?", const=5.0, default=None, type=SECONDS_DAY, metavar="IDLE_S",
+                   help="read a .cwa/.bin that is still being written until it has not grown for "
+                        "IDLE_S seconds (default 5); use with --mode online (one pass)")
     add_setting_arguments(p)
 
 
@@ -77,7 +81,12 @@ def execute(args, settings: RunSettings, out: Path) -> int:
         if prior is not None:
             settings.prior = prior.to_dict()
     try:
-        summary = process_file(args.file, out, settings, progress=progress)
+        opts = None
+        if getattr(args, "follow", None) is not None:
+            if settings.mode != "online":
+                raise OptionError("--follow reads the file once as it grows: use it with --mode online")
+            opts = {"follow": True, "follow_idle_s": args.follow}
+        summary = process_file(args.file, out, settings, progress=progress, source_options=opts)
     finally:
         progress.done()
     if getattr(args, "store", None) is not None:

@@ -37,3 +37,12 @@ def test_unknown_command_is_a_usage_error():
     r = subprocess.run([sys.executable, "-m", "stillpoint.tools", "no-such-command"],
                        capture_output=True, text=True)
     assert r.returncode == 2 and "invalid choice" in r.stderr
+
+
+def test_version_in_api_and_cli():
+    import stillpoint
+    from importlib.metadata import version
+    assert stillpoint.__version__ == version("stillpoint")
+    out = subprocess.run([sys.executable, "-m", "stillpoint.tools", "--version"],
+                         capture_output=True, text=True, check=True).stdout
+    assert out.strip() == f"stillpoint {stillpoint.__version__}"

@@ -49,6 +49,9 @@ def build_parser(only=None) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="stillpoint",
         description="Streaming engine for raw wearable-accelerometer data (AX3/AX6 .cwa, GENEActiv .bin).")
+    import stillpoint
+    parser.add_argument("--version", action="version",
+                        version=f"stillpoint {getattr(stillpoint, '__version__', '0+unknown')}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for mod in _command_modules(only):
         p = sub.add_parser(mod.NAME, help=getattr(mod, "HELP", None),
@@ -85,6 +88,10 @@ def _partial_note(args) -> str:
 
 
 def main(argv=None) -> int:
+    import warnings
+    # the plots' library warnings (fonts, layout) are not the user's business: stderr carries
+    # only stillpoint's own one-line messages
+    warnings.filterwarnings("ignore", module=r"matplotlib(\..*)?$")
     argv = sys.argv[1:] if argv is None else list(argv)
     parser = build_parser(_only_requested(argv))
     args = parser.parse_args(argv)

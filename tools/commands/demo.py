@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from stillpoint.engine.run import RunSettings, process_file
-from ._numbers import SEED, number
+from ._numbers import SEED as SEED_NUMBER, number
 
 from ._runopts import Progress, human_summary
 
@@ -82,7 +82,7 @@ def true_correction(model, temperature_ref: float):
 def add_arguments(p) -> None:
     p.add_argument("--keep", type=Path, metavar="DIR", help="keep the recording and outputs in DIR")
     p.add_argument("--hours", type=number(0, 24 * 31, lo_open=True, unit="h"), default=HOURS, help=f"recording length (default {HOURS:g})")
-    p.add_argument("--seed", type=SEED, default=SEED, help=f"simulation seed (default {SEED})")
+    p.add_argument("--seed", type=SEED_NUMBER, default=SEED, help=f"simulation seed (default {SEED})")
 
 
 def run(args) -> int:

@@ -37,6 +37,7 @@ from .calibration.estimate import CalibrationEstimate
 from .calibration.validate import validate_estimate
 from .calibration.schedule import CHUNK_HOURS, FIRST_HOURS
 from .calibration.select import MAX_ABS_MEAN_G, SD_THRESHOLD_G
+from .clipping import ClippingMonitor
 from .features import WindowFeatures
 from .mcap.sink import CHUNK_SIZE, ZSTD_LEVEL, McapSink
 from .operators.correction import CorrectionOperator
@@ -155,6 +156,8 @@ class OutputStage:
         self._qc_logged = 0
         self._last_ns = 0
         self._segment = None
+        info = getattr(source, "info", None)
+        self.clipping = ClippingMonitor(getattr(info, "accel_range_g", None), rate_hz)
 
     def _log_reader_qc(self) -> None:
         events = getattr(getattr(self.source, "qc", None), "events", [])
@@ -181,6 +184,7 @@ class OutputStage:
             self.sink.write_qc({"source": "engine", "reason": "segment_start",
                                 "segment": block.segment, "index": int(block.unit_index[0])
                                 if block.m else -1, "time_ns": self._last_ns}, self._last_ns)
+        self.clipping.observe(block)
         self._step(block, self.correction.push(block))
 
     def flush(self) -> None:
@@ -206,7 +210,10 @@ def _rate(info) -> float:
     return r
 
 
-def _calibration_summary(est: CalibrationEstimate) -> dict:
+def _calibration_summary(est: CalibrationEstimate, quietest_sd_g: float = float("inf"),
+                         sd_threshold_g: float = SD_THRESHOLD_G) -> dict:
+    from .calibration.explain import explain_no_nonmovement
+    explain_no_nonmovement(est, quietest_sd_g, sd_threshold_g)
     return {"offset": est.offset.tolist(), "scale": est.scale.tolist(),
             "tempoffset": est.tempoffset.tolist(), "temperature_ref": est.temperature_ref,
             "error_before_mg": est.error_before_mg, "error_after_mg": est.error_after_mg,
@@ -282,6 +289,7 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
                 raise AssertionError("nonmovement operator and calibration selection disagree")
         est.effective_from_ns = None
         windows, nonmove = feat.windows.windows, feat.nonmovement.count
+        quietest = feat.nonmovement.quietest_sd_g
         del feat  # the window table (~0.8 MB a day) is not needed in pass 2: memory stays flat
         # ---------------------------------------------------------------- pass 2
         src = open_recording(path, **opts)
@@ -347,6 +355,7 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
             src.close()
             raise
         windows, nonmove = feat.windows.windows, feat.nonmovement.count
+        quietest = feat.nonmovement.quietest_sd_g
         final = outst.correction.schedule.current
         summary["estimates"] = estimates_log
     # ---------------------------------------------------------------- wrap up
@@ -358,15 +367,19 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
         "windows": windows,
         "nonmovement_windows": nonmove,
         "epochs": outst.epochs,
-        "calibration": _calibration_summary(final),
+        "calibration": _calibration_summary(final, quietest, s.sd_threshold_g),
         "enmo_mean_mg": outst.enmo_mean_mg,
         "qc": _qc_summary(src),
+        "clipping": outst.clipping.as_dict(),
         "outputs": {"mcap": str(out)},
         "estimates_logged": len(estimates_log),
         "wall_s": round(time.perf_counter() - t_start, 3),
     })
     if st.first_ns is not None:
         summary["start_ns"], summary["end_ns"] = st.first_ns, st.last_ns
+    if outst.clipping.flagged:  # logged on /qc too, so the log itself says so
+        sink.write_qc({"source": "engine", "reason": "clipping", "detail": outst.clipping.describe(),
+                       **outst.clipping.as_dict()}, st.last_ns or 0)
     sink.write_metadata("calibration", {"json": final.to_json()})
     sink.write_metadata("summary", {k: v for k, v in summary.items() if k != "wall_s"})
     sink.close()

@@ -30,10 +30,15 @@ class NonmovementOperator:
         self.windows_in = 0
         self.repeats_dropped = 0
         self.selected_total = 0
+        self.quietest_sd_g = float("inf")  # smallest noisiest-axis SD of any window seen
 
     def push(self, features: WindowFeatures) -> WindowFeatures:
         if len(features) == 0:
             return WindowFeatures.empty()
+        q = np.max(features.sd, axis=1)
+        q = q[np.isfinite(q)]
+        if q.size:
+            self.quietest_sd_g = min(self.quietest_sd_g, float(q.min()))
         sel = select_calibration_windows(features, sd_threshold=self.sd_threshold,
                                          max_abs_mean=self.max_abs_mean, previous_mean=self._prev)
         self._prev = np.array(features.mean[-1])

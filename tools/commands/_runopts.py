@@ -114,6 +114,12 @@ def human_summary(s: dict) -> str:
     if qc.get("skipped") or qc.get("events"):
         lines.append(f"QC: {qc.get('skipped', 0)} {qc.get('unit', 'unit')}(s) skipped, "
                      f"{qc.get('events', 0)} event(s) {qc.get('reasons', {})}")
+    clip = s.get("clipping") or {}
+    if clip.get("flagged"):
+        lines.append(f"clipping: {clip['seconds'] / 3600:.2f} h of data ({100 * clip['fraction']:.1f} % of "
+                     f"samples) at the +-{clip['range_g']:g} g limit, longest run "
+                     f"{(clip.get('longest_run_s') or 0) / 60:.1f} min: ENMO and the calibration are "
+                     "biased there")
     lines.append("outputs: " + ", ".join(f"{k} {v}" for k, v in s["outputs"].items()))
     return "\n".join(lines)
 

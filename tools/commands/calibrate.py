@@ -205,7 +205,15 @@ def run(args) -> int:
                 variant=args.variant, sd_threshold=args.sd_threshold_mg / 1000.0,
                 read_all=args.read_all)
     _check_outputs(args, many)
-    jobs = [(f, dict(base, plot=_plot_path(args, f, many), title=f)) for f in files]
+    plots, seen = [], {}
+    for f in files:  # one PNG per input; a name met twice gets a number (never one shared file)
+        pp = _plot_path(args, f, many)
+        if pp is not None and many:
+            k = seen[pp] = seen.get(pp, 0) + 1
+            if k > 1:
+                pp = pp[:-len(".png")] + f".{k}.png"
+        plots.append(pp)
+    jobs = [(f, dict(base, plot=pp, title=f)) for f, pp in zip(files, plots)]
     store = None
     if args.store:
         from stillpoint.engine.calibration.store import CalibrationStore

@@ -71,3 +71,48 @@ def test_geneactiv_follow_idle_stop_logged_with_the_same_keyword(tmp_path):
     r = GeneactivReader(p, follow=True, follow_idle_s=0.3)
     assert sum(b.n for b in r) == n
     assert [e.reason for e in r.qc.events][-1:] == ["follow_idle_stop"]
+
+
+@pytest.mark.parametrize("kind", ["unpacked", "ax6_accel"])
+def test_follow_mode_with_a_live_writer_gives_the_file_read(tmp_path, kind):
+    """Unpacked AX3 and AX6 accel-only followed while being written: the same samples as reading
+    the finished file (blocks used to point into the reader's reused buffer)."""
+    import threading
+
+    from stillpoint.drivers.cwa import CwaReader
+    p = tmp_path / "live.cwa"
+    f = open(p, "wb")
+    kw = dict(packed=False) if kind == "unpacked" else dict(device_type="AX6")
+    w = CwaWriter(f, rate_hz=50, **kw)
+    rng = np.random.default_rng(1)
+    n = 80  # one sector per write: the reader sees one-sector batches
+    started = threading.Event()
+    errors = []
+
+    def writer():
+        try:
+            for k in range(30):
+                t = 1_700_000_000_000_000_000 + np.rint((np.arange(n) + (k + 1) * n) * 2e7).astype(np.int64)
+                w.write(t, rng.integers(-2000, 2000, (n, 3)))
+                f.flush()
+                time.sleep(0.02)
+            w.close()
+            f.close()
+        except Exception as e:  # reported by the test, not lost in the thread
+            errors.append(e)
+
+    t = 1_700_000_000_000_000_000 + np.rint(np.arange(n) * 2e7).astype(np.int64)
+    w.write(t, rng.integers(-2000, 2000, (n, 3)))  # one whole sector before the reader starts
+    f.flush()
+    th = threading.Thread(target=writer)
+    th.start()
+    blocks = []
+    for b in CwaReader(p, follow=True, follow_idle_s=1.0):
+        blocks.append(b)
+        started.set()
+    th.join()
+    assert not errors, errors
+    live = np.concatenate([b.accel for b in blocks])
+    assert live.shape[0] == 31 * n
+    done = np.concatenate([b.accel for b in CwaReader(p)])
+    np.testing.assert_array_equal(live, done)

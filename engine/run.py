@@ -210,6 +210,24 @@ def _rate(info) -> float:
     return r
 
 
+def _utf8_text(text: str) -> str:
+    """A file name that is not valid UTF-8 (bytes the file system allowed) with U+FFFD in place
+    of the undecodable bytes: the MCAP log holds UTF-8 text only."""
+    try:
+        text.encode("utf-8")
+        return text
+    except UnicodeEncodeError:
+        return text.encode("utf-8", "surrogateescape").decode("utf-8", "replace")
+
+
+def _loggable(info):
+    """The DeviceInfo with its file name as UTF-8 text (see ``_utf8_text``)."""
+    if info.path is None or _utf8_text(info.path) == info.path:
+        return info
+    from dataclasses import replace
+    return replace(info, path=_utf8_text(info.path))
+
+
 def _calibration_summary(est: CalibrationEstimate, quietest_sd_g: float = float("inf"),
                          sd_threshold_g: float = SD_THRESHOLD_G) -> dict:
     from .calibration.explain import explain_no_nonmovement
@@ -259,7 +277,7 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
     src = open_recording(path, **opts)  # raises a StillpointError (exit 2) on unreadable input
     info = src.info
     rate = _rate(info)
-    summary: dict = {"input": str(path), "mode": s.mode,
+    summary: dict = {"input": _utf8_text(str(path)), "mode": s.mode,
                      "device": {"type": info.device_type, "id": info.device_id,
                                 "session": info.session_id, "rate_hz": rate,
                                 "range_g": info.accel_range_g}}
@@ -293,7 +311,7 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
         del feat  # the window table (~0.8 MB a day) is not needed in pass 2: memory stays flat
         # ---------------------------------------------------------------- pass 2
         src = open_recording(path, **opts)
-        sink = McapSink(out, src.info, meta_settings, flush_every_s=s.flush_every_s,
+        sink = McapSink(out, _loggable(src.info), meta_settings, flush_every_s=s.flush_every_s,
                         compression=s.compression, chunk_size=s.chunk_size,
                         corrected_quantum_g=s.corrected_quantum_g, writer=writer,
                         zstd_level=s.zstd_level)
@@ -318,7 +336,7 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
         cal = OnlineCalibrator(prior, s.chunk_hours, device_key=info.device_key,
                                sd_threshold=s.sd_threshold_g, max_abs_mean=s.max_abs_mean_g,
                                window_s=s.window_s, temperature=s.temperature)
-        sink = McapSink(out, info, meta_settings, flush_every_s=s.flush_every_s,
+        sink = McapSink(out, _loggable(info), meta_settings, flush_every_s=s.flush_every_s,
                         compression=s.compression, chunk_size=s.chunk_size,
                         corrected_quantum_g=s.corrected_quantum_g, writer=writer,
                         zstd_level=s.zstd_level)

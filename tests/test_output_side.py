@@ -157,3 +157,24 @@ def test_interrupt_message_names_the_partial_log_and_recover(tmp_path):
     part.write_bytes(b"\x89MCAP0\r\n" + b"\x00" * 100)  # an unfinished log
     note = _partial_note(args)
     assert str(part) in note and "stillpoint recover" in note
+
+
+def test_non_utf8_file_names(tmp_path):
+    """Names the file system allows but UTF-8 cannot spell (bytes 0xFF, 0xFE): every command
+    works on them; the MCAP log shows U+FFFD in their place."""
+    import os
+    import shutil
+    if sys.platform == "win32" or os.fsencode("x\udcff") != b"x\xff":
+        pytest.skip("needs a POSIX file system with bytes file names (surrogateescape)")
+    src = tmp_path / "in\udcff.cwa"
+    shutil.copy(GOOD, src)
+    out = tmp_path / "o\udcfe.mcap"
+    for args in (["process", src, "-o", out, "--summary", tmp_path / "s\udcff.json", "-q"],
+                 ["export", src, "-o", tmp_path / "e\udcff.csv"],
+                 ["export", out, "-o", tmp_path / "e\udcff.npz"],
+                 ["replay", out, "--check", "-o", tmp_path / "r\udcff.mcap", "-q"],
+                 ["simulate", "-o", tmp_path / "sim\udcff.cwa", "--days", "0.005"]):
+        r = subprocess.run([sys.executable, "-m", "tools", *map(str, args)], capture_output=True,
+                           timeout=300)
+        assert r.returncode == 0, r.stderr.decode("utf-8", "replace")
+    assert (tmp_path / "s\udcff.json").exists() and (tmp_path / "sim\udcff.truth.json").exists()

@@ -211,12 +211,12 @@ def walk_records(f) -> Iterator:
         head = f.read(9)
         if len(head) == 0:
             return
+        if head == MAGIC and pos + len(MAGIC) == size:
+            return  # trailing magic of a finished file
         if len(head) < 9:
             yield TornTail(pos, f"the file ends {len(head)} bytes into a record header")
             return
         op, length = head[0], struct.unpack_from("<Q", head, 1)[0]
-        if op == MAGIC[0] and pos + len(MAGIC) == size and head[:8] == MAGIC:
-            return  # trailing magic of a finished file
         if length > size - pos - 9:
             yield TornTail(pos, f"a record of {length} bytes (opcode 0x{op:02X}) runs past the end "
                                 f"of the file ({size - pos - 9} bytes left)")

@@ -314,8 +314,36 @@ class CwaReader:
             out.append(e)
         self.qc.events = out
 
+    def _time_pending(self, block: Block) -> None:
+        """Time the events logged before ``block`` whose sector it reaches, exactly: a sector in
+        the block -> its first sample's time; a sector skipped before it -> the last sample
+        emitted before that sector. Independent of how the file was cut into batches."""
+        if not self._untimed:
+            self._last_t = int(block.time_ns[-1])
+            return
+        ui = block.unit_index
+        first_t = block.time_ns[block.unit_start]
+        keep = []
+        for pos in self._untimed:
+            e = self.qc.events[pos]
+            if e.index > ui[-1]:
+                keep.append(pos)
+                continue
+            j = int(np.searchsorted(ui, e.index))
+            if ui[j] == e.index:
+                t = int(first_t[j])
+            elif j == 0:
+                t = self._last_t if self._last_t is not None else int(block.time_ns[0])
+            else:
+                t = int(block.time_ns[block.unit_start[j] - 1])
+            self.qc.events[pos] = replace(e, time_ns=t)
+        self._untimed = keep
+        self._last_t = int(block.time_ns[-1])
+
     def _init_state(self) -> None:
         self._bounds: list = []  # per emitted Block: first sector, its time, last sector, last time
+        self._untimed: list = []  # positions in qc.events of events still without a time
+        self._last_t: Optional[int] = None  # time of the last sample emitted
         self._seg: Optional[_Segment] = None
         self._prev: Optional[_Prev] = None
         self._n_segments = 0
@@ -329,6 +357,8 @@ class CwaReader:
     def _event(self, index: int, reason: str, detail: str = "", time_ns=None, samples: int = 0):
         self._n_events += 1
         if self._n_events <= MAX_QC_EVENTS:
+            if time_ns is None:
+                self._untimed.append(len(self.qc.events))
             self.qc.add(QCEvent(int(index), reason, detail, None if time_ns is None else int(time_ns),
                                 int(samples)))
         elif self._n_events == MAX_QC_EVENTS + 1:
@@ -788,6 +818,7 @@ class CwaReader:
             first_sample=self._emitted_total,
         )
         self._emitted_total += n
+        self._time_pending(block)
         self._bounds.append((int(block.unit_index[0]), int(time_ns[0]), int(block.unit_index[-1]),
                              int(time_ns[-1])))
         return block

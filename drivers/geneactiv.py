@@ -714,6 +714,8 @@ class GeneactivReader:
             freq = np.array(values(8, b"Measurement Frequency:").replace(b",", b".").split()
                             ).astype(np.float64)
             tbytes = values(3, b"Page Time:")
+            if seq.size and (seq.min() < 0 or seq.max() >= 2**62):
+                return 0  # the general parser logs the out-of-range Sequence Number
             if not (seq.shape[0] == temp.shape[0] == batt.shape[0] == freq.shape[0] == P
                     and len(tbytes) == 24 * P - 1):
                 return 0

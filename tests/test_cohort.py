@@ -229,3 +229,18 @@ def test_unusable_output_folder_is_one_line_exit_2(cohort_dir, tmp_path, capsys)
     assert cli(["cohort", "status", str(tmp_path)]) == 2
     assert "not a cohort folder" in capsys.readouterr().err
     assert cli(["cohort", "run", str(tmp_path / "missing"), "-o", str(tmp_path / "o")]) == 2
+
+
+def test_transient_failure_is_retried_three_times(cohort_dir, tmp_path, monkeypatch):
+    from stillpoint.engine.cohort import execute
+    monkeypatch.setattr(execute, "TRANSIENT_DELAY_S", 0.01)
+    f = tmp_path / "growing.cwa"
+    f.write_bytes((cohort_dir / "p03.cwa").read_bytes())
+    plan = make_plan([f], RunSettings())
+    with open(f, "ab") as g:  # the file changes after it was planned (a copy still running)
+        g.write(b"\0" * 512)
+    out = tmp_path / "out"
+    res = run_cohort(plan, out, scheduler="serial", progress=False)
+    assert res.failed == {"transient_io": 1} and res.retried == 2
+    marker = json.loads(next(iter(_markers(out, FAILED).values())).read_text())
+    assert marker["attempts"] == 3 and "changed since the run was planned" in marker["error"]

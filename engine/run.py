@@ -38,6 +38,8 @@ from .calibration.schedule import CHUNK_HOURS, FIRST_HOURS
 from .calibration.select import MAX_ABS_MEAN_G, SD_THRESHOLD_G
 from .features import WindowFeatures
 from .mcap.sink import CHUNK_SIZE, ZSTD_LEVEL, McapSink
+
+VIEW_HZ = 2.0  # default rate of the plottable view topic: ~15 MB a week of 100 Hz data
 from .operators.correction import CorrectionOperator
 from .operators.filters import BFEN_BAND_GGIR, band_used
 from .operators.metrics import EPOCH_S, EpochMetrics, MetricsOperator
@@ -60,7 +62,10 @@ def check_output(out: Path) -> None:
         raise OutputError(f"{out}: directory {parent} is not writable")
 
 
-APPLIED_STATUSES = ("ok", "high_error")  # fit outcomes whose parameters are applied (H5's rule)
+# fit outcomes whose parameters are applied: a converged fit whose residual error is high is
+# still better than none, so it is applied (and its status says so); every other outcome
+# (identity, reverted, no nonmovement, sphere not covered) leaves the data uncorrected
+APPLIED_STATUSES = ("ok", "high_error")
 
 
 @dataclass
@@ -86,6 +91,7 @@ class RunSettings:
     compression: str = "zstd"
     zstd_level: int = ZSTD_LEVEL  # 1: ~30 % less compression CPU than 3 for ~5 % more bytes
     chunk_size: int = CHUNK_SIZE
+    view_hz: float = VIEW_HZ  # /view/accel samples per second (0: no view topic)
 
     def __post_init__(self):
         if self.mode not in ("batch", "online"):
@@ -287,7 +293,7 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
         sink = McapSink(out, src.info, meta_settings, flush_every_s=s.flush_every_s,
                         compression=s.compression, chunk_size=s.chunk_size,
                         corrected_quantum_g=s.corrected_quantum_g, writer=writer,
-                        zstd_level=s.zstd_level)
+                        zstd_level=s.zstd_level, view_hz=s.view_hz)
         try:
             applied = est.status in APPLIED_STATUSES
             initial = est if applied else CalibrationEstimate.identity(est.reason)
@@ -299,8 +305,8 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
             st = Pipeline(src, [outst], rate_hz=rate, max_block_s=s.max_block_s).run(
                 _progress_wrapper(progress, "pass 2/2"))
             final = est
-        except BaseException:
-            sink.abort()
+        except BaseException as e:
+            _abort(sink, e)
             src.close()
             raise
     else:
@@ -312,7 +318,7 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
         sink = McapSink(out, info, meta_settings, flush_every_s=s.flush_every_s,
                         compression=s.compression, chunk_size=s.chunk_size,
                         corrected_quantum_g=s.corrected_quantum_g, writer=writer,
-                        zstd_level=s.zstd_level)
+                        zstd_level=s.zstd_level, view_hz=s.view_hz)
         window_ns = int(round(s.window_s * 1e9))
         outst = None
 
@@ -336,13 +342,14 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
         initial = (prior if (prior is not None and s.calibrate)
                    else CalibrationEstimate.identity("online: no estimate accepted yet"))
         outst = OutputStage(s, rate, sink, src, initial, gate=gate)
-        if prior is not None:
-            sink.write_estimate(prior, s.calibrate, 0)
+        stages = [feat, _FinishCalibrator(cal, publish, feat), outst]
+        if prior is not None:  # logged at the first sample's time (no message before the data)
+            stages.insert(0, _LogPrior(sink, prior, s.calibrate))
         try:
-            st = Pipeline(src, [feat, _FinishCalibrator(cal, publish, feat), outst], rate_hz=rate,
+            st = Pipeline(src, stages, rate_hz=rate,
                           max_block_s=s.max_block_s).run(_progress_wrapper(progress, "online"))
-        except BaseException:
-            sink.abort()
+        except BaseException as e:
+            _abort(sink, e)
             src.close()
             raise
         windows, nonmove = feat.windows.windows, feat.nonmovement.count
@@ -366,14 +373,44 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
     })
     if st.first_ns is not None:
         summary["start_ns"], summary["end_ns"] = st.first_ns, st.last_ns
-    sink.write_metadata("calibration", {"json": final.to_json()})
-    sink.write_metadata("summary", {k: v for k, v in summary.items() if k != "wall_s"})
-    sink.close()
+    try:
+        sink.write_metadata("calibration", {"json": final.to_json()})
+        sink.write_metadata("summary", {k: v for k, v in summary.items() if k != "wall_s"})
+        sink.close()
+    except BaseException as e:
+        _abort(sink, e)
+        raise
     summary["mcap_messages"] = sink.messages
     summary["mcap_flushes"] = sink.flushes
     from .mcap.writer import peak_rss_mb
     summary["peak_rss_mb"] = {"engine": peak_rss_mb(), "writer": sink.writer_maxrss_mb}
     return summary
+
+
+def _abort(sink: McapSink, exc: BaseException) -> None:
+    """Stop the log after a failure or interrupt; the partial file (if any) is named on the
+    exception (``partial_output``) so the command line can say where it is."""
+    kept = sink.abort()
+    if kept is not None and not getattr(exc, "partial_output", None):
+        try:
+            exc.partial_output = str(kept)
+        except AttributeError:
+            pass
+
+
+class _LogPrior:
+    """Online: log the prior on ``/calibration`` at the first sample's time."""
+
+    def __init__(self, sink: McapSink, prior: CalibrationEstimate, applied: bool):
+        self.sink, self.prior, self.applied = sink, prior, applied
+
+    def push(self, block: Block) -> None:
+        if self.prior is not None and block.n:
+            self.sink.write_estimate(self.prior, self.applied, int(block.time_ns[0]), prior=True)
+            self.prior = None
+
+    def flush(self) -> None:
+        pass
 
 
 class _FinishCalibrator:

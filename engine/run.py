@@ -34,6 +34,7 @@ from stillpoint.drivers.errors import StillpointError
 from .blocks import Block
 from .calibration import OnlineCalibrator, fit_batch_schedule
 from .calibration.estimate import CalibrationEstimate
+from .calibration.validate import validate_estimate
 from .calibration.schedule import CHUNK_HOURS, FIRST_HOURS
 from .calibration.select import MAX_ABS_MEAN_G, SD_THRESHOLD_G
 from .features import WindowFeatures
@@ -311,7 +312,7 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
             raise
     else:
         # ---------------------------------------------------------------- online
-        prior = CalibrationEstimate.from_dict(s.prior) if s.prior else None
+        prior = validate_estimate(s.prior, "prior estimate") if s.prior else None
         cal = OnlineCalibrator(prior, s.chunk_hours, device_key=info.device_key,
                                sd_threshold=s.sd_threshold_g, max_abs_mean=s.max_abs_mean_g,
                                window_s=s.window_s, temperature=s.temperature)

@@ -50,10 +50,12 @@ def _store(arg):
 def build_settings(args, base: dict | None = None) -> RunSettings:
     over = settings_overrides(args)
     if getattr(args, "prior", None):
+        from stillpoint.engine.calibration.validate import validate_estimate
         try:
-            over["prior"] = CalibrationEstimate.from_dict(json.loads(args.prior.read_text())).to_dict()
-        except (OSError, ValueError, TypeError) as e:
+            d = json.loads(args.prior.read_text())
+        except (OSError, ValueError, RecursionError) as e:
             raise OptionError(f"--prior {args.prior}: not a calibration estimate JSON ({e})") from None
+        over["prior"] = validate_estimate(d, f"--prior {args.prior}").to_dict()
     return RunSettings.from_dict(base or {}, **over)
 
 

@@ -33,6 +33,7 @@ from stillpoint.drivers.errors import StillpointError
 
 from .blocks import Block
 from .calibration import OnlineCalibrator, fit_batch_schedule
+from .calibration.trust import CountStep
 from .calibration.estimate import CalibrationEstimate
 from .calibration.validate import validate_estimate
 from .calibration.schedule import CHUNK_HOURS, FIRST_HOURS
@@ -124,6 +125,7 @@ class FeatureStage:
         self.keep_all = on_features is None  # batch: keep every window for the fit (~60k rows/week)
         self._all: list[WindowFeatures] = []
         self.last_block_ns: Optional[int] = None
+        self.count_step = CountStep()  # quantisation step of the counts (calibration warning)
 
     @property
     def all_windows(self) -> WindowFeatures:
@@ -140,6 +142,7 @@ class FeatureStage:
 
     def push(self, block: Block) -> None:
         self.last_block_ns = int(block.time_ns[0])
+        self.count_step.push(block)
         self._take(self.windows.push(block))
 
     def flush(self) -> None:
@@ -218,7 +221,8 @@ def _calibration_summary(est: CalibrationEstimate) -> dict:
             "error_before_mg": est.error_before_mg, "error_after_mg": est.error_after_mg,
             "hours_used": est.hours_used, "status": est.status, "reason": est.reason,
             "method": est.method, "windows": est.windows,
-            "fit_start_ns": est.fit_start_ns, "fit_end_ns": est.fit_end_ns}
+            "fit_start_ns": est.fit_start_ns, "fit_end_ns": est.fit_end_ns,
+            "uncertainty": est.uncertainty, "warnings": est.extra.get("warnings", [])}
 
 
 def _progress_wrapper(progress, label):
@@ -283,7 +287,8 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
                 feat.all_windows, select=True, recording_start_ns=st1.first_ns, recording_end_ns=st1.last_ns,
                 first_hours=s.first_hours, chunk_hours=s.chunk_hours, temperature=s.temperature,
                 ggir_compatible=s.ggir_compatible, sd_threshold=s.sd_threshold_g,
-                max_abs_mean=s.max_abs_mean_g, device_key=info.device_key, window_s=s.window_s)
+                max_abs_mean=s.max_abs_mean_g, device_key=info.device_key, window_s=s.window_s,
+                quantisation_step_g=feat.count_step.step_g)
             if est.windows == 0 and feat.nonmovement.count:
                 raise AssertionError("nonmovement operator and calibration selection disagree")
         est.effective_from_ns = None

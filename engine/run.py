@@ -86,6 +86,7 @@ class RunSettings:
     compression: str = "zstd"
     zstd_level: int = ZSTD_LEVEL  # 1: ~30 % less compression CPU than 3 for ~5 % more bytes
     chunk_size: int = CHUNK_SIZE
+    timezone: Optional[str] = None  # the device clock's zone (IANA or offset); None: as the reader
 
     def __post_init__(self):
         if self.mode not in ("batch", "online"):
@@ -154,6 +155,7 @@ class OutputStage:
         self._qc_logged = 0
         self._last_ns = 0
         self._segment = None
+        self.taps: list = []  # extra consumers of (block, corrected batches, epoch metrics)
 
     def _log_reader_qc(self) -> None:
         events = getattr(getattr(self.source, "qc", None), "events", [])
@@ -171,6 +173,8 @@ class OutputStage:
             self.enmo_weighted += float(np.dot(m.enmo_mg, m.n))
             self.samples_metrics += int(m.n.sum())
         self.sink.write_slices(block, batches, m)
+        for tap in self.taps:
+            tap.push(block, batches, m)
 
     def push(self, block: Block) -> None:
         self._last_ns = int(block.time_ns[0])
@@ -191,6 +195,8 @@ class OutputStage:
             self.enmo_weighted += float(np.dot(m.enmo_mg, m.n))
             self.samples_metrics += int(m.n.sum())
             self.sink.write_slices(None, [], m)
+        for tap in self.taps:
+            tap.flush(m)
 
     @property
     def enmo_mean_mg(self) -> Optional[float]:
@@ -237,16 +243,31 @@ def _qc_summary(source) -> dict:
 # ---------------------------------------------------------------------------- the job
 def process_file(path, out, settings: Optional[RunSettings] = None, *,
                  progress: Optional[Callable[[str, PipelineStats], None]] = None,
-                 writer: str = "inline", source_options: Optional[dict] = None) -> dict:
+                 writer: str = "inline", source_options: Optional[dict] = None,
+                 tables=None) -> dict:
     """Process one recording into ``out`` (MCAP); return the run summary (see module docstring).
 
     ``progress(label, stats)`` is called as the passes advance (label "pass 1/2", "pass 2/2",
-    or "online").
+    or "online"). ``tables``: an ``engine.tables.TablesSettings`` to write the epoch and day
+    tables during the output pass.
     """
     s = settings or RunSettings()
     path, out = Path(path), Path(out)
-    opts = source_options or {}
+    opts = dict(source_options or {})
     check_output(out)
+    zone = None
+    if s.timezone is not None or tables is not None:
+        from stillpoint.drivers import sniff_format
+        from .timezones import reader_timezone
+        tz, zone = reader_timezone(path, sniff_format(path), s.timezone)
+        if tz is not None and "timezone" not in opts:
+            opts["timezone"] = tz
+    if tables is not None:
+        from stillpoint.drivers.outputs import check_output_path
+        check_output_path(tables.epochs_path, what="epoch table")
+        check_output_path(tables.days_path, what="day table")
+        if not tables.zone.known:
+            tables.zone = zone
     t_start = time.perf_counter()
     src = open_recording(path, **opts)  # raises a StillpointError (exit 2) on unreadable input
     info = src.info
@@ -296,11 +317,13 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
                            "applied": applied, "detail": est.reason}, st1.first_ns or 0)
             estimates_log.append({"status": est.status, "applied": applied})
             outst = OutputStage(s, rate, sink, src, initial)
+            _add_tables(outst, tables, s, rate, band, src)
             st = Pipeline(src, [outst], rate_hz=rate, max_block_s=s.max_block_s).run(
                 _progress_wrapper(progress, "pass 2/2"))
             final = est
         except BaseException:
             sink.abort()
+            _abort_tables(outst if "outst" in locals() else None)
             src.close()
             raise
     else:
@@ -336,6 +359,7 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
         initial = (prior if (prior is not None and s.calibrate)
                    else CalibrationEstimate.identity("online: no estimate accepted yet"))
         outst = OutputStage(s, rate, sink, src, initial, gate=gate)
+        _add_tables(outst, tables, s, rate, band, src)
         if prior is not None:
             sink.write_estimate(prior, s.calibrate, 0)
         try:
@@ -343,6 +367,7 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
                           max_block_s=s.max_block_s).run(_progress_wrapper(progress, "online"))
         except BaseException:
             sink.abort()
+            _abort_tables(outst)
             src.close()
             raise
         windows, nonmove = feat.windows.windows, feat.nonmovement.count
@@ -366,6 +391,16 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
     })
     if st.first_ns is not None:
         summary["start_ns"], summary["end_ns"] = st.first_ns, st.last_ns
+    if zone is not None:
+        summary["timezone"] = zone.label
+    for tap in outst.taps:  # the epoch and day tables
+        try:
+            summary["tables"] = tap.close(final.status)
+        except BaseException:
+            sink.abort()
+            tap.abort()
+            raise
+        summary["outputs"].update(epochs=summary["tables"]["epochs"], days=summary["tables"]["days"])
     sink.write_metadata("calibration", {"json": final.to_json()})
     sink.write_metadata("summary", {k: v for k, v in summary.items() if k != "wall_s"})
     sink.close()
@@ -374,6 +409,17 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
     from .mcap.writer import peak_rss_mb
     summary["peak_rss_mb"] = {"engine": peak_rss_mb(), "writer": sink.writer_maxrss_mb}
     return summary
+
+
+def _add_tables(outst: OutputStage, tables, s: RunSettings, rate: float, band, src) -> None:
+    if tables is not None:
+        from .tables import TablesTap
+        outst.taps.append(TablesTap(tables, rate, s.epoch_s, band, src, src.info))
+
+
+def _abort_tables(outst) -> None:
+    for tap in getattr(outst, "taps", []):
+        tap.abort()
 
 
 class _FinishCalibrator:

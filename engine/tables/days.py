@@ -20,8 +20,9 @@ intensity minutes, MVPA and M10/L5; ``wear_hours`` counts clean epochs. Per day:
   days only; ``m10_start`` / ``l5_start``: local clock time of the window start;
 * ``data_coverage`` / ``qc_coverage``: data hours and QC-flagged hours over ``day_hours``.
 
-The summary row (``date`` = ``all``) sums the hours, counts valid days in ``valid_day``, and gives
-the means over valid days (ENMO weighted by clean epochs; minutes, MVPA, M10/L5 per valid day).
+The summary row (``date`` = ``all``) sums the hours, counts valid days in ``valid_day``, gives the
+mean ENMO over every clean epoch of the file, and the minutes per band, MVPA and M10/L5 averaged
+over valid days (empty when there is none).
 Every row also carries the time zone used and the calibration status.
 """
 
@@ -181,8 +182,8 @@ class DayAccumulator:
                   "clipping_hours", "qc_hours"):
             row[k] = float(sum(d[k] for d in self.days))
         row["valid_day"] = len(valid)
-        w = [(d["enmo_mean_mg"], d["wear_hours"]) for d in valid if d["enmo_mean_mg"] is not None]
-        row["enmo_mean_mg"] = (sum(m * h for m, h in w) / sum(h for _, h in w)) if w else None
+        clean = self.totals["clean"]
+        row["enmo_mean_mg"] = self.totals["enmo_clean_sum"] / clean if clean else None
         for k in _band_names(self.bands) + ["mvpa_bout_min", "m10_mg", "l5_mg"]:
             v = [d[k] for d in valid if d[k] is not None]
             row[k] = float(np.mean(v)) if v else None

@@ -13,6 +13,7 @@ the device clock), ``n`` (samples), ``enmo_mg``, ``bfen_mg``, ``mad_mg``, ``angl
 
 from __future__ import annotations
 
+import csv
 import gzip
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -150,9 +151,10 @@ class TablesTap:
             d["calibration"] = calibration_status
         cols = self.days.columns
         with atomic_output(self.ts.days_path, binary=False, what="day table") as f:
-            f.write(",".join(cols) + "\n")
+            w = csv.writer(f, lineterminator="\n")
+            w.writerow(cols)
             for d in days + [summary]:
-                f.write(",".join(_cell(d.get(c)) for c in cols) + "\n")
+                w.writerow([_cell(d.get(c)) for c in cols])
         self._closed = True
         nw = self.assembler.nonwear
         return {"epochs": str(self.ts.epochs_path), "days": str(self.ts.days_path),

@@ -94,6 +94,7 @@ class RunSettings:
     zstd_level: int = ZSTD_LEVEL  # 1: ~30 % less compression CPU than 3 for ~5 % more bytes
     chunk_size: int = CHUNK_SIZE
     view_hz: float = VIEW_HZ  # /view/accel samples per second (0: no view topic)
+    timezone: Optional[str] = None  # the device clock's zone (IANA or offset); None: as the reader
 
     def __post_init__(self):
         if self.mode not in ("batch", "online"):
@@ -164,6 +165,7 @@ class OutputStage:
         self._qc_logged = 0
         self._last_ns = 0
         self._segment = None
+        self.taps: list = []  # extra consumers of (block, corrected batches, epoch metrics)
 
     def _log_reader_qc(self) -> None:
         events = getattr(getattr(self.source, "qc", None), "events", [])
@@ -181,6 +183,8 @@ class OutputStage:
             self.enmo_weighted += float(np.dot(m.enmo_mg, m.n))
             self.samples_metrics += int(m.n.sum())
         self.sink.write_slices(block, batches, m)
+        for tap in self.taps:
+            tap.push(block, batches, m)
 
     def push(self, block: Block) -> None:
         self._last_ns = int(block.time_ns[0])
@@ -201,6 +205,8 @@ class OutputStage:
             self.enmo_weighted += float(np.dot(m.enmo_mg, m.n))
             self.samples_metrics += int(m.n.sum())
             self.sink.write_slices(None, [], m)
+        for tap in self.taps:
+            tap.flush(m)
 
     @property
     def enmo_mean_mg(self) -> Optional[float]:
@@ -248,16 +254,31 @@ def _qc_summary(source) -> dict:
 # ---------------------------------------------------------------------------- the job
 def process_file(path, out, settings: Optional[RunSettings] = None, *,
                  progress: Optional[Callable[[str, PipelineStats], None]] = None,
-                 writer: str = "inline", source_options: Optional[dict] = None) -> dict:
+                 writer: str = "inline", source_options: Optional[dict] = None,
+                 tables=None) -> dict:
     """Process one recording into ``out`` (MCAP); return the run summary (see module docstring).
 
     ``progress(label, stats)`` is called as the passes advance (label "pass 1/2", "pass 2/2",
-    or "online").
+    or "online"). ``tables``: an ``engine.tables.TablesSettings`` to write the epoch and day
+    tables during the output pass.
     """
     s = settings or RunSettings()
     path, out = Path(path), Path(out)
-    opts = source_options or {}
+    opts = dict(source_options or {})
     check_output(out)
+    zone = None
+    if s.timezone is not None or tables is not None:
+        from stillpoint.drivers import sniff_format
+        from .timezones import reader_timezone
+        tz, zone = reader_timezone(path, sniff_format(path), s.timezone)
+        if tz is not None and "timezone" not in opts:
+            opts["timezone"] = tz
+    if tables is not None:
+        from stillpoint.drivers.outputs import check_output_path
+        check_output_path(tables.epochs_path, what="epoch table")
+        check_output_path(tables.days_path, what="day table")
+        if not tables.zone.known:
+            tables.zone = zone
     t_start = time.perf_counter()
     src = open_recording(path, **opts)  # raises a StillpointError (exit 2) on unreadable input
     info = src.info
@@ -308,11 +329,13 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
                            "applied": applied, "detail": est.reason}, st1.first_ns or 0)
             estimates_log.append({"status": est.status, "applied": applied})
             outst = OutputStage(s, rate, sink, src, initial)
+            _add_tables(outst, tables, s, rate, band, src)
             st = Pipeline(src, [outst], rate_hz=rate, max_block_s=s.max_block_s).run(
                 _progress_wrapper(progress, "pass 2/2"))
             final = est
         except BaseException as e:
             _abort(sink, e)
+            _abort_tables(outst if "outst" in locals() else None)
             src.close()
             raise
     else:
@@ -348,6 +371,7 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
         initial = (prior if (prior is not None and s.calibrate)
                    else CalibrationEstimate.identity("online: no estimate accepted yet"))
         outst = OutputStage(s, rate, sink, src, initial, gate=gate)
+        _add_tables(outst, tables, s, rate, band, src)
         stages = [feat, _FinishCalibrator(cal, publish, feat), outst]
         if prior is not None:  # logged at the first sample's time (no message before the data)
             stages.insert(0, _LogPrior(sink, prior, s.calibrate))
@@ -356,6 +380,7 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
                           max_block_s=s.max_block_s).run(_progress_wrapper(progress, "online"))
         except BaseException as e:
             _abort(sink, e)
+            _abort_tables(outst)
             src.close()
             raise
         windows, nonmove = feat.windows.windows, feat.nonmovement.count
@@ -379,6 +404,16 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
     })
     if st.first_ns is not None:
         summary["start_ns"], summary["end_ns"] = st.first_ns, st.last_ns
+    if zone is not None:
+        summary["timezone"] = zone.label
+    for tap in outst.taps:  # the epoch and day tables
+        try:
+            summary["tables"] = tap.close(final.status)
+        except BaseException as e:
+            _abort(sink, e)
+            tap.abort()
+            raise
+        summary["outputs"].update(epochs=summary["tables"]["epochs"], days=summary["tables"]["days"])
     try:
         sink.write_metadata("calibration", {"json": final.to_json()})
         sink.write_metadata("summary", {k: v for k, v in summary.items() if k != "wall_s"})
@@ -417,6 +452,17 @@ class _LogPrior:
 
     def flush(self) -> None:
         pass
+
+
+def _add_tables(outst: OutputStage, tables, s: RunSettings, rate: float, band, src) -> None:
+    if tables is not None:
+        from .tables import TablesTap
+        outst.taps.append(TablesTap(tables, rate, s.epoch_s, band, src, src.info))
+
+
+def _abort_tables(outst) -> None:
+    for tap in getattr(outst, "taps", []):
+        tap.abort()
 
 
 class _FinishCalibrator:

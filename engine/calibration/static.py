@@ -245,6 +245,15 @@ def static_calibration(acc_g: np.ndarray, fs: float, *, mode: str = "reference",
         else:
             d.update(samples=0, missing=True)
         faces[f] = d
+    if not missing:  # per-face quality after the correction (all modes)
+        o, g = np.asarray(est["offset_g"]), np.asarray(est["gain"])
+        for f in FACES:
+            m = (acc[search.windows[f]].mean(axis=0) - o) / g
+            k = "xyz".index(f[1])
+            sign = 1.0 if f[0] == "+" else -1.0
+            faces[f]["corrected_norm_error_g"] = float(abs(np.linalg.norm(m) - 1.0))
+            faces[f]["corrected_tilt_deg"] = float(np.degrees(np.arccos(
+                np.clip(sign * m[k] / np.linalg.norm(m), -1.0, 1.0))))
     status = "ok" if not missing else "incomplete"
     warnings = list(search.warnings)
     if missing:
@@ -270,3 +279,68 @@ def _missing_hint(acc: np.ndarray, fs: float) -> str:
         return f"the recording holds only {n / fs:.2f} s of data"
     return ("each face needs a still hold of at least 1 s with that axis reading about ±1 g "
             "(10 s per face is the protocol)")
+
+
+def read_calibration_recording(path):
+    """A (short) calibration recording in memory: (time_ns, accel g (n, 3), DeviceInfo)."""
+    from stillpoint.drivers import open_recording
+    src = open_recording(path)
+    info = src.info
+    ts, acc = [], []
+    try:
+        for block in src:
+            if block.n:
+                ts.append(block.time_ns.copy())
+                acc.append(block.accel_g())
+    finally:
+        src.close()
+    if not ts:
+        return np.zeros(0, np.int64), np.zeros((0, 3)), info
+    return np.concatenate(ts), np.concatenate(acc), info
+
+
+def static_calibration_file(path, *, mode: str = "reference", full_matrix: bool = False,
+                            allow_nan: bool = False, window_s=None,
+                            sd_cut: Optional[float] = None) -> StaticCalibration:
+    """Static calibration of a six-orientation recording (.cwa/.bin): the device serial and
+    range come from its header, the window bounds are reported as times."""
+    time_ns, acc, info = read_calibration_recording(path)
+    fs = float(info.sample_rate_nominal or 0)
+    if fs <= 0:
+        raise StaticCalibrationError(f"{path}: the header gives no sample rate")
+    if acc.shape[0] == 0:
+        raise StaticCalibrationError(f"{path}: the recording holds no samples")
+    cal = static_calibration(acc, fs, mode=mode, full_matrix=full_matrix, allow_nan=allow_nan,
+                             time_ns=time_ns, window_s=window_s, sd_cut=sd_cut,
+                             range_g=info.accel_range_g, where=str(path),
+                             device_key=info.device_key, device_serial=str(info.device_id))
+    cal.source = str(path)
+    return cal
+
+
+def load_static_calibration(path) -> StaticCalibration:
+    """A static calibration from JSON: the output of ``static-calibrate -o``/``--json``, a
+    ``static-6`` engine estimate, or a store record holding one."""
+    import json
+    try:
+        with open(path, encoding="utf-8") as f:
+            d = json.load(f)
+    except FileNotFoundError:
+        raise StaticCalibrationError(f"{path}: no such calibration file") from None
+    except (OSError, ValueError) as e:
+        raise StaticCalibrationError(f"{path}: not a readable calibration JSON ({e})") from None
+    if isinstance(d, dict) and "calibration" in d and isinstance(d["calibration"], dict):
+        d = d["calibration"]
+    if isinstance(d, dict) and "estimate" in d and isinstance(d["estimate"], dict):
+        d = d["estimate"]
+    if not isinstance(d, dict):
+        raise StaticCalibrationError(f"{path}: not a calibration JSON object")
+    try:
+        if d.get("method") == STATIC_METHOD:
+            return StaticCalibration.from_estimate(CalibrationEstimate.from_dict(d))
+        if "offset_g" in d and "gain" in d:
+            return StaticCalibration.from_dict(d)
+    except (TypeError, ValueError) as e:
+        raise StaticCalibrationError(f"{path}: malformed static calibration ({e})") from None
+    raise StaticCalibrationError(f"{path}: not a six-orientation static calibration "
+                                 f"(method {d.get('method')!r})")

@@ -8,8 +8,8 @@ memory or written as a real AX6 (or AX3) ``.cwa``, chunk by chunk (72 h in bound
   2-7 m/s^2; a simultaneous half-sine angular-velocity pulse (1-4 rad/s) about an axis
   perpendicular to the motion; exponential intervals with a 1-s refractory period.
 * Sleep blocks (no kicks, gyro noise only); optional negative controls: perpendicular-only
-  pulses, pulses without rotation, and rhythmic chains of 45 (removed by the cycle filter) and
-  of 30 pulses (kept) with 0.15-s gaps.
+  pulses, pulses without rotation, and rhythmic chains of 70 (removed by the cycle filter) and
+  of 30 pulses (kept) with 0.02-s gaps.
 * Sensor errors (``StaticErrors``) on the accelerometer; a device clock skew (ppm) on the written
   timestamps (left/right pairs drift apart by a few seconds over 72 h).
 """
@@ -172,13 +172,13 @@ def make_infant(*, minutes: float = 20.0, fs: float = 25.0, seed: int = 1,
                 extra_kind.append(kd_kind)
                 extra_amp.append(4.0 / G_MS2)
                 t += 2.5
-        for chain in (45, 30):  # rhythmic chains, 0.15 s gaps
+        for chain in (70, 30):  # rhythmic chains, back to back (0.02 s gaps)
             for _ in range(chain):
                 extra_on.append(t)
                 extra_d.append(0.3)
                 extra_kind.append(3)
                 extra_amp.append(4.0 / G_MS2)
-                t += 0.45
+                t += 0.32
             t += 15.0
         eo = np.asarray(extra_on)
         # the control block replaces the kicks it overlaps

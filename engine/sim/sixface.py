@@ -75,7 +75,7 @@ def _smooth_noise(rng, n: int, fs: float, cutoff_hz: float, sd: float) -> np.nda
 
 def simulate_sixface(*, fs: float = 25.0, hold_s=10.0, order: Optional[Sequence[str]] = None,
                      errors: Optional[StaticErrors] = None, seed: int = 1,
-                     turn_s=(1.0, 3.0), jitter_g: float = 0.05, pre_s: float = 3.0,
+                     turn_s=(1.0, 3.0), jitter_g: float = 0.02, pre_s: float = 3.0,
                      post_s: float = 3.0, tilt_deg: float = 0.0, hold_edge_jitter_g: float = 0.0,
                      start_ns: int = DEFAULT_START_NS, clip_g: Optional[float] = None) -> SixFaceSession:
     """Generate a session (see the module docstring). ``hold_s``: one value or one per face in

@@ -8,6 +8,7 @@ from pathlib import Path
 from stillpoint.engine.calibration.estimate import CalibrationEstimate
 from stillpoint.engine.run import RunSettings, process_file
 
+from ._staticopts import add_static_arguments, resolve_static
 from ._runopts import (OptionError, Progress, add_setting_arguments, human_summary,
                        settings_overrides, write_summary)
 
@@ -39,6 +40,7 @@ def add_arguments(p) -> None:
                    help="use the calibration store (default location, or DIR): online takes its "
                         "prior from it; the final estimate is added to it")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar and no text summary")
+    add_static_arguments(p)
     add_setting_arguments(p)
 
 
@@ -54,11 +56,15 @@ def build_settings(args, base: dict | None = None) -> RunSettings:
             over["prior"] = CalibrationEstimate.from_dict(json.loads(args.prior.read_text())).to_dict()
         except (OSError, ValueError, TypeError) as e:
             raise OptionError(f"--prior {args.prior}: not a calibration estimate JSON ({e})") from None
+    if getattr(args, "static", None):
+        from stillpoint.engine.calibration.static import load_static_calibration
+        over["static_calibration"] = load_static_calibration(args.static).to_estimate().to_dict()
     return RunSettings.from_dict(base or {}, **over)
 
 
 def execute(args, settings: RunSettings, out: Path) -> int:
     progress = Progress(enabled=False if args.quiet else None)
+    resolve_static(args, settings)
     if getattr(args, "store", None) is not None and settings.mode == "online" and settings.prior is None:
         from stillpoint.drivers import open_recording
         src = open_recording(args.file)
@@ -73,7 +79,7 @@ def execute(args, settings: RunSettings, out: Path) -> int:
         progress.done()
     if getattr(args, "store", None) is not None:
         est = CalibrationEstimate.from_dict(dict(summary["calibration"]))
-        if est.status in ("ok", "high_error") and summary.get("device"):
+        if est.status in ("ok", "high_error") and summary.get("device") and est.method != "static-6":
             d = summary["device"]
             store = _store(args.store)
             store.add(est, device_key=f"{d['type']}-{d['id']}", source=str(args.file))

@@ -77,11 +77,14 @@ def simulate_sixface(*, fs: float = 25.0, hold_s=10.0, order: Optional[Sequence[
                      errors: Optional[StaticErrors] = None, seed: int = 1,
                      turn_s=(1.0, 3.0), jitter_g: float = 0.02, pre_s: float = 3.0,
                      post_s: float = 3.0, tilt_deg: float = 0.0, hold_edge_jitter_g: float = 0.0,
-                     start_ns: int = DEFAULT_START_NS, clip_g: Optional[float] = None) -> SixFaceSession:
+                     start_ns: int = DEFAULT_START_NS, clip_g: Optional[float] = None,
+                     turn_profile: str = "smooth") -> SixFaceSession:
     """Generate a session (see the module docstring). ``hold_s``: one value or one per face in
     ``order``; ``order``: default a random permutation of the six faces; ``errors``: default
     ideal; ``hold_edge_jitter_g``: hand jitter on the non-gravity axes in the first and last
-    second of each hold (the hand letting go / picking up); ``clip_g``: clip the readings."""
+    second of each hold (the hand letting go / picking up); ``clip_g``: clip the readings;
+    ``turn_profile``: "smooth" (slow approach to the face: smoothstep) or "linear" (constant
+    rotation speed, the device set down briskly)."""
     rng = np.random.default_rng(seed)
     errors = errors or StaticErrors.ideal()
     if order is None:
@@ -122,7 +125,8 @@ def simulate_sixface(*, fs: float = 25.0, hold_s=10.0, order: Optional[Sequence[
         n = int(round(rng.uniform(*turn_s) * fs)) if (i or pre_s > 0) else 0
         if n:
             s = np.linspace(0, 1, n + 2)[1:-1]
-            s = s * s * (3 - 2 * s)
+            if turn_profile == "smooth":
+                s = s * s * (3 - 2 * s)
             add(_slerp(prev, target, s), _smooth_noise(rng, n, fs, 4.0, jitter_g),
                 np.full(n, -1, np.int8))
         n = int(round(holds_s[i] * fs))
@@ -159,6 +163,7 @@ def simulate_sixface(*, fs: float = 25.0, hold_s=10.0, order: Optional[Sequence[
                           {"order": order, "hold_s": holds_s.tolist(), "turn_s": list(turn_s),
                            "jitter_g": jitter_g, "pre_s": pre_s, "post_s": post_s,
                            "tilt_deg": tilt_deg, "hold_edge_jitter_g": hold_edge_jitter_g,
+                           "turn_profile": turn_profile,
                            "seed": seed})
 
 

@@ -87,6 +87,10 @@ class RunSettings:
     ggir_compatible: bool = False
     calibrate: bool = True  # False: identity (raw g) on /corrected/accel
     prior: Optional[dict] = None  # online: estimate in force before the first accepted refit
+    # a six-orientation static calibration (method "static-6" estimate) applied instead of the
+    # autocalibration (never both): batch applies it from the start, online keeps it (refits
+    # are logged, not applied)
+    static_calibration: Optional[dict] = None
     corrected_quantum_g: float = 2.0 ** -16  # /corrected/accel rounding before float32 (0: none)
     max_block_s: float = 600.0  # pipeline block bound (data time): memory vs per-block overhead
     flush_every_s: float = 10.0  # MCAP flush cadence (data time)
@@ -231,6 +235,30 @@ def _calibration_summary(est: CalibrationEstimate) -> dict:
             "uncertainty": est.uncertainty, "warnings": est.extra.get("warnings", [])}
 
 
+def _static_estimate(d: dict, info, first_ns, summary: dict) -> CalibrationEstimate:
+    """The static calibration to apply: same device only; the gap to the recording is logged."""
+    from .calibration.static import STATIC_METHOD, StaticCalibrationError
+    est = CalibrationEstimate.from_dict(dict(d))
+    if est.method != STATIC_METHOD:
+        raise StaticCalibrationError(f"the static calibration given has method {est.method!r}, "
+                                     f"not {STATIC_METHOD!r}")
+    if est.device_key and est.device_key != info.device_key:
+        raise StaticCalibrationError(
+            f"{info.path}: the static calibration is for device {est.device_key}, the recording is "
+            f"from {info.device_key}")
+    if est.status != "ok":
+        raise StaticCalibrationError(f"the static calibration has status {est.status!r}: not applied")
+    gap_h = None
+    if first_ns is not None and est.fit_end_ns is not None:
+        gap_h = (int(first_ns) - int(est.fit_end_ns)) / 3.6e12
+    full = bool((est.extra.get("static") or {}).get("matrix"))
+    est.effective_from_ns = None
+    est.extra = dict(est.extra, applied_as="static", gap_hours=gap_h)
+    summary["static_calibration"] = {"device_key": est.device_key, "fit_end_ns": est.fit_end_ns,
+                                     "gap_hours": gap_h, "full_matrix_not_applied": full}
+    return est
+
+
 def _progress_wrapper(progress, label):
     if progress is None:
         return None
@@ -301,6 +329,8 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
             src.close()
         if not s.calibrate:
             est = CalibrationEstimate.identity("calibration switched off (--no-calibrate)")
+        elif s.static_calibration:
+            est = _static_estimate(s.static_calibration, info, st1.first_ns, summary)
         elif st1.samples == 0:
             est = CalibrationEstimate.identity("no samples: not calibrated")
         else:
@@ -326,7 +356,8 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
             initial = est if applied else CalibrationEstimate.identity(est.reason)
             sink.write_estimate(est, applied, st1.first_ns or 0)
             sink.write_qc({"source": "engine", "reason": "calibration", "status": est.status,
-                           "applied": applied, "detail": est.reason}, st1.first_ns or 0)
+                           "applied": applied, "method": est.method, "detail": est.reason},
+                          st1.first_ns or 0)
             estimates_log.append({"status": est.status, "applied": applied})
             outst = OutputStage(s, rate, sink, src, initial)
             _add_tables(outst, tables, s, rate, band, src)
@@ -341,6 +372,9 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
     else:
         # ---------------------------------------------------------------- online
         prior = validate_estimate(s.prior, "prior estimate") if s.prior else None
+        static = bool(s.static_calibration) and s.calibrate
+        if static:
+            prior = _static_estimate(s.static_calibration, info, None, summary)
         cal = OnlineCalibrator(prior, s.chunk_hours, device_key=info.device_key,
                                sd_threshold=s.sd_threshold_g, max_abs_mean=s.max_abs_mean_g,
                                window_s=s.window_s, temperature=s.temperature)
@@ -353,7 +387,7 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
 
         def publish(ests):
             for e in ests:
-                accepted = bool(e.extra.get("accepted")) and s.calibrate
+                accepted = bool(e.extra.get("accepted")) and s.calibrate and not static
                 sink.write_estimate(e, accepted, e.effective_from_ns or 0)
                 estimates_log.append({"status": e.status, "applied": accepted,
                                       "effective_from_ns": e.effective_from_ns})
@@ -404,6 +438,9 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
     })
     if st.first_ns is not None:
         summary["start_ns"], summary["end_ns"] = st.first_ns, st.last_ns
+        sc = summary.get("static_calibration")
+        if sc and sc.get("fit_end_ns") is not None:
+            sc["gap_hours"] = (int(st.first_ns) - int(sc["fit_end_ns"])) / 3.6e12
     if zone is not None:
         summary["timezone"] = zone.label
     for tap in outst.taps:  # the epoch and day tables

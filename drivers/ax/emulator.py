@@ -110,7 +110,8 @@ class EmulatedDevice:
         self.plugged = False
         self.mounted = False
         self.streaming = False
-        self.events: list[str] = []  # what happened (for tests and the emulate command's log)
+        self.events: list[str] = []
+        self.clears: list[tuple] = []  # (device id, session, SHA-256 of the file) per CLEAR DATA  # what happened (for tests and the emulate command's log)
         self._out = bytearray()
         self._cv = threading.Condition()
         self._line = bytearray()
@@ -546,9 +547,14 @@ class EmulatedDevice:
 
         def finish():
             target = self._ejected() if mounted else self.volume
+            if what == "CLEAR":  # what was on the device when it was cleared (tests check it)
+                import hashlib
+                self.clears.append((self.device_id, self.session_id,
+                                    hashlib.sha256((target / C.AX_DATA_FILE).read_bytes()).hexdigest()))
             action(target / C.AX_DATA_FILE)
-            if "commit-no-remount" in self.faults:
+            if "commit-no-remount" in self.faults:  # the reply comes, the drive never does
                 self.events.append(f"{what.lower()} done; drive not re-inserted")
+                self._say("COMMIT")
                 return
             if mounted and self.plugged:
                 os.replace(self._ejected(), self.volume)

@@ -287,10 +287,10 @@ class EmulatedDevice:
             self.plug()
 
     def _swap(self) -> None:
-        """Another device (next id, another session) takes this dock slot."""
+        """Another device (id + 50000, another session) takes this dock slot."""
         self.unplug()
         self.faults.discard("swap-before-clear")
-        self.device_id += 1
+        self.device_id += 50000
         self.session_id += 1
         self._recording = None
         self._make_drive()

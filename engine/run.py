@@ -283,12 +283,14 @@ def _qc_summary(source) -> dict:
 def process_file(path, out, settings: Optional[RunSettings] = None, *,
                  progress: Optional[Callable[[str, PipelineStats], None]] = None,
                  writer: str = "inline", source_options: Optional[dict] = None,
-                 tables=None) -> dict:
+                 tables=None, metadata: Optional[dict] = None) -> dict:
     """Process one recording into ``out`` (MCAP); return the run summary (see module docstring).
 
     ``progress(label, stats)`` is called as the passes advance (label "pass 1/2", "pass 2/2",
     or "online"). ``tables``: an ``engine.tables.TablesSettings`` to write the epoch and day
-    tables during the output pass.
+    tables during the output pass. ``metadata``: extra MCAP metadata records
+    ``{name: {key: str}}`` written with the summary (e.g. the download station's clock offset,
+    host time zone and station id).
     """
     s = settings or RunSettings()
     path, out = Path(path), Path(out)
@@ -452,6 +454,8 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
             raise
         summary["outputs"].update(epochs=summary["tables"]["epochs"], days=summary["tables"]["days"])
     try:
+        for name, values in (metadata or {}).items():
+            sink.write_metadata(name, {str(k): str(v) for k, v in values.items()})
         sink.write_metadata("calibration", {"json": final.to_json()})
         sink.write_metadata("summary", {k: v for k, v in summary.items() if k != "wall_s"})
         sink.close()

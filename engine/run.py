@@ -175,8 +175,11 @@ class OutputStage:
         events = getattr(getattr(self.source, "qc", None), "events", [])
         while self._qc_logged < len(events):
             e = events[self._qc_logged]
-            d = dict(e.as_dict(), source="reader")
-            self.sink.write_qc(d, e.time_ns if e.time_ns is not None else self._last_ns)
+            t = e.time_ns if e.time_ns is not None else self._last_ns
+            # an event without a time of its own is pinned to the data time it was logged at, so
+            # a replay (which may see it at another block boundary) logs it at the same time
+            d = dict(e.as_dict(), source="reader", time_ns=t)
+            self.sink.write_qc(d, t)
             self._qc_logged += 1
 
     def _step(self, block: Optional[Block], batches) -> None:

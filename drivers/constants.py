@@ -146,3 +146,35 @@ PLAUSIBLE_BATTERY_V = (0.0, 6.0)
 NS_TIME_RANGE_MS = (-9_223_372_036_854, 9_223_372_036_854)
 PLAUSIBLE_YEARS = (2000, 2100)
 PLAUSIBLE_TIME_NS = (946_684_800_000_000_000, 4_102_444_800_000_000_000)  # 2000-01-01, 2100-01-01 UTC
+
+# ----------------------------------------------------------------------------- AX3/AX6 over USB
+# [USB] /work/shared/specs/usb-protocols.md Part A (openmovement firmware Settings.c FW 50/56,
+#       usb_descriptors.c, OmApi omapi-internal.c / omapi-devicefinder-linux.c, axconfig ax3device.mjs)
+AX_USB_VID = 0x04D8  # [USB] A1: Microchip VID, normal run mode (generic composite: never enough alone)
+AX_USB_PID = 0x0057  # [USB] A1
+AX_MANUFACTURER = "Newcastle University"  # [USB] A1: manufacturer string (space padded)
+AX_SERIAL_PREFIXES = {"CWA": "AX3", "AX6": "AX6"}  # [USB] A1: serial prefix -> device type
+AX_LABEL_PREFIXES = ("AX3", "AX6")  # [USB] A1: volume label AX317_<id> / AX664_<id>
+AX_DATA_FILE = "CWA-DATA.CWA"  # [USB] A1: data file in the volume root
+AX_ID_TYPES = {"CWA": "AX3", "AX6": "AX6"}  # [USB] A5: first field of the ID reply
+AX_MAX_LINE = 127  # [USB] A3: characters kept per input line
+AX_TIMEOUT_S = 2.0  # [USB] A3: OmApi default per-command timeout (2000 ms)
+AX_TIMEOUT_COMMIT_S = 6.0  # [USB] A3: COMMIT / CLEAR DATA / FORMAT QC (6000 ms)
+AX_TIMEOUT_FORMAT_WIPE_S = 15.0  # [USB] A3: FORMAT WC (15000 ms)
+AX_COMMIT_REMOUNT_S = 20.0  # [USB] A5/A7: drive re-insertion after a delayed activation (axconfig
+#                             waits up to 8-15 s for COMMIT; we allow 20 s for the volume to return)
+AX_BOOTLOADER_S = 5.0  # [USB] A1: "enumerates briefly (a few seconds) as a bootloader device"
+AX_TIME_TOLERANCE_S = 2.0  # [USB] A7 step 4: echoed time within 2 s
+AX_CONFIGURE_RETRIES = 3  # [USB] A7 step 11: each step retried up to 3 times, 1 s apart
+AX_STREAM_HZ = 100.0  # [USB] A6: at most one line per 1/100 s of RTC time
+AX_STREAM_COUNTS_PER_G_AX3 = 256.0  # [USB] A6: AX3 g = value / 256
+AX_STREAM_COUNTS_PER_G_AX6 = 4096.0  # [USB] A6: AX6 accel / 4096 at the default +-8 g (open question)
+AX_GYRO_RANGES_DPS = (125, 250, 500, 1000, 2000)  # [USB] A5: RATE gyroRange (125 OmApi only)
+AX_DATETIME_NEVER = "-1"  # [USB] A4: "-1" = never / infinitely late
+AX_DATETIME_ALWAYS = "0"  # [USB] A4: "0" = always / infinitely early
+# [USB] A5 closing note: factory / destructive commands the host never sends
+AX_FORBIDDEN_COMMANDS = ("WRITEL", "READRAW", "WRITERAW", "ERASERAW", "FILEBLOCK", "BADBLOCK",
+                         "FORMAT D", "TEST_RESULTS", "LOGFILE", "EXIT", "DEVICE ", "RESET", "CLEAR ALL",
+                         "LOCK", "ILOCK", "UNLOCK")
+AX_EMPTY_DATA_BYTES = 1024  # [USB] A7 step 3: axconfig: a data file > 1024 bytes still holds data
+AX_STREAM_STOP_S = 5.0  # [USB] A6: OmApi gives up flushing a running stream after 5 s

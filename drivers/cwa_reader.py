@@ -35,7 +35,8 @@ beyond ``MAX_QC_EVENTS`` are counted in total/skipped but not listed (memory sta
 A file in which not a single data sector is valid raises ``CorruptRecordingError`` at the end of
 iteration (after ``.qc`` is complete); a file with a header and no data sectors yields no Blocks.
 ``follow=True`` reads a plain file that is still being written (gzip cannot be followed); it ends
-after ``follow_idle_s`` seconds without growth. ``.info.header`` also holds an OmApi-style quick
+after ``follow_idle_s`` seconds without growth, or once ``follow_done()`` returns True and no
+more bytes arrive (``follow_done`` may raise to abandon the read). ``.info.header`` also holds an OmApi-style quick
 look (``first_sector_time``, ``last_sector_time``, ``data_sectors``) from the first/last 16
 sectors, for ``inspect --header-only``. Not decoded (skipped as ``bad_format``): the prototype
 9-axis 0x92 format and the pre-release "rate code 0" format.
@@ -71,13 +72,13 @@ AXIS_SWAP_TOL_G = 0.2  # |mean vector| within 1 +- this of 1 g counts as "gravit
 
 
 # ----------------------------------------------------------------------------- header
-def _open_header(path: Path, follow: bool, idle_s: float):
+def _open_header(path: Path, follow: bool, idle_s: float, done=None):
     check_recording_path(path, allow_empty=follow)
     if follow and path.stat().st_size >= 2 and is_gzip(path):
         raise UnsupportedFormatError(path, "follow mode reads a plain .cwa that is still being "
                                            "written; a gzip file cannot be followed")
     try:
-        f = FollowingReader(path, idle_timeout=idle_s) if follow else open_bytes(path)
+        f = FollowingReader(path, is_done=done, idle_timeout=idle_s) if follow else open_bytes(path)
     except OSError as e:
         raise RecordingError(path, f"cannot open: {e}") from None
     return f
@@ -204,8 +205,9 @@ class CwaReader:
     """Read a ``.cwa`` (or ``.cwa.gz``) recording as Blocks; see the module docstring."""
 
     def __init__(self, path, *, timezone=0, batch_sectors: int = 2048, follow: bool = False,
-                 follow_idle_s: float = 5.0, decode: bool = True):
+                 follow_idle_s: float = 5.0, decode: bool = True, follow_done=None):
         self.path = Path(path)
+        self.follow_done = follow_done  # follow: callable, True once the writer has finished
         self.tz_s = parse_timezone(timezone)
         if int(batch_sectors) < 1:
             raise ValueError("batch_sectors must be >= 1")
@@ -370,7 +372,7 @@ class CwaReader:
     def _batches(self):
         """Yield (sectors view, data-sector index of the first, end of stream reached) from one
         reusable buffer."""
-        self._stream = f = _open_header(self.path, self.follow, self.follow_idle_s)
+        self._stream = f = _open_header(self.path, self.follow, self.follow_idle_s, self.follow_done)
         _read_or_fail(self.path, f, C.CWA_HEADER_BYTES)
         size = self.batch_sectors * C.CWA_SECTOR_BYTES
         buf = np.empty(size, np.uint8)

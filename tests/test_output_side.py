@@ -149,13 +149,13 @@ def test_absurd_options_refused_at_parse_time(tmp_path, opt):
 def test_interrupt_message_names_the_partial_log_and_recover(tmp_path):
     from argparse import Namespace
 
-    from tools.cli import _partial_note
+    from tools.cli import _interrupt_note
     out = tmp_path / "r.mcap"
     args = Namespace(command="process", output=out, file=GOOD)
-    assert "no partial log" in _partial_note(args) and "pass" in _partial_note(args)
+    assert "no partial log" in _interrupt_note(args) and "pass" in _interrupt_note(args)
     part = tmp_path / "r.mcap.part"
     part.write_bytes(b"\x89MCAP0\r\n" + b"\x00" * 100)  # an unfinished log
-    note = _partial_note(args)
+    note = _interrupt_note(args)
     assert str(part) in note and "stillpoint recover" in note
 
 

@@ -62,8 +62,17 @@ def build_parser(only=None) -> argparse.ArgumentParser:
     return parser
 
 
-def _partial_note(args) -> str:
-    """Where an interrupted run's partial MCAP is and how to salvage it (or that none exists)."""
+def _partial_note(e: BaseException) -> str:
+    """Where an interrupted or failed run left its partial MCAP, and how to salvage it."""
+    part = getattr(e, "partial_output", None)
+    if not part or "stillpoint recover" in str(e):
+        return ""
+    return f"; the partial log {part} is kept: `stillpoint recover {part}` salvages it"
+
+
+def _interrupt_note(args) -> str:
+    """When the interruption carries no partial log: the one on disk, or that none exists
+    (batch pass 1 writes nothing)."""
     if args.command not in ("process", "replay", "align"):
         return ""
     try:
@@ -101,10 +110,11 @@ def main(argv=None) -> int:
     try:
         return int(args._run(args) or 0)
     except StillpointError as e:
-        print(f"stillpoint {args.command}: error: {e}", file=sys.stderr)
+        print(f"stillpoint {args.command}: error: {e}{_partial_note(e)}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print(f"stillpoint {args.command}: interrupted{_partial_note(args)}", file=sys.stderr)
+    except KeyboardInterrupt as e:
+        print(f"stillpoint {args.command}: interrupted{_partial_note(e) or _interrupt_note(args)}",
+              file=sys.stderr)
         return 130
     except BrokenPipeError:
         return 0

@@ -227,6 +227,15 @@ class CalibrationStore:
                 return self._estimate(device_key, i, recs[i])
         return None
 
+    def latest_static(self, device_key: str):
+        """The device's latest usable six-orientation static calibration (method ``static-6``)
+        as a CalibrationEstimate (the static result in ``extra["static"]``), or None."""
+        from .static import STATIC_METHOD
+        for r in reversed(self.records(device_key)):
+            if r.get("method") == STATIC_METHOD and r.get("status") in USABLE_STATUSES:
+                return CalibrationEstimate.from_dict(r["estimate"])
+        return None
+
     def prior_for(self, device_key: str) -> Optional[CalibrationEstimate]:
         """The prior for online mode: the device's latest good estimate, or None (identity)."""
         est = self.latest(device_key)

@@ -10,6 +10,9 @@ from stillpoint.engine.calibration.estimate import CalibrationEstimate
 from stillpoint.engine.run import RunSettings, process_file
 
 from ._numbers import SECONDS_DAY
+from ._staticopts import add_static_arguments, resolve_static
+from ._tableopts import (add_table_arguments, add_timezone_argument, check_zone, table_settings,
+                         tables_text)
 from ._runopts import (OptionError, Progress, add_setting_arguments, human_summary,
                        settings_overrides, write_summary)
 
@@ -44,7 +47,12 @@ def add_arguments(p) -> None:
     p.add_argument("--follow", nargs="?", const=5.0, default=None, type=SECONDS_DAY, metavar="IDLE_S",
                    help="read a .cwa/.bin that is still being written until it has not grown for "
                         "IDLE_S seconds (default 5); use with --mode online (one pass)")
+    p.add_argument("--report", action="store_true",
+                   help="also write a one-page PNG report (+ HTML) beside the MCAP (needs matplotlib)")
+    add_timezone_argument(p)
+    add_static_arguments(p)
     add_setting_arguments(p)
+    add_table_arguments(p)
 
 
 def _store(arg):
@@ -61,6 +69,12 @@ def build_settings(args, base: dict | None = None) -> RunSettings:
         except (OSError, ValueError, RecursionError) as e:
             raise OptionError(f"--prior {args.prior}: not a calibration estimate JSON ({e})") from None
         over["prior"] = validate_estimate(d, f"--prior {args.prior}").to_dict()
+    if getattr(args, "timezone", None) is not None:
+        check_zone(args.timezone)
+        over["timezone"] = args.timezone
+    if getattr(args, "static", None):
+        from stillpoint.engine.calibration.static import load_static_calibration
+        over["static_calibration"] = load_static_calibration(args.static).to_estimate().to_dict()
     return RunSettings.from_dict(base or {}, **over)
 
 
@@ -72,6 +86,7 @@ def execute(args, settings: RunSettings, out: Path) -> int:
     if getattr(args, "store", None) is not None:
         _store(args.store).check()
     progress = Progress(enabled=False if args.quiet else None)
+    resolve_static(args, settings)
     if getattr(args, "store", None) is not None and settings.mode == "online" and settings.prior is None:
         from stillpoint.drivers import open_recording
         src = open_recording(args.file)
@@ -80,18 +95,26 @@ def execute(args, settings: RunSettings, out: Path) -> int:
         prior = _store(args.store).prior_for(key)
         if prior is not None:
             settings.prior = prior.to_dict()
+    tables = table_settings(args, out) if getattr(args, "tables", False) else None
+    if getattr(args, "report", False):
+        from stillpoint.engine.report import require_matplotlib
+        require_matplotlib()
     try:
         opts = None
         if getattr(args, "follow", None) is not None:
             if settings.mode != "online":
                 raise OptionError("--follow reads the file once as it grows: use it with --mode online")
             opts = {"follow": True, "follow_idle_s": args.follow}
-        summary = process_file(args.file, out, settings, progress=progress, source_options=opts)
+        summary = process_file(args.file, out, settings, progress=progress, tables=tables,
+                               source_options=opts)
     finally:
         progress.done()
+    if getattr(args, "report", False):
+        from stillpoint.engine.report import write_report
+        summary["outputs"].update(write_report(out, summary=summary))
     if getattr(args, "store", None) is not None:
         est = CalibrationEstimate.from_dict(dict(summary["calibration"]))
-        if est.status in ("ok", "high_error") and summary.get("device"):
+        if est.status in ("ok", "high_error") and summary.get("device") and est.method != "static-6":
             d = summary["device"]
             store = _store(args.store)
             store.add(est, device_key=f"{d['type']}-{d['id']}", source=str(args.file))
@@ -104,6 +127,7 @@ def execute(args, settings: RunSettings, out: Path) -> int:
         print(json.dumps(json.loads(dumps(summary)), indent=2, sort_keys=True))
     elif not args.quiet:
         print(human_summary(summary))
+        print(tables_text(summary))
     return 0
 
 

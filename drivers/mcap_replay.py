@@ -4,8 +4,12 @@ Replays ``/raw/accel`` (and ``/raw/gyro`` for AX6) message by message and return
 Blocks that were logged (same samples, times, counts, scales, per-unit arrays, segments). The
 ``DeviceInfo`` comes from the ``device`` metadata record and ``settings`` (the original run's
 settings) is exposed so replay can compare or reuse them. Reader QC events logged on ``/qc``
-(``source == "reader"``) are restored into ``qc``. Reads linearly (file order), so memory stays
-flat and a recovered file replays too.
+(``source == "reader"``) are restored into ``qc``. Reads linearly (file order) with
+engine/mcap/stream.py, one chunk at a time, guided by the message indexes, so memory stays flat
+however long the log; a recovered file replays too. Consecutive raw messages of one segment are
+joined into larger Blocks (fewer, larger blocks make replay about as fast as processing the
+recording) -- but never two messages of the same data-time cell, so the sink cuts the joined
+Blocks into exactly the logged raw messages again.
 """
 
 from __future__ import annotations
@@ -15,18 +19,18 @@ from pathlib import Path
 from typing import Iterator, Optional
 
 import numpy as np
-from mcap.exceptions import McapError
-from mcap.reader import make_reader
 
 from stillpoint.engine.blocks import (Block, DeviceInfo, PER_SAMPLE_BUTTON, PER_SAMPLE_LIGHT_RAW,
                                       QCEvent, QCReport)
 from stillpoint.engine.mcap.schemas import ACCEL_BATCH_RAW, GYRO_BATCH_RAW, times_from_deltas
+from stillpoint.engine.mcap.stream import iter_topic_messages, read_metadata
 
 from .errors import CorruptRecordingError, RecordingError, UnsupportedFormatError
 
 TOPIC_RAW = "/raw/accel"
 TOPIC_GYRO = "/raw/gyro"
 TOPIC_QC = "/qc"
+JOIN_FRACTION = 0.5  # a joined Block holds at most this fraction of the pipeline's block bound
 
 
 def block_from_message(raw: dict, gyro: Optional[dict] = None) -> Block:
@@ -59,6 +63,21 @@ def _device_info(meta: dict, path: Path) -> DeviceInfo:
     return DeviceInfo(**d)
 
 
+def _cell(b: Block, cell_ns: int) -> int:
+    return int(b.time_ns[b.unit_start[0] if b.m else 0]) // cell_ns
+
+
+def _joinable(a: Block, b: Block, cell_ns: int) -> bool:
+    """``b`` continues ``a`` in another cell: same segment, scales and per-sample channels,
+    next sample (two messages of one cell were cut apart by the logged run: keep them apart)."""
+    return (a.segment == b.segment and b.first_sample == a.first_sample + a.n
+            and _cell(a, cell_ns) != _cell(b, cell_ns)
+            and (a.gyro is None) == (b.gyro is None) and set(a.per_sample) == set(b.per_sample)
+            and a.gyro_dps_per_count == b.gyro_dps_per_count
+            and np.array_equal(a.accel_counts_per_g, b.accel_counts_per_g)
+            and np.array_equal(a.accel_zero, b.accel_zero))
+
+
 class McapRawSource:
     """Source over a stillpoint MCAP's raw topics (single pass; open again for another)."""
 
@@ -70,10 +89,8 @@ class McapRawSource:
         self.settings: Optional[dict] = None
         self.metadata: dict[str, dict] = {}
         try:
-            reader = make_reader(self._f)
-            for m in reader.iter_metadata():
-                self.metadata[m.name] = dict(m.metadata)
-        except (McapError, ValueError, Exception) as e:
+            self.metadata = read_metadata(self._f)
+        except (ValueError, OSError) as e:
             self._f.close()
             raise CorruptRecordingError(
                 self.path, f"cannot read the MCAP index ({type(e).__name__}); if the run was "
@@ -97,19 +114,31 @@ class McapRawSource:
         self._f.close()
 
     def __iter__(self) -> Iterator[Block]:
-        self._f.seek(0)
-        reader = make_reader(self._f)
         pending_raw: list[dict] = []
         pending_gyro: list[dict] = []
         has_gyro = self.info.gyro_range_dps is not None
-        for _schema, channel, message in reader.iter_messages(
-                topics=[TOPIC_RAW, TOPIC_GYRO, TOPIC_QC], log_time_order=False):
-            if channel.topic == TOPIC_RAW:
-                pending_raw.append(ACCEL_BATCH_RAW.decode(message.data))
-            elif channel.topic == TOPIC_GYRO:
-                pending_gyro.append(GYRO_BATCH_RAW.decode(message.data))
+        group: list[Block] = []
+        st = self.settings or {}
+        # the logged run's raw-message cells (engine/mcap/sink.py) and pipeline block bound
+        cell_ns = int(float(st.get("flush_every_s") or 60.0) * 1e9)
+        rate = float(self.info.sample_rate_nominal or 0.0)
+        max_join = int(JOIN_FRACTION * float(st.get("max_block_s") or 0.0) * rate)
+        n_group = 0
+
+        def joined():
+            nonlocal n_group
+            b = group[0] if len(group) == 1 else Block.concat(group)
+            group.clear()
+            n_group = 0
+            return b
+
+        for topic, _log_time, data in iter_topic_messages(self._f, [TOPIC_RAW, TOPIC_GYRO, TOPIC_QC]):
+            if topic == TOPIC_RAW:
+                pending_raw.append(ACCEL_BATCH_RAW.decode(data))
+            elif topic == TOPIC_GYRO:
+                pending_gyro.append(GYRO_BATCH_RAW.decode(data))
             else:
-                ev = json.loads(message.data)
+                ev = json.loads(bytes(data))
                 if ev.get("source") == "reader":
                     self.qc.add(QCEvent(int(ev.get("index", -1)), ev.get("reason", ""),
                                         ev.get("detail", ""), ev.get("time_ns"), int(ev.get("samples", 0))))
@@ -119,7 +148,12 @@ class McapRawSource:
                 b = block_from_message(raw, gyro)
                 self.qc.total += b.m
                 self.qc.valid += b.m
-                yield b
+                if group and (not _joinable(group[-1], b, cell_ns) or n_group + b.n > max_join):
+                    yield joined()
+                group.append(b)
+                n_group += b.n
+        if group:
+            yield joined()
         # a gyro-less tail (should not happen in a complete log): yield accel only
         for raw in pending_raw:
             yield block_from_message(raw, None)

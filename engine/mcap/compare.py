@@ -9,21 +9,22 @@ from __future__ import annotations
 import hashlib
 from itertools import zip_longest
 
-from mcap.reader import make_reader
+from .stream import iter_topic_messages
 
-REPLAY_TOPICS = ("/corrected/accel", "/metrics/epoch", "/calibration", "/raw/accel")
+REPLAY_TOPICS = ("/corrected/accel", "/metrics/epoch", "/calibration", "/raw/accel",
+                 "/view/accel")
 
 
 def topic_digests(path, topics=REPLAY_TOPICS) -> dict:
     """{topic: (messages, sha256 of every (log_time, payload))} in file order."""
     out = {t: [0, hashlib.sha256()] for t in topics}
-    with open(path, "rb") as f:
-        for _s, ch, msg in make_reader(f).iter_messages(topics=list(topics), log_time_order=False):
-            d = out[ch.topic]
+    with open(path, "rb") as f:  # streamed: one chunk in memory at a time
+        for topic, log_time, data in iter_topic_messages(f, topics):
+            d = out[topic]
             d[0] += 1
-            d[1].update(msg.log_time.to_bytes(8, "little"))
-            d[1].update(len(msg.data).to_bytes(8, "little"))
-            d[1].update(msg.data)
+            d[1].update(log_time.to_bytes(8, "little"))
+            d[1].update(len(data).to_bytes(8, "little"))
+            d[1].update(data)
     return {t: (n, h.hexdigest()) for t, (n, h) in out.items()}
 
 
@@ -36,9 +37,9 @@ def compare(a, b, topics=REPLAY_TOPICS) -> dict:
 def first_difference(a, b, topic) -> int | None:
     """Index of the first differing message of ``topic`` (None when identical)."""
     with open(a, "rb") as fa, open(b, "rb") as fb:
-        ia = make_reader(fa).iter_messages(topics=[topic], log_time_order=False)
-        ib = make_reader(fb).iter_messages(topics=[topic], log_time_order=False)
+        ia = iter_topic_messages(fa, [topic])
+        ib = iter_topic_messages(fb, [topic])
         for i, (x, y) in enumerate(zip_longest(ia, ib)):
-            if x is None or y is None or x[2].data != y[2].data or x[2].log_time != y[2].log_time:
+            if x is None or y is None or x[1] != y[1] or bytes(x[2]) != bytes(y[2]):
                 return i
     return None

@@ -134,3 +134,58 @@ def test_interrupted_run_names_its_partial_file(rec, tmp_path, capsys, monkeypat
     monkeypatch.undo()
     assert cli(["recover", str(part)]) == 0
     conforms(tmp_path / "i.recovered.mcap")
+
+
+def test_foxglove_layout_names_fields_the_log_has(rec, tmp_path):
+    """docs/foxglove_layout.json: every plotted path is a numeric field of a logged topic's
+    schema, every Raw Messages panel a logged topic."""
+    from pathlib import Path
+
+    from stillpoint.engine.mcap.schemas import ALL_TYPES
+    layout = json.loads((Path(__file__).resolve().parent.parent / "docs" / "foxglove_layout.json")
+                        .read_text())
+    out = tmp_path / "l.mcap"
+    process_file(rec, out, RunSettings())
+    with open(out, "rb") as f:
+        summ = make_reader(f).get_summary()
+    schema_of = {c.topic: summ.schemas[c.schema_id].name for c in summ.channels.values() if c.schema_id}
+    fields = {t.name: {f for f, kind in t.fields if kind not in ("time",) and not kind.endswith("]")}
+              for t in ALL_TYPES}
+    plotted = raw = 0
+    for pid, cfg in layout["configById"].items():
+        if pid.startswith("Plot!"):
+            for p in cfg["paths"]:
+                topic, field = p["value"].rsplit(".", 1)
+                assert field in fields[schema_of[topic]], p["value"]
+                plotted += 1
+        elif pid.startswith("RawMessages!"):
+            assert cfg["topicPath"] in schema_of
+            raw += 1
+    assert plotted >= 6 and raw >= 2
+
+
+def test_public_log_api_writes_json_estimates_atomically(tmp_path):
+    """McapLog: JSON estimates with their schema, the file appears only when finished, a second
+    writer is refused, an aborted log stays as .part and recovers."""
+    from stillpoint.drivers.outputs import OutputError
+    from stillpoint.engine.mcap import STATIC_CALIBRATION, McapLog
+    out = tmp_path / "s.mcap"
+    t0 = 1_700_000_000 * 10**9
+    with McapLog(out) as log:
+        with pytest.raises(OutputError, match="another stillpoint run"):
+            McapLog(out)
+        for k in range(3):
+            log.write_json("/static_calibration", t0 + k, {"offset": [0.01 * k, 0, 0],
+                                                          "scale": [1, 1, 1], "status": "ok"},
+                           schema=STATIC_CALIBRATION)
+        log.write_metadata("device", {"id": "1234"})
+        assert not out.exists() and (tmp_path / "s.mcap.part").exists()
+    rep = conforms(out)
+    assert rep["topics"] == {"/static_calibration": 3}
+    assert rep["channel_schema"]["/static_calibration"] == STATIC_CALIBRATION.name
+    log = McapLog(tmp_path / "a.mcap", chunk_size=1)
+    log.write_json("/x", t0, {"a": 1})
+    part = log.abort()
+    assert part == tmp_path / "a.mcap.part" and not (tmp_path / "a.mcap").exists()
+    rep2 = recover(part, tmp_path / "a.recovered.mcap")
+    assert rep2.messages == 1 and conforms(tmp_path / "a.recovered.mcap")["messages"] == 1

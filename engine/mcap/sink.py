@@ -276,6 +276,7 @@ class _CorrectedRun:
 
     def __init__(self, batch: CorrectedBatch, quantum_g: float):
         self.batch = batch
+        self.view = None  # None: not framed yet; False: no view sample; else (records, indices)
         self.segment = batch.segment
         self.time_ns = batch.time_ns
         d = np.diff(batch.time_ns)
@@ -459,20 +460,32 @@ class McapSink(McapLog):
         self._corr_cell = cell
         self._pending_corr.append((run, a, b))
 
-    def _write_view(self, run: "_CorrectedRun", a: int, b: int) -> None:
-        """The view samples among corrected samples [a, b) of ``run``: one message each."""
-        idx = self.view.pick(run.time_ns[a:b])
+    def _prepare_view(self, run: "_CorrectedRun") -> None:
+        """Frame the view messages of a whole corrected batch at once (``run.view``: the
+        prepared records and, per sample index, how many view samples precede it)."""
+        idx = self.view.pick(run.time_ns)
+        run.view = False
         if not idx.size:
             return
-        idx += a
         if run.ok:
             x, y, z = run.x[idx], run.y[idx], run.z[idx]
         else:
             x, y, z = quantize(run.batch.accel[idx], self.quantum).T
         t = run.time_ns[idx]
-        ch = self._chunk
         cid = self.channel(TOPIC_VIEW, "cdr", VIEW_SAMPLE)
-        if ch.add_fixed(cid, t, view_records(t, x, y, z)):
+        run.view = (self._chunk.prepare_fixed(cid, t, view_records(t, x, y, z)), idx)
+
+    def _write_view(self, run: "_CorrectedRun", a: int, b: int) -> None:
+        """The view messages among corrected samples [a, b) of ``run`` (framed once per batch,
+        when its first piece is written: batches are written in order, so sequence numbers
+        follow each other)."""
+        if run.view is None:
+            self._prepare_view(run)
+        if run.view is False:
+            return
+        fr, idx = run.view
+        lo, hi = np.searchsorted(idx, (a, b)).tolist()
+        if hi > lo and self._chunk.add_prepared(fr, lo, hi):
             self._end_chunk(False)
 
     def _emit_corrected(self) -> None:

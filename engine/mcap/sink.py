@@ -299,14 +299,15 @@ class McapSink(McapLog):
     ``<name>.part`` renamed when finished). Use as a context manager or call close().
 
     ``writer``: "inline" (default), "thread" or "process" (see the module docstring).
-    ``view_hz``: rate of the ``/view/accel`` topic (0: off).
+    ``view_hz``: rate of the ``/view/accel`` topic (0: off). ``chunk_s``: data time a chunk
+    spans (a multiple of ``flush_every_s``; default: one cell), i.e. the most a kill can lose.
     """
 
     def __init__(self, path, info: DeviceInfo, settings: dict, *, flush_every_s: float = 10.0,
                  fsync_every_wall_s: float = 1.0, compression: str = "zstd",
                  chunk_size: int = CHUNK_SIZE, corrected_quantum_g: float = 2.0 ** -16,
                  message_s: float = 60.0, writer: str = "inline", zstd_level: int = ZSTD_LEVEL,
-                 view_hz: float = 0.0):
+                 view_hz: float = 0.0, chunk_s: Optional[float] = None):
         super().__init__(path, compression=compression, chunk_size=chunk_size,
                          fsync_every_wall_s=fsync_every_wall_s, writer=writer,
                          zstd_level=zstd_level)
@@ -314,6 +315,8 @@ class McapSink(McapLog):
         self.quantum = corrected_quantum_g
         self._cell: Optional[int] = None  # data-time cell (flush_every_s) being written
         self.cell_ns = self.flush_every_ns or int(message_s * 1e9)
+        # chunks span a whole number of cells on the UTC grid (default: one cell)
+        self.cells_per_chunk = max(1, int(round(chunk_s * 1e9 / self.cell_ns))) if chunk_s else 1
         self._pending_corr: list[CorrectedBatch] = []
         self._corr_cell: Optional[int] = None
         self.flushes = 0
@@ -434,7 +437,8 @@ class McapSink(McapLog):
                 self._take_corrected(*pieces[j])
                 j += 1
             if self._cell is None or cell > self._cell:
-                if self._cell is not None and self.flush_every_ns is not None:
+                if (self._cell is not None and self.flush_every_ns is not None
+                        and cell // self.cells_per_chunk != self._cell // self.cells_per_chunk):
                     self._flush_cell(False)
                 self._cell = cell
             while k < len(raw_cells) and raw_cells[k] < cell:

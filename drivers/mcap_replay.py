@@ -23,7 +23,7 @@ import numpy as np
 from stillpoint.engine.blocks import (Block, DeviceInfo, PER_SAMPLE_BUTTON, PER_SAMPLE_LIGHT_RAW,
                                       QCEvent, QCReport)
 from stillpoint.engine.mcap.schemas import ACCEL_BATCH_RAW, GYRO_BATCH_RAW, times_from_deltas
-from stillpoint.engine.mcap.stream import iter_topic_messages, read_metadata
+from stillpoint.engine.mcap.stream import McapFormatError, iter_topic_messages, read_metadata
 
 from .errors import CorruptRecordingError, RecordingError, UnsupportedFormatError
 
@@ -114,6 +114,12 @@ class McapRawSource:
         self._f.close()
 
     def __iter__(self) -> Iterator[Block]:
+        try:
+            yield from self._blocks()
+        except McapFormatError as e:
+            raise CorruptRecordingError(self.path, f"damaged MCAP: {e}") from None
+
+    def _blocks(self) -> Iterator[Block]:
         pending_raw: list[dict] = []
         pending_gyro: list[dict] = []
         has_gyro = self.info.gyro_range_dps is not None

@@ -200,3 +200,16 @@ def test_view_topic_does_not_depend_on_block_cuts(rec, tmp_path):
     res = compare(a, b, topics=("/view/accel", "/corrected/accel", "/metrics/epoch"))
     assert all(r["identical"] for r in res.values()), res
     assert res["/view/accel"]["messages"][0] >= 3600 * 5 - 2
+
+
+def test_replay_of_a_damaged_chunk_is_one_line_exit_2(rec, tmp_path, capsys):
+    out = tmp_path / "d.mcap"
+    process_file(rec, out, RunSettings(view_hz=0, compression="none"))
+    buf = bytearray(out.read_bytes())
+    mid = len(buf) // 3
+    buf[mid:mid + 64] = bytes(64)  # zero a stretch of a chunk: its CRC no longer matches
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(bytes(buf))
+    assert cli(["replay", str(bad), "-o", str(tmp_path / "r.mcap"), "-q"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "bad.mcap" in err[0]

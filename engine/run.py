@@ -381,6 +381,8 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
     except BaseException as e:
         _abort(sink, e)
         raise
+    if sink.set_aside is not None:  # a killed earlier run's partial log, kept under a new name
+        summary["outputs"]["earlier_partial_log"] = str(sink.set_aside)
     summary["mcap_messages"] = sink.messages
     summary["mcap_flushes"] = sink.flushes
     from .mcap.writer import peak_rss_mb

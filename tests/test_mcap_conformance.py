@@ -213,3 +213,12 @@ def test_replay_of_a_damaged_chunk_is_one_line_exit_2(rec, tmp_path, capsys):
     assert cli(["replay", str(bad), "-o", str(tmp_path / "r.mcap"), "-q"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "bad.mcap" in err[0]
+
+
+def test_a_killed_runs_partial_log_is_kept_aside(rec, tmp_path):
+    out = tmp_path / "k.mcap"
+    (tmp_path / "k.mcap.part").write_bytes(b"\x89MCAP0\r\n left by a killed run")
+    s = process_file(rec, out, RunSettings(view_hz=0))
+    kept = s["outputs"]["earlier_partial_log"]
+    assert kept.startswith(str(tmp_path / "k.mcap.part.")) and open(kept, "rb").read().endswith(b"run")
+    conforms(out)

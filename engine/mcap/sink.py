@@ -25,8 +25,9 @@ value ``json``), and at the end ``summary`` and ``calibration`` (the estimate ap
 Cells: data time is cut into cells of ``flush_every_s`` (default 10 s) on the UTC grid. Raw
 messages hold the whole sectors/pages that start in a cell; corrected messages hold the samples
 of one cell and segment (so replay reproduces the message layout exactly). The sink flushes the
-chunk in progress each time a new cell begins, so a killed process loses at most the cell in
-progress (plus the correction's one-unit lag). Every chunk is followed by its Message Index
+chunk in progress each time a new chunk span begins (``chunk_s``: one cell by default; the engine
+uses 60 s for batch runs), so a killed process loses at most that span (plus the correction's
+one-unit lag). Every chunk is followed by its Message Index
 records (the MCAP specification's layout, which indexed readers such as Foxglove's need).
 Corrected values are rounded to ``corrected_quantum_g`` (2^-16 g = 15 µg, 1/256 of the finest
 AX3 count) before float32: float noise below the sensor's resolution does not compress, and
@@ -58,8 +59,8 @@ import numpy as np
 
 from ..blocks import Block, DeviceInfo, PER_SAMPLE_BUTTON, PER_SAMPLE_LIGHT_RAW
 from ..calibration.estimate import CalibrationEstimate
-from .schemas import (ACCEL_BATCH, ACCEL_BATCH_RAW, ALL_TYPES, EPOCH_METRICS, GYRO_BATCH_RAW,
-                           TEMPERATURE, VIEW_SAMPLE, INT32_MAX, max_step_ok, time_deltas)
+from .schemas import (ACCEL_BATCH, ACCEL_BATCH_RAW, EPOCH_METRICS, GYRO_BATCH_RAW, TEMPERATURE,
+                      VIEW_SAMPLE, INT32_MAX, max_step_ok, time_deltas)
 from ..operators.correction import CorrectedBatch
 from ..operators.metrics import EpochMetrics
 

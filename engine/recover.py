@@ -2,8 +2,9 @@
 
 Before ``finish()`` an MCAP has no summary, footer or trailing magic, and seeking readers refuse
 it. The records of every *complete* chunk are intact, though: ``recover`` reads the file linearly
-(``mcap.stream_reader.StreamReader``), keeps every Schema, Channel, Message, Metadata and
-Attachment record until the first torn or unreadable record, and writes them into a new, finished
+(``engine.mcap.reading.walk_records``), keeps every Schema, Channel, Message, Metadata and
+Attachment record up to a torn tail, skipping (and reporting) any complete record that is
+unreadable, e.g. a chunk whose CRC is wrong, and writes them into a new, finished
 and indexed MCAP (ids re-mapped; records a finished file repeats in its summary are not
 duplicated). The input is never modified (it may be the ``<name>.part`` file an interrupted run
 left); the output goes through the one writer path (engine/mcap/log.py: ``<out>.part``,
@@ -19,10 +20,10 @@ from pathlib import Path
 
 from mcap.exceptions import McapError
 from mcap.records import (Attachment, Channel, DataEnd, Footer, Message, Metadata, Schema)
-from mcap.stream_reader import StreamReader
 
 from stillpoint.drivers.errors import CorruptRecordingError, RecordingError
 from stillpoint.engine.mcap.log import McapLog
+from stillpoint.engine.mcap.reading import BadRecord, TornTail, walk_records
 
 MAGIC = b"\x89MCAP0\r\n"
 
@@ -38,6 +39,7 @@ class RecoveryReport:
     attachments: int = 0
     last_log_time_ns: int = 0
     stopped_at: str = ""  # why reading stopped ("" when the file ended cleanly)
+    bad_records: list = field(default_factory=list)  # unreadable records skipped (e.g. a bad chunk)
     per_topic: dict = field(default_factory=dict)
 
     def as_dict(self) -> dict:
@@ -66,9 +68,14 @@ def recover(path, out, *, compression: str = "zstd") -> RecoveryReport:
     topics: dict[int, str] = {}
     pending_channels: dict[int, Channel] = {}
     with open(path, "rb") as fin, McapLog(out, compression=compression) as w:
-        reader = StreamReader(fin, validate_crcs=True)
         try:
-            for rec in reader.records:
+            for rec in walk_records(fin):
+                if isinstance(rec, BadRecord):
+                    rep.bad_records.append(rec.describe())
+                    continue
+                if isinstance(rec, TornTail):
+                    rep.stopped_at = rec.describe()
+                    break
                 if isinstance(rec, Schema):
                     if rec.id not in schema_map:
                         w.define_schema(rec.name, rec.encoding, bytes(rec.data))

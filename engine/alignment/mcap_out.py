@@ -94,23 +94,20 @@ class AlignmentMcap:
 
 
 def read_topic_json(path, topic: str) -> list[dict]:
-    """All JSON messages of a topic (for tests and tools)."""
-    from mcap.reader import make_reader
-    with open(path, "rb") as f:
-        return [json.loads(m.data) for _, _, m in make_reader(f).iter_messages(topics=[topic])]
+    """All JSON messages of a topic (for tests and tools); CRC-checked, typed errors."""
+    from stillpoint.engine.mcap.reading import iter_messages, loads_json
+    return [loads_json(path, topic, i, m.data) for _, i, m in iter_messages(path, [topic])]
 
 
 def read_aligned(path) -> tuple[np.ndarray, np.ndarray]:
     """(time_ns, accel_g (n, 3)) of the aligned stream."""
-    from mcap.reader import make_reader
+    from stillpoint.engine.mcap.reading import decode, iter_messages
     from stillpoint.engine.mcap.schemas import times_from_deltas
     ts, xs = [], []
-    with open(path, "rb") as f:
-        for _, _, m in make_reader(f).iter_messages(topics=[TOPIC_ALIGNED]):
-            d = ACCEL_BATCH.decode(m.data)
-            ts.append(times_from_deltas(d["t0_ns"], d["dt_ns"]))
-            xs.append(np.column_stack([d["x"], d["y"], d["z"]]))
+    for _, i, m in iter_messages(path, [TOPIC_ALIGNED]):
+        d = decode(ACCEL_BATCH, path, TOPIC_ALIGNED, i, m.data)
+        ts.append(times_from_deltas(d["t0_ns"], d["dt_ns"]))
+        xs.append(np.column_stack([d["x"], d["y"], d["z"]]))
     if not ts:
         return np.zeros(0, np.int64), np.zeros((0, 3))
     return np.concatenate(ts), np.concatenate(xs).astype(np.float64)
-

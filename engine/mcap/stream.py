@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import struct
 import zlib
-from typing import BinaryIO, Iterable, Iterator, Optional
+from typing import BinaryIO, Iterable, Iterator, NamedTuple, Optional
 
 from . import records as rec
 
@@ -65,11 +65,44 @@ def _read_exact(f: BinaryIO, n: int, what: str) -> bytes:
     return b
 
 
-def iter_topic_messages(f: BinaryIO, topics: Iterable[str], *,
+class StreamedMessage(NamedTuple):
+    log_time: int
+    data: memoryview
+
+
+def iter_messages(path, topics: Optional[Iterable[str]] = None) -> Iterator[tuple]:
+    """(topic, index within its topic, message with ``log_time`` and ``data``) in file order,
+    chunk CRCs checked, in flat memory; the same contract as ``reading.iter_messages`` (a damaged
+    container is an ``McapReadError`` naming the file and where reading stopped)."""
+    from .reading import RECOVER_HINT, McapReadError, locate_damage
+    counts: dict[str, int] = {}
+    last: Optional[str] = None
+    try:
+        f = open(path, "rb")
+    except OSError as e:
+        from stillpoint.drivers.errors import CorruptRecordingError
+        raise CorruptRecordingError(path, f"cannot open: {e.strerror or e}") from None
+    with f:
+        try:
+            for topic, log_time, data in iter_topic_messages(f, topics):
+                i = counts.get(topic, 0)
+                counts[topic] = i + 1
+                last = topic
+                yield topic, i, StreamedMessage(log_time, data)
+        except (ValueError, struct.error, EOFError, OSError) as e:  # McapFormatError included
+            after = (f"after message {counts[last] - 1} of {last}" if last
+                     else "before the first message")
+            where = locate_damage(path)
+            raise McapReadError(path, f"unreadable MCAP data ({where or e}); {RECOVER_HINT}",
+                                record=after) from None
+
+
+def iter_topic_messages(f: BinaryIO, topics: Optional[Iterable[str]], *,
                         validate_crcs: bool = True) -> Iterator[tuple[str, int, memoryview]]:
-    """(topic, log_time, payload) of every message on ``topics``, in file order. ``f``: a
-    binary file positioned anywhere (it is rewound). Stops at Data End (or the end of file)."""
-    want = set(topics)
+    """(topic, log_time, payload) of every message on ``topics`` (None: every topic), in file
+    order. ``f``: a binary file positioned anywhere (it is rewound). Stops at Data End (or the
+    end of file)."""
+    want = None if topics is None else set(topics)
     f.seek(0)
     if f.read(8) != rec.MAGIC:
         raise McapFormatError("not an MCAP file (bad magic)")
@@ -85,7 +118,7 @@ def iter_topic_messages(f: BinaryIO, topics: Iterable[str], *,
         cid, _sid = struct.unpack_from("<HH", buf, p)
         known.add(cid)
         topic, _ = _str(buf, p + 4)
-        if topic in want:
+        if want is None or topic in want:
             channels[cid] = topic
 
     def walk(data: bytes):
@@ -128,7 +161,12 @@ def iter_topic_messages(f: BinaryIO, topics: Iterable[str], *,
         wanted = [(cid, e) for cid, e in idx if cid in channels]
         if guided and not wanted:
             return  # nothing of ours in it: not even decompressed
-        data = _decompressor(comp)(cdata, usize)
+        try:
+            data = _decompressor(comp)(cdata, usize)
+        except McapFormatError:
+            raise
+        except Exception as e:  # zstd/lz4 errors are not ValueErrors
+            raise McapFormatError(f"a chunk does not decompress ({type(e).__name__}: {e})") from None
         if len(data) != usize:
             raise McapFormatError("a chunk decompresses to the wrong size")
         if validate_crcs and crc and zlib.crc32(data) != crc:

@@ -44,6 +44,8 @@ def run(args) -> int:
         t = dt.datetime.fromtimestamp(rep.last_log_time_ns / 1e9, dt.timezone.utc)
         print(f"data up to {t.isoformat(timespec='seconds')}; per topic: "
               + ", ".join(f"{k} {v:,}" for k, v in sorted(rep.per_topic.items())))
+    for bad in rep.bad_records:
+        print(f"skipped an unreadable record, its messages are lost: {bad}")
     if rep.stopped_at:
         print(f"reading stopped at the torn tail: {rep.stopped_at}")
     return 0

@@ -203,6 +203,8 @@ class McapRawSource:
             else:
                 ev = _qc_event(path, topic, i, message.data)
                 if ev is not None:
+                    if group:  # the blocks logged before this event go first, as in the run
+                        yield joined()
                     self.qc.add(ev)
             while pending_raw and (not has_gyro or pending_gyro):
                 i, raw, n = pending_raw.pop(0)

@@ -222,3 +222,19 @@ def test_a_killed_runs_partial_log_is_kept_aside(rec, tmp_path):
     kept = s["outputs"]["earlier_partial_log"]
     assert kept.startswith(str(tmp_path / "k.mcap.part.")) and open(kept, "rb").read().endswith(b"run")
     conforms(out)
+
+
+def test_replay_keeps_reader_events_where_the_run_logged_them(tmp_path):
+    """A truncated GENEActiv file: the reader's events at the end of the file have no time of
+    their own and are pinned to the data time they were logged at. Replay joins raw messages
+    into larger blocks, yet logs every reader event where the run did (replay --check compares
+    every topic, /qc included)."""
+    from stillpoint.engine.sim import simulate_recording
+    p = tmp_path / "g.bin"
+    simulate_recording(p, device="geneactiv", days=0.05, hz=25, seed=4, truth_path=False)
+    data = p.read_bytes()
+    p.write_bytes(data[:len(data) - 1500])  # the last page torn
+    out = tmp_path / "g.mcap"
+    s = process_file(p, out, RunSettings(mode="online"))
+    assert s["qc"].get("events", 0) >= 1
+    assert cli(["replay", str(out), "-o", str(tmp_path / "g2.mcap"), "--check", "-q"]) == 0

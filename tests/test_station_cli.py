@@ -163,3 +163,27 @@ def test_end_to_end_emulate_and_station_over_pty(tmp_path, runtime):
     finally:
         emu_p.terminate()
         emu_p.wait(10)
+
+
+def test_live_table_on_a_terminal(emu, tmp_path, capsys):
+    import io
+    from stillpoint.drivers.ax.discovery import EmulatedBackend
+    from stillpoint.engine.station.flow import StationOptions
+    from stillpoint.engine.station.station import Station
+    emu(10001)
+    emu(10002, faults=("io-error",))
+    out = tmp_path / "out"
+    out.mkdir()
+    buf = io.StringIO()
+    with Station(StationOptions(str(out), inline=True), EmulatedBackend(), tty=True, out=buf,
+                 poll_s=0.05) as st:
+        assert st.run(once=True) == 2
+    text = buf.getvalue()
+    assert "\x1b[2K" in text and "\x1b[" in text  # redrawn in place
+    last = text.split("\x1b[2K")[-3:]
+    assert "verified" in last[1] and "[####################]" in last[1]
+    assert "error" in last[2] and "Input/output error" in last[2]
+    assert main(["devices", "--ledger", str(out), "--json"]) == 0
+    rows = {r["id"]: r["state"] for r in json.loads(capsys.readouterr().out)}
+    assert rows[10001] == "verified"
+    assert rows[10002].startswith("has data (last download failed: reading")

@@ -100,7 +100,10 @@ class DownloadWorker:
                 self.result = DownloadResult(**d)
                 self._reap()
         if self.result is None:
-            if time.monotonic() - self._last_progress > self.stall_s:
+            if self._cancel.is_set():
+                self.result = DownloadResult(ok=False, reason="stopped by the user; the partial copy "
+                                             "is kept and resumes next time", bytes=self.done)
+            elif time.monotonic() - self._last_progress > self.stall_s:
                 self._fail(f"reading the device stalled: no progress for {self.stall_s:g} s "
                            f"({self.phase} at {self.done} of {self.total} bytes); the download "
                            "was stopped and the partial copy is kept")

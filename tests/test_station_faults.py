@@ -12,7 +12,6 @@ import pytest
 from stillpoint.drivers.ax.discovery import EmulatedBackend
 from stillpoint.engine.station.download import DownloadJob
 from stillpoint.engine.station.flow import StationOptions
-from stillpoint.engine.station.ledger import Ledger
 from stillpoint.engine.station.station import Station, table_lines
 from stillpoint.engine.station.worker import DownloadWorker
 
@@ -63,7 +62,7 @@ def test_fault_ends_in_a_clear_state(emu, tmp_path, fault):
         assert rc == 2
         assert f.state == "error" and CASES[fault] in f.reason
         assert events[-1][1] == "error" and CASES[fault] in events[-1][2]  # in the ledger
-        assert f"10001 [emu-1] error: " in text  # in the plain line log
+        assert "10001 [emu-1] error: " in text  # in the plain line log
         assert any(CASES[fault] in line for line in table_lines([f]))
     # a clear only ever follows a verified download of the same device, session and content
     for c in bad.clears + good.clears:
@@ -102,7 +101,7 @@ def test_worker_process_download_ok(emu, tmp_path):
 
 
 def test_unplugged_download_resumes_when_the_device_returns(emu, tmp_path):
-    d = emu(10001, faults=("unplug-mid-copy",), replug_s=0.5)
+    emu(10001, faults=("unplug-mid-copy",), replug_s=0.5)
     out, st = _station(tmp_path)
     import threading
     import time

@@ -19,7 +19,7 @@ from typing import Optional
 from stillpoint.drivers.ax.discovery import discover
 from stillpoint.drivers.outputs import OutputError
 
-from .flow import FINAL_STATES, DeviceFlow, StationOptions
+from .flow import DeviceFlow, StationOptions
 from .ledger import Ledger, acquire_station_lock
 
 

@@ -6,7 +6,6 @@ from __future__ import annotations
 import concurrent.futures as cf
 import datetime as _dt
 import os
-from typing import Optional
 
 from stillpoint.drivers import constants as C
 from stillpoint.drivers.ax.discovery import Attached, discover

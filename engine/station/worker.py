@@ -14,7 +14,7 @@ import multiprocessing as mp
 import queue
 import threading
 import time
-from dataclasses import asdict
+
 from typing import Optional
 
 from .download import DownloadJob, DownloadResult, run_download

@@ -3,7 +3,6 @@ sync-time, stream) and `device emulate` (emulated AX3/AX6 devices for trying the
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from pathlib import Path

@@ -120,3 +120,31 @@ def test_unplugged_download_resumes_when_the_device_returns(emu, tmp_path):
     assert "error" in states and states[-1] == "cleared"
     assert [r.state for r in dls] == ["error", "verified"]
     assert (out / "10001_1.cwa").read_bytes()[:2] == b"MD"
+
+
+def test_a_blocked_discovery_never_stalls_the_loop(tmp_path, runtime):
+    import threading
+    import time
+    release = threading.Event()
+
+    class Stuck:  # a stat on a pulled drive blocked in the kernel
+        def ports(self):
+            return []
+
+        def volumes(self):
+            release.wait(10)
+            return []
+
+    out = tmp_path / "out"
+    out.mkdir()
+    st = Station(StationOptions(str(out)), Stuck(), tty=False, out=io.StringIO())
+    try:
+        t0 = time.monotonic()
+        assert st._discover(bound_s=0.2) is None
+        assert st._discover(bound_s=0.2) is None  # the same pass, not a second blocked one
+        assert time.monotonic() - t0 < 2
+        release.set()
+        assert st._discover(bound_s=2) == []
+    finally:
+        release.set()
+        st.close()

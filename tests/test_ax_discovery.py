@@ -5,7 +5,7 @@ from __future__ import annotations
 from stillpoint.drivers.ax.discovery import (EmulatedBackend, PortInfo, discover, is_ax_port,
                                              label_device, parse_mountinfo)
 
-from station_helpers import emu, runtime  # noqa: F401
+from station_fixtures import emu, runtime  # noqa: F401
 
 MANUF = "Newcastle University    "
 

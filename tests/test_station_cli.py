@@ -12,7 +12,7 @@ import time
 
 from stillpoint.tools.cli import main
 
-from station_helpers import emu, runtime  # noqa: F401
+from station_fixtures import emu, runtime  # noqa: F401
 
 PROFILE = """
 [device]

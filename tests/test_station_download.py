@@ -10,7 +10,7 @@ import pytest
 
 from stillpoint.engine.station.download import DownloadJob, run_download
 
-from station_helpers import emu, runtime  # noqa: F401
+from station_fixtures import emu, runtime  # noqa: F401
 
 
 def _job(d, out, **kw):

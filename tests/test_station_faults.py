@@ -15,7 +15,7 @@ from stillpoint.engine.station.flow import StationOptions
 from stillpoint.engine.station.station import Station, table_lines
 from stillpoint.engine.station.worker import DownloadWorker
 
-from station_helpers import emu, runtime  # noqa: F401
+from station_fixtures import emu, runtime  # noqa: F401
 
 CASES = {
     "unplug-mid-copy": "unplugged during the copy",

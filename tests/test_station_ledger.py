@@ -12,7 +12,7 @@ from stillpoint.engine.station.clearing import ClearRefused, clear_verified
 from stillpoint.engine.station.download import DownloadJob, run_download
 from stillpoint.engine.station.ledger import Ledger, LedgerError, acquire_station_lock
 
-from station_helpers import emu, runtime  # noqa: F401
+from station_fixtures import emu, runtime  # noqa: F401
 
 
 def test_wal_and_reopen(tmp_path):

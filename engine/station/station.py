@@ -108,7 +108,7 @@ class Station:
 
     # ------------------------------------------------------------------ loop
     def _discover(self, bound_s: float = 5.0):
-        """Discovery on a helper thread with a bound: a stat on a drive that was just pulled can
+        """Discovery on its own thread with a bound: a stat on a drive that was just pulled can
         block in the kernel, and the station loop must never wait on it. None: no answer yet."""
         if self._pending is None:
             box: dict = {}

@@ -101,7 +101,7 @@ class DeviceFlow:
         if self.worker is not None and not self.worker.finished:
             self.worker.cancel()
 
-    # ------------------------------------------------------------------ helpers
+    # ------------------------------------------------------------------ finding the drive again
     def _find(self) -> Optional[Attached]:
         for a in discover(self.backend):
             if a.serial == self.att.serial:

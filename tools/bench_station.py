@@ -16,6 +16,7 @@ USB speed reads the whole file a second time), and the peak RSS per worker proce
 "the correction never slows the copy" is the ratio full / copy wall.
 
     python tools/bench_station.py --days 1 [--devices 1 2 4] [--rate-mbps 1.2] [--json]
+    python tools/bench_station.py --days 7 --devices 1 --unthrottled-only   # a week, memory
 
 Recordings are simulated once (in --work, default a temporary folder) and reused.
 """
@@ -108,6 +109,7 @@ def main(argv=None) -> int:
     ap.add_argument("--devices", type=int, nargs="+", default=[1, 2, 4])
     ap.add_argument("--rate-mbps", type=float, default=1.2, help="throttled read rate (MB/s)")
     ap.add_argument("--work", type=Path, default=None)
+    ap.add_argument("--unthrottled-only", action="store_true", help="skip the throttled runs (long files)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
     work = args.work or Path(tempfile.mkdtemp(prefix="bench-station-"))
@@ -117,7 +119,10 @@ def main(argv=None) -> int:
     rows = []
     for n in args.devices:
         devs = devs_all[:n]
-        for label, thr in (("unthrottled", None), (f"{args.rate_mbps:g} MB/s", args.rate_mbps * 1e6)):
+        speeds = [("unthrottled", None)]
+        if not args.unthrottled_only:
+            speeds.append((f"{args.rate_mbps:g} MB/s", args.rate_mbps * 1e6))
+        for label, thr in speeds:
             row = {"devices": n, "speed": label}
             if thr is None:
                 row["cp"] = run_cp(devs, work)

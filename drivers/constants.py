@@ -38,6 +38,10 @@ def cwa_rate_hz(code: int) -> float:
     return 3200.0 / (1 << (15 - (code & 0x0F)))
 
 
+# rate codes 6..15 (low nibble) are the ones a data sector may carry: 6.25..3200 Hz [CWA] §5.2
+CWA_RATE_RANGE_HZ = (6.25, 3200.0)
+
+
 def cwa_range_g(code: int) -> int:
     """Accelerometer range from the rate code: 16 >> (code >> 6) g. [CWA] §5.2"""
     return 16 >> ((code >> 6) & 0x03)
@@ -121,6 +125,27 @@ RTC_TOLERANCE_PPM_AX = 50.0  # [ALN] AX3/AX6 RTC: +-50 ppm typical (about +-4.3 
 RTC_CRYSTAL_TURNOVER_C = 25.0  # [ALN] crystal frequency error is parabolic around ~25 degC
 RTC_CRYSTAL_PARABOLA_PPM_PER_C2 = -0.035  # [ALN] about -0.035 ppm/degC^2 around the turnover
 
+# ---------------------------------------------------------------------------- plausibility limits
+# Values outside these ranges are damage, not data. Each range is generous on purpose: it only has
+# to separate a real device's output from garbage (a flipped bit, an unset field, a fuzzed file).
+# Sample rates: the AX3/AX6 run 6.25-3200 Hz ([CWA] rate codes), the GENEActiv 10-100 Hz (GENEActiv
+# instructions manual, "Measurement Frequency"); 1-5000 Hz leaves room for both.
+PLAUSIBLE_RATE_HZ = (1.0, 5000.0)
+# GENEActiv header calibration (gain counts per g *100, offset counts *100): real devices hold
+# gains of ~25,000 and offsets within a few thousand ([GNA] §6.3 example header); a gain of 1e6 would
+# be 1,000x off.
+GNA_GAIN_MAX = 1_000_000
+GNA_OFFSET_MAX = 1_000_000
+# Device temperature (degC) and battery (V) a page can plausibly report: the MCP9700 sensor spans
+# -40..125 degC (Microchip MCP9700 datasheet); a Li-ion cell is below 5 V.
+PLAUSIBLE_TEMPERATURE_C = (-40.0, 125.0)
+PLAUSIBLE_BATTERY_V = (0.0, 6.0)
+# Recording times: int64 nanoseconds since 1970 cover 1677-09-21..2262-04-11 (numpy datetime64[ns]);
+# a time outside that cannot be represented at all. Within it, a time before 2000 or after 2100 is
+# kept but logged (no device we read existed or will run then: a clock that was never set).
+NS_TIME_RANGE_MS = (-9_223_372_036_854, 9_223_372_036_854)
+PLAUSIBLE_YEARS = (2000, 2100)
+PLAUSIBLE_TIME_NS = (946_684_800_000_000_000, 4_102_444_800_000_000_000)  # 2000-01-01, 2100-01-01 UTC
 
 # ----------------------------------------------------------------------------- AX3/AX6 over USB
 # [USB] /work/shared/specs/usb-protocols.md Part A (openmovement firmware Settings.c FW 50/56,

@@ -148,3 +148,22 @@ def test_a_blocked_discovery_never_stalls_the_loop(tmp_path, runtime):
     finally:
         release.set()
         st.close()
+
+
+def test_pipeline_finishing_after_the_last_read_is_not_a_stall(tmp_path):
+    """After the copy and the verification read, the pipeline may need minutes on a week-long
+    file; its heartbeat keeps the worker alive, while a frozen byte count does not."""
+    import time
+    job = DownloadJob(1, 1, str(tmp_path / "x"), str(tmp_path))
+    w = DownloadWorker(job, stall_s=0.3, inline=True)  # not started: messages fed by hand
+    for _ in range(5):
+        w._q.put(("progress", "finishing", 100, 100))
+        time.sleep(0.12)
+        w.poll()
+    assert w.result is None
+    w._q.put(("progress", "copy", 50, 100))
+    w.poll()
+    time.sleep(0.4)
+    w._q.put(("progress", "copy", 50, 100))  # the same count again: no progress
+    w.poll()
+    assert w.result is not None and "stalled" in w.result.reason

@@ -100,7 +100,9 @@ class DownloadWorker:
             except (queue.Empty, EOFError, OSError):
                 break
             if msg[0] == "progress":
-                changed = (msg[1], msg[2]) != (self.phase, self.done)
+                # the stall bound is about reading the device: a byte count that moves, or the
+                # heartbeat of the pipeline finishing on local data after the last read
+                changed = (msg[1], msg[2]) != (self.phase, self.done) or msg[1] == "finishing"
                 self.phase, self.done, self.total = msg[1], msg[2], msg[3]
                 if changed:
                     self._last_progress = time.monotonic()

@@ -211,3 +211,14 @@ def test_cli_bad_zone_is_one_line(tmp_path):
     r = subprocess.run([sys.executable, "-m", "stillpoint.tools", "process", str(rec), "--timezone",
                         "Nowhere/Land"], capture_output=True, text=True)
     assert r.returncode == 2 and "Nowhere/Land" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_export_from_the_mcap_gives_the_same_tables(dst_run):
+    out = dst_run.dir / "again.epochs.csv.gz"
+    r = subprocess.run([sys.executable, "-m", "stillpoint.tools", "export", str(dst_run.dir / "dst.mcap"),
+                        "-o", str(out)], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert "Europe/London" in r.stdout
+    assert read_epochs(out) == dst_run.epochs
+    assert read_days(dst_run.dir / "again.days.csv") == dst_run.days
+    assert not list(dst_run.dir.glob(".tables-*"))  # the re-run's MCAP is removed

@@ -222,3 +222,19 @@ def test_export_from_the_mcap_gives_the_same_tables(dst_run):
     assert read_epochs(out) == dst_run.epochs
     assert read_days(dst_run.dir / "again.days.csv") == dst_run.days
     assert not list(dst_run.dir.glob(".tables-*"))  # the re-run's MCAP is removed
+
+
+def test_report_page_is_written(dst_run, tmp_path):
+    from stillpoint.engine.report import write_report
+    out = write_report(dst_run.dir / "dst.mcap", out_png=tmp_path / "r.png", out_html=tmp_path / "r.html")
+    png = Path(out["report"]).read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 30_000
+    page = Path(out["report_html"]).read_text()
+    assert "data:image/png;base64," in page and "2026-03-29" in page
+
+
+def test_report_without_matplotlib_says_how_to_install(monkeypatch):
+    from stillpoint.engine import report
+    monkeypatch.setitem(sys.modules, "matplotlib", None)
+    with pytest.raises(report.ReportUnavailableError, match="pip install"):
+        report.require_matplotlib()

@@ -185,6 +185,8 @@ def _draw(plt, ep: dict, days: list[dict], windows, est, rec: dict, title: str, 
         d = by_date.get(date)
         if d:
             mark = "valid" if d.get("valid_day") == "1" else "not valid"
+            if float(d.get("day_hours") or 24) != 24:
+                mark += f"\n({float(d['day_hours']):g}-h day)"
             wh = float(d["wear_hours"])
             ax.text(1.01, 0.5, (f"{wh:.1f} h" if wh >= 1 else f"{wh * 60:.1f} min") + f" wear\n{mark}", transform=ax.transAxes,
                     fontsize=6.5, va="center")
@@ -219,7 +221,9 @@ def _draw(plt, ep: dict, days: list[dict], windows, est, rec: dict, title: str, 
     import matplotlib.dates as mdates
     loc = mdates.AutoDateLocator(maxticks=9)
     ax.xaxis.set_major_locator(loc)
-    ax.xaxis.set_major_formatter(mdates.ConciseDateFormatter(loc))
+    fmt = mdates.ConciseDateFormatter(loc)
+    fmt.offset_formats = [""] * 6  # the dates are on the ticks already
+    ax.xaxis.set_major_formatter(fmt)
     # calibration
     _calibration_panels(fig, gs[n_day + 3, :], windows, est)
     # QC box
@@ -262,7 +266,8 @@ def _calibration_panels(fig, spec, windows, est):
     ax.set_ylabel("windows", fontsize=7)
     ax.set_title(f"{len(before):,} nonmovement windows", fontsize=7.5)
     ax.tick_params(labelsize=6.5)
-    ax.legend(fontsize=5.5, loc="upper left", frameon=False, bbox_to_anchor=(0, -0.28))
+    ax.set_ylim(top=ax.get_ylim()[1] * 1.45)  # room for the legend above the bars
+    ax.legend(fontsize=5.5, loc="upper left", frameon=False)
     lim = max(r, float(np.percentile(np.abs(before), 99)) * 1.1)
     for j, name in enumerate("xyz"):
         a = fig.add_subplot(sub[0, j + 1])

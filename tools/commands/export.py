@@ -346,7 +346,9 @@ def export_recording(path, out, *, time_format: str = "iso", timezone=None, comp
                 pass
             if partial.exists():
                 partial.unlink()
-    return {"format": fmt, "output": str(out), "samples": sink.rows, "qc": src.qc.as_dict()}
+    from .inspect import zone_label
+    return {"format": fmt, "output": str(out), "samples": sink.rows, "qc": src.qc.as_dict(),
+            "timezone": zone_label(path, fmt, timezone)}
 
 
 def run(args) -> int:
@@ -366,4 +368,7 @@ def run(args) -> int:
         q = rep["qc"]
         print(f"wrote {rep['samples']} samples to {rep['output']} "
               f"({q['valid']} of {q['total']} {q['unit']}s valid, {len(q['events'])} QC event(s))")
+        tz = rep.get("timezone", "")
+        print(f"times: {tz}" + (" (the time column holds the device clock, not UTC)"
+                                if "unknown" in tz else " (the time column is UTC)"))
     return 0

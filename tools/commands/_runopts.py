@@ -60,9 +60,9 @@ def settings_overrides(args) -> dict:
 class Progress:
     """A one-line progress bar on a terminal (stderr); silent otherwise."""
 
-    def __init__(self, enabled=None, stream=sys.stderr):
-        self.stream = stream
-        self.enabled = stream.isatty() if enabled is None else enabled
+    def __init__(self, enabled=None, stream=None):
+        self.stream = sys.stderr if stream is None else stream  # looked up now, not at import
+        self.enabled = self.stream.isatty() if enabled is None else enabled
         self._last = 0.0
         self._shown = False
 

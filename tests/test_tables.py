@@ -246,3 +246,18 @@ def test_report_without_matplotlib_says_how_to_install(monkeypatch):
     monkeypatch.setitem(sys.modules, "matplotlib", None)
     with pytest.raises(report.ReportUnavailableError, match="pip install"):
         report.require_matplotlib()
+
+
+@pytest.mark.skipif(not REAL, reason="STILLPOINT_REAL_DATA is not set: real-recording test skipped")
+def test_cohort_takes_the_zone_and_writes_the_tables(tmp_path):
+    rec = Path(REAL) / "ax3_ggirread_testfile_100hz_145blocks.cwa"
+    out = tmp_path / "coh"
+    r = subprocess.run([sys.executable, "-m", "stillpoint.tools", "cohort", "run", str(rec), "-o", str(out),
+                        "--timezone", "Europe/London", "--scheduler", "serial"],
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    [days] = list(out.glob("files/*/*/recording.days.csv"))
+    rows = read_days(days)
+    assert rows[0]["timezone"] == "Europe/London" and rows[-1]["date"] == "all"
+    e = read_epochs(days.with_name("recording.epochs.csv.gz"))
+    assert e[0]["time_local"].endswith("+00:00") and e[0]["time_utc"].endswith("Z")

@@ -98,7 +98,8 @@ def _sphere(mcap, est_json: Optional[dict], settings: dict):
         if "sd_threshold_g" in settings:
             kw["sd_threshold"] = settings["sd_threshold_g"]
         nm = NonmovementOperator(**kw)
-        for b in src:
+        from .tables.from_mcap import _coalesced
+        for b in _coalesced(src):  # 10-min blocks instead of the log's 10-s messages
             nm.push(win.push(b))
         nm.push(win.flush())
     finally:

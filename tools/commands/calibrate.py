@@ -65,7 +65,7 @@ def add_arguments(parser) -> None:
 
 
 def estimate_json(est) -> dict:
-    """The CLI's JSON object: the issue's keys first, then the rest of the estimate."""
+    """The CLI's JSON object: the documented keys first, then the rest of the estimate."""
     d = est.to_dict()
     out = {k: d[k] for k in JSON_KEYS}
     extra = d.pop("extra", {}) or {}

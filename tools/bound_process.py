@@ -3,14 +3,15 @@ when written as straight numpy over each decoded block, without the engine's mac
 
     python tools/bound_process.py REC.cwa [--no-filter] [--no-zstd] [--zstd-level 1]
 
-The work, as process does it:
+The work, as process does it, in the fastest plain numpy forms (three contiguous rows instead of
+(n, 3)-by-(3,) broadcasts, exact integer sums for the window features):
 
 1. decode the file (the drivers' reader) and compute 10 s window features (mean and SD per axis,
    mean temperature, mean norm) with ``reduceat`` over each block; a fixed affine correction
    stands in for the fit (the fit is ~1 % of a run);
 2. decode the file again; per sample: temperature held per sector, affine correction with the
    temperature term, quantisation to 2^-16 g and float32, ENMO, the 4th-order Butterworth
-   band-pass (BFEN, ``scipy.signal.sosfilt`` with its state carried across blocks), 5 s epoch
+   band-pass (BFEN: scipy's compiled sosfilt kernel, state carried across blocks), 5 s epoch
    means of ENMO/BFEN/x/y/z/temperature; zstd (level 1) of the raw counts plus the float32
    corrected stream in 10 s pieces (the log's chunk cadence) and of the epoch rows.
 
@@ -34,20 +35,29 @@ EPOCH_NS = 5 * 10**9
 PIECE_NS = 10 * 10**9  # the log's default flush cadence
 
 
-def _window_features(t, g, temp):
+def _columns(acc, dtype=np.float64):
+    """(3, n) float copy of the (n, 3) counts (column by column: numpy's (n, 3)-by-(3,)
+    broadcasts are several times slower than three contiguous rows)."""
+    out = np.empty((3, acc.shape[0]), dtype)
+    for j in range(3):
+        out[j] = acc[:, j]
+    return out
+
+
+def _window_features(t, c, cpg, temp):
+    """Mean and SD per axis (exact sums of counts), mean temperature and mean norm per 10 s."""
     w = (t - t[0]) // WINDOW_NS
     st = np.concatenate([[0], np.flatnonzero(w[1:] != w[:-1]) + 1])
     cnt = np.diff(np.append(st, t.shape[0]))
     out = []
+    sq = c * c
     for j in range(3):
-        c = g[:, j]
-        s1 = np.add.reduceat(c, st)
-        s2 = np.add.reduceat(c * c, st)
-        out.append(s1 / cnt)
-        out.append(np.sqrt(np.maximum(s2 - s1 * s1 / cnt, 0) / np.maximum(cnt - 1, 1)))
+        s1 = np.add.reduceat(c[j], st)
+        s2 = np.add.reduceat(sq[j], st)
+        out.append(s1 / cnt / cpg)
+        out.append(np.sqrt((cnt * s2 - s1 * s1) / (cnt * np.maximum(cnt - 1, 1))) / cpg)
     out.append(np.add.reduceat(temp, st) / cnt)
-    norm = np.sqrt(g[:, 0] ** 2 + g[:, 1] ** 2 + g[:, 2] ** 2)
-    out.append(np.add.reduceat(norm, st) / cnt)
+    out.append(np.add.reduceat(np.sqrt(sq[0] + sq[1] + sq[2]), st) / cnt / cpg)
     return out
 
 
@@ -59,52 +69,58 @@ def main(argv=None) -> int:
     ap.add_argument("--zstd-level", type=int, default=1)
     a = ap.parse_args(argv)
     from stillpoint.drivers import open_recording
-    from stillpoint.engine.operators.filters import bandpass_sos
+    from stillpoint.engine.operators.filters import SosStream, bandpass_sos
 
     # pass 1: decode + window features
     windows = 0
     with open_recording(a.path) as src:
         rate = float(src.info.sample_rate_nominal)
         for b in src:
-            g = b.accel.astype(np.float64) / b.accel_counts_per_g
-            windows += len(_window_features(b.time_ns, g, b.temperature_per_sample())[0])
+            windows += len(_window_features(b.time_ns, _columns(b.accel), b.accel_counts_per_g[0],
+                                            b.temperature_per_sample())[0])
     offset, scale, tempoffset, tref = (np.array([0.01, -0.02, 0.03]), np.array([1.01, 0.99, 1.0]),
                                        np.array([1e-3, -5e-4, 2e-4]), 25.0)
     # pass 2: decode + correction + metrics + compression
-    sos = bandpass_sos(rate)
-    zi = np.zeros((sos.shape[0], 3, 2))
+    filt = SosStream(bandpass_sos(rate), 3)  # scipy's compiled sosfilt kernel, state carried
     comp = None
     if not a.no_zstd:
         import zstandard
         comp = zstandard.ZstdCompressor(level=a.zstd_level).compress
     n = nbytes = epochs = 0
-    from scipy.signal import sosfilt
     with open_recording(a.path) as src:
         for b in src:
             t = b.time_ns
-            temp = b.temperature_per_sample()
-            g = b.accel.astype(np.float64) / b.accel_counts_per_g
-            cal = (g + offset) * scale + (temp - tref)[:, None] * tempoffset
-            q = (np.round(cal * 65536.0) / 65536.0).astype(np.float32)
-            r = np.sqrt(np.einsum("ij,ij->i", cal, cal))
+            dT = b.temperature_per_sample() - tref
+            cal = _columns(b.accel)  # (3, n)
+            q = np.empty(cal.shape, np.float32)
+            r2 = np.zeros(t.shape[0])
+            for j in range(3):
+                c = cal[j]
+                c /= b.accel_counts_per_g[j]
+                c += offset[j]
+                c *= scale[j]
+                c += dT * tempoffset[j]
+                r2 += c * c
+                q[j] = np.rint(c * 65536.0) / 65536.0
+            r = np.sqrt(r2)
             enmo = np.maximum(r - 1.0, 0.0)
             if a.no_filter:
                 bfen = r
             else:
-                f, zi = sosfilt(sos, np.ascontiguousarray(cal.T), axis=-1, zi=zi)  # (3, n)
-                bfen = np.sqrt(np.einsum("ij,ij->j", f, f))
+                f = filt.push(cal.T)  # (n, 3) view of a filtered (3, n) copy
+                bfen = np.sqrt(f[:, 0] ** 2 + f[:, 1] ** 2 + f[:, 2] ** 2)
             e = t // EPOCH_NS
             st = np.concatenate([[0], np.flatnonzero(e[1:] != e[:-1]) + 1])
             cnt = np.diff(np.append(st, t.shape[0]))
-            rows = np.column_stack([np.add.reduceat(x, st) / cnt for x in
-                                    (enmo, bfen, cal[:, 0], cal[:, 1], cal[:, 2], temp)])
-            epochs += rows.shape[0]
+            rows = np.stack([np.add.reduceat(x, st) / cnt for x in
+                             (enmo, bfen, cal[0], cal[1], cal[2], dT)])
+            epochs += rows.shape[1]
             if comp is not None:
                 p = (t - t[0]) // PIECE_NS
                 cuts = np.concatenate([[0], np.flatnonzero(p[1:] != p[:-1]) + 1, [t.shape[0]]])
                 raw = b.accel
                 for i, j in zip(cuts[:-1], cuts[1:]):
-                    nbytes += len(comp(raw[i:j].tobytes() + q[i:j].tobytes()))
+                    nbytes += len(comp(raw[i:j].tobytes() + q[:, i:j].tobytes()))
                 nbytes += len(comp(rows.tobytes()))
             n += b.n
     print(f"{n} samples, {windows} windows, {epochs} epochs, {nbytes} compressed bytes")

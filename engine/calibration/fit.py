@@ -284,7 +284,8 @@ def fit_calibration(features: WindowFeatures, *, temperature: bool = True,
                     data_start_ns: Optional[int] = None, data_end_ns: Optional[int] = None,
                     window_s: float = WINDOW_S,
                     windows_offered: Optional[int] = None,
-                    start: Optional[CalibrationEstimate] = None) -> CalibrationEstimate:
+                    start: Optional[CalibrationEstimate] = None, quantisation_step_g=None,
+                    temperature_fallback: bool = True) -> CalibrationEstimate:
     """Fit the calibration on a table of window features and judge the result.
 
     ``features``: all windows of a recording (``select=True`` picks the nonmovement windows) or
@@ -300,7 +301,16 @@ def fit_calibration(features: WindowFeatures, *, temperature: bool = True,
     ``start``: an estimate to start the iteration from (re-referenced to these windows' mean
     temperature) instead of identity; same stopping rule, so the result is the same fixed point
     within ``param_tol``. Used by online refits, whose windows grow by a few percent per refit.
+
+    An applied fit carries one standard error per coefficient (``uncertainty``, block-robust:
+    engine/calibration/uncertainty.py) and the warnings of engine/calibration/trust.py in
+    ``extra["warnings"]``, ``extra["flags"]`` and the reason. With ``variant="auto"`` and
+    ``temperature_fallback`` a temperature term whose standard error is above the limit is
+    dropped and the model refitted without it (C1); the dropped fit is kept in
+    ``extra["temperature_dropped"]``. ``quantisation_step_g``: the stored values' step (g), for
+    the quantisation warning.
     """
+    call = dict(locals())
     if variant not in VARIANTS:
         raise ValueError(f"unknown variant {variant!r}; expected one of {', '.join(VARIANTS)}")
     if ggir_compatible and variant in ("offset", "scale"):
@@ -422,10 +432,62 @@ def fit_calibration(features: WindowFeatures, *, temperature: bool = True,
         status = "high_error"
         reason = (f"error {err_before_mg:.2f} -> {err_after_mg:.2f} mg on {n} windows is still "
                   f"above the {target_error_mg:g} mg target (applied){conv}{t_note}")
-    return CalibrationEstimate(
+    est = CalibrationEstimate(
         offset=r.offset, scale=r.scale, tempoffset=r.tempoffset, temperature_ref=t_ref,
         status=status, reason=reason, method=method, error_before_mg=err_before_mg,
         error_after_mg=err_after_mg, windows=n, iterations=r.iterations, **base)
+    return _judge(est, feats, t_ok, call)
+
+
+def _judge(est: CalibrationEstimate, feats: WindowFeatures, t_used: bool,
+           call: dict) -> CalibrationEstimate:
+    """Standard errors and warnings for an applied fit; the C1 fallback when the temperature
+    term is not determined (see :func:`fit_calibration`)."""
+    from .trust import FitWarning, add_warnings, assess, temperature_warning
+    from .uncertainty import BLOCK_GAP_S, MIN_BLOCKS, coefficient_uncertainty
+
+    variant = call["variant"]
+    u = coefficient_uncertainty(feats.mean, feats.temperature if t_used else None, est.offset,
+                                est.scale, est.tempoffset, est.temperature_ref, feats.start_ns,
+                                fit_offset=variant != "scale", fit_scale=variant != "offset")
+    est.uncertainty = u.to_dict()
+    est.extra["uncertainty_blocks"] = u.blocks
+    warnings = []
+    if u.blocks < MIN_BLOCKS:
+        warnings.append(FitWarning("uncertainty_unknown", (
+            f"standard errors not computable: the {len(feats)} windows form only {u.blocks} "
+            f"independent block(s) (< {MIN_BLOCKS}; windows more than {BLOCK_GAP_S / 60:g} min "
+            "apart start a new block)")))
+    tw = temperature_warning(est.tempoffset, u.tempoffset, feats.temperature,
+                             u.blocks) \
+        if t_used and u.blocks >= MIN_BLOCKS else None
+    if tw is not None:
+        if variant == "auto" and call["temperature_fallback"] and not call["ggir_compatible"]:
+            c1 = fit_calibration(**dict(call, variant="c1", start=None))
+            c1.extra["variant"] = variant
+            c1.extra["temperature_used"] = False
+            c1.extra["temperature_reason"] = tw.message
+            c1.extra["temperature_dropped"] = {
+                "offset": est.offset.tolist(), "scale": est.scale.tolist(),
+                "tempoffset": est.tempoffset.tolist(), "temperature_ref": est.temperature_ref,
+                "uncertainty": est.uncertainty, "error_after_mg": est.error_after_mg}
+            if c1.status in ("ok", "high_error"):
+                # the fallback's own warnings are already in; the reason for it goes first
+                c1.extra["warnings"].insert(0, tw.to_dict())
+                c1.extra["flags"].append(tw.code)
+                base, sep, rest = c1.reason.replace(
+                    "; temperature not part of variant c1", "").partition("; warning: ")
+                c1.reason = f"{base}; warning: {tw.message}{sep}{rest}"
+                return c1
+            est.extra["temperature_fallback_failed"] = c1.reason
+        why = ("GGIR-compatible mode" if call["ggir_compatible"] else
+               f"variant {variant} requested" if variant != "auto" else "fallback switched off")
+        tw.message = tw.message.split(": fitted without it")[0] + f": kept ({why})"
+        warnings.append(tw)
+    warnings += assess(est.uncertainty, feats.mean, feats.sd,
+                       quantisation_step_g=call["quantisation_step_g"])
+    add_warnings(est, warnings)
+    return est
 
 
 def estimate_error_mg(estimate: CalibrationEstimate, features: WindowFeatures) -> tuple[float, int]:

@@ -27,6 +27,7 @@ coefficient kind, |z| quantiles, and the bootstrap / sandwich SE ratios.
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 
@@ -180,6 +181,30 @@ def summary(rows: list, args) -> str:
     return "\n".join(lines)
 
 
+def _to_json(r):
+    if isinstance(r, dict):
+        return {k: _to_json(v) for k, v in r.items()}
+    if isinstance(r, (np.ndarray, list, tuple)):
+        return [_to_json(v) for v in r]
+    if isinstance(r, (np.floating, float)):
+        return None if not np.isfinite(r) else float(r)
+    if isinstance(r, np.integer):
+        return int(r)
+    return r
+
+
+def _from_json(line: str) -> dict:
+    def conv(v):
+        if isinstance(v, dict):
+            return {k: conv(x) for k, x in v.items()}
+        if isinstance(v, list) and all(x is None or isinstance(x, (int, float)) for x in v):
+            return np.array([np.nan if x is None else x for x in v], np.float64)
+        return v
+    r = conv(json.loads(line))
+    r["warnings"] = list(r["warnings"]) if not isinstance(r["warnings"], np.ndarray) else []
+    return r
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--recordings", type=int, default=50)
@@ -190,12 +215,20 @@ def main(argv=None) -> int:
     ap.add_argument("--bootstrap-every", type=int, default=5,
                     help="block bootstrap on every N-th recording (0: never)")
     ap.add_argument("--replicates", type=int, default=100)
+    ap.add_argument("--rows-out", metavar="JSONL",
+                    help="also append each recording's scores to this file (one JSON line)")
+    ap.add_argument("--summarise", nargs="+", metavar="JSONL",
+                    help="instead: print the summary of rows saved by --rows-out (several runs)")
     ap.add_argument("--files", nargs="+", metavar="CWA",
                     help="instead: score `calibrate` on these simulated recordings (each with "
                          "its .truth.json)")
     args = ap.parse_args(argv)
     if args.files:
         print_file_scores(args.files)
+        return 0
+    if args.summarise:
+        rows = [_from_json(line) for f in args.summarise for line in open(f) if line.strip()]
+        print(summary(rows, args))
         return 0
     rows = []
     for i in range(args.recordings):
@@ -205,6 +238,9 @@ def main(argv=None) -> int:
         r = run_recording(seed, days=args.days, hz=args.hz, packed=not args.unpacked,
                           replicates=boot)
         rows.append(r)
+        if args.rows_out:
+            with open(args.rows_out, "a") as fh:
+                fh.write(json.dumps(_to_json(r)) + "\n")
         z = np.concatenate([r["c2"][k] for k in KINDS])
         print(f"seed {seed}: {r['windows']} windows, {r['blocks']} blocks, C2 |z| max "
               f"{np.nanmax(np.abs(z)):.2f}, tempoffset error "

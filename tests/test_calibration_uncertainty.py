@@ -127,16 +127,21 @@ def test_warnings_few_faces_quantisation_and_blocks():
     # the bound: 15.6 mg steps under 2.8 mg noise leave 2.6 mg; 3.9 mg steps nothing
     assert quantisation_bias_bound_mg(15.625, 2.83) == pytest.approx(2.6, abs=0.05)
     assert quantisation_bias_bound_mg(3.906, 2.83) < 1e-3
-    # a table of windows without times: one block, no standard errors, said so
+    # a table of windows without times (10 s apart): blocks are cut at posture changes only;
+    # six postures give six blocks and standard errors, four would give none
     v6 = np.vstack([v, [[0, 1, 0], [0, -1, 0]]])
-    m6 = v6[rng.integers(0, 6, 400)] + rng.normal(0, 0.02, (400, 3))
-    f = WindowFeatures.from_arrays(m6 / np.linalg.norm(m6, axis=1)[:, None] * 1.01, sd,
-                                   np.full(400, 25.0))
+    m6 = np.repeat(v6, 60, axis=0) + rng.normal(0, 0.002, (360, 3))
+    m6 = m6 / np.linalg.norm(m6, axis=1)[:, None] * 1.01
+    f = WindowFeatures.from_arrays(m6, np.full((360, 3), 0.003), np.full(360, 25.0))
     est = fit_calibration(f, select=False, temperature=False)
-    assert est.status == "ok"
-    assert est.uncertainty["offset"] == [None] * 3
-    assert "uncertainty_unknown" in est.extra["flags"]
+    assert est.status == "ok" and est.extra["uncertainty_blocks"] == 6
+    assert all(v > 0 for v in est.uncertainty["offset"])
+    u = coefficient_uncertainty(m6[:240], None, est.offset, est.scale, est.tempoffset, 0.0,
+                                f.start_ns[:240])
+    assert u.blocks == 4 and np.all(np.isnan(u.offset))
     assert window_blocks(np.array([0, 10, 5000, 20]) * 10**9).tolist() == [0, 0, 1, 0]
+    assert window_blocks(np.arange(4) * 10**10, mean=np.array(
+        [[0, 0, 1], [0, 0, 1.01], [0, 1, 0], [0, 1, 0]])).tolist() == [0, 0, 1, 1]
 
 
 def test_uncertainty_in_cli_process_mcap_and_store(tmp_path, capsys):

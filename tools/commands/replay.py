@@ -8,6 +8,7 @@ from pathlib import Path
 from stillpoint.drivers.mcap_replay import McapRawSource
 
 from ._runopts import OptionError, add_setting_arguments
+from ._staticopts import add_static_arguments
 from .process import build_settings, default_output, execute
 
 NAME = "replay"
@@ -25,6 +26,7 @@ def add_arguments(p) -> None:
     p.add_argument("--check", action="store_true",
                    help="compare the output with IN topic by topic; exit 1 if they differ")
     p.add_argument("-q", "--quiet", action="store_true")
+    add_static_arguments(p)
     add_setting_arguments(p, defaults_from_input=True)
     p.set_defaults(store=None)
 

@@ -69,12 +69,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "values for parameters not given")
     p.add_argument("--save-model", default=None, help="also write the resolved sensor model JSON here")
     p.add_argument("--json", action="store_true", help="print a JSON summary")
+    from . import _static_scenarios
+    _static_scenarios.add_arguments(p)
 
 
 def run(args) -> int:
     from stillpoint.engine.sim.model import ModelError, parse_effect_option
     from stillpoint.engine.sim.record import build_model, simulate_pair, simulate_recording
 
+    if getattr(args, "scenario", "free-living") != "free-living":
+        from . import _static_scenarios
+        return _static_scenarios.run(args)
     out = Path(args.output)
     ext = {"ax3": ".cwa", "ax6": ".cwa", "geneactiv": ".bin"}[args.device]
     if not (out.name.endswith(ext) or out.name.endswith(ext + ".gz")):

@@ -9,7 +9,7 @@ import pytest
 from stillpoint.engine.alignment.lags import LagEstimator, normalized_xcorr, peak_lag
 from stillpoint.engine.alignment.signal import (DEAD_BAND_G, GridResampler, TemperatureTrack,
                                                 brond_filter)
-from stillpoint.engine.alignment.synthetic import DeviceClock, SyntheticPair
+from synthetic_alignment import DeviceClock, SyntheticPair
 from stillpoint.engine.blocks import Block
 
 

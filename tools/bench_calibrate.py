@@ -1,10 +1,10 @@
 """Benchmark: ``stillpoint calibrate`` on a 7-day 100 Hz packed AX3 file vs scikit-digital-health's
-read + autocalibration of the same file, in the same run (issue 5: >= 4x faster, peak RSS < 200 MB).
+read + autocalibration of the same file, in the same run (targets: >= 4x faster, peak RSS < 200 MB).
 
     /work/venv/bin/python tools/bench_calibrate.py [--days 7] [--rate 100] [--workdir DIR]
                                                    [--peers /work/peers/bin/python] [--repeat 1]
 
-The recording is synthetic with a known calibration error (engine.calibration.synthetic: still
+The recording is synthetic with a known calibration error (tests/synthetic_calibration.py: still
 runs over the sphere, daily temperature cycle, 5 mg noise) written with the project's CwaWriter,
 cached in --workdir. Every command runs in its own child process; wall time and the child's peak
 RSS (``resource.getrusage(RUSAGE_CHILDREN).ru_maxrss`` in a wrapper) are printed, plus ratios
@@ -27,8 +27,9 @@ from benchlib import DECODE_PASS, SKDH_READ_AUTOCAL, measure, peers_python
 def make_recording(path: Path, days: float, rate: float, seed: int = 7) -> dict:
     import numpy as np
 
-    from stillpoint.engine.calibration.synthetic import (random_truth, synthetic_recording,
-                                                         write_synthetic_cwa)
+    import testdoubles  # noqa: F401  (tests/ on sys.path)
+    from synthetic_calibration import (random_truth, synthetic_recording,
+                                       write_synthetic_cwa)
 
     truth = random_truth(np.random.default_rng(seed))
     rec = synthetic_recording(days * 24.0, truth, seed=seed + 1)

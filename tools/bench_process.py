@@ -15,7 +15,7 @@ peak RSS of that child and its children via ``getrusage(RUSAGE_CHILDREN)``):
 * peak RSS of ``process`` on 1-, 7- and 14-day files (must be flat and < 300 MB);
 * MCAP size against the input .cwa (must be <= 2x).
 
-Recordings are written once with the calibration issue's synthetic generator (packed AX3, 100 Hz,
+Recordings are written once with the synthetic window-feature generator of tests/synthetic_calibration.py (packed AX3, 100 Hz,
 known sensor errors) into ``--workdir`` and reused (same names as tools/bench_calibrate.py).
 The machine is shared and noisy: read the ratios, not the seconds.
 """
@@ -75,8 +75,9 @@ def recording(workdir: Path, days: float, rate: float) -> Path:
         return path
     import numpy as np
 
-    from stillpoint.engine.calibration.synthetic import (random_truth, synthetic_recording,
-                                                         write_synthetic_cwa)
+    import testdoubles  # noqa: F401  (tests/ on sys.path)
+    from synthetic_calibration import (random_truth, synthetic_recording,
+                                       write_synthetic_cwa)
     t = time.perf_counter()
     truth = random_truth(np.random.default_rng(7))
     rec = synthetic_recording(days * 24.0, truth, seed=8)

@@ -85,9 +85,9 @@ def main(argv=None) -> int:
 
     est = json.loads(res["calibrate"]["out"])
     print(f"\nfile: {path.name}, {args.days:g} days at {args.rate:g} Hz, {size_mb:.0f} MB")
-    print(f"{'command':<34} {'wall (s)':>9} {'peak RSS (MB)':>14}")
+    print(f"{'command':<34} {'wall (s)':>9} {'CPU (s)':>8} {'peak RSS (MB)':>14}")
     for k, r in res.items():
-        print(f"{k:<34} {r['wall']:>9.2f} {r['rss_mb']:>14.0f}")
+        print(f"{k:<34} {r['wall']:>9.2f} {r['cpu']:>8.2f} {r['rss_mb']:>14.0f}")
     ours = res["calibrate"]
     print("\nratios (same run):")
     if have_skdh:
@@ -101,8 +101,12 @@ def main(argv=None) -> int:
               f"{sk['rss_mb'] / ours['rss_mb']:.1f}x")
     else:
         print(f"  (peer tools' Python not found ({args.peers or 'default'}): skdh skipped)")
+    dec = res["decode (CwaReader, whole file)"]
+    ra = res["calibrate --read-all"]
     print(f"  calibrate / plain decode of the whole file    = "
-          f"{ours['wall'] / res['decode (CwaReader, whole file)']['wall']:.2f}")
+          f"{ours['wall'] / dec['wall']:.2f} wall, {ours['cpu'] / dec['cpu']:.2f} CPU")
+    print(f"  calibrate --read-all / plain decode           = "
+          f"{ra['wall'] / dec['wall']:.2f} wall, {ra['cpu'] / dec['cpu']:.2f} CPU (target <= 1.3x)")
     print(f"  stillpoint calibrate peak RSS                 = {ours['rss_mb']:.0f} MB "
           "(target < 200 MB)")
     import numpy as np

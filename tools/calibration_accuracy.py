@@ -97,7 +97,7 @@ def score(est, truth_at, sel) -> dict:
 def run_seed(feats: WindowFeatures, truth_at) -> dict:
     sel = select_calibration_windows(feats).features
     rows = {}
-    rows["stillpoint (C2, converged)"] = fit_batch_schedule(feats)
+    rows["stillpoint (C2, converged)"] = fit_batch_schedule(feats, variant="c2")
     rows["GGIR-compatible stop rule"] = fit_batch_schedule(feats, ggir_compatible=True)
     rows["C1 (no temperature)"] = fit_batch_schedule(feats, temperature=False)
     rows["offset only"] = fit_batch_schedule(feats, variant="offset")

@@ -105,7 +105,10 @@ def detect_signals(sig: LegSignals, *, variant: str = "v2", filter: str = "none"
         raise MovementInputError(f"{where}: the recording holds no usable samples ({n})")
     if sig.fs <= 0:
         raise MovementInputError(f"{where}: the header gives no sample rate")
-    a = apply_filter(detrend(sig.acc_norm), filter, sig.fs)
+    try:
+        a = apply_filter(detrend(sig.acc_norm), filter, sig.fs)
+    except ValueError as e:
+        raise MovementInputError(f"{where}: --filter {filter}: {e}") from None
     w = None
     if not accel_only:
         w = detrend(sig.gyro_norm) * DEG_TO_RAD
@@ -151,8 +154,6 @@ def count_leg(path, calibration=None, *, variant: str = "v2", filter: str = "non
             "angular-velocity gate (AX6). Use the accel-only variant (not validated) to run anyway")
     if accel_only:
         flags.append("accel-only variant: gyro gate always open; NOT VALIDATED")
-    if timing == "nominal" and resample_hz:
-        pass
     cal_info: dict = {"applied": False}
     if calibration is not None:
         if calibration.device_key and calibration.device_key != info.device_key:

@@ -38,6 +38,9 @@ def add_arguments(p) -> None:
                    help="resample onto a uniform grid first (the HBCD release also reports 20 Hz)")
     p.add_argument("--accel-only", action="store_true",
                    help="AX3/GENEActiv: run without the gyro gate (NOT VALIDATED)")
+    p.add_argument("--strict-gyro", action="store_true",
+                   help="require rotation on every sample of a movement (the paper's wording) "
+                        "instead of at the samples the reference code checks")
     p.add_argument("--nominal-time", action="store_true",
                    help="reference arithmetic: samples / nominal rate for durations and rates "
                         "(default: the recording's timestamps)")
@@ -113,7 +116,7 @@ def run(args) -> int:
                                  resample_hz=args.resample, accel_only=args.accel_only,
                                  timing="nominal" if args.nominal_time else "real",
                                  full_matrix=True if args.full_matrix else None,
-                                 keep_signals=bool(args.plot)))
+                                 keep_signals=bool(args.plot), strict_gyro=args.strict_gyro))
     legs = [r[0] if isinstance(r, tuple) else r for r in results]
     outputs = {}
     if args.output:

@@ -176,6 +176,9 @@ def test_process_applies_static_calibration(capsys, files, tmp_path):
     assert msgs[0]["extra"]["static"]["faces"]["+x"]["samples"] > 0
     code, text, _ = cli(capsys, "replay", out, "-o", tmp_path / "r.mcap", "--check", "-q")
     assert code == 0 and "DIFFERENT" not in text
+    code, _, err = cli(capsys, "process", files["left"], "-o", tmp_path / "n.mcap", "--static", cal,
+                       "--no-calibrate", "-q")
+    assert code == 2 and "--no-calibrate" in err and not (tmp_path / "n.mcap").exists()
     # the right leg's device is not the calibration's
     code, _, err = cli(capsys, "process", files["right"], "-o", tmp_path / "r2.mcap", "--static", cal,
                        "-q")

@@ -112,7 +112,8 @@ def detect_signals(sig: LegSignals, *, variant: str = "v2", filter: str = "none"
         raise MovementInputError(f"{where}: --filter {filter}: {e}") from None
     w = None
     if not accel_only:
-        w = detrend(sig.gyro_norm) * DEG_TO_RAD
+        w = detrend(sig.gyro_norm)
+        w *= DEG_TO_RAD
     mv, th = D.detect_movements(a, w, sig.fs, variant)
     if not th.usable:
         raise MovementInputError(

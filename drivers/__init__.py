@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .byteio import check_recording_path, open_bytes, read_exact
+from .byteio import check_recording_path, open_bytes, read_exact, stream_damage
 from .errors import (CorruptRecordingError, RecordingError, StillpointError,
                      TruncatedRecordingError, UnsupportedFormatError)
 
@@ -26,9 +26,12 @@ def sniff_format(path) -> str:
     try:
         with open_bytes(p) as f:
             head = read_exact(f, 512)
+            damage = stream_damage(f)
     except (OSError, EOFError) as e:
         raise CorruptRecordingError(p, f"cannot read the file: {e}") from None
     if not head:
+        if damage:
+            raise CorruptRecordingError(p, f"nothing readable: {damage}")
         raise TruncatedRecordingError(p, "file is empty after decompression")
     if head.startswith(MCAP_MAGIC):
         return "mcap"

@@ -3,10 +3,10 @@ and *follow* mode for a file that is still being written (a download in progress
 
 from __future__ import annotations
 
-import gzip
 import io
 import os
 import time
+import zlib
 from typing import BinaryIO, Callable, Optional
 
 GZIP_MAGIC = b"\x1f\x8b"
@@ -18,10 +18,114 @@ def is_gzip(path) -> bool:
 
 
 def open_bytes(path) -> BinaryIO:
-    """Open ``path`` for reading bytes; gzip files are decompressed transparently as a stream."""
+    """Open ``path`` for reading bytes; gzip files are decompressed transparently as a stream
+    (``GzipStream``: a damaged stream ends early and says why in ``.damage``)."""
     if is_gzip(path):
-        return gzip.open(path, "rb")  # type: ignore[return-value]
+        return GzipStream(path)  # type: ignore[return-value]
     return open(path, "rb", buffering=0)
+
+
+def stream_damage(f) -> Optional[str]:
+    """Why a stream from ``open_bytes`` ended early (a damaged or truncated gzip), else None."""
+    return getattr(f, "damage", None) or getattr(f, "idle_stop", None)
+
+
+class GzipStream(io.RawIOBase):
+    """A gzip file decompressed as a stream that returns every byte decompressible before any
+    damage, then ends (EOF) with the reason in ``.damage`` instead of raising.
+
+    Multi-member files are read member after member; the gzip trailer (CRC-32, length) of each
+    member is checked by zlib. Output per call is bounded (``_OUT_LIMIT``), so a small damaged
+    stream cannot expand into a huge allocation in one step.
+    """
+
+    _IN_BYTES = 1 << 14
+    _OUT_LIMIT = 1 << 20
+
+    def __init__(self, path):
+        self._f = open(path, "rb", buffering=0)
+        self._d = zlib.decompressobj(16 + zlib.MAX_WBITS)
+        self._pending = b""
+        self._pos = 0
+        self._in = 0  # compressed bytes consumed so far
+        self._done = False
+        self.damage: Optional[str] = None
+
+    def readable(self) -> bool:
+        return True
+
+    def _stop(self, why: Optional[str]) -> None:
+        self._done = True
+        self.damage = why
+
+    def _feed(self, data: bytes) -> None:
+        saved = self._d.copy()
+        try:
+            out = self._d.decompress(data, self._OUT_LIMIT)
+        except zlib.error as e:
+            # zlib drops the whole call's output on an error: replay it in small pieces from the
+            # saved state to keep every byte that decompresses before the damage
+            self._pending, self._pos = self._salvage(saved, data), 0
+            self._stop(f"damaged gzip data within compressed bytes {max(0, self._in - len(data))}.."
+                       f"{self._in}: {e}")
+            return
+        self._pending = out
+        self._pos = 0
+        if self._d.eof:
+            rest = self._d.unused_data
+            if not rest:
+                rest = self._f.read(self._IN_BYTES)
+                self._in += len(rest)
+            if not rest:
+                self._done = True  # clean end
+            elif rest[:2] == GZIP_MAGIC:
+                self._d = zlib.decompressobj(16 + zlib.MAX_WBITS)
+                self._tail = rest
+            elif not rest.strip(b"\0"):
+                self._done = True  # zero padding after the stream (as gzip tolerates)
+            else:
+                self._stop(f"{len(rest)}+ bytes that are not gzip data after compressed byte "
+                           f"{self._in - len(rest)}")
+
+    @staticmethod
+    def _salvage(d, data: bytes) -> bytes:
+        out = []
+        for i in range(0, len(data), 64):
+            try:
+                out.append(d.decompress(data[i:i + 64]))
+            except zlib.error:
+                break
+            if d.eof:
+                break
+        return b"".join(out)
+
+    def _fill(self) -> None:
+        tail = getattr(self, "_tail", b"") or self._d.unconsumed_tail
+        self._tail = b""
+        if tail:
+            self._feed(tail)
+            return
+        raw = self._f.read(self._IN_BYTES)
+        if not raw:
+            self._stop(f"the gzip stream ends after {self._in} compressed bytes, before its "
+                       "end marker (truncated file)")
+            return
+        self._in += len(raw)
+        self._feed(raw)
+
+    def readinto(self, b) -> int:
+        while self._pos >= len(self._pending):
+            if self._done:
+                return 0
+            self._fill()
+        n = min(len(b), len(self._pending) - self._pos)
+        b[:n] = self._pending[self._pos:self._pos + n]
+        self._pos += n
+        return n
+
+    def close(self) -> None:
+        self._f.close()
+        super().close()
 
 
 def read_exact(f: BinaryIO, n: int) -> bytes:
@@ -50,6 +154,7 @@ class FollowingReader(io.RawIOBase):
         self._is_done = is_done or (lambda: False)
         self._poll = poll_interval
         self._idle = idle_timeout
+        self.idle_stop: Optional[str] = None  # why reading stopped, when it was the idle timeout
 
     def readable(self) -> bool:
         return True
@@ -62,7 +167,11 @@ class FollowingReader(io.RawIOBase):
                 return n
             if self._is_done() or waited >= self._idle:
                 # one last read after done, to catch bytes written just before
-                return self._f.readinto(b) or 0
+                n = self._f.readinto(b) or 0
+                if not n and not self._is_done():
+                    self.idle_stop = (f"no new bytes for {self._idle:g} s: follow mode stopped "
+                                      "reading (the file may still be growing)")
+                return n
             time.sleep(self._poll)
             waited += self._poll
 

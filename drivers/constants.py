@@ -38,6 +38,10 @@ def cwa_rate_hz(code: int) -> float:
     return 3200.0 / (1 << (15 - (code & 0x0F)))
 
 
+# rate codes 6..15 (low nibble) are the ones a data sector may carry: 6.25..3200 Hz [CWA] §5.2
+CWA_RATE_RANGE_HZ = (6.25, 3200.0)
+
+
 def cwa_range_g(code: int) -> int:
     """Accelerometer range from the rate code: 16 >> (code >> 6) g. [CWA] §5.2"""
     return 16 >> ((code >> 6) & 0x03)
@@ -120,3 +124,57 @@ def gna_light_lux(raw, lux, volts):
 RTC_TOLERANCE_PPM_AX = 50.0  # [ALN] AX3/AX6 RTC: +-50 ppm typical (about +-4.3 s a day)
 RTC_CRYSTAL_TURNOVER_C = 25.0  # [ALN] crystal frequency error is parabolic around ~25 degC
 RTC_CRYSTAL_PARABOLA_PPM_PER_C2 = -0.035  # [ALN] about -0.035 ppm/degC^2 around the turnover
+
+# ---------------------------------------------------------------------------- plausibility limits
+# Values outside these ranges are damage, not data. Each range is generous on purpose: it only has
+# to separate a real device's output from garbage (a flipped bit, an unset field, a fuzzed file).
+# Sample rates: the AX3/AX6 run 6.25-3200 Hz ([CWA] rate codes), the GENEActiv 10-100 Hz (GENEActiv
+# instructions manual, "Measurement Frequency"); 1-5000 Hz leaves room for both.
+PLAUSIBLE_RATE_HZ = (1.0, 5000.0)
+# GENEActiv header calibration (gain counts per g *100, offset counts *100): real devices hold
+# gains of ~25,000 and offsets within a few thousand ([GNA] §6.3 example header); a gain of 1e6 would
+# be 1,000x off.
+GNA_GAIN_MAX = 1_000_000
+GNA_OFFSET_MAX = 1_000_000
+# Device temperature (degC) and battery (V) a page can plausibly report: the MCP9700 sensor spans
+# -40..125 degC (Microchip MCP9700 datasheet); a Li-ion cell is below 5 V.
+PLAUSIBLE_TEMPERATURE_C = (-40.0, 125.0)
+PLAUSIBLE_BATTERY_V = (0.0, 6.0)
+# Recording times: int64 nanoseconds since 1970 cover 1677-09-21..2262-04-11 (numpy datetime64[ns]);
+# a time outside that cannot be represented at all. Within it, a time before 2000 or after 2100 is
+# kept but logged (no device we read existed or will run then: a clock that was never set).
+NS_TIME_RANGE_MS = (-9_223_372_036_854, 9_223_372_036_854)
+PLAUSIBLE_YEARS = (2000, 2100)
+PLAUSIBLE_TIME_NS = (946_684_800_000_000_000, 4_102_444_800_000_000_000)  # 2000-01-01, 2100-01-01 UTC
+
+# ----------------------------------------------------------------------------- AX3/AX6 over USB
+# [USB] /work/shared/specs/usb-protocols.md Part A (openmovement firmware Settings.c FW 50/56,
+#       usb_descriptors.c, OmApi omapi-internal.c / omapi-devicefinder-linux.c, axconfig ax3device.mjs)
+AX_USB_VID = 0x04D8  # [USB] A1: Microchip VID, normal run mode (generic composite: never enough alone)
+AX_USB_PID = 0x0057  # [USB] A1
+AX_MANUFACTURER = "Newcastle University"  # [USB] A1: manufacturer string (space padded)
+AX_SERIAL_PREFIXES = {"CWA": "AX3", "AX6": "AX6"}  # [USB] A1: serial prefix -> device type
+AX_LABEL_PREFIXES = ("AX3", "AX6")  # [USB] A1: volume label AX317_<id> / AX664_<id>
+AX_DATA_FILE = "CWA-DATA.CWA"  # [USB] A1: data file in the volume root
+AX_ID_TYPES = {"CWA": "AX3", "AX6": "AX6"}  # [USB] A5: first field of the ID reply
+AX_MAX_LINE = 127  # [USB] A3: characters kept per input line
+AX_TIMEOUT_S = 2.0  # [USB] A3: OmApi default per-command timeout (2000 ms)
+AX_TIMEOUT_COMMIT_S = 6.0  # [USB] A3: COMMIT / CLEAR DATA / FORMAT QC (6000 ms)
+AX_TIMEOUT_FORMAT_WIPE_S = 15.0  # [USB] A3: FORMAT WC (15000 ms)
+AX_COMMIT_REMOUNT_S = 20.0  # [USB] A5/A7: drive re-insertion after a delayed activation (axconfig
+#                             waits up to 8-15 s for COMMIT; we allow 20 s for the volume to return)
+AX_BOOTLOADER_S = 5.0  # [USB] A1: "enumerates briefly (a few seconds) as a bootloader device"
+AX_TIME_TOLERANCE_S = 2.0  # [USB] A7 step 4: echoed time within 2 s
+AX_CONFIGURE_RETRIES = 3  # [USB] A7 step 11: each step retried up to 3 times, 1 s apart
+AX_STREAM_HZ = 100.0  # [USB] A6: at most one line per 1/100 s of RTC time
+AX_STREAM_COUNTS_PER_G_AX3 = 256.0  # [USB] A6: AX3 g = value / 256
+AX_STREAM_COUNTS_PER_G_AX6 = 4096.0  # [USB] A6: AX6 accel / 4096 at the default +-8 g (open question)
+AX_GYRO_RANGES_DPS = (125, 250, 500, 1000, 2000)  # [USB] A5: RATE gyroRange (125 OmApi only)
+AX_DATETIME_NEVER = "-1"  # [USB] A4: "-1" = never / infinitely late
+AX_DATETIME_ALWAYS = "0"  # [USB] A4: "0" = always / infinitely early
+# [USB] A5 closing note: factory / destructive commands the host never sends
+AX_FORBIDDEN_COMMANDS = ("WRITEL", "READRAW", "WRITERAW", "ERASERAW", "FILEBLOCK", "BADBLOCK",
+                         "FORMAT D", "TEST_RESULTS", "LOGFILE", "EXIT", "DEVICE ", "RESET", "CLEAR ALL",
+                         "LOCK", "ILOCK", "UNLOCK")
+AX_EMPTY_DATA_BYTES = 1024  # [USB] A7 step 3: axconfig: a data file > 1024 bytes still holds data
+AX_STREAM_STOP_S = 5.0  # [USB] A6: OmApi gives up flushing a running stream after 5 s

@@ -98,9 +98,11 @@ def decode_samples(sec: np.ndarray, fmt: int, counts: np.ndarray):
     s = np.ascontiguousarray(raw[:, 30:30 + spp * bps]).view("<i2").reshape(k * spp, ch)
     if not full:
         s = s[(np.arange(spp) < counts[:, None]).reshape(-1)]
+    # The result must own its memory: ``sec`` may view the reader's reusable buffer, and a
+    # one-sector batch makes ``s`` a plain view of it (which ascontiguousarray would not copy).
     if ch == 6:
-        return np.ascontiguousarray(s[:, 3:6]), np.ascontiguousarray(s[:, 0:3])
-    return (s if s.flags.c_contiguous and s.base is None else np.ascontiguousarray(s)), None
+        return np.array(s[:, 3:6], order="C"), np.array(s[:, 0:3], order="C")
+    return (s if s.base is None else np.array(s, order="C")), None
 
 
 def sector_anchors(sec: np.ndarray, tz_s: int):

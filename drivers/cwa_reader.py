@@ -17,13 +17,16 @@ index in the file, 0 = the sector right after the 1024-byte header):
 * a new segment starts (no samples dropped): ``restart`` (sequence id back to 0),
   ``session_change``, ``format_change`` (rate code, packing/channels or scale codes),
   ``sequence_gap`` (any step other than +1, incl. out-of-order and repeated ids), ``time_jump``
-  (anchor times disagree with the nominal rate by more than 10 % + 50 ms);
+  (anchor times disagree with the nominal rate by more than 10 % + 50 ms, or do not increase);
+* logged: ``rate_mismatch`` (the header's rate differs from the first valid sector's rate code:
+  the sectors' rate is ``info.sample_rate_nominal``);
 * kept, flagged: ``bad_timestamp`` (invalid date or 0: the sector's anchor is ignored, its samples
   are timed from the neighbouring anchors), ``bad_anchor`` (anchor index not after the previous
   one), ``bad_count`` (sampleCount above capacity, clamped), ``device_overflow`` (event bits 0x10/0x20:
   the device lost samples), ``axis_swap`` (AX6 firmware < 56: accel/gyro triplets look swapped;
   the data are not changed), ``truncated`` (file ends inside a sector), ``read_error`` (a damaged
-  gzip stream: everything before it is returned).
+  or truncated gzip stream: everything decompressible before it is returned),
+  ``follow_idle_stop`` (follow mode stopped after ``follow_idle_s`` without growth).
 
 Every event carries ``time_ns``: the anchor time for a segment break, otherwise the data time next
 to it (interpolated by sector index inside a Block, else the last valid sample before it). Events
@@ -32,7 +35,8 @@ beyond ``MAX_QC_EVENTS`` are counted in total/skipped but not listed (memory sta
 A file in which not a single data sector is valid raises ``CorruptRecordingError`` at the end of
 iteration (after ``.qc`` is complete); a file with a header and no data sectors yields no Blocks.
 ``follow=True`` reads a plain file that is still being written (gzip cannot be followed); it ends
-after ``follow_idle_s`` seconds without growth. ``.info.header`` also holds an OmApi-style quick
+after ``follow_idle_s`` seconds without growth, or once ``follow_done()`` returns True and no
+more bytes arrive (``follow_done`` may raise to abandon the read). ``.info.header`` also holds an OmApi-style quick
 look (``first_sector_time``, ``last_sector_time``, ``data_sectors``) from the first/last 16
 sectors, for ``inspect --header-only``. Not decoded (skipped as ``bad_format``): the prototype
 9-axis 0x92 format and the pre-release "rate code 0" format.
@@ -52,7 +56,8 @@ import numpy as np
 
 from ..engine.blocks import Block, DeviceInfo, QCEvent, QCReport
 from . import constants as C
-from .byteio import FollowingReader, check_recording_path, is_gzip, open_bytes, read_exact
+from .byteio import (FollowingReader, check_recording_path, is_gzip, open_bytes, read_exact,
+                     stream_damage)
 from .cwa_decode import (EMPTY, ERASED, REASONS, classify, decode_samples, interpolate_times,
                          max_samples, sector_anchors)
 from .cwa_layout import FORMATS, SECTOR_DTYPE, parse_header, parse_timezone
@@ -67,13 +72,13 @@ AXIS_SWAP_TOL_G = 0.2  # |mean vector| within 1 +- this of 1 g counts as "gravit
 
 
 # ----------------------------------------------------------------------------- header
-def _open_header(path: Path, follow: bool, idle_s: float):
+def _open_header(path: Path, follow: bool, idle_s: float, done=None):
     check_recording_path(path, allow_empty=follow)
     if follow and path.stat().st_size >= 2 and is_gzip(path):
         raise UnsupportedFormatError(path, "follow mode reads a plain .cwa that is still being "
                                            "written; a gzip file cannot be followed")
     try:
-        f = FollowingReader(path, idle_timeout=idle_s) if follow else open_bytes(path)
+        f = FollowingReader(path, is_done=done, idle_timeout=idle_s) if follow else open_bytes(path)
     except OSError as e:
         raise RecordingError(path, f"cannot open: {e}") from None
     return f
@@ -200,8 +205,9 @@ class CwaReader:
     """Read a ``.cwa`` (or ``.cwa.gz``) recording as Blocks; see the module docstring."""
 
     def __init__(self, path, *, timezone=0, batch_sectors: int = 2048, follow: bool = False,
-                 follow_idle_s: float = 5.0, decode: bool = True):
+                 follow_idle_s: float = 5.0, decode: bool = True, follow_done=None):
         self.path = Path(path)
+        self.follow_done = follow_done  # follow: callable, True once the writer has finished
         self.tz_s = parse_timezone(timezone)
         if int(batch_sectors) < 1:
             raise ValueError("batch_sectors must be >= 1")
@@ -215,6 +221,7 @@ class CwaReader:
             head = _read_or_fail(self.path, f, C.CWA_HEADER_BYTES)
             _check_header(self.path, head)
             first_fmt = None
+            first_rate = None  # (data-sector index, Hz) of the first valid sector
             ends = {}
             if not self.follow:
                 peek = _read_or_fail(self.path, f, 16 * C.CWA_SECTOR_BYTES)
@@ -225,6 +232,7 @@ class CwaReader:
                     if ok.size:
                         s = sec[ok[0]]
                         first_fmt = (int(s["num_axes_bps"]), int(s["light_scale"]))
+                        first_rate = (int(ok[0]), C.cwa_rate_hz(int(s["rate_code"])))
                         ends["first"] = sec[ok[0]:ok[0] + 1]
                 if not is_gzip(self.path):  # plain file: also look at the last 16 sectors
                     ends.update(_tail_sectors(self.path))
@@ -233,6 +241,16 @@ class CwaReader:
         self._header = parse_header(head, self.tz_s)
         self._header.update(_quick_span(ends, self.tz_s))
         self.info = _device_info(self.path, self._header, self.tz_s, first_fmt)
+        self._rate_note = None
+        if first_rate is not None and first_rate[1] != self.info.sample_rate_nominal:
+            # the sectors carry their own rate code: it decides (a wrong header rate would size
+            # every downstream window for the wrong number of samples)
+            self._header["header_rate_hz"] = self.info.sample_rate_nominal
+            self._rate_note = (first_rate[0], f"the header says {self.info.sample_rate_nominal:g} Hz, "
+                                              f"the data sectors {first_rate[1]:g} Hz; the sectors' "
+                                              "rate is used")
+            self.info = replace(self.info, sample_rate_nominal=first_rate[1],
+                                header={**self.info.header, "header_rate_hz": self._header["sample_rate_hz"]})
         self.qc = QCReport(unit="sector")
         self._closed = False
         self._started = False
@@ -256,6 +274,8 @@ class CwaReader:
             raise RuntimeError("a CwaReader is single-pass; open the file again for another pass")
         self._started = True
         self._init_state()
+        if self._rate_note is not None:
+            self._event(self._rate_note[0], "rate_mismatch", self._rate_note[1])
         try:
             for sec, first_index, final in self._batches():
                 yield from self._process(sec, first_index, final)
@@ -322,7 +342,7 @@ class CwaReader:
     def _batches(self):
         """Yield (sectors view, data-sector index of the first, end of stream reached) from one
         reusable buffer."""
-        self._stream = f = _open_header(self.path, self.follow, self.follow_idle_s)
+        self._stream = f = _open_header(self.path, self.follow, self.follow_idle_s, self.follow_done)
         _read_or_fail(self.path, f, C.CWA_HEADER_BYTES)
         size = self.batch_sectors * C.CWA_SECTOR_BYTES
         buf = np.empty(size, np.uint8)
@@ -356,6 +376,11 @@ class CwaReader:
             if eof:
                 break
         self._flush_erased()
+        why = stream_damage(f)
+        if why:  # a damaged gzip stream or a follow-mode idle stop: all bytes before it were used
+            reason = "follow_idle_stop" if getattr(f, "idle_stop", None) else "read_error"
+            self._event(index, reason, f"reading stopped after data sector {index - 1}: {why}"
+                        + (f" ({have} bytes of a partial sector follow)" if have else ""))
         if have:
             self._event(index, "truncated",
                         f"file ends {have} bytes into data sector {index}; the partial sector is ignored")
@@ -444,10 +469,13 @@ class CwaReader:
             runs = np.flatnonzero(fmts[1:] != fmts[:-1]) + 1
             bounds = np.concatenate([[0], runs, [m]])
             parts_a, parts_g = [], []
+            # a batch may mix 6-axis and 3-axis sectors (a format change, so never one segment):
+            # 3-axis rows get a zero gyro placeholder that no Block ever carries
+            gyro_cols = 3 if any(FORMATS[int(fmts[a])][0] == 6 for a in bounds[:-1]) else 0
             for a, b in zip(bounds[:-1], bounds[1:]):
                 pa, pg = decode_samples(sec[a:b], int(fmts[a]), count[a:b])
                 parts_a.append(pa)
-                parts_g.append(pg if pg is not None else np.zeros((pa.shape[0], 0), np.int16))
+                parts_g.append(pg if pg is not None else np.zeros((pa.shape[0], gyro_cols), np.int16))
             accel = parts_a[0] if len(parts_a) == 1 else np.concatenate(parts_a)
             gyro = parts_g[0] if len(parts_g) == 1 else np.concatenate(parts_g)
             if self._check_swap:
@@ -555,7 +583,7 @@ class CwaReader:
             return None
         dt = np.diff(t_all)
         expected = dg * (_NS / seg.rate_hz)
-        if (np.abs(dt - expected) > TIME_JUMP_REL_TOL * expected + TIME_JUMP_ABS_TOL_NS).any():
+        if ((dt <= 0) | (np.abs(dt - expected) > TIME_JUMP_REL_TOL * expected + TIME_JUMP_ABS_TOL_NS)).any():
             return None
         self._accept_anchors(seg, g.tolist(), t.tolist())
         seg.n = int(s0[-1] + count[-1])
@@ -625,7 +653,9 @@ class CwaReader:
                 dg = g - seg.ag[-1]
                 if dg > 0:
                     exp = dg * (_NS / seg.rate_hz)
-                    if abs((t - seg.at[-1]) - exp) > TIME_JUMP_REL_TOL * exp + TIME_JUMP_ABS_TOL_NS:
+                    # time must move forward between anchors, and near the nominal rate
+                    if (t <= seg.at[-1]
+                            or abs((t - seg.at[-1]) - exp) > TIME_JUMP_REL_TOL * exp + TIME_JUMP_ABS_TOL_NS):
                         reason = "time_jump"
                         detail = (f"anchor time moved {(t - seg.at[-1]) / _NS:+.3f} s over {dg} samples "
                                   f"({exp / _NS:.3f} s expected at {seg.rate_hz:g} Hz)")

@@ -43,9 +43,12 @@ import numpy as np
 
 from ..engine.blocks import (PER_SAMPLE_BUTTON, PER_SAMPLE_LIGHT_RAW, Block, DeviceInfo, QCEvent,
                              QCReport)
-from .byteio import FollowingReader, check_recording_path, is_gzip, open_bytes, read_exact
-from .constants import (GNA_HEX_PER_SAMPLE, GNA_LIGHT_SHIFT, GNA_PAGE_MARKER, GNA_RATE_85_7,
-                        GNA_SAMPLES_PER_PAGE, gna_rate_hz)
+from .byteio import (FollowingReader, check_recording_path, is_gzip, open_bytes, read_exact,
+                     stream_damage)
+from .constants import (GNA_GAIN_MAX, GNA_HEX_PER_SAMPLE, GNA_LIGHT_SHIFT, GNA_OFFSET_MAX,
+                        GNA_PAGE_MARKER, GNA_RATE_85_7, GNA_SAMPLES_PER_PAGE, NS_TIME_RANGE_MS,
+                        PLAUSIBLE_BATTERY_V, PLAUSIBLE_RATE_HZ, PLAUSIBLE_TEMPERATURE_C,
+                        PLAUSIBLE_TIME_NS, PLAUSIBLE_YEARS, gna_rate_hz)
 from .errors import (CorruptRecordingError, RecordingError, TruncatedRecordingError,
                      UnsupportedFormatError)
 from .geneactiv_header import (CALIBRATION_KEYS, SUBJECT_KEYS, TRIAL_KEYS, GeneactivHeader,
@@ -163,6 +166,15 @@ def _slice_run(run: _Run, lo: int, hi: int) -> _Run:
                 run.button[a:b])
 
 
+def _take_pages(run: _Run, keep: np.ndarray) -> _Run:
+    """The pages ``keep`` (sorted positions) of a run, with their samples."""
+    off = run.offsets()
+    rows = np.concatenate([np.arange(off[k], off[k + 1]) for k in keep.tolist()]).astype(np.int64)
+    return _Run(run.index[keep], run.seq[keep], run.t_ms[keep], run.temperature[keep],
+                run.battery[keep], run.freq[keep], run.counts[keep], run.accel[rows],
+                run.light[rows], run.button[rows])
+
+
 def _merge_runs(items: list) -> list:
     """Join consecutive runs (e.g. pages of the general parser) so later stages see few, long runs."""
     out: list = []
@@ -229,10 +241,15 @@ class GeneactivReader:
         self._samples = 0
         self._desync_open = None  # (lines, bytes) of a desync stretch still being skipped
         self._n_events = 0
-        self._serial = self.info.device_id.encode("latin-1")
+        try:  # the header text was decoded as UTF-8, or as Latin-1 when it is not UTF-8
+            self._serial = self.info.device_id.encode("latin-1")
+        except UnicodeEncodeError:
+            self._serial = self.info.device_id.encode("utf-8")
         self._serial_line = b"Device Unique Serial Code:" + self._serial
         self._serial_line_cr = self._serial_line + b"\r"
         self._serial_warned = False
+        self._time_warned = False
+        self._rate_warned = False
 
     # ------------------------------------------------------------------ Source protocol
     def __enter__(self):
@@ -270,6 +287,59 @@ class GeneactivReader:
                                 detail=f"more than {MAX_QC_EVENTS} QC events; later ones are counted "
                                        "in total/skipped but not listed"))
 
+    def _sanitise(self, run: _Run) -> Optional[_Run]:
+        """Page fields that no device writes: a Page Time outside the int64-ns range (the page is
+        skipped: its samples cannot be timed), a time before/after the plausible years, a
+        temperature/battery outside the sensor's range or not finite (set to NaN), a page rate that
+        is not plausible (the header's rate is used). Each is logged; nothing passes silently."""
+        lo_ms, hi_ms = NS_TIME_RANGE_MS
+        tz_ms = self.info.timezone_offset_s * 1000
+        t_utc = run.t_ms - tz_ms
+        out_of_range = (t_utc <= lo_ms + 86_400_000) | (t_utc >= hi_ms - 86_400_000)
+        if out_of_range.any():
+            for i in np.flatnonzero(out_of_range).tolist():
+                self.qc.valid -= 1
+                self.qc.skipped += 1
+                self._event(int(run.index[i]), "bad_page_time",
+                            f"Page Time ({int(run.t_ms[i]) // 31_556_952_000 + 1970:d} or so) is outside "
+                            "the representable range 1678..2261; page skipped",
+                            samples=int(run.counts[i]))
+            keep = np.flatnonzero(~out_of_range)
+            if not keep.size:
+                return None
+            run = _take_pages(run, keep)
+            t_utc = run.t_ms - tz_ms
+        if not self._time_warned:
+            t_ns = t_utc * 1_000_000
+            odd = np.flatnonzero((t_ns < PLAUSIBLE_TIME_NS[0]) | (t_ns >= PLAUSIBLE_TIME_NS[1]))
+            if odd.size:
+                self._time_warned = True
+                i = int(odd[0])
+                self._event(int(run.index[i]), "implausible_time",
+                            f"Page Time {np.datetime64(int(t_ns[i]), 'ns')} is outside "
+                            f"{PLAUSIBLE_YEARS[0]}..{PLAUSIBLE_YEARS[1]} (device clock never set?); "
+                            "times are kept as recorded (logged once)", time_ns=int(t_ns[i]))
+        for name, arr, (lo, hi), unit in (("Temperature", run.temperature, PLAUSIBLE_TEMPERATURE_C, "degC"),
+                                          ("Battery voltage", run.battery, PLAUSIBLE_BATTERY_V, "V")):
+            bad = ~np.isnan(arr) & ~((arr >= lo) & (arr <= hi))
+            for i in np.flatnonzero(bad).tolist():
+                self._event(int(run.index[i]), "bad_value",
+                            f"{name} {arr[i]:g} {unit} is outside {lo:g}..{hi:g}; set to NaN")
+            if bad.any():
+                arr[bad] = np.nan
+        lo, hi = PLAUSIBLE_RATE_HZ
+        badf = ~np.isnan(run.freq) & ~((run.freq >= lo) & (run.freq <= hi))
+        if badf.any():
+            if not self._rate_warned:
+                self._rate_warned = True
+                i = int(np.flatnonzero(badf)[0])
+                self._event(int(run.index[i]), "bad_page_frequency",
+                            f"page Measurement Frequency {run.freq[i]:g} Hz is not a plausible rate "
+                            f"({lo:g}..{hi:g} Hz); the header's {self.info.sample_rate_nominal:g} Hz "
+                            "is used for such pages (logged once)")
+            run.freq[badf] = np.nan
+        return run
+
     def _nominal_steps(self, freq: np.ndarray) -> np.ndarray:
         """ns that 300 samples take at each page's own rate (the header's when a page has none)."""
         rate = np.where(np.isfinite(freq) & (freq > 0), freq, self.info.sample_rate_nominal)
@@ -304,7 +374,9 @@ class GeneactivReader:
                 else:
                     skipped += 1
                 continue
-            run = item
+            run = self._sanitise(item)
+            if run is None:
+                continue
             if not freq_warned and nominal_rate:
                 bad = np.flatnonzero(np.isfinite(run.freq)
                                      & (np.abs(run.freq - nominal_rate) > 1e-6 * nominal_rate))
@@ -367,6 +439,7 @@ class GeneactivReader:
         while self._pending_pages:
             yield from self._emit(self.batch_pages, tz_ns)
         self.qc.segments = segment + 1 if (held is not None) else 0
+        self.qc.events.sort(key=lambda e: e.index)  # stable: batch-size independent order
         n_hdr = self.info.header.get("number_of_pages")
         if n_hdr is not None and n_hdr != self.qc.total:
             self._event(self.qc.total, "page_count_mismatch",
@@ -465,6 +538,10 @@ class GeneactivReader:
                     else self._f.read(chunk_bytes)
                 if not chunk:
                     eof = True
+                    why = stream_damage(self._f)
+                    if why:  # damaged gzip / follow-mode idle stop: every byte before it is used
+                        reason = "follow_idle_stop" if getattr(self._f, "idle_stop", None) else "read_error"
+                        self._event(index, reason, f"reading stopped: {why}", always=True)
                 else:
                     buf = buf + chunk if buf else chunk
             if eof and not buf:
@@ -640,8 +717,8 @@ class GeneactivReader:
             if not (seq.shape[0] == temp.shape[0] == batt.shape[0] == freq.shape[0] == P
                     and len(tbytes) == 24 * P - 1):
                 return 0
-        except ValueError:
-            return 0  # comma decimals, empty values, ...: the general parser handles them
+        except (ValueError, OverflowError):
+            return 0  # comma decimals, empty values, huge numbers...: the general parser handles them
         tms, tok = parse_times_ms_fixed(tbytes.split(b"\n"))
         freq = np.where(np.abs(freq - 85.7) < 1e-6, GNA_RATE_85_7, freq)
         hexes = np.frombuffer(b"".join(lines[i + 9:end:10]), np.uint8).reshape(P, -1)[:, :cut]
@@ -719,6 +796,8 @@ class GeneactivReader:
             else:
                 try:
                     seq = int(fields[b"Sequence Number"].strip(_VALUE_STRIP))
+                    if not 0 <= seq < 2**62:
+                        reason, detail = "bad_page_header", f"Sequence Number {seq} is out of range"
                 except (KeyError, ValueError):
                     reason, detail = "bad_page_header", "Sequence Number missing or not an integer"
             if reason:
@@ -829,11 +908,18 @@ def _device_info(hdr: GeneactivHeader, path: Path, timezone, rest: bytes = b"") 
     gains, offsets = [], []
     for axis in "xyz":
         try:
-            g = int(round(parse_number(hdr.get(f"{axis} gain", "Calibration Data"))))
-            o = int(round(parse_number(hdr.get(f"{axis} offset", "Calibration Data"))))
+            gf = parse_number(hdr.get(f"{axis} gain", "Calibration Data"))
+            of = parse_number(hdr.get(f"{axis} offset", "Calibration Data"))
         except (ValueError, IndexError, AttributeError):
             raise CorruptRecordingError(path, f"Calibration Data: {axis} gain/offset is not a number",
                                         where="header") from None
+        if not (np.isfinite(gf) and 0 < gf <= GNA_GAIN_MAX):
+            raise CorruptRecordingError(path, f"Calibration Data: {axis} gain is {gf:g}, must be in "
+                                              f"(0, {GNA_GAIN_MAX}]", where="header")
+        if not (np.isfinite(of) and abs(of) <= GNA_OFFSET_MAX):
+            raise CorruptRecordingError(path, f"Calibration Data: {axis} offset is {of:g}, must be "
+                                              f"within +-{GNA_OFFSET_MAX}", where="header")
+        g, o = int(round(gf)), int(round(of))
         if g <= 0:
             raise CorruptRecordingError(path, f"Calibration Data: {axis} gain is {g}, must be > 0",
                                         where="header")
@@ -859,17 +945,24 @@ def _device_info(hdr: GeneactivHeader, path: Path, timezone, rest: bytes = b"") 
                 path, f"Configuration Info: {e}; pass timezone= (CLI --timezone) to set it",
                 where="header") from None
     rate = header_rate_hz(hdr)
-    if rate is None or not rate > 0:
+    lo, hi = PLAUSIBLE_RATE_HZ
+    if rate is None or not lo <= rate <= hi:
+        bad_header = rate
         rate = None
         m = re.search(rb"Measurement Frequency:([^\r\n]*)", rest[:8192])
         try:
             rate = gna_rate_hz(m.group(1).strip(_VALUE_STRIP).decode("latin-1")) if m else None
         except (ValueError, IndexError):
             rate = None
-        if rate is None or not rate > 0:
-            raise CorruptRecordingError(path, "no readable Measurement Frequency in the header or "
-                                              "the first page", where="header")
-        warnings.append("Configuration Info: Measurement Frequency missing; taken from the first page")
+        if rate is None or not lo <= rate <= hi:
+            what = ("no readable Measurement Frequency" if bad_header is None and rate is None else
+                    f"Measurement Frequency {bad_header if bad_header is not None else rate:g} Hz is "
+                    f"not a plausible rate ({lo:g}..{hi:g} Hz)")
+            raise CorruptRecordingError(path, f"{what} in the header or the first page",
+                                        where="header")
+        warnings.append("Configuration Info: Measurement Frequency " +
+                        ("missing" if bad_header is None else f"{bad_header:g} Hz is not plausible") +
+                        f"; {rate:g} Hz taken from the first page")
     start_text = hdr.get("Start Time", "Configuration Info")
     start_ms = parse_time_ms(start_text) if start_text else None
     if start_text and start_ms is None:

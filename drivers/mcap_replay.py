@@ -15,18 +15,35 @@ from pathlib import Path
 from typing import Iterator, Optional
 
 import numpy as np
-from mcap.exceptions import McapError
-from mcap.reader import make_reader
 
 from stillpoint.engine.blocks import (Block, DeviceInfo, PER_SAMPLE_BUTTON, PER_SAMPLE_LIGHT_RAW,
                                       QCEvent, QCReport)
+from stillpoint.engine.mcap.reading import (McapReadError, check_raw_message, decode,
+                                            iter_messages, loads_json, open_reader)
 from stillpoint.engine.mcap.schemas import ACCEL_BATCH_RAW, GYRO_BATCH_RAW, times_from_deltas
 
+from . import constants as C
 from .errors import CorruptRecordingError, RecordingError, UnsupportedFormatError
 
 TOPIC_RAW = "/raw/accel"
 TOPIC_GYRO = "/raw/gyro"
 TOPIC_QC = "/qc"
+
+
+def _qc_event(path, topic: str, i: int, data) -> Optional[QCEvent]:
+    """A reader QC event logged on /qc (None for the engine's own events)."""
+    ev = loads_json(path, topic, i, data)
+    if not isinstance(ev, dict):
+        raise McapReadError(path, "QC message is not a JSON object", channel=topic, record=f"message {i}")
+    if ev.get("source") != "reader":
+        return None
+    try:
+        t = ev.get("time_ns")
+        return QCEvent(int(ev.get("index", -1)), str(ev.get("reason", "")), str(ev.get("detail", "")),
+                       None if t is None else int(t), int(ev.get("samples", 0)))
+    except (TypeError, ValueError, OverflowError) as e:
+        raise McapReadError(path, f"QC event fields are not numbers ({e})", channel=topic,
+                            record=f"message {i}") from None
 
 
 def block_from_message(raw: dict, gyro: Optional[dict] = None) -> Block:
@@ -51,12 +68,50 @@ def block_from_message(raw: dict, gyro: Optional[dict] = None) -> Block:
 
 
 def _device_info(meta: dict, path: Path) -> DeviceInfo:
-    d = json.loads(meta["json"])
+    """The ``device`` metadata record as a DeviceInfo, every field checked (a typed error names
+    the field: a damaged record must not reach the engine)."""
+    d = loads_json(path, None, "device", meta.get("json", ""), what="metadata")
+
+    def bad(why: str):
+        raise McapReadError(path, f"device metadata: {why}", record="metadata 'device'")
+
+    if not isinstance(d, dict):
+        bad("not a JSON object")
     known = DeviceInfo.__dataclass_fields__
     d = {k: v for k, v in d.items() if k in known}
-    d["channels"] = tuple(d.get("channels", ()))
+    kind = d.get("device_type")
+    if kind not in ("AX3", "AX6", "GENEActiv"):
+        bad(f"device_type {kind!r} is not AX3, AX6 or GENEActiv")
+    rate = d.get("sample_rate_nominal")
+    lo, hi = (C.CWA_RATE_RANGE_HZ if kind.startswith("AX") else C.PLAUSIBLE_RATE_HZ)
+    if not isinstance(rate, (int, float)) or isinstance(rate, bool) or not lo <= rate <= hi:
+        bad(f"sample_rate_nominal {rate!r} is not a rate a {kind} records at ({lo:g}..{hi:g} Hz)")
+    rng = d.get("accel_range_g")
+    if not isinstance(rng, (int, float)) or not 0 < rng <= 1000:
+        bad(f"accel_range_g {rng!r} is not a range in g")
+    gyro = d.get("gyro_range_dps")
+    if gyro is not None and (not isinstance(gyro, (int, float)) or not 0 < gyro <= 100_000):
+        bad(f"gyro_range_dps {gyro!r} is not a range in dps")
+    ch = d.get("channels", ())
+    if not isinstance(ch, (list, tuple)) or not all(isinstance(c, str) for c in ch):
+        bad("channels is not a list of names")
+    tz = d.get("timezone_offset_s", 0)
+    if not isinstance(tz, int) or abs(tz) > 86_400:
+        bad(f"timezone_offset_s {tz!r} is not an offset in seconds")
+    for k in ("device_id", "firmware"):
+        if k in d and not isinstance(d[k], (str, int)):
+            bad(f"{k} {d[k]!r} is not text")
+        if k in d:
+            d[k] = str(d[k])
+    for k in ("metadata", "header"):
+        if k in d and not isinstance(d[k], dict):
+            bad(f"{k} is not an object")
+    d["channels"] = tuple(ch)
     d["path"] = str(path)
-    return DeviceInfo(**d)
+    try:
+        return DeviceInfo(**d)
+    except TypeError as e:
+        bad(str(e))
 
 
 class McapRawSource:
@@ -70,10 +125,10 @@ class McapRawSource:
         self.settings: Optional[dict] = None
         self.metadata: dict[str, dict] = {}
         try:
-            reader = make_reader(self._f)
+            reader = open_reader(self._f)
             for m in reader.iter_metadata():
                 self.metadata[m.name] = dict(m.metadata)
-        except (McapError, ValueError, Exception) as e:
+        except Exception as e:
             self._f.close()
             raise CorruptRecordingError(
                 self.path, f"cannot read the MCAP index ({type(e).__name__}); if the run was "
@@ -84,7 +139,11 @@ class McapRawSource:
                                                     "stillpoint log")
         self.info = _device_info(self.metadata["device"], self.path)
         if "settings" in self.metadata:
-            self.settings = json.loads(self.metadata["settings"]["json"])
+            self.settings = loads_json(self.path, None, "settings",
+                                       self.metadata["settings"].get("json", ""), what="metadata")
+            if not isinstance(self.settings, dict):
+                raise McapReadError(self.path, "settings metadata is not a JSON object",
+                                    record="metadata 'settings'")
         self.qc = QCReport(unit="sector" if self.info.device_type.startswith("AX") else "page")
 
     def __enter__(self):
@@ -97,34 +156,45 @@ class McapRawSource:
         self._f.close()
 
     def __iter__(self) -> Iterator[Block]:
-        self._f.seek(0)
-        reader = make_reader(self._f)
-        pending_raw: list[dict] = []
-        pending_gyro: list[dict] = []
+        pending_raw: list[tuple] = []
+        pending_gyro: list[tuple] = []
         has_gyro = self.info.gyro_range_dps is not None
-        for _schema, channel, message in reader.iter_messages(
-                topics=[TOPIC_RAW, TOPIC_GYRO, TOPIC_QC], log_time_order=False):
-            if channel.topic == TOPIC_RAW:
-                pending_raw.append(ACCEL_BATCH_RAW.decode(message.data))
-            elif channel.topic == TOPIC_GYRO:
-                pending_gyro.append(GYRO_BATCH_RAW.decode(message.data))
+        path = self.path
+        for topic, i, message in iter_messages(path, [TOPIC_RAW, TOPIC_GYRO, TOPIC_QC]):
+            if topic == TOPIC_RAW:
+                m = decode(ACCEL_BATCH_RAW, path, topic, i, message.data)
+                pending_raw.append((i, m, check_raw_message(m, path, topic, i)))
+            elif topic == TOPIC_GYRO:
+                m = decode(GYRO_BATCH_RAW, path, topic, i, message.data)
+                pending_gyro.append((i, m, check_raw_message(m, path, topic, i, gyro=True)))
             else:
-                ev = json.loads(message.data)
-                if ev.get("source") == "reader":
-                    self.qc.add(QCEvent(int(ev.get("index", -1)), ev.get("reason", ""),
-                                        ev.get("detail", ""), ev.get("time_ns"), int(ev.get("samples", 0))))
+                ev = _qc_event(path, topic, i, message.data)
+                if ev is not None:
+                    self.qc.add(ev)
             while pending_raw and (not has_gyro or pending_gyro):
-                raw = pending_raw.pop(0)
-                gyro = pending_gyro.pop(0) if has_gyro else None
+                i, raw, n = pending_raw.pop(0)
+                gyro = None
+                if has_gyro:
+                    j, gyro, ng = pending_gyro.pop(0)
+                    if ng != n:
+                        raise McapReadError(path, f"gyro message {j} holds {ng} samples, its accel "
+                                                  f"message {i} {n}", channel=TOPIC_GYRO,
+                                            record=f"message {j}")
                 b = block_from_message(raw, gyro)
                 self.qc.total += b.m
                 self.qc.valid += b.m
                 yield b
         # a gyro-less tail (should not happen in a complete log): yield accel only
-        for raw in pending_raw:
+        for _i, raw, _n in pending_raw:
             yield block_from_message(raw, None)
         qc_meta = self.metadata.get("summary")
         if qc_meta and "qc" in qc_meta:
-            q = json.loads(qc_meta["qc"])
-            self.qc.total, self.qc.valid = q.get("total", self.qc.total), q.get("valid", self.qc.valid)
-            self.qc.skipped, self.qc.segments = q.get("skipped", 0), q.get("segments", 0)
+            q = loads_json(path, None, "summary", qc_meta["qc"], what="metadata")
+            counts = {k: q.get(k) if isinstance(q, dict) else None
+                      for k in ("total", "valid", "skipped", "segments")}
+            if not all(isinstance(v, int) and v >= 0 for v in counts.values() if v is not None):
+                raise McapReadError(path, f"summary qc counts {counts} are not counts",
+                                    record="metadata 'summary'")
+            self.qc.total = counts["total"] if counts["total"] is not None else self.qc.total
+            self.qc.valid = counts["valid"] if counts["valid"] is not None else self.qc.valid
+            self.qc.skipped, self.qc.segments = counts["skipped"] or 0, counts["segments"] or 0

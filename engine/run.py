@@ -33,11 +33,15 @@ from stillpoint.drivers.errors import StillpointError
 
 from .blocks import Block
 from .calibration import OnlineCalibrator, fit_batch_schedule
+from .calibration.trust import CountStep
 from .calibration.estimate import CalibrationEstimate
+from .calibration.validate import validate_estimate
 from .calibration.schedule import CHUNK_HOURS, FIRST_HOURS
 from .calibration.select import MAX_ABS_MEAN_G, SD_THRESHOLD_G
 from .features import WindowFeatures
 from .mcap.sink import CHUNK_SIZE, ZSTD_LEVEL, McapSink
+
+VIEW_HZ = 2.0  # default rate of the plottable view topic: ~15 MB a week of 100 Hz data
 from .operators.correction import CorrectionOperator
 from .operators.filters import BFEN_BAND_GGIR, band_used
 from .operators.metrics import EPOCH_S, EpochMetrics, MetricsOperator
@@ -60,7 +64,10 @@ def check_output(out: Path) -> None:
         raise OutputError(f"{out}: directory {parent} is not writable")
 
 
-APPLIED_STATUSES = ("ok", "high_error")  # fit outcomes whose parameters are applied (H5's rule)
+# fit outcomes whose parameters are applied: a converged fit whose residual error is high is
+# still better than none, so it is applied (and its status says so); every other outcome
+# (identity, reverted, no nonmovement, sphere not covered) leaves the data uncorrected
+APPLIED_STATUSES = ("ok", "high_error")
 
 
 @dataclass
@@ -90,6 +97,8 @@ class RunSettings:
     compression: str = "zstd"
     zstd_level: int = ZSTD_LEVEL  # 1: ~30 % less compression CPU than 3 for ~5 % more bytes
     chunk_size: int = CHUNK_SIZE
+    view_hz: float = VIEW_HZ  # /view/accel samples per second (0: no view topic)
+    timezone: Optional[str] = None  # the device clock's zone (IANA or offset); None: as the reader
 
     def __post_init__(self):
         if self.mode not in ("batch", "online"):
@@ -121,6 +130,7 @@ class FeatureStage:
         self.keep_all = on_features is None  # batch: keep every window for the fit (~60k rows/week)
         self._all: list[WindowFeatures] = []
         self.last_block_ns: Optional[int] = None
+        self.count_step = CountStep()  # quantisation step of the counts (calibration warning)
 
     @property
     def all_windows(self) -> WindowFeatures:
@@ -137,6 +147,7 @@ class FeatureStage:
 
     def push(self, block: Block) -> None:
         self.last_block_ns = int(block.time_ns[0])
+        self.count_step.push(block)
         self._take(self.windows.push(block))
 
     def flush(self) -> None:
@@ -158,13 +169,17 @@ class OutputStage:
         self._qc_logged = 0
         self._last_ns = 0
         self._segment = None
+        self.taps: list = []  # extra consumers of (block, corrected batches, epoch metrics)
 
     def _log_reader_qc(self) -> None:
         events = getattr(getattr(self.source, "qc", None), "events", [])
         while self._qc_logged < len(events):
             e = events[self._qc_logged]
-            d = dict(e.as_dict(), source="reader")
-            self.sink.write_qc(d, e.time_ns if e.time_ns is not None else self._last_ns)
+            t = e.time_ns if e.time_ns is not None else self._last_ns
+            # an event without a time of its own is pinned to the data time it was logged at, so
+            # a replay (which may see it at another block boundary) logs it at the same time
+            d = dict(e.as_dict(), source="reader", time_ns=t)
+            self.sink.write_qc(d, t)
             self._qc_logged += 1
 
     def _step(self, block: Optional[Block], batches) -> None:
@@ -175,6 +190,8 @@ class OutputStage:
             self.enmo_weighted += float(np.dot(m.enmo_mg, m.n))
             self.samples_metrics += int(m.n.sum())
         self.sink.write_slices(block, batches, m)
+        for tap in self.taps:
+            tap.push(block, batches, m)
 
     def push(self, block: Block) -> None:
         self._last_ns = int(block.time_ns[0])
@@ -195,6 +212,8 @@ class OutputStage:
             self.enmo_weighted += float(np.dot(m.enmo_mg, m.n))
             self.samples_metrics += int(m.n.sum())
             self.sink.write_slices(None, [], m)
+        for tap in self.taps:
+            tap.flush(m)
 
     @property
     def enmo_mean_mg(self) -> Optional[float]:
@@ -215,7 +234,8 @@ def _calibration_summary(est: CalibrationEstimate) -> dict:
             "error_before_mg": est.error_before_mg, "error_after_mg": est.error_after_mg,
             "hours_used": est.hours_used, "status": est.status, "reason": est.reason,
             "method": est.method, "windows": est.windows,
-            "fit_start_ns": est.fit_start_ns, "fit_end_ns": est.fit_end_ns}
+            "fit_start_ns": est.fit_start_ns, "fit_end_ns": est.fit_end_ns,
+            "uncertainty": est.uncertainty, "warnings": est.extra.get("warnings", [])}
 
 
 def _static_estimate(d: dict, info, first_ns, summary: dict) -> CalibrationEstimate:
@@ -265,16 +285,33 @@ def _qc_summary(source) -> dict:
 # ---------------------------------------------------------------------------- the job
 def process_file(path, out, settings: Optional[RunSettings] = None, *,
                  progress: Optional[Callable[[str, PipelineStats], None]] = None,
-                 writer: str = "inline", source_options: Optional[dict] = None) -> dict:
+                 writer: str = "inline", source_options: Optional[dict] = None,
+                 tables=None, metadata: Optional[dict] = None) -> dict:
     """Process one recording into ``out`` (MCAP); return the run summary (see module docstring).
 
     ``progress(label, stats)`` is called as the passes advance (label "pass 1/2", "pass 2/2",
-    or "online").
+    or "online"). ``tables``: an ``engine.tables.TablesSettings`` to write the epoch and day
+    tables during the output pass. ``metadata``: extra MCAP metadata records
+    ``{name: {key: str}}`` written with the summary (e.g. the download station's clock offset,
+    host time zone and station id).
     """
     s = settings or RunSettings()
     path, out = Path(path), Path(out)
-    opts = source_options or {}
+    opts = dict(source_options or {})
     check_output(out)
+    zone = None
+    if s.timezone is not None or tables is not None:
+        from stillpoint.drivers import sniff_format
+        from .timezones import reader_timezone
+        tz, zone = reader_timezone(path, sniff_format(path), s.timezone)
+        if tz is not None and "timezone" not in opts:
+            opts["timezone"] = tz
+    if tables is not None:
+        from stillpoint.drivers.outputs import check_output_path
+        check_output_path(tables.epochs_path, what="epoch table")
+        check_output_path(tables.days_path, what="day table")
+        if not tables.zone.known:
+            tables.zone = zone
     t_start = time.perf_counter()
     src = open_recording(path, **opts)  # raises a StillpointError (exit 2) on unreadable input
     info = src.info
@@ -306,7 +343,8 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
                 feat.all_windows, select=True, recording_start_ns=st1.first_ns, recording_end_ns=st1.last_ns,
                 first_hours=s.first_hours, chunk_hours=s.chunk_hours, temperature=s.temperature,
                 ggir_compatible=s.ggir_compatible, sd_threshold=s.sd_threshold_g,
-                max_abs_mean=s.max_abs_mean_g, device_key=info.device_key, window_s=s.window_s)
+                max_abs_mean=s.max_abs_mean_g, device_key=info.device_key, window_s=s.window_s,
+                quantisation_step_g=feat.count_step.step_g)
             if est.windows == 0 and feat.nonmovement.count:
                 raise AssertionError("nonmovement operator and calibration selection disagree")
         est.effective_from_ns = None
@@ -317,7 +355,7 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
         sink = McapSink(out, src.info, meta_settings, flush_every_s=s.flush_every_s,
                         compression=s.compression, chunk_size=s.chunk_size,
                         corrected_quantum_g=s.corrected_quantum_g, writer=writer,
-                        zstd_level=s.zstd_level)
+                        zstd_level=s.zstd_level, view_hz=s.view_hz)
         try:
             applied = est.status in APPLIED_STATUSES
             initial = est if applied else CalibrationEstimate.identity(est.reason)
@@ -327,16 +365,18 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
                           st1.first_ns or 0)
             estimates_log.append({"status": est.status, "applied": applied})
             outst = OutputStage(s, rate, sink, src, initial)
+            _add_tables(outst, tables, s, rate, band, src)
             st = Pipeline(src, [outst], rate_hz=rate, max_block_s=s.max_block_s).run(
                 _progress_wrapper(progress, "pass 2/2"))
             final = est
-        except BaseException:
-            sink.abort()
+        except BaseException as e:
+            _abort(sink, e)
+            _abort_tables(outst if "outst" in locals() else None)
             src.close()
             raise
     else:
         # ---------------------------------------------------------------- online
-        prior = CalibrationEstimate.from_dict(s.prior) if s.prior else None
+        prior = validate_estimate(s.prior, "prior estimate") if s.prior else None
         static = bool(s.static_calibration) and s.calibrate
         if static:
             prior = _static_estimate(s.static_calibration, info, None, summary)
@@ -346,7 +386,7 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
         sink = McapSink(out, info, meta_settings, flush_every_s=s.flush_every_s,
                         compression=s.compression, chunk_size=s.chunk_size,
                         corrected_quantum_g=s.corrected_quantum_g, writer=writer,
-                        zstd_level=s.zstd_level)
+                        zstd_level=s.zstd_level, view_hz=s.view_hz)
         window_ns = int(round(s.window_s * 1e9))
         outst = None
 
@@ -370,13 +410,16 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
         initial = (prior if (prior is not None and s.calibrate)
                    else CalibrationEstimate.identity("online: no estimate accepted yet"))
         outst = OutputStage(s, rate, sink, src, initial, gate=gate)
-        if prior is not None:
-            sink.write_estimate(prior, s.calibrate, 0)
+        _add_tables(outst, tables, s, rate, band, src)
+        stages = [feat, _FinishCalibrator(cal, publish, feat), outst]
+        if prior is not None:  # logged at the first sample's time (no message before the data)
+            stages.insert(0, _LogPrior(sink, prior, s.calibrate))
         try:
-            st = Pipeline(src, [feat, _FinishCalibrator(cal, publish, feat), outst], rate_hz=rate,
+            st = Pipeline(src, stages, rate_hz=rate,
                           max_block_s=s.max_block_s).run(_progress_wrapper(progress, "online"))
-        except BaseException:
-            sink.abort()
+        except BaseException as e:
+            _abort(sink, e)
+            _abort_tables(outst)
             src.close()
             raise
         windows, nonmove = feat.windows.windows, feat.nonmovement.count
@@ -403,14 +446,67 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
         sc = summary.get("static_calibration")
         if sc and sc.get("fit_end_ns") is not None:
             sc["gap_hours"] = (int(st.first_ns) - int(sc["fit_end_ns"])) / 3.6e12
-    sink.write_metadata("calibration", {"json": final.to_json()})
-    sink.write_metadata("summary", {k: v for k, v in summary.items() if k != "wall_s"})
-    sink.close()
+    if zone is not None:
+        summary["timezone"] = zone.label
+    for tap in outst.taps:  # the epoch and day tables
+        try:
+            summary["tables"] = tap.close(final.status)
+        except BaseException as e:
+            _abort(sink, e)
+            tap.abort()
+            raise
+        summary["outputs"].update(epochs=summary["tables"]["epochs"], days=summary["tables"]["days"])
+    try:
+        for name, values in (metadata or {}).items():
+            sink.write_metadata(name, {str(k): str(v) for k, v in values.items()})
+        sink.write_metadata("calibration", {"json": final.to_json()})
+        sink.write_metadata("summary", {k: v for k, v in summary.items() if k != "wall_s"})
+        sink.close()
+    except BaseException as e:
+        _abort(sink, e)
+        raise
     summary["mcap_messages"] = sink.messages
     summary["mcap_flushes"] = sink.flushes
     from .mcap.writer import peak_rss_mb
     summary["peak_rss_mb"] = {"engine": peak_rss_mb(), "writer": sink.writer_maxrss_mb}
     return summary
+
+
+def _abort(sink: McapSink, exc: BaseException) -> None:
+    """Stop the log after a failure or interrupt; the partial file (if any) is named on the
+    exception (``partial_output``) so the command line can say where it is."""
+    kept = sink.abort()
+    if kept is not None and not getattr(exc, "partial_output", None):
+        try:
+            exc.partial_output = str(kept)
+        except AttributeError:
+            pass
+
+
+class _LogPrior:
+    """Online: log the prior on ``/calibration`` at the first sample's time."""
+
+    def __init__(self, sink: McapSink, prior: CalibrationEstimate, applied: bool):
+        self.sink, self.prior, self.applied = sink, prior, applied
+
+    def push(self, block: Block) -> None:
+        if self.prior is not None and block.n:
+            self.sink.write_estimate(self.prior, self.applied, int(block.time_ns[0]), prior=True)
+            self.prior = None
+
+    def flush(self) -> None:
+        pass
+
+
+def _add_tables(outst: OutputStage, tables, s: RunSettings, rate: float, band, src) -> None:
+    if tables is not None:
+        from .tables import TablesTap
+        outst.taps.append(TablesTap(tables, rate, s.epoch_s, band, src, src.info))
+
+
+def _abort_tables(outst) -> None:
+    for tap in getattr(outst, "taps", []):
+        tap.abort()
 
 
 class _FinishCalibrator:

@@ -15,6 +15,7 @@ from stillpoint.engine.alignment.mcap_out import (TOPIC_BLOCK_LAG, TOPIC_ESTIMAT
 from stillpoint.engine.alignment.synthetic import DeviceClock, SyntheticPair, write_cwa
 from stillpoint.engine.blocks import Block, DeviceInfo, QCReport
 from stillpoint.tools.cli import main
+from mcap_layout import conforms
 
 RATE = 30.0
 
@@ -120,6 +121,9 @@ def test_cli_aligns_cwa_files_and_writes_json_mcap_and_plot(cwa_pair, tmp_path, 
     assert abs(d["initial_offset_s"] - truth["initial_offset_s"]) < 1 / RATE
     assert abs(d["drift_day7_s"] - truth["drift_day7_s"]) < 0.2
     assert png.stat().st_size > 10_000
+    rep = conforms(out)  # spec-complete layout, read by the mcap package's indexed reader
+    assert rep["channel_schema"][TOPIC_ESTIMATE] == "stillpoint.AlignmentEstimate"
+    assert rep["schemas"]["stillpoint.AlignmentBlockLag"] == "jsonschema"
     lags = read_topic_json(out, TOPIC_BLOCK_LAG)
     assert len(lags) == d["blocks_total"]
     est = read_topic_json(out, TOPIC_ESTIMATE)

@@ -138,3 +138,45 @@ def test_prior_with_temperature_term_and_no_temperature_now():
     pub = cal.add(rec.features)
     assert pub[0].method == "autocal-c1" and pub[0].extra["accepted"]
     assert pub[0].extra["in_force_error_mg"] is None and cal.current is not prior
+
+
+def test_warm_refits_equal_cold_refits_within_tolerance():
+    """Refits started from the previous fit (extrapolated) publish the same estimates as fits from
+    identity: same statuses and acceptance, parameters within a few times the 1e-9 tolerance, in
+    far fewer passes over the windows."""
+    from stillpoint.engine.calibration.fit import PARAM_TOL
+
+    f = synthetic_recording(96, random_truth(np.random.default_rng(91)), seed=92).features
+    runs = {}
+    for warm in (True, False):
+        cal = OnlineCalibrator(chunk_hours=12, warm_start=warm)
+        pub = []
+        for i in range(0, len(f), 997):
+            pub += cal.add(f.select(slice(i, i + 997)))
+        runs[warm] = pub + cal.finish()
+    warm, cold = runs[True], runs[False]
+    assert len(warm) == len(cold) == 8
+    for a, b in zip(warm, cold):
+        assert (a.status, a.extra["accepted"], a.windows) == (b.status, b.extra["accepted"], b.windows)
+        for name in ("offset", "scale", "tempoffset"):
+            np.testing.assert_allclose(getattr(a, name), getattr(b, name), rtol=0,
+                                       atol=20 * PARAM_TOL)
+        assert a.temperature_ref == b.temperature_ref
+    assert all(e.extra.get("warm_start") for e in warm[1:]) and "warm_start" not in warm[0].extra
+    assert all(b.iterations > 25 for b in cold)
+    assert sum(a.iterations for a in warm[1:]) < sum(b.iterations for b in cold[1:]) / 5
+
+
+def test_extrapolated_start_is_near_the_fixed_point():
+    from stillpoint.engine.calibration import CalibrationEstimate
+    from stillpoint.engine.calibration.refit import extrapolated_start
+
+    f = synthetic_recording(48, random_truth(np.random.default_rng(93)), seed=94).features
+    sel = select_calibration_windows(f).features
+    half = sel.select(sel.start_ns < sel.start_ns[0] + 24 * H)
+    prev = fit_calibration(half, select=False)
+    cold = fit_calibration(sel, select=False)
+    x = extrapolated_start(prev, sel)
+    step_prev = np.max(np.abs(prev.offset - cold.offset))
+    assert np.max(np.abs(x.offset - cold.offset)) < step_prev / 100
+    assert extrapolated_start(CalibrationEstimate.identity(), sel) is None  # nothing to start from

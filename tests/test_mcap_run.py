@@ -184,7 +184,10 @@ def test_process_cli_summary_and_export(recording, tmp_path, capsys):
     enc = {c.topic: c.message_encoding for c in summ.channels.values()}
     assert enc["/raw/accel"] == enc["/corrected/accel"] == enc["/metrics/epoch"] == "cdr"
     assert enc["/calibration"] == enc["/qc"] == "json"
-    assert {s.encoding for s in summ.schemas.values()} == {"ros2msg"}
+    assert {s.encoding for s in summ.schemas.values()} == {"ros2msg", "jsonschema"}
+    by_id = {c.topic: summ.schemas[c.schema_id].encoding for c in summ.channels.values()}
+    assert by_id["/calibration"] == by_id["/qc"] == "jsonschema"
+    assert by_id["/view/accel"] == "ros2msg"
     # export: epoch metrics to CSV, corrected stream to NPZ
     csv = tmp_path / "m.csv"
     assert cli(["export", str(out), "-o", str(csv)]) == 0

@@ -106,7 +106,8 @@ def test_chunk_size_bound_and_lazy_channel_records():
     cid = cb.channel("/x", "cdr", "a/Msg")
     assert not cb.add(cid, 5, b"\x00" * 100)
     assert cb.add(cid, 6, b"\x00" * 1000)  # the chunk reached its size: take it
-    data, lo, hi = cb.take()
+    data, lo, hi, indexes = cb.take()
+    assert [c for c, _r in indexes] == [cid]
     assert (lo, hi) == (5, 6)
     assert data.startswith(rec.schema(1, "a/Msg", "ros2msg", b"int32 x\n"))
     assert cb.take() is None
@@ -216,22 +217,42 @@ def test_writer_modes_write_the_same_messages(tmp_path):
     assert s["peak_rss_mb"]["writer"] is not None  # the process writer reports its own peak
 
 
-@pytest.mark.parametrize("compression", ["zstd", ""])
-def test_chunk_index_records_in_pieces_equal_one_piece(compression):
-    from mcap.data_stream import RecordBuilder
-    from mcap.records import ChunkIndex
+@pytest.mark.parametrize("compression", ["zstd", "none"])
+def test_layout_follows_the_specification(tmp_path, compression):
+    """Message indexes after every chunk, chunk indexes pointing at them, data-section CRC,
+    summary offsets: checked by a parser written against the MCAP specification and by the
+    mcap package's indexed reader; also when the chunk index spool goes to disk."""
+    from mcap_layout import conforms
 
-    from stillpoint.engine.mcap.writer import _ChunkIndexRows
-    rows = _ChunkIndexRows()
-    for i in range(2050):  # grows past its first allocation
-        rows.append(i, i + 5, 100 * i, 90, 80 + i % 7, 1000 + i)
-    whole = b"".join(rows.records(compression, rows=10**6))
-    assert b"".join(rows.records(compression, rows=7)) == whole
-    assert len(whole) == 2050 * rows.record_size(compression)
-    # each record is what the mcap package itself would write for that chunk
-    b = RecordBuilder()
-    ChunkIndex(message_start_time=3, message_end_time=8, chunk_start_offset=300, chunk_length=90,
-               message_index_offsets={}, message_index_length=0, compression=compression,
-               compressed_size=80 + 3 % 7, uncompressed_size=1003).write(b)
-    w = rows.record_size(compression)
-    assert whole[3 * w:4 * w] == b.end()
+    from stillpoint.engine.mcap import writer as w
+    rng = np.random.default_rng(3)
+    p = tmp_path / "w.mcap"
+    old = w._ChunkIndexSpool.SPOOL_BYTES
+    w._ChunkIndexSpool.SPOOL_BYTES = 300  # a few chunk index records, then the disk
+    try:
+        _write(p, compression, _plan(rng, cells=40), fixed=True)
+    finally:
+        w._ChunkIndexSpool.SPOOL_BYTES = old
+    rep = conforms(p)
+    assert rep["chunks"] > 10 and rep["data_crc"] != 0
+    # the mcap package's own view of the same indexes
+    with open(p, "rb") as f:
+        summ = make_reader(f).get_summary()
+    assert all(c.message_index_offsets and c.message_index_length for c in summ.chunk_indexes)
+
+
+def test_layout_checker_catches_a_missing_message_index(tmp_path):
+    """The checker is not a rubber stamp: a file whose message indexes are dropped fails."""
+    from mcap_layout import check_layout
+    rng = np.random.default_rng(4)
+    p = tmp_path / "w.mcap"
+    _write(p, "none", _plan(rng, cells=5))
+    check_layout(p)
+    buf = bytearray(p.read_bytes())
+    at = buf.find(bytes([rec.OP_MESSAGE_INDEX]) + struct.pack("<Q", 6 + 16))
+    assert at > 0
+    buf[at] = 0x7F  # no longer a Message Index record
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(bytes(buf))
+    with pytest.raises(AssertionError):
+        check_layout(bad)

@@ -59,6 +59,14 @@ def build_parser(only=None) -> argparse.ArgumentParser:
     return parser
 
 
+def _partial_note(e: BaseException) -> str:
+    """Where an interrupted or failed run left its partial MCAP, and how to salvage it."""
+    part = getattr(e, "partial_output", None)
+    if not part or "stillpoint recover" in str(e):
+        return ""
+    return f"; the partial log {part} is kept: `stillpoint recover {part}` salvages it"
+
+
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     parser = build_parser(_only_requested(argv))
@@ -69,10 +77,10 @@ def main(argv=None) -> int:
     try:
         return int(args._run(args) or 0)
     except StillpointError as e:
-        print(f"stillpoint {args.command}: error: {e}", file=sys.stderr)
+        print(f"stillpoint {args.command}: error: {e}{_partial_note(e)}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("stillpoint: interrupted", file=sys.stderr)
+    except KeyboardInterrupt as e:
+        print(f"stillpoint: interrupted{_partial_note(e)}", file=sys.stderr)
         return 130
     except BrokenPipeError:
         return 0

@@ -288,12 +288,14 @@ def run_alignment(open_reference: Callable[[], object], open_other: Callable[[],
     from .mcap_out import TOPIC_BLOCK_LAG, TOPIC_ESTIMATE, AlignmentMcap
 
     config = config or AlignConfig()
-    sink = AlignmentMcap(out_mcap) if out_mcap is not None else None
     t0 = {"ns": 0}
     ref, oth = open_reference(), open_other()
     if config.rate is None:
         config = replace(config, rate=float(ref.info.sample_rate_nominal))
+    sink = None
     try:
+        sink = AlignmentMcap(out_mcap) if out_mcap is not None else None
+
         def on_block(bl: BlockLag):
             if sink is not None:
                 sink.write_json(TOPIC_BLOCK_LAG, t0["ns"] + int(bl.start_s * 1e9),
@@ -314,6 +316,10 @@ def run_alignment(open_reference: Callable[[], object], open_other: Callable[[],
         t0["ns"] = first[1]
         res = estimate_alignment(first[0], oth, config, on_block=on_block,
                                  on_estimate=on_estimate if online else None)
+    except BaseException:
+        if sink is not None:
+            sink.abort()
+        raise
     finally:
         _close(ref)
         _close(oth)
@@ -336,8 +342,15 @@ def run_alignment(open_reference: Callable[[], object], open_other: Callable[[],
         final["interpolation"] = interpolation
         sink.write_json(TOPIC_ESTIMATE, end_ns, final)
         sink.write_metadata("alignment", final)
-    finally:
-        sink.close()
+    except BaseException as e:
+        kept = sink.abort()  # the partial log stays, recoverable; it is never finished half-done
+        if kept is not None:
+            try:
+                e.partial_output = str(kept)
+            except AttributeError:
+                pass
+        raise
+    sink.close()
     return res
 
 

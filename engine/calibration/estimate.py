@@ -36,6 +36,10 @@ class CalibrationEstimate:
     effective_from_ns: Optional[int] = None  # data time from which it is applied (None: from start)
     device_key: Optional[str] = None
     extra: dict = field(default_factory=dict)
+    # one standard error per coefficient, same units: {"offset": [3], "scale": [3],
+    # "tempoffset": [3], "temperature_ref": x} (None for a coefficient not fitted; the whole
+    # field None when nothing was fitted). See engine/calibration/uncertainty.py.
+    uncertainty: Optional[dict] = None
 
     def __post_init__(self):
         self.offset = np.asarray(self.offset, np.float64).reshape(3)

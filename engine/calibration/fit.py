@@ -160,6 +160,21 @@ def _wls_qr(curr, closest, t, w, fit_offset, fit_scale):
     return np.array(coefs), fitted
 
 
+def _warm_state(mean, t, start, fit_offset, fit_scale, ggir_compatible, max_weight):
+    """Parameters and weights to start the ICP from ``start`` (identity when unusable)."""
+    n = mean.shape[0]
+    o, s, to = (np.array(v, np.float64).reshape(3) for v in start)
+    o = o if fit_offset else np.zeros(3)
+    s = s if fit_scale else np.ones(3)
+    to = to if t is not None else np.zeros(3)
+    curr = apply_model(mean, t, o, s, to, ggir_arithmetic=ggir_compatible)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        w = np.minimum(1.0 / np.abs(np.sqrt(np.sum(curr * curr, axis=1)) - 1.0), max_weight)
+    if not (np.all(np.isfinite(w)) and np.all(np.isfinite(curr))):
+        return np.zeros(3), np.ones(3), np.zeros(3), np.ones(n)
+    return o, s, to, w
+
+
 @dataclass
 class IcpResult:
     """Parameters and diagnostics of one ICP run."""
@@ -177,12 +192,18 @@ class IcpResult:
 def icp_sphere_fit(mean: np.ndarray, temp_centered: Optional[np.ndarray] = None, *,
                    fit_offset: bool = True, fit_scale: bool = True, ggir_compatible: bool = False,
                    max_iter: int = MAX_ITER, param_tol: float = PARAM_TOL,
-                   res_tol: float = GGIR_RES_TOL, max_weight: float = MAX_WEIGHT) -> IcpResult:
+                   res_tol: float = GGIR_RES_TOL, max_weight: float = MAX_WEIGHT,
+                   start: Optional[tuple] = None) -> IcpResult:
     """Weighted ICP of window means (k, 3) g to the unit sphere.
 
     Each iteration: project the current calibrated points to the sphere; per axis, weighted least
     squares of the projection on [1, current, T - T_ref] (columns per variant); fold the
     coefficients into offset/scale/tempoffset; new weights min(1/distance, max_weight).
+
+    ``start``: (offset, scale, tempoffset) to iterate from instead of identity (a warm start,
+    e.g. the previous fit on a subset of these windows); the first weights are then each point's
+    distance to the sphere under it, which is what they are at a fixed point. The stopping rule
+    is unchanged, so a warm start ends within the tolerance of the same fixed point.
     """
     if not (fit_offset or fit_scale):
         raise ValueError("at least one of offset and scale must be fitted")
@@ -192,6 +213,9 @@ def icp_sphere_fit(mean: np.ndarray, temp_centered: Optional[np.ndarray] = None,
     t = np.asarray(temp_centered, np.float64).reshape(-1) if use_t else None
     offset, scale, tempoffset = np.zeros(3), np.ones(3), np.zeros(3)
     weights = np.ones(n)
+    if start is not None:
+        offset, scale, tempoffset, weights = _warm_state(mean, t, start, fit_offset, fit_scale,
+                                                         ggir_compatible, max_weight)
     res_hist = [float("inf")]
     converged, failed, it = False, "", 0
     for it in range(1, max_iter + 1):
@@ -259,7 +283,9 @@ def fit_calibration(features: WindowFeatures, *, temperature: bool = True,
                     param_tol: float = PARAM_TOL, device_key: Optional[str] = None,
                     data_start_ns: Optional[int] = None, data_end_ns: Optional[int] = None,
                     window_s: float = WINDOW_S,
-                    windows_offered: Optional[int] = None) -> CalibrationEstimate:
+                    windows_offered: Optional[int] = None,
+                    start: Optional[CalibrationEstimate] = None, quantisation_step_g=None,
+                    temperature_fallback: bool = True) -> CalibrationEstimate:
     """Fit the calibration on a table of window features and judge the result.
 
     ``features``: all windows of a recording (``select=True`` picks the nonmovement windows) or
@@ -271,7 +297,20 @@ def fit_calibration(features: WindowFeatures, *, temperature: bool = True,
     applied); ``reverted`` (the fit did not lower the error: identity); ``no_nonmovement``;
     ``too_few_windows``; ``sphere_not_covered``; ``failed`` (the iteration broke down). Every
     non-applied outcome carries identity parameters; the rejected fit is kept in ``extra``.
+
+    ``start``: an estimate to start the iteration from (re-referenced to these windows' mean
+    temperature) instead of identity; same stopping rule, so the result is the same fixed point
+    within ``param_tol``. Used by online refits, whose windows grow by a few percent per refit.
+
+    An applied fit carries one standard error per coefficient (``uncertainty``, block-robust:
+    engine/calibration/uncertainty.py) and the warnings of engine/calibration/trust.py in
+    ``extra["warnings"]``, ``extra["flags"]`` and the reason. With ``variant="auto"`` and
+    ``temperature_fallback`` a temperature term whose standard error is above the limit is
+    dropped and the model refitted without it (C1); the dropped fit is kept in
+    ``extra["temperature_dropped"]``. ``quantisation_step_g``: the stored values' step (g), for
+    the quantisation warning.
     """
+    call = dict(locals())
     if variant not in VARIANTS:
         raise ValueError(f"unknown variant {variant!r}; expected one of {', '.join(VARIANTS)}")
     if ggir_compatible and variant in ("offset", "scale"):
@@ -343,9 +382,14 @@ def fit_calibration(features: WindowFeatures, *, temperature: bool = True,
     if variant == "c2" and not t_ok:
         extra["flags"].append("temperature_unavailable")
 
+    icp_start = None
+    if start is not None:
+        s0 = rereference(start, t_ref) if (t_ok and start.uses_temperature) else start
+        icp_start = (s0.offset, s0.scale, s0.tempoffset)
+        extra["warm_start"] = True
     r = icp_sphere_fit(mean, temp_centered, fit_offset=variant != "scale",
                        fit_scale=variant != "offset", ggir_compatible=ggir_compatible,
-                       max_iter=max_iter, param_tol=param_tol)
+                       max_iter=max_iter, param_tol=param_tol, start=icp_start)
     method = {"offset": "autocal-offset", "scale": "autocal-scale"}.get(
         variant, "autocal-c2" if t_ok else "autocal-c1")
     extra.update(converged=r.converged, stop_rule=r.stop_rule,
@@ -388,10 +432,62 @@ def fit_calibration(features: WindowFeatures, *, temperature: bool = True,
         status = "high_error"
         reason = (f"error {err_before_mg:.2f} -> {err_after_mg:.2f} mg on {n} windows is still "
                   f"above the {target_error_mg:g} mg target (applied){conv}{t_note}")
-    return CalibrationEstimate(
+    est = CalibrationEstimate(
         offset=r.offset, scale=r.scale, tempoffset=r.tempoffset, temperature_ref=t_ref,
         status=status, reason=reason, method=method, error_before_mg=err_before_mg,
         error_after_mg=err_after_mg, windows=n, iterations=r.iterations, **base)
+    return _judge(est, feats, t_ok, call)
+
+
+def _judge(est: CalibrationEstimate, feats: WindowFeatures, t_used: bool,
+           call: dict) -> CalibrationEstimate:
+    """Standard errors and warnings for an applied fit; the C1 fallback when the temperature
+    term is not determined (see :func:`fit_calibration`)."""
+    from .trust import FitWarning, add_warnings, assess, temperature_warning
+    from .uncertainty import BLOCK_GAP_S, MIN_BLOCKS, coefficient_uncertainty
+
+    variant = call["variant"]
+    u = coefficient_uncertainty(feats.mean, feats.temperature if t_used else None, est.offset,
+                                est.scale, est.tempoffset, est.temperature_ref, feats.start_ns,
+                                fit_offset=variant != "scale", fit_scale=variant != "offset")
+    est.uncertainty = u.to_dict()
+    est.extra["uncertainty_blocks"] = u.blocks
+    warnings = []
+    if u.blocks < MIN_BLOCKS:
+        warnings.append(FitWarning("uncertainty_unknown", (
+            f"standard errors not computable: the {len(feats)} windows form only {u.blocks} "
+            f"independent block(s) (< {MIN_BLOCKS}; windows more than {BLOCK_GAP_S / 60:g} min "
+            "apart start a new block)")))
+    tw = temperature_warning(est.tempoffset, u.tempoffset, feats.temperature,
+                             u.blocks) \
+        if t_used and u.blocks >= MIN_BLOCKS else None
+    if tw is not None:
+        if variant == "auto" and call["temperature_fallback"] and not call["ggir_compatible"]:
+            c1 = fit_calibration(**dict(call, variant="c1", start=None))
+            c1.extra["variant"] = variant
+            c1.extra["temperature_used"] = False
+            c1.extra["temperature_reason"] = tw.message
+            c1.extra["temperature_dropped"] = {
+                "offset": est.offset.tolist(), "scale": est.scale.tolist(),
+                "tempoffset": est.tempoffset.tolist(), "temperature_ref": est.temperature_ref,
+                "uncertainty": est.uncertainty, "error_after_mg": est.error_after_mg}
+            if c1.status in ("ok", "high_error"):
+                # the fallback's own warnings are already in; the reason for it goes first
+                c1.extra["warnings"].insert(0, tw.to_dict())
+                c1.extra["flags"].append(tw.code)
+                base, sep, rest = c1.reason.replace(
+                    "; temperature not part of variant c1", "").partition("; warning: ")
+                c1.reason = f"{base}; warning: {tw.message}{sep}{rest}"
+                return c1
+            est.extra["temperature_fallback_failed"] = c1.reason
+        why = ("GGIR-compatible mode" if call["ggir_compatible"] else
+               f"variant {variant} requested" if variant != "auto" else "fallback switched off")
+        tw.message = tw.message.split(": fitted without it")[0] + f": kept ({why})"
+        warnings.append(tw)
+    warnings += assess(est.uncertainty, feats.mean, feats.sd,
+                       quantisation_step_g=call["quantisation_step_g"])
+    add_warnings(est, warnings)
+    return est
 
 
 def estimate_error_mg(estimate: CalibrationEstimate, features: WindowFeatures) -> tuple[float, int]:

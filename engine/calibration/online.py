@@ -8,6 +8,11 @@ its fit range (``fit_start_ns``..``fit_end_ns``) and the data time from which it
 ``current`` only when its own fit succeeded (sphere covered, error lowered) *and* its error on the
 windows so far is below that of the estimate in force; before the first accepted estimate the
 prior (the device's stored estimate) or identity is in force.
+
+Each refit starts from the previous fit, moved near the new fixed point by
+:func:`refit.extrapolated_start` (``warm_start=False``: from identity, as a lone fit does); the
+stopping rule is the fit's own, so both give the same estimate within its 1e-9 parameter
+tolerance, and a refit costs ~11 passes over the windows instead of ~45.
 """
 
 from __future__ import annotations
@@ -19,6 +24,7 @@ import numpy as np
 from ..features import WindowFeatures
 from .estimate import CalibrationEstimate
 from .fit import MIN_WINDOWS, WINDOW_S, estimate_error_mg, fit_calibration
+from .refit import extrapolated_start
 from .schedule import CHUNK_HOURS
 from .select import MAX_ABS_MEAN_G, SD_THRESHOLD_G, select_calibration_windows
 
@@ -38,7 +44,7 @@ class OnlineCalibrator:
                  chunk_hours: float = CHUNK_HOURS, *, start_ns: Optional[int] = None,
                  device_key: Optional[str] = None, sd_threshold: float = SD_THRESHOLD_G,
                  max_abs_mean: float = MAX_ABS_MEAN_G, window_s: float = WINDOW_S,
-                 **fit_options):
+                 warm_start: bool = True, **fit_options):
         if chunk_hours <= 0:
             raise ValueError("chunk_hours must be positive")
         if fit_options.get("ggir_compatible"):
@@ -52,6 +58,8 @@ class OnlineCalibrator:
         self.max_abs_mean = max_abs_mean
         self.window_s = window_s
         self.fit_options = fit_options
+        self.warm_start = bool(warm_start)
+        self._last_fit: Optional[CalibrationEstimate] = None  # the previous refit (warm start)
         if prior is None:
             self.current = CalibrationEstimate.identity("online: no estimate accepted yet")
             self.current.device_key = self.device_key
@@ -132,11 +140,18 @@ class OnlineCalibrator:
             return []  # no new windows since the last fit: nothing new to say
         self._n_at_last_fit = self._n
         wins = self.windows
+        start = None
+        if self.warm_start and self._last_fit is not None:
+            start = extrapolated_start(self._last_fit, wins,
+                                       temperature=self.fit_options.get("temperature", True),
+                                       variant=self.fit_options.get("variant", "auto"))
         est = fit_calibration(wins, select=False, data_start_ns=self.start_ns,
                               data_end_ns=fit_end_ns, device_key=self.device_key,
                               window_s=self.window_s, sd_threshold=self.sd_threshold,
                               max_abs_mean=self.max_abs_mean, windows_offered=self._offered,
-                              **self.fit_options)
+                              start=start, **self.fit_options)
+        if est.status in APPLICABLE:
+            self._last_fit = est
         est.effective_from_ns = int(effective_ns)
         est.extra["mode"] = "online"
         if est.status in APPLICABLE and len(wins):

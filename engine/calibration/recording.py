@@ -20,6 +20,7 @@ from .estimate import CalibrationEstimate
 from .fit import TARGET_ERROR_MG, WINDOW_S
 from .schedule import CHUNK_HOURS, FIRST_HOURS, BatchSchedule
 from .select import MAX_ABS_MEAN_G, SD_THRESHOLD_G
+from .trust import CountStep
 
 
 @dataclass
@@ -64,11 +65,14 @@ def calibrate_source(source, *, first_hours: float = FIRST_HOURS, chunk_hours: f
                                   window_s=WINDOW_S, **fit_kw)
         selected = nm.push(feats)
         sched.offered = wop.windows
+        sched.fit_kw["quantisation_step_g"] = step.step_g
         return sched.add(selected, now_ns=now_ns)
 
+    step = CountStep()  # the stored values' quantisation step, for the fit's warning
     for block in source:
         if block.n == 0:
             continue
+        step.push(block)
         samples += block.n
         last_ns = int(block.time_ns[-1])
         if first_ns is None:

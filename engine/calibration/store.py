@@ -27,6 +27,7 @@ from typing import Optional
 from stillpoint.drivers.errors import StillpointError
 
 from .estimate import CalibrationEstimate
+from .validate import validate_estimate
 
 HOME_ENV = "STILLPOINT_HOME"
 STORE_VERSION = 1
@@ -72,7 +73,12 @@ def _locked(path: Path):
     except ImportError:  # pragma: no cover - non-POSIX: atomic rename still protects the file
         yield
         return
-    with open(lock, "a") as f:
+    try:
+        f = open(lock, "a")
+    except OSError as e:
+        why = "is a folder" if lock.is_dir() else (e.strerror or str(e))
+        raise CalibrationStoreError(f"{lock}: cannot use the store's lock file: {why}") from None
+    with f:
         fcntl.flock(f, fcntl.LOCK_EX)
         try:
             yield
@@ -91,20 +97,35 @@ class CalibrationStore:
     def _path(self, device_key: str) -> Path:
         return self.dir / device_file_name(device_key)
 
+    def _check_root(self) -> None:
+        for p in (self.root, self.dir):
+            if p.exists() and not p.is_dir():
+                raise CalibrationStoreError(f"{p}: the calibration store must be a folder, this is a file")
+
     def _read(self, path: Path) -> dict:
+        self._check_root()
         try:
             with open(path, encoding="utf-8") as f:
                 doc = json.load(f)
         except FileNotFoundError:
             return {}
-        except (OSError, ValueError) as e:
-            raise CalibrationStoreError(f"{path}: unreadable calibration store file: {e}") from None
+        except (OSError, ValueError, RecursionError) as e:
+            why = "is a folder" if path.is_dir() else e
+            raise CalibrationStoreError(f"{path}: unreadable calibration store file: {why}") from None
         if not isinstance(doc, dict) or not isinstance(doc.get("records"), list):
             raise CalibrationStoreError(f"{path}: not a calibration store file (no 'records' list)")
+        for i, r in enumerate(doc["records"]):
+            if not (isinstance(r, dict) and isinstance(r.get("estimate"), dict)
+                    and isinstance(r.get("status", ""), str)):
+                raise CalibrationStoreError(f"{path}: record {i} is malformed (expected an object "
+                                            "with an 'estimate' object and a 'status')")
         return doc
 
+    def _estimate(self, device_key: str, i: int, record: dict) -> CalibrationEstimate:
+        return validate_estimate(record["estimate"], f"{self._path(device_key)} record {i}")
+
     def _write(self, path: Path, doc: dict) -> None:
-        self.dir.mkdir(parents=True, exist_ok=True)
+        self._mkdir()
         fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".json", dir=self.dir)
         try:
             with os.fdopen(fd, "w", encoding="utf-8") as f:
@@ -139,9 +160,10 @@ class CalibrationStore:
                         "windows": estimate.windows, "hours_used": estimate.hours_used},
             "estimate": est,
         }
+        validate_estimate(est, f"estimate for {key}")  # never store what could not be loaded
         ident = self._identity(record)
         path = self._path(key)
-        self.dir.mkdir(parents=True, exist_ok=True)
+        self._mkdir()
         with _locked(path):
             doc = self._read(path) or {"version": STORE_VERSION, "device_key": key, "records": []}
             if doc.get("device_key") != key:
@@ -153,6 +175,14 @@ class CalibrationStore:
             self._write(path, doc)
         return record
 
+    def _mkdir(self) -> None:
+        self._check_root()
+        try:
+            self.dir.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise CalibrationStoreError(f"{self.dir}: cannot create the calibration store folder: "
+                                        f"{e.strerror or e}") from None
+
     @staticmethod
     def _identity(record: dict):
         e = record.get("estimate", {})
@@ -163,6 +193,7 @@ class CalibrationStore:
     # ------------------------------------------------------------------ read
     def devices(self) -> list[str]:
         """Device keys that have a file in the store."""
+        self._check_root()
         if not self.dir.is_dir():
             return []
         keys = []
@@ -179,22 +210,24 @@ class CalibrationStore:
         return list(self._read(self._path(device_key)).get("records", []))
 
     def estimates(self, device_key: str) -> list[CalibrationEstimate]:
-        return [CalibrationEstimate.from_dict(r["estimate"]) for r in self.records(device_key)]
+        return [self._estimate(device_key, i, r) for i, r in enumerate(self.records(device_key))]
 
     def latest(self, device_key: str, statuses=USABLE_STATUSES) -> Optional[CalibrationEstimate]:
         """The estimate fitted on the most recent data whose status is in ``statuses``."""
-        for r in reversed(self.records(device_key)):
-            if statuses is None or r.get("status") in statuses:
-                return CalibrationEstimate.from_dict(r["estimate"])
+        recs = self.records(device_key)
+        for i in range(len(recs) - 1, -1, -1):
+            if statuses is None or recs[i].get("status") in statuses:
+                return self._estimate(device_key, i, recs[i])
         return None
 
     def latest_static(self, device_key: str):
         """The device's latest usable six-orientation static calibration (method ``static-6``)
         as a CalibrationEstimate (the static result in ``extra["static"]``), or None."""
         from .static import STATIC_METHOD
-        for r in reversed(self.records(device_key)):
-            if r.get("method") == STATIC_METHOD and r.get("status") in USABLE_STATUSES:
-                return CalibrationEstimate.from_dict(r["estimate"])
+        recs = self.records(device_key)
+        for i in range(len(recs) - 1, -1, -1):
+            if recs[i].get("method") == STATIC_METHOD and recs[i].get("status") in USABLE_STATUSES:
+                return self._estimate(device_key, i, recs[i])
         return None
 
     def prior_for(self, device_key: str) -> Optional[CalibrationEstimate]:

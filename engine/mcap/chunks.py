@@ -2,8 +2,10 @@
 
 ``ChunkBuilder`` turns messages into MCAP Message records (one ``struct.pack`` each, or one
 numpy pass for a run of fixed-size messages) appended to the uncompressed chunk in progress,
-and hands the chunk's bytes over at each flush (``take()``); compressing and writing it is the
-writer's job (engine/mcap/writer.py). Schemas and Channels are registered lazily: their records
+and hands the chunk's bytes over at each flush (``take()``) with the chunk's Message Index
+records (one per channel in the chunk: log time and offset of every message, sorted by log
+time, as the MCAP specification asks); compressing and writing them is the writer's job
+(engine/mcap/writer.py). Schemas and Channels are registered lazily: their records
 go into the chunk where the topic first appears (so a salvaged prefix of the file is
 self-describing), and are repeated in the summary. Message counts per channel and the time range
 feed the summary's Statistics record.
@@ -32,7 +34,7 @@ class FixedRecords:
 class ChunkBuilder:
     def __init__(self, schemas: dict[str, tuple[str, bytes]], chunk_size: int):
         """``schemas``: name -> (encoding, schema text) of every schema a channel may use."""
-        self._schema_defs = schemas
+        self.schema_defs = dict(schemas)
         self.chunk_size = int(chunk_size)
         self.schema_ids: dict[str, int] = {}
         self.schema_records: list[bytes] = []
@@ -48,8 +50,16 @@ class ChunkBuilder:
         self._size = 0
         self._cstart: Optional[int] = None  # over the open chunk
         self._cend: Optional[int] = None
+        self._index: dict[int, list] = {}  # cid -> [(log_time, offset) | (times, offsets) arrays]
 
     # ------------------------------------------------------------------ registry
+    def define(self, name: str, encoding: str, data: bytes) -> None:
+        """Make a schema known (its record is written when a channel first uses it)."""
+        old = self.schema_defs.get(name)
+        if old is not None and old != (encoding, data):
+            raise ValueError(f"schema {name!r} defined twice with different content")
+        self.schema_defs[name] = (encoding, data)
+
     def channel(self, topic: str, encoding: str, schema: Optional[str]) -> int:
         cid = self.channel_ids.get(topic)
         if cid is not None:
@@ -60,7 +70,7 @@ class ChunkBuilder:
             if not sid:
                 sid = len(self.schema_ids) + 1
                 self.schema_ids[schema] = sid
-                enc, text = self._schema_defs[schema]
+                enc, text = self.schema_defs[schema]
                 r = rec.schema(sid, schema, enc, text)
                 self.schema_records.append(r)
                 self._append(r)
@@ -85,15 +95,24 @@ class ChunkBuilder:
             self._cstart = min(self._cstart, lo)
             self._cend = max(self._cend, hi)
 
-    def add(self, cid: int, log_time: int, data: bytes) -> bool:
-        """Append one message; True when the chunk has reached ``chunk_size`` (take it)."""
+    def add(self, cid: int, log_time: int, data: bytes, *, sequence: Optional[int] = None,
+            publish_time: Optional[int] = None) -> bool:
+        """Append one message; True when the chunk has reached ``chunk_size`` (take it).
+        ``sequence`` and ``publish_time`` default to the channel's counter and the log time."""
         t = max(0, int(log_time))
         seq = self._seq[cid]
         self._seq[cid] = seq + 1
+        if sequence is not None:
+            seq = int(sequence)
         self.counts[cid] += 1
         self.message_count += 1
+        ix = self._index.get(cid)
+        if ix is None:
+            ix = self._index[cid] = []
+        ix.append((t, self._size))
         self._parts.append(_MSG_HEAD.pack(rec.OP_MESSAGE, rec.MESSAGE_OVERHEAD + len(data), cid,
-                                          seq & 0xFFFFFFFF, t, t))
+                                          seq & 0xFFFFFFFF, t,
+                                          t if publish_time is None else max(0, int(publish_time))))
         self._parts.append(data)
         self._size += _MSG_HEAD.size + len(data)
         self._times(t, t)
@@ -129,8 +148,12 @@ class ChunkBuilder:
         self._seq[fr.cid] += k
         self.counts[fr.cid] += k
         self.message_count += k
-        self._append(fr.data[lo * fr.width:hi * fr.width])
         tt = fr.times[lo:hi]
+        ix = self._index.get(fr.cid)
+        if ix is None:
+            ix = self._index[fr.cid] = []
+        ix.append((tt, self._size + fr.width * np.arange(k, dtype=np.int64)))
+        self._append(fr.data[lo * fr.width:hi * fr.width])
         self._times(int(tt.min()), int(tt.max()))
         return self._size >= self.chunk_size
 
@@ -144,18 +167,42 @@ class ChunkBuilder:
     def pending(self) -> bool:
         return self._cstart is not None
 
-    def take(self) -> Optional[tuple[bytes, int, int]]:
-        """The open chunk's records and time range (None if it holds no message); starts a new one.
-        Schema/Channel records registered while no message followed stay for the next chunk."""
+    def _message_indexes(self) -> list[tuple[int, bytes]]:
+        """(channel id, Message Index record) for every channel in the open chunk, by id."""
+        out = []
+        for cid in sorted(self._index):
+            items = self._index[cid]
+            singles = [it for it in items if not isinstance(it[0], np.ndarray)]
+            ts = [np.asarray([it[0] for it in singles], np.int64)] if singles else []
+            os_ = [np.asarray([it[1] for it in singles], np.int64)] if singles else []
+            for it in items:
+                if isinstance(it[0], np.ndarray):
+                    ts.append(it[0])
+                    os_.append(it[1])
+            t = np.concatenate(ts) if len(ts) > 1 else ts[0]
+            o = np.concatenate(os_) if len(os_) > 1 else os_[0]
+            order = np.lexsort((o, t))  # by log time, then file order
+            e = np.empty((t.shape[0], 2), "<u8")
+            e[:, 0] = t[order]
+            e[:, 1] = o[order]
+            out.append((cid, rec.message_index(cid, e.tobytes())))
+        return out
+
+    def take(self) -> Optional[tuple[bytes, int, int, list]]:
+        """The open chunk's records, time range and Message Index records (None if it holds no
+        message); starts a new one. Schema/Channel records registered while no message followed
+        stay for the next chunk."""
         if self._cstart is None:
             return None
         data = b"".join(self._parts)
         lo, hi = self._cstart, self._cend
+        indexes = self._message_indexes()
+        self._index = {}
         self._parts, self._size, self._cstart, self._cend = [], 0, None, None
         self.start = lo if self.start is None else min(self.start, lo)
         self.end = hi if self.end is None else max(self.end, hi)
         self.chunks += 1
-        return data, lo, hi
+        return data, lo, hi, indexes
 
     def summary(self, metadata_count: int) -> dict:
         """What the writer needs for the summary section (plain data, picklable)."""

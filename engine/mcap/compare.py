@@ -1,7 +1,8 @@
 """Compare two stillpoint MCAP logs topic by topic (message payloads, bit for bit).
 
-Used by ``stillpoint replay --check``: a replay with the original settings must reproduce the
-corrected stream, the epoch metrics and every calibration estimate exactly.
+Used by ``stillpoint replay --check``: a replay with the original settings must reproduce every
+topic of the log exactly (raw accel and gyro, corrected stream, temperature, epoch metrics,
+calibration estimates, QC).
 """
 
 from __future__ import annotations
@@ -9,36 +10,36 @@ from __future__ import annotations
 import hashlib
 from itertools import zip_longest
 
-from mcap.reader import make_reader
-
-REPLAY_TOPICS = ("/corrected/accel", "/metrics/epoch", "/calibration", "/raw/accel")
+from .reading import iter_messages
 
 
-def topic_digests(path, topics=REPLAY_TOPICS) -> dict:
-    """{topic: (messages, sha256 of every (log_time, payload))} in file order."""
-    out = {t: [0, hashlib.sha256()] for t in topics}
-    with open(path, "rb") as f:
-        for _s, ch, msg in make_reader(f).iter_messages(topics=list(topics), log_time_order=False):
-            d = out[ch.topic]
-            d[0] += 1
-            d[1].update(msg.log_time.to_bytes(8, "little"))
-            d[1].update(len(msg.data).to_bytes(8, "little"))
-            d[1].update(msg.data)
+def topic_digests(path, topics=None) -> dict:
+    """{topic: (messages, sha256 of every (log_time, payload))} in file order; every topic of the
+    file when ``topics`` is None. Chunk CRCs are checked (a damaged log is an error, not a diff)."""
+    out = {t: [0, hashlib.sha256()] for t in (topics or ())}
+    for topic, _i, msg in iter_messages(path, topics):
+        d = out.setdefault(topic, [0, hashlib.sha256()])
+        d[0] += 1
+        d[1].update(msg.log_time.to_bytes(8, "little"))
+        d[1].update(len(msg.data).to_bytes(8, "little"))
+        d[1].update(msg.data)
     return {t: (n, h.hexdigest()) for t, (n, h) in out.items()}
 
 
-def compare(a, b, topics=REPLAY_TOPICS) -> dict:
-    """{topic: {"identical": bool, "messages": (na, nb)}}."""
+def compare(a, b, topics=None) -> dict:
+    """{topic: {"identical": bool, "messages": (na, nb)}} over ``topics``, or every topic that
+    either log holds (a topic missing from one side counts 0 messages there)."""
     da, db = topic_digests(a, topics), topic_digests(b, topics)
-    return {t: {"identical": da[t] == db[t], "messages": (da[t][0], db[t][0])} for t in topics}
+    names = list(topics) if topics else sorted(set(da) | set(db))
+    empty = (0, hashlib.sha256().hexdigest())
+    return {t: {"identical": da.get(t, empty) == db.get(t, empty),
+                "messages": (da.get(t, empty)[0], db.get(t, empty)[0])} for t in names}
 
 
 def first_difference(a, b, topic) -> int | None:
     """Index of the first differing message of ``topic`` (None when identical)."""
-    with open(a, "rb") as fa, open(b, "rb") as fb:
-        ia = make_reader(fa).iter_messages(topics=[topic], log_time_order=False)
-        ib = make_reader(fb).iter_messages(topics=[topic], log_time_order=False)
-        for i, (x, y) in enumerate(zip_longest(ia, ib)):
-            if x is None or y is None or x[2].data != y[2].data or x[2].log_time != y[2].log_time:
-                return i
+    ia, ib = iter_messages(a, [topic]), iter_messages(b, [topic])
+    for i, (x, y) in enumerate(zip_longest(ia, ib)):
+        if x is None or y is None or x[2].data != y[2].data or x[2].log_time != y[2].log_time:
+            return i
     return None

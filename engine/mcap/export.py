@@ -30,9 +30,9 @@ import zipfile
 from pathlib import Path
 
 import numpy as np
-from mcap.reader import make_reader
+from stillpoint.drivers.errors import StillpointError
 
-from stillpoint.drivers.errors import CorruptRecordingError, StillpointError
+from .reading import McapReadError, check_raw_message, decode, iter_messages, text
 
 from .schemas import (ACCEL_BATCH, ACCEL_BATCH_RAW, EPOCH_METRICS, GYRO_BATCH_RAW, TEMPERATURE,
                            times_from_deltas)
@@ -45,36 +45,42 @@ class ExportError(StillpointError):
     pass
 
 
-def _rows(topic: str, data: bytes, log_time: int) -> dict:
-    """Columns of one message (numpy arrays of equal length)."""
+def _rows(topic: str, data: bytes, log_time: int, path=None, index: int = 0) -> dict:
+    """Columns of one message (numpy arrays of equal length); a payload that does not decode is
+    an ``McapReadError`` naming the file, topic and message."""
     if topic == "/corrected/accel":
-        m = ACCEL_BATCH.decode(data)
+        m = decode(ACCEL_BATCH, path, topic, index, data)
+        if not m["x"].shape[0] == m["y"].shape[0] == m["z"].shape[0] == m["dt_ns"].shape[0]:
+            raise McapReadError(path, "x/y/z and times differ in length", channel=topic,
+                                record=f"message {index}")
         t = times_from_deltas(m["t0_ns"], m["dt_ns"])
         return {"time_ns": t, "x": m["x"], "y": m["y"], "z": m["z"],
                 "segment": np.full(t.shape[0], m["segment"], np.int64)}
     if topic == "/raw/accel":
-        m = ACCEL_BATCH_RAW.decode(data)
+        m = decode(ACCEL_BATCH_RAW, path, topic, index, data)
+        check_raw_message(m, path, topic, index)
         t = times_from_deltas(m["t0_ns"], m["dt_ns"])
         c = np.stack([m["x"], m["y"], m["z"]], axis=1).astype(np.float64)
         g = (c - m["zero_counts"]) / m["counts_per_g"]
         return {"time_ns": t, "x": g[:, 0], "y": g[:, 1], "z": g[:, 2], "cx": m["x"], "cy": m["y"],
                 "cz": m["z"], "segment": np.full(t.shape[0], m["segment"], np.int64)}
     if topic == "/raw/gyro":
-        m = GYRO_BATCH_RAW.decode(data)
+        m = decode(GYRO_BATCH_RAW, path, topic, index, data)
+        check_raw_message(m, path, topic, index, gyro=True)
         t = times_from_deltas(m["t0_ns"], m["dt_ns"])
         k = m["dps_per_count"]
         return {"time_ns": t, "gx": m["x"] * k, "gy": m["y"] * k, "gz": m["z"] * k}
     if topic == "/metrics/epoch":
-        m = EPOCH_METRICS.decode(data)
+        m = decode(EPOCH_METRICS, path, topic, index, data)
         return {"time_ns": np.array([m["stamp"]], np.int64),
                 **{k: np.array([m[k]]) for k in ("n", "enmo_mg", "bfen_mg", "mad_mg", "x", "y", "z",
                                                  "temperature_c")}}
     if topic == "/temperature":
-        m = TEMPERATURE.decode(data)
+        m = decode(TEMPERATURE, path, topic, index, data)
         return {"time_ns": np.array([m["stamp"]], np.int64), "celsius": np.array([m["celsius"]])}
     if topic in ("/calibration", "/qc"):
         return {"time_ns": np.array([log_time], np.int64),
-                "json": np.array([bytes(data).decode()], object)}
+                "json": np.array([text(path, topic, index, data)], object)}
     raise ExportError(f"topic {topic} cannot be exported (known: /corrected/accel, /raw/accel, "
                       f"/raw/gyro, /metrics/epoch, /temperature, /calibration, /qc)")
 
@@ -92,16 +98,8 @@ def _fmt(col: np.ndarray) -> np.ndarray:
 
 
 def _messages(path, topics):
-    with open(path, "rb") as f:
-        try:
-            reader = make_reader(f)
-            for _s, ch, msg in reader.iter_messages(topics=list(topics), log_time_order=False):
-                yield ch.topic, msg
-        except StillpointError:
-            raise
-        except Exception as e:
-            raise CorruptRecordingError(path, f"cannot read the MCAP ({type(e).__name__}: {e}); if the "
-                                              f"run was interrupted, run `stillpoint recover` first") from None
+    """(topic, index within the topic, message), CRC-checked; damage is an ``McapReadError``."""
+    yield from iter_messages(path, topics)
 
 
 def _export_csv(path, out: Path, topic: str) -> int:
@@ -109,8 +107,8 @@ def _export_csv(path, out: Path, topic: str) -> int:
     rows = 0
     header = None
     with opener(out, "wt", newline="") as f:
-        for _t, msg in _messages(path, [topic]):
-            cols = _rows(topic, msg.data, msg.log_time)
+        for _t, i, msg in _messages(path, [topic]):
+            cols = _rows(topic, msg.data, msg.log_time, path, i)
             if header is None:
                 header = ["time"] + list(cols)
                 f.write(",".join(header) + "\n")
@@ -128,8 +126,8 @@ def _export_npz(path, out: Path, topics) -> dict:
     files: dict[str, tuple] = {}  # name -> (file, dtype, count)
     counts: dict[str, int] = {}
     try:
-        for topic, msg in _messages(path, topics):
-            cols = _rows(topic, msg.data, msg.log_time)
+        for topic, i, msg in _messages(path, topics):
+            cols = _rows(topic, msg.data, msg.log_time, path, i)
             counts[topic] = counts.get(topic, 0) + len(cols["time_ns"])
             for k, v in cols.items():
                 name = f"{topic.strip('/')}/{k}"

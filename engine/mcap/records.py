@@ -2,8 +2,8 @@
 
 The MCAP format is a sequence of records ``opcode u8, length u64, body`` (specs/mcap-python.md
 §2; field order as in the MCAP specification). Only what stillpoint writes is here: Header,
-Schema, Channel, Message (header part), Chunk, ChunkIndex (no message-index offsets),
-Metadata, MetadataIndex, Statistics, DataEnd, SummaryOffset, Footer. Strings are ``u32 length +
+Schema, Channel, Message (header part), Chunk, MessageIndex, ChunkIndex, Metadata,
+MetadataIndex, Statistics, DataEnd (with the data-section CRC), SummaryOffset, Footer. Strings are ``u32 length +
 UTF-8``, maps ``u32 byte length + entries``, all integers little-endian.
 
 No dependency but the standard library, so the writer process stays small.
@@ -16,7 +16,7 @@ import struct
 MAGIC = b"\x89MCAP0\r\n"
 
 OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK = 0x01, 0x02, 0x03, 0x04, 0x05, 0x06
-OP_CHUNK_INDEX, OP_STATISTICS, OP_METADATA, OP_METADATA_INDEX = 0x08, 0x0B, 0x0C, 0x0D
+OP_MESSAGE_INDEX, OP_CHUNK_INDEX, OP_STATISTICS, OP_METADATA, OP_METADATA_INDEX = 0x07, 0x08, 0x0B, 0x0C, 0x0D
 OP_SUMMARY_OFFSET, OP_DATA_END = 0x0E, 0x0F
 
 _REC = struct.Struct("<BQ")
@@ -70,10 +70,24 @@ def chunk(start: int, end: int, uncompressed_size: int, crc: int, compression: s
     return [_REC.pack(OP_CHUNK, len(head) + len(data)) + head, data]
 
 
-def chunk_index(start: int, end: int, offset: int, length: int, compression: str,
-                compressed_size: int, uncompressed_size: int) -> bytes:
-    return record(OP_CHUNK_INDEX, struct.pack("<QQQQI", start, end, offset, length, 0)
-                  + struct.pack("<Q", 0) + _str(compression)
+MESSAGE_INDEX_ENTRY = 16  # log_time u64, offset u64
+
+
+def message_index(cid: int, entries: bytes) -> bytes:
+    """A Message Index record: ``entries`` are packed (log_time u64, offset u64) pairs, the
+    offset counted from the start of the chunk's uncompressed records."""
+    return _REC.pack(OP_MESSAGE_INDEX, 6 + len(entries)) + struct.pack("<HI", cid, len(entries)) \
+        + entries
+
+
+def chunk_index(start: int, end: int, offset: int, length: int, index_offsets: dict,
+                index_length: int, compression: str, compressed_size: int,
+                uncompressed_size: int) -> bytes:
+    """A Chunk Index record; ``index_offsets``: channel id -> file offset of that channel's
+    Message Index record after the chunk; ``index_length``: bytes of all of them."""
+    offs = b"".join(struct.pack("<HQ", c, o) for c, o in index_offsets.items())
+    return record(OP_CHUNK_INDEX, struct.pack("<QQQQI", start, end, offset, length, len(offs))
+                  + offs + struct.pack("<Q", index_length) + _str(compression)
                   + struct.pack("<QQ", compressed_size, uncompressed_size))
 
 

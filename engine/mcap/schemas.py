@@ -16,6 +16,7 @@ Types
 * ``GyroBatchRaw`` (``/raw/gyro``, AX6): gyro counts of the same samples, with dps per count.
 * ``AccelBatch`` (``/corrected/accel``): calibrated acceleration, float32 g.
 * ``Temperature`` (``/temperature``): one value per raw batch (mean of its units, degC).
+* ``AccelSample`` (``/view/accel``): one decimated corrected sample and its norm, for plots.
 * ``EpochMetrics`` (``/metrics/epoch``): one message per epoch, scalars only, so Foxglove's Plot
   panel draws every field against time: the plot-friendly preview of the run (§7.3).
 """
@@ -259,7 +260,13 @@ EPOCH_METRICS = CdrType("stillpoint/msg/EpochMetrics", [
     ("temperature_c", "float32"),
 ], doc="One epoch: ENMO, BFEN, MAD (mg), mean calibrated acceleration (g), mean temperature.")
 
-ALL_TYPES = (ACCEL_BATCH_RAW, GYRO_BATCH_RAW, ACCEL_BATCH, TEMPERATURE, EPOCH_METRICS)
+VIEW_SAMPLE = CdrType("stillpoint/msg/AccelSample", [
+    ("stamp", "time"),
+    ("x", "float32"), ("y", "float32"), ("z", "float32"),
+    ("norm", "float32"),
+], doc="One corrected sample (g) of the decimated view stream, with its norm.")
+
+ALL_TYPES = (ACCEL_BATCH_RAW, GYRO_BATCH_RAW, ACCEL_BATCH, TEMPERATURE, EPOCH_METRICS, VIEW_SAMPLE)
 
 INT32_MAX = 2**31 - 1
 

@@ -10,10 +10,14 @@ topic                encoding / schema            one message per
 /raw/gyro            cdr GyroBatchRaw (AX6 only)  same samples as /raw/accel
 /corrected/accel     cdr AccelBatch (float32 g)   cell and segment
 /temperature         cdr Temperature              raw message (mean of its units)
+/view/accel          cdr AccelSample              view sample (``view_hz`` a second; 0 = off)
 /metrics/epoch       cdr EpochMetrics             epoch (plot-friendly preview, one value each)
-/calibration         json                         estimate published (with fit range, effect)
-/qc                  json                         QC event (reader and engine)
+/calibration         json + jsonschema            estimate published (with fit range, effect)
+/qc                  json + jsonschema            QC event (reader and engine)
 ==================== ============================ =============================================
+
+No message is logged before the recording's first sample: an online prior is logged at the
+first sample's time, with ``fitted_at_ns`` saying when it was fitted.
 
 Metadata records: ``device`` (DeviceInfo fields), ``settings`` (the run's settings, JSON in the
 value ``json``), and at the end ``summary`` and ``calibration`` (the estimate applied).
@@ -22,8 +26,8 @@ Cells: data time is cut into cells of ``flush_every_s`` (default 10 s) on the UT
 messages hold the whole sectors/pages that start in a cell; corrected messages hold the samples
 of one cell and segment (so replay reproduces the message layout exactly). The sink flushes the
 chunk in progress each time a new cell begins, so a killed process loses at most the cell in
-progress (plus the correction's one-unit lag); chunks carry no per-message index (readers scan
-the small chunks), which keeps the writer's summary bookkeeping small.
+progress (plus the correction's one-unit lag). Every chunk is followed by its Message Index
+records (the MCAP specification's layout, which indexed readers such as Foxglove's need).
 Corrected values are rounded to ``corrected_quantum_g`` (2^-16 g = 15 µg, 1/256 of the finest
 AX3 count) before float32: float noise below the sensor's resolution does not compress, and
 without it the corrected stream alone would be twice the size of the raw one.
@@ -31,7 +35,8 @@ The file is fsynced at flushes at most once per ``fsync_every_wall_s`` of wall t
 only loses what Python had not handed to the OS; fsync protects against power loss).
 ``recover`` salvages every complete chunk of a file that was never finished.
 
-The sink builds each chunk's records itself (engine/mcap/chunks.py: one ``struct.pack`` per
+The sink is an ``McapLog`` (engine/mcap/log.py, the one writer path: ``<name>.part`` renamed
+when finished) and builds each chunk's records itself (engine/mcap/chunks.py: one ``struct.pack`` per
 message, one numpy pass for a cell's epochs); the writer (engine/mcap/writer.py) compresses and
 writes chunks and the summary. By default that happens inline (``writer="inline"``): each chunk
 is compressed and handed to the OS as its cell ends, so a killed run loses only the cell in
@@ -46,10 +51,6 @@ calls, so the file is deterministic.
 from __future__ import annotations
 
 import json
-import os
-import queue
-import threading
-import time
 from dataclasses import asdict, is_dataclass
 from typing import Optional
 
@@ -58,7 +59,7 @@ import numpy as np
 from ..blocks import Block, DeviceInfo, PER_SAMPLE_BUTTON, PER_SAMPLE_LIGHT_RAW
 from ..calibration.estimate import CalibrationEstimate
 from .schemas import (ACCEL_BATCH, ACCEL_BATCH_RAW, ALL_TYPES, EPOCH_METRICS, GYRO_BATCH_RAW,
-                           TEMPERATURE, INT32_MAX, max_step_ok, time_deltas)
+                           TEMPERATURE, VIEW_SAMPLE, INT32_MAX, max_step_ok, time_deltas)
 from ..operators.correction import CorrectedBatch
 from ..operators.metrics import EpochMetrics
 
@@ -70,8 +71,10 @@ TOPIC_METRICS = "/metrics/epoch"
 TOPIC_CALIBRATION = "/calibration"
 TOPIC_QC = "/qc"
 
-from .chunks import ChunkBuilder
-from .writer import CHUNK_SIZE, LIBRARY, ZSTD_LEVEL, WriterProcess, _WriterCore  # noqa: F401
+from .jsonschemas import CALIBRATION, QC
+from .log import McapLog
+from .view import TOPIC_VIEW, ViewDecimator, view_records
+from .writer import CHUNK_SIZE, LIBRARY, ZSTD_LEVEL  # noqa: F401
 
 
 def _jsonable(x):
@@ -184,8 +187,11 @@ def epoch_messages(m: EpochMetrics) -> list[bytes]:
 
 
 def estimate_message(est: CalibrationEstimate, applied: bool) -> dict:
+    """The ``/calibration`` message: the estimate, whether it is applied, and ``fitted_at_ns``
+    (the end of the data it was fitted on)."""
     d = est.to_dict()
     d["applied"] = bool(applied)
+    d["fitted_at_ns"] = est.fit_end_ns
     return d
 
 
@@ -287,19 +293,22 @@ class _CorrectedRun:
             self.dt[starts] = 0
 
 
-class McapSink:
-    """Writes one run's MCAP (see module docstring). Use as a context manager or call close().
+class McapSink(McapLog):
+    """Writes one run's MCAP (see module docstring) through ``McapLog`` (the one writer path:
+    ``<name>.part`` renamed when finished). Use as a context manager or call close().
 
     ``writer``: "inline" (default), "thread" or "process" (see the module docstring).
+    ``view_hz``: rate of the ``/view/accel`` topic (0: off).
     """
 
     def __init__(self, path, info: DeviceInfo, settings: dict, *, flush_every_s: float = 10.0,
                  fsync_every_wall_s: float = 1.0, compression: str = "zstd",
                  chunk_size: int = CHUNK_SIZE, corrected_quantum_g: float = 2.0 ** -16,
-                 message_s: float = 60.0, writer: str = "inline", zstd_level: int = ZSTD_LEVEL):
-        if writer not in ("process", "thread", "inline"):
-            raise ValueError("writer must be 'process', 'thread' or 'inline'")
-        self.path = str(path)
+                 message_s: float = 60.0, writer: str = "inline", zstd_level: int = ZSTD_LEVEL,
+                 view_hz: float = 0.0):
+        super().__init__(path, compression=compression, chunk_size=chunk_size,
+                         fsync_every_wall_s=fsync_every_wall_s, writer=writer,
+                         zstd_level=zstd_level)
         self.flush_every_ns = int(flush_every_s * 1e9) if flush_every_s else None
         self.quantum = corrected_quantum_g
         self._cell: Optional[int] = None  # data-time cell (flush_every_s) being written
@@ -307,75 +316,13 @@ class McapSink:
         self._pending_corr: list[CorrectedBatch] = []
         self._corr_cell: Optional[int] = None
         self.flushes = 0
-        self.writer_maxrss_mb: Optional[float] = None  # writer process peak RSS (process mode)
-        self._error: Optional[str] = None
-        self._q: Optional[queue.Queue] = None
-        self._thread = None
-        self._conn = None
-        self._metadata = 0
-        self._chunk = ChunkBuilder({t.name: ("ros2msg", t.schema_text().encode()) for t in ALL_TYPES},
-                                   chunk_size)
-        core_args = (self.path, compression, fsync_every_wall_s, int(zstd_level))
-        if writer == "process":
-            # a fresh, small writer process (~30 MB; a fork would inherit the engine's heap)
-            self._conn = WriterProcess(core_args)
-            self._core = None
-        else:
-            self._core = _WriterCore(*core_args)
-            if writer == "thread":
-                # at most one chunk waits while one is compressed: a killed run loses at most
-                # those two cells and the one in progress
-                self._q = queue.Queue(maxsize=1)
-                self._thread = threading.Thread(target=self._worker, name="mcap-writer", daemon=True)
-                self._thread.start()
-        self.write_metadata("device", device_metadata(info))
-        self._send(("metadata", "settings", {"json": dumps(settings)}))
-        self._metadata += 1
-
-    @property
-    def messages(self) -> int:
-        return self._chunk.message_count
-
-    # ------------------------------------------------------------------ plumbing
-    def _worker(self):
-        while True:
-            item = self._q.get()
-            if item is None:
-                return
-            if self._error is None:
-                try:
-                    self._core.execute(*item)
-                except BaseException as e:  # reported on the caller's next call
-                    self._error = f"{type(e).__name__}: {e}"
-
-    def _check(self):
-        if self._conn is not None and self._error is None and self._conn.poll():
-            msg = self._conn.recv()
-            if msg[0] == "error":
-                self._error = msg[1]
-        if self._error is not None:
-            raise RuntimeError(f"writing {self.path} failed: {self._error}")
-
-    def _send(self, item) -> None:
-        """Hand one file operation to the writer (process, thread or inline)."""
-        self._check()
-        if self._conn is not None:
-            try:
-                self._conn.send(item)
-            except (BrokenPipeError, OSError):
-                self._check()
-                raise RuntimeError(f"writing {self.path} failed: the writer process ended") from None
-        elif self._q is None:
-            self._core.execute(*item)
-        else:
-            self._q.put(item)
-
-    def _end_chunk(self, fsync: bool) -> None:
-        c = self._chunk.take()
-        if c is not None:
-            self._send(("chunk", *c, fsync))
-        elif fsync:
-            self._send(("flush", True))
+        self.view = ViewDecimator(view_hz) if view_hz else None
+        try:
+            self.write_metadata("device", device_metadata(info))
+            self.write_metadata("settings", {"json": dumps(settings)})
+        except BaseException:
+            self.abort()
+            raise
 
     def _msg(self, topic, encoding, schema, log_time, data):
         ch = self._chunk
@@ -436,17 +383,15 @@ class McapSink:
                             epoch_records(m)):
                 self._end_chunk(False)
 
-    def write_estimate(self, est: CalibrationEstimate, applied: bool, log_time_ns: int) -> None:
-        self._msg(TOPIC_CALIBRATION, "json", None, log_time_ns,
-                  dumps(estimate_message(est, applied)).encode())
+    def write_estimate(self, est: CalibrationEstimate, applied: bool, log_time_ns: int,
+                       **fields) -> None:
+        """Log an estimate on ``/calibration`` (``fields`` are added to the message)."""
+        d = estimate_message(est, applied)
+        d.update(fields)
+        self.write_json(TOPIC_CALIBRATION, log_time_ns, d, schema=CALIBRATION)
 
     def write_qc(self, event: dict, log_time_ns: int) -> None:
-        self._msg(TOPIC_QC, "json", None, log_time_ns, dumps(event).encode())
-
-    def write_metadata(self, name: str, values: dict) -> None:
-        self._send(("metadata", name, {k: (v if isinstance(v, str) else dumps(v))
-                                       for k, v in values.items()}))
-        self._metadata += 1
+        self.write_json(TOPIC_QC, log_time_ns, event, schema=QC)
 
     def write_slices(self, block: Optional[Block], corrected: list, epochs: EpochMetrics) -> None:
         """Write what one pipeline step produced, by data time in cells of ``flush_every_s``
@@ -507,10 +452,28 @@ class McapSink:
             j += 1
 
     def _take_corrected(self, cell: int, run: "_CorrectedRun", a: int, b: int) -> None:
+        if self.view is not None:
+            self._write_view(run, a, b)
         if self._corr_cell is not None and cell != self._corr_cell:
             self._emit_corrected()
         self._corr_cell = cell
         self._pending_corr.append((run, a, b))
+
+    def _write_view(self, run: "_CorrectedRun", a: int, b: int) -> None:
+        """The view samples among corrected samples [a, b) of ``run``: one message each."""
+        idx = self.view.pick(run.time_ns[a:b])
+        if not idx.size:
+            return
+        idx += a
+        if run.ok:
+            x, y, z = run.x[idx], run.y[idx], run.z[idx]
+        else:
+            x, y, z = quantize(run.batch.accel[idx], self.quantum).T
+        t = run.time_ns[idx]
+        ch = self._chunk
+        cid = self.channel(TOPIC_VIEW, "cdr", VIEW_SAMPLE)
+        if ch.add_fixed(cid, t, view_records(t, x, y, z)):
+            self._end_chunk(False)
 
     def _emit_corrected(self) -> None:
         parts, self._pending_corr = self._pending_corr, []
@@ -533,52 +496,7 @@ class McapSink:
     def flush(self, fsync: bool = True) -> None:
         self._flush_cell(fsync)
 
-    def close(self) -> None:
-        """Finish the file (summary, index, footer) and wait for the writer."""
+    def close(self):
+        """Finish the file (summary, index, footer), wait for the writer, rename it."""
         self._emit_corrected()
-        self._end_chunk(False)
-        self._send(("finish", self._chunk.summary(self._metadata)))
-        self._stop()
-        if self._error is not None:
-            raise RuntimeError(f"writing {self.path} failed: {self._error}")
-
-    def abort(self) -> None:
-        """Stop writing without finishing (the file stays recoverable up to the last flush)."""
-        self._stop()
-        if self._core is not None:
-            self._core.abandon()
-
-    def _stop(self):
-        if self._thread is not None:
-            self._q.put(None)
-            self._thread.join()
-            self._thread = None
-        if self._conn is not None:
-            try:
-                self._conn.send(None)
-            except (OSError, BrokenPipeError):
-                pass
-            done = False
-            try:
-                while True:
-                    msg = self._conn.recv()
-                    if msg[0] == "error":
-                        self._error = msg[1]
-                    elif msg[0] == "done":
-                        done = True
-                        self.writer_maxrss_mb = msg[1]
-            except (EOFError, OSError):
-                pass
-            if not done and self._error is None:
-                self._error = "the writer process ended unexpectedly"
-            self._conn.close()
-            self._conn = None
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, exc_type, exc, tb):
-        if exc_type is None:
-            self.close()
-        else:
-            self.abort()
+        return super().close()

@@ -3,11 +3,13 @@
 Kept apart from ``mcap.sink`` so that the writer process (spawned fresh) imports only numpy,
 zstandard and the record encoders (engine/mcap/records.py), not the engine. The engine side
 (engine/mcap/chunks.py) builds each chunk's uncompressed records; this side compresses them
-(one reused zstd context), writes the Chunk record, keeps one row of 6 int64 per chunk for the
-chunk index (flat memory: 56 B per 10 s of data), and at ``finish`` writes Data End, the summary
-(schemas, channels, statistics, chunk indexes, metadata indexes), summary offsets and footer
-(with the summary CRC). No message indexes: readers scan the small one-cell chunks
-(specs/mcap-python.md §3). Every chunk carries the CRC32 of its uncompressed records.
+(one reused zstd context), writes the Chunk record followed by its Message Index records,
+spools its Chunk Index record (flat memory), and at ``finish`` writes Data End with the CRC32
+of the whole data section, the summary (schemas, channels, statistics, chunk indexes with their
+message-index offsets, metadata indexes), summary offsets and footer (with the summary CRC).
+Every chunk carries the CRC32 of its uncompressed records. The layout is the MCAP
+specification's, checked by tests/mcap_layout.py and by Foxglove's TypeScript reader
+(tools/check_mcap_ts.sh).
 """
 
 from __future__ import annotations
@@ -18,7 +20,6 @@ import time
 import zlib
 from typing import Optional
 
-import numpy as np
 
 from . import records as rec
 
@@ -52,79 +53,82 @@ def _compressor(compression: str, zstd_level: int):
     return None
 
 
-class _ChunkIndexRows:
-    """One int64 row per chunk (start, end, offset, length, compressed, uncompressed); the
-    summary's Chunk Index records are encoded from them in one numpy pass."""
+class _ChunkIndexSpool:
+    """The summary's Chunk Index records, encoded as each chunk is written and kept in a spooled
+    temporary file (in memory up to ``SPOOL_BYTES``, then on disk): memory stays flat however
+    long the run (~120 B a chunk)."""
+
+    SPOOL_BYTES = 1 << 20
 
     def __init__(self):
-        self._rows = np.zeros((1024, 6), np.int64)
-        self._n = 0
+        import tempfile
+        self._f = tempfile.SpooledTemporaryFile(max_size=self.SPOOL_BYTES)
+        self.count = 0
+        self.size = 0
 
-    def append(self, *row) -> None:
-        if self._n == self._rows.shape[0]:
-            self._rows = np.concatenate([self._rows, np.zeros_like(self._rows)])
-        self._rows[self._n] = row
-        self._n += 1
+    def append(self, record: bytes) -> None:
+        self._f.write(record)
+        self.count += 1
+        self.size += len(record)
 
-    def __len__(self) -> int:
-        return self._n
+    def pieces(self, piece: int = 1 << 20):
+        self._f.seek(0)
+        while True:
+            b = self._f.read(piece)
+            if not b:
+                return
+            yield b
 
-    def records(self, compression: str, rows: int = 8192):
-        """The Chunk Index records, in pieces of ``rows`` (bounded memory at ``finish``)."""
-        for a in range(0, self._n, rows):
-            yield self._records(compression, a, min(self._n, a + rows))
-
-    def record_size(self, compression: str) -> int:
-        return 1 + 8 + 8 * 4 + 4 + 8 + 4 + len(compression.encode()) + 8 + 8
-
-    def _records(self, compression: str, lo: int, hi: int) -> bytes:
-        c = compression.encode()
-        fields = [("op", "u1"), ("len", "<u8"), ("start", "<u8"), ("end", "<u8"),
-                  ("offset", "<u8"), ("length", "<u8"), ("mio", "<u4"), ("mil", "<u8"),
-                  ("clen", "<u4")]
-        if c:
-            fields.append(("cname", f"S{len(c)}"))
-        fields += [("csize", "<u8"), ("usize", "<u8")]
-        dt = np.dtype(fields)
-        r = self._rows[lo:hi]
-        a = np.zeros(hi - lo, dt)
-        a["op"] = rec.OP_CHUNK_INDEX
-        a["len"] = dt.itemsize - 9
-        a["start"], a["end"], a["offset"], a["length"] = r[:, 0], r[:, 1], r[:, 2], r[:, 3]
-        a["clen"] = len(c)
-        if c:
-            a["cname"] = c
-        a["csize"], a["usize"] = r[:, 4], r[:, 5]
-        return a.tobytes()
+    def close(self) -> None:
+        self._f.close()
 
 
 class _WriterCore:
-    """The file: writes chunks (compressed here), metadata and, at ``finish``, the summary.
+    """The file: writes chunks (compressed here) each followed by its Message Index records,
+    metadata and, at ``finish``, Data End (with the CRC of the whole data section) and the
+    summary.
 
-    Operations: ``("chunk", data, start, end, fsync)``, ``("metadata", name, values)``,
+    ``target``: a path (created or truncated) or an open file descriptor positioned at 0 (e.g.
+    an ``AtomicOutput``'s; not closed here). Operations: ``("chunk", data, start, end,
+    indexes, fsync)`` (from ``ChunkBuilder.take``), ``("metadata", name, values)``,
     ``("flush", fsync)``, ``("finish", summary)`` (``summary`` from ``ChunkBuilder.summary``).
     Every chunk is handed to the OS as soon as it is written (a killed process loses nothing
     written before); fsync at most once per ``fsync_every_wall_s`` unless asked.
     """
 
-    def __init__(self, path: str, compression: str, fsync_every_wall_s: float,
+    def __init__(self, target, compression: str, fsync_every_wall_s: float,
                  zstd_level: int = ZSTD_LEVEL):
         if compression not in COMPRESSIONS:
             raise ValueError(f"compression must be one of {', '.join(COMPRESSIONS)}")
         self.fsync_every_wall_s = fsync_every_wall_s
         self.compression = "" if compression == "none" else compression
         self._compress = _compressor(compression, zstd_level)
-        self._f = open(path, "wb", buffering=0)  # unbuffered: one writev per chunk, no copies
-        self._fd = self._f.fileno()
+        if isinstance(target, int):
+            self._f = None
+            self._fd = target
+        elif isinstance(target, (list, tuple)):  # ("fd-path", path): open an existing file
+            self._f = open(os.open(target[1], os.O_WRONLY | getattr(os, "O_CLOEXEC", 0)), "wb",
+                           buffering=0)
+            self._fd = self._f.fileno()
+        else:
+            self._f = open(target, "wb", buffering=0)  # unbuffered: one writev per chunk
+            self._fd = self._f.fileno()
         self._pos = 0
+        self._crc = 0  # CRC32 of the data section (from the magic to Data End)
         self._write(rec.MAGIC, rec.header("", LIBRARY))
-        self._chunks = _ChunkIndexRows()
+        self._chunks = _ChunkIndexSpool()
         self._meta: list[tuple[int, int, str]] = []
         self._last_fsync = time.monotonic()
+        self.closed = False
 
     def _write(self, *parts) -> None:
         """Hand ``parts`` to the OS (a killed process loses nothing written before)."""
-        want = sum(len(p) for p in parts)
+        want = 0
+        crc = self._crc
+        for p in parts:
+            want += len(p)
+            crc = zlib.crc32(p, crc)
+        self._crc = crc
         done = os.writev(self._fd, parts)
         if done != want:  # a short write (signal, full pipe/disk): finish it piece by piece
             view = memoryview(b"".join(parts))[done:]
@@ -141,12 +145,21 @@ class _WriterCore:
 
     def execute(self, op, *args):
         if op == "chunk":
-            data, start, end, fsync = args
+            data, start, end, indexes, fsync = args
             comp = self._compress(data) if self._compress else data
             parts = rec.chunk(start, end, len(data), zlib.crc32(data), self.compression, comp)
             offset = self._pos
+            length = len(parts[0]) + len(parts[1])
+            offsets = {}
+            pos = offset + length
+            for cid, r in indexes:
+                offsets[cid] = pos
+                pos += len(r)
+                parts.append(r)
             self._write(*parts)
-            self._chunks.append(start, end, offset, self._pos - offset, len(comp), len(data))
+            self._chunks.append(rec.chunk_index(start, end, offset, length, offsets,
+                                                pos - offset - length, self.compression,
+                                                len(comp), len(data)))
             self._sync(fsync)
         elif op == "metadata":
             name, values = args
@@ -159,7 +172,7 @@ class _WriterCore:
             self._finish(args[0])
 
     def _finish(self, summary: dict) -> None:
-        self._write(rec.data_end(0))
+        self._write(rec.data_end(self._crc))
         start = self._pos
         groups = []  # (opcode, bytes)
         if summary["schemas"]:
@@ -167,9 +180,8 @@ class _WriterCore:
         if summary["channels"]:
             groups.append((rec.OP_CHANNEL, b"".join(summary["channels"])))
         groups.append((rec.OP_STATISTICS, summary["statistics"]))
-        if len(self._chunks):  # written in pieces: ~70 B a chunk, 8.5 MB for 14 days
-            groups.append((rec.OP_CHUNK_INDEX, (self._chunks.records(self.compression),
-                                                len(self._chunks) * self._chunks.record_size(self.compression))))
+        if self._chunks.count:  # copied from the spool in pieces
+            groups.append((rec.OP_CHUNK_INDEX, (self._chunks.pieces(), self._chunks.size)))
         if self._meta:
             groups.append((rec.OP_METADATA_INDEX,
                            b"".join(rec.metadata_index(o, n, name) for o, n, name in self._meta)))
@@ -184,6 +196,7 @@ class _WriterCore:
                 self._write(piece)
             if self._pos - start_group != length:
                 raise AssertionError("summary group length mismatch")
+        self._chunks.close()
         offset_start = self._pos
         so = b"".join(offsets)
         crc = zlib.crc32(so, crc)
@@ -192,12 +205,17 @@ class _WriterCore:
         crc = zlib.crc32(foot, crc)
         self._write(foot, struct.pack("<I", crc), rec.MAGIC)
         os.fsync(self._fd)
-        self._f.close()
+        self.closed = True
+        if self._f is not None:
+            self._f.close()
 
     def abandon(self) -> None:
         """Stop without finishing: what was written stays on disk, recoverable."""
+        self.closed = True
         try:
-            self._f.close()
+            self._chunks.close()
+            if self._f is not None:
+                self._f.close()
         except Exception:
             pass
 

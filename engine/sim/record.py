@@ -247,15 +247,19 @@ def simulate_recording(path, *, device: str = "ax3", site: str = "wrist", days: 
                        hz: float = 100.0, effects=None, seed: int = 1, truth_path=None,
                        labels_path=None, start=None, range_g=None, packed=None,
                        gyro_range_dps=None, wearer: Optional[WearerParams] = None,
-                       temperature: Optional[TemperatureParams] = None) -> Truth:
+                       temperature: Optional[TemperatureParams] = None,
+                       device_id: Optional[int] = None, session_id: int = 1) -> Truth:
     """Simulate one device and write it to ``path`` (.cwa for ax3/ax6, .bin for geneactiv) plus
     the truth JSON (default: beside the file, ``<name>.truth.json``; ``truth_path=False``: none)
-    and the per-window labels CSV (``<name>.labels.csv``)."""
+    and the per-window labels CSV (``<name>.labels.csv``). ``device_id`` (default: drawn from
+    the seed) and ``session_id`` go into the file's header and sectors."""
     [sim] = make_devices(sites=[site], devices=[device], days=days, hz=hz, effects=effects, seed=seed,
                          start=start, range_g=range_g, packed=packed, gyro_range_dps=gyro_range_dps,
                          wearer=wearer, temperature=temperature)
+    if device_id is not None:
+        sim.device_id = int(device_id)
     tp, lp = _paths(path, truth_path, labels_path)
-    sink = _FileSink(sim, path, labels_path=lp)
+    sink = _FileSink(sim, path, labels_path=lp, session_id=session_id)
     try:
         for c in sim.chunks():
             sink.push(c)

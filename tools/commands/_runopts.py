@@ -40,6 +40,8 @@ def add_setting_arguments(p, *, defaults_from_input: bool = False) -> None:
                    help="flush the MCAP every N s of data time (default 10: a kill loses <= 10 s)")
     g.add_argument("--compression", choices=("zstd", "lz4", "none"), default=None,
                    help="MCAP chunk compression (default zstd)")
+    g.add_argument("--view-hz", type=float, default=None,
+                   help="samples per second on the plottable /view/accel topic (default 2; 0 = off)")
 
 
 def settings_overrides(args) -> dict:
@@ -48,21 +50,24 @@ def settings_overrides(args) -> dict:
         "ggir_compatible": args.ggir_compatible, "first_hours": args.first_hours,
         "chunk_hours": args.chunk_hours, "epoch_s": args.epoch_s,
         "flush_every_s": args.flush_every_s, "compression": args.compression,
+        "view_hz": getattr(args, "view_hz", None),
         "sd_threshold_g": None if args.sd_threshold_mg is None else args.sd_threshold_mg / 1000.0,
         "bfen_band_hz": {None: None, "ggir": (0.2, 15.0), "vanhees": (0.5, 15.0)}[args.bfen_band],
     }
     for k in ("first_hours", "chunk_hours", "epoch_s", "sd_threshold_g"):
         if o[k] is not None and o[k] <= 0:
             raise OptionError(f"--{k.replace('_', '-')} must be positive")
+    if o["view_hz"] is not None and o["view_hz"] < 0:
+        raise OptionError("--view-hz must be 0 (off) or positive")
     return {k: v for k, v in o.items() if v is not None}
 
 
 class Progress:
     """A one-line progress bar on a terminal (stderr); silent otherwise."""
 
-    def __init__(self, enabled=None, stream=sys.stderr):
-        self.stream = stream
-        self.enabled = stream.isatty() if enabled is None else enabled
+    def __init__(self, enabled=None, stream=None):
+        self.stream = sys.stderr if stream is None else stream  # looked up now, not at import
+        self.enabled = self.stream.isatty() if enabled is None else enabled
         self._last = 0.0
         self._shown = False
 

@@ -74,11 +74,31 @@ def estimate_json(est) -> dict:
     for k in ("flags", "temperature_used", "temperature_reason", "converged", "stop_rule",
               "schedule", "error_before_g", "error_after_g", "variant", "ggir_compatible",
               "windows_offered", "repeats_collapsed", "windows_total", "samples_read",
-              "read_to_end", "recording_hours", "rejected_fit"):
+              "read_to_end", "recording_hours", "rejected_fit", "warnings",
+              "uncertainty_blocks", "temperature_dropped"):
         if k in extra:
             out[k] = extra[k]
     return jsonable(out)
 
+
+
+def uncertainty_lines(est, indent: str = "  ") -> str:
+    """The standard errors (one SE, the coefficients' units shown as above) as text lines."""
+    u = est.uncertainty
+
+    def f(vals, scale, spec):
+        return "  ".join(f"{a} " + ("n/a" if v is None else format(v * scale, spec))
+                         for a, v in zip("xyz", vals))
+    t = u.get("temperature_ref")
+    lines = [f"{indent}+- offset    {f(u['offset'], 1.0, '.6f')}  (one standard error)",
+             f"{indent}+- scale     {f(u['scale'], 1.0, '.6f')}"]
+    if any(v is not None for v in u["tempoffset"]):
+        lines.append(f"{indent}+- tempoff   {f(u['tempoffset'], 1000.0, '.4f')}  mg/degC"
+                     + ("" if t is None else f"  (T_ref +- {t:.2f} degC)"))
+    blocks = est.extra.get("uncertainty_blocks")
+    if blocks is not None:
+        lines.append(f"{indent}             over {blocks} independent blocks of windows")
+    return "\n".join(lines) + "\n"
 
 
 def fmt_hours(h: float) -> str:
@@ -110,6 +130,9 @@ def print_human(est, out=None, title: str = "") -> None:
     w("  scale        " + "  ".join(f"{a} {v:.6f}" for a, v in zip("xyz", est.scale)) + "\n")
     w("  tempoffset   " + "  ".join(f"{a} {v * 1000:+.4f}" for a, v in zip("xyz", est.tempoffset))
       + f"  mg/degC (T_ref {est.temperature_ref:.2f} degC)\n")
+    u = getattr(est, "uncertainty", None)
+    if u:
+        w(uncertainty_lines(est))
     rule = est.extra.get("stop_rule")
     if rule:
         conv = "converged" if est.extra.get("converged") else "NOT converged"

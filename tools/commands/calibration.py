@@ -77,6 +77,12 @@ def run(args) -> int:
                   "  scale " + " ".join(f"{v:.6f}" for v in e["scale"]) +
                   "  tempoffset " + " ".join(f"{v:+.3e}" for v in e["tempoffset"]) +
                   f"  T_ref {e.get('temperature_ref', 0.0):.2f}")
+            if e.get("uncertainty"):
+                from stillpoint.engine.calibration import CalibrationEstimate
+                from .calibrate import uncertainty_lines
+                print(uncertainty_lines(CalibrationEstimate.from_dict(e), indent="    "), end="")
+            for wn in (e.get("extra") or {}).get("warnings") or []:
+                print(f"    warning: {wn['message']}")
             if r.get("source"):
                 print(f"    source {r['source']}")
             print(f"    {r.get('reason', '')}")

@@ -9,6 +9,8 @@ from stillpoint.engine.calibration.estimate import CalibrationEstimate
 from stillpoint.engine.run import RunSettings, process_file
 
 from ._staticopts import add_static_arguments, resolve_static
+from ._tableopts import (add_table_arguments, add_timezone_argument, check_zone, table_settings,
+                         tables_text)
 from ._runopts import (OptionError, Progress, add_setting_arguments, human_summary,
                        settings_overrides, write_summary)
 
@@ -40,8 +42,12 @@ def add_arguments(p) -> None:
                    help="use the calibration store (default location, or DIR): online takes its "
                         "prior from it; the final estimate is added to it")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar and no text summary")
+    p.add_argument("--report", action="store_true",
+                   help="also write a one-page PNG report (+ HTML) beside the MCAP (needs matplotlib)")
+    add_timezone_argument(p)
     add_static_arguments(p)
     add_setting_arguments(p)
+    add_table_arguments(p)
 
 
 def _store(arg):
@@ -52,10 +58,15 @@ def _store(arg):
 def build_settings(args, base: dict | None = None) -> RunSettings:
     over = settings_overrides(args)
     if getattr(args, "prior", None):
+        from stillpoint.engine.calibration.validate import validate_estimate
         try:
-            over["prior"] = CalibrationEstimate.from_dict(json.loads(args.prior.read_text())).to_dict()
-        except (OSError, ValueError, TypeError) as e:
+            d = json.loads(args.prior.read_text())
+        except (OSError, ValueError, RecursionError) as e:
             raise OptionError(f"--prior {args.prior}: not a calibration estimate JSON ({e})") from None
+        over["prior"] = validate_estimate(d, f"--prior {args.prior}").to_dict()
+    if getattr(args, "timezone", None) is not None:
+        check_zone(args.timezone)
+        over["timezone"] = args.timezone
     if (getattr(args, "static", None) or getattr(args, "static_from_store", None) is not None) \
             and over.get("calibrate") is False:
         raise OptionError("--static/--static-from-store apply a calibration: not with --no-calibrate")
@@ -76,10 +87,17 @@ def execute(args, settings: RunSettings, out: Path) -> int:
         prior = _store(args.store).prior_for(key)
         if prior is not None:
             settings.prior = prior.to_dict()
+    tables = table_settings(args, out) if getattr(args, "tables", False) else None
+    if getattr(args, "report", False):
+        from stillpoint.engine.report import require_matplotlib
+        require_matplotlib()
     try:
-        summary = process_file(args.file, out, settings, progress=progress)
+        summary = process_file(args.file, out, settings, progress=progress, tables=tables)
     finally:
         progress.done()
+    if getattr(args, "report", False):
+        from stillpoint.engine.report import write_report
+        summary["outputs"].update(write_report(out, summary=summary))
     if getattr(args, "store", None) is not None:
         est = CalibrationEstimate.from_dict(dict(summary["calibration"]))
         if est.status in ("ok", "high_error") and summary.get("device") and est.method != "static-6":
@@ -95,6 +113,7 @@ def execute(args, settings: RunSettings, out: Path) -> int:
         print(json.dumps(json.loads(dumps(summary)), indent=2, sort_keys=True))
     elif not args.quiet:
         print(human_summary(summary))
+        print(tables_text(summary))
     return 0
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 from stillpoint.engine.recover import recover
@@ -12,13 +13,22 @@ HELP = "salvage every complete chunk of an unfinished MCAP into a valid, indexed
 
 
 def add_arguments(p) -> None:
-    p.add_argument("file", type=Path, help="an MCAP whose writer was killed")
+    p.add_argument("file", type=Path, help="an MCAP whose writer was killed (e.g. the "
+                                           "OUT.mcap.part an interrupted run left)")
     p.add_argument("-o", "--output", type=Path, help="output (default: FILE with .recovered.mcap)")
     p.add_argument("--json", action="store_true", help="print the report as JSON")
 
 
+def default_output(path: Path) -> Path:
+    """``run.mcap`` / ``run.mcap.part`` / ``run.mcap.part.<time>`` -> ``run.recovered.mcap``."""
+    name = re.sub(r"\.part(\.[0-9TZ-]+)?$", "", path.name)
+    if name.endswith(".mcap"):
+        name = name[:-len(".mcap")]
+    return path.with_name(name + ".recovered.mcap")
+
+
 def run(args) -> int:
-    out = args.output or args.file.with_name(args.file.name.rsplit(".", 1)[0] + ".recovered.mcap")
+    out = args.output or default_output(args.file)
     if out.resolve() == args.file.resolve():
         from ._runopts import OptionError
         raise OptionError("recover never overwrites its input: choose another -o")
@@ -34,6 +44,8 @@ def run(args) -> int:
         t = dt.datetime.fromtimestamp(rep.last_log_time_ns / 1e9, dt.timezone.utc)
         print(f"data up to {t.isoformat(timespec='seconds')}; per topic: "
               + ", ".join(f"{k} {v:,}" for k, v in sorted(rep.per_topic.items())))
+    for bad in rep.bad_records:
+        print(f"skipped an unreadable record, its messages are lost: {bad}")
     if rep.stopped_at:
         print(f"reading stopped at the torn tail: {rep.stopped_at}")
     return 0

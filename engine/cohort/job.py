@@ -1,0 +1,266 @@
+"""The per-file job of a cohort: (input path, canonical settings) -> one output folder.
+
+``run_job`` is a pure function of its arguments as far as outputs go: it calls the engine's
+``process_file`` (engine/run.py) into ``<folder>.tmp``, writes ``summary.json`` (the run summary
+without timings, so two runs give byte-identical files), fsyncs everything, writes ``_DONE.json``
+last, and renames the folder into place: a folder without ``.tmp`` holding ``_DONE.json`` is
+complete. While it runs, ``<folder>.tmp/_RUNNING.json`` names the process (host, pid).
+
+One job per file at a time: the job holds an exclusive lock on ``.<folder>.lock`` beside the
+folder (a lock dies with its process, so a killed run never blocks a rerun); a second job for the
+same file waits, then finds ``_DONE.json`` and returns. A ``.tmp`` folder found under the lock
+was left by a killed run and is discarded.
+
+A failure writes ``<folder>/_FAILED.json`` with a class:
+
+==============  ==========================================================  ===============
+class           what                                                        retried
+==============  ==========================================================  ===============
+corrupt_input   the recording cannot be read (StillpointError from the       never
+                readers, missing or unreadable file, bad gzip)
+transient_io    an OS error while reading or writing (network file          up to 3 tries
+                system, input changed since it was planned)
+resource        the worker was killed (memory limit, walltime), out of      once
+                memory, disk full
+bug             anything else: reported loudly with its traceback            never
+==============  ==========================================================  ===============
+
+(``retried`` is applied by the runner, engine/cohort/execute.py.)
+"""
+
+from __future__ import annotations
+
+import errno
+import gzip
+import hashlib
+import json
+import os
+import platform
+import shutil
+import socket
+import sys
+import time
+import traceback
+import zlib
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Optional
+
+from stillpoint.drivers.errors import StillpointError
+from stillpoint.drivers.outputs import atomic_output, fsync_folder
+
+from .plan import code_version, fingerprint, make_key, canonical_settings
+
+try:
+    import fcntl
+except ImportError:  # pragma: no cover - non-POSIX: no cross-process guard
+    fcntl = None  # type: ignore[assignment]
+
+DONE = "_DONE.json"
+FAILED = "_FAILED.json"
+RUNNING = "_RUNNING.json"
+MCAP_NAME = "recording.mcap"
+SUMMARY_NAME = "summary.json"
+TMP_SUFFIX = ".tmp"
+
+FAILURE_CLASSES = ("corrupt_input", "transient_io", "resource", "bug")
+MAX_ATTEMPTS = {"corrupt_input": 1, "transient_io": 3, "resource": 2, "bug": 1}
+# fields of the run summary that change from run to run: kept in _DONE.json, not summary.json
+_VOLATILE = ("wall_s", "peak_rss_mb")
+
+
+# ---------------------------------------------------------------------------- markers
+def read_marker(path: Path) -> Optional[dict]:
+    """A marker's content, or None when it is absent or unreadable."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            d = json.load(f)
+        return d if isinstance(d, dict) else None
+    except (OSError, ValueError):
+        return None
+
+
+def write_json(path: Path, obj: dict) -> None:
+    """One JSON file through the atomic output path (``.part``, fsync, rename)."""
+    from stillpoint.engine.jsonsafe import jsonable
+    with atomic_output(path, binary=False, what="cohort marker") as f:
+        f.write(json.dumps(jsonable(obj), indent=2, sort_keys=True) + "\n")
+
+
+def paths(outdir, folder: str) -> tuple[Path, Path, Path]:
+    """(final folder, temporary folder, lock file) of an entry."""
+    final = Path(outdir) / folder
+    return final, final.with_name(final.name + TMP_SUFFIX), final.with_name("." + final.name + ".lock")
+
+
+@contextmanager
+def _locked(lock: Path):
+    fd = os.open(lock, os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), 0o644)
+    try:
+        if fcntl is not None:
+            fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)
+
+
+# ---------------------------------------------------------------------------- failures
+def classify(exc: BaseException, input_path: str = "") -> str:
+    """The failure class of an exception raised by the job (see the module docstring)."""
+    if isinstance(exc, MemoryError):
+        return "resource"
+    if isinstance(exc, (gzip.BadGzipFile, zlib.error, EOFError)):
+        return "corrupt_input"
+    if isinstance(exc, OSError):
+        if exc.errno in (errno.ENOSPC, getattr(errno, "EDQUOT", -1)):
+            return "resource"
+        if (exc.errno in (errno.ENOENT, errno.EACCES, errno.EPERM, errno.EISDIR, errno.ENOTDIR)
+                and input_path and str(getattr(exc, "filename", "")) == str(input_path)):
+            return "corrupt_input"
+        return "transient_io"
+    if isinstance(exc, StillpointError):
+        return "corrupt_input"
+    return "bug"
+
+
+def one_line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    msg = text[0] if text else ""
+    return f"{type(exc).__name__}: {msg}" if msg else type(exc).__name__
+
+
+def write_failure(outdir, entry: dict, cls: str, error: str, *, attempt: int = 1,
+                  tb: str = "", extra: Optional[dict] = None) -> dict:
+    """``<folder>/_FAILED.json`` (the folder holds nothing else). Returns the job result."""
+    final, _, _ = paths(outdir, entry["folder"])
+    final.mkdir(parents=True, exist_ok=True)
+    marker = {"key": entry["key"], "input": entry["path"], "class": cls, "error": error,
+              "attempts": attempt, "time_utc": _utc(), "host": socket.gethostname(),
+              "pid": os.getpid(), "code_version": code_version()}
+    if tb:
+        marker["traceback"] = tb
+    marker.update(extra or {})
+    write_json(final / FAILED, marker)
+    return {"key": entry["key"], "path": entry["path"], "state": "failed", "class": cls,
+            "error": error, "attempt": attempt, "traceback": tb}
+
+
+# ---------------------------------------------------------------------------- helpers
+def _utc(t: Optional[float] = None) -> str:
+    return time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(t))
+
+
+def _reset_peak_rss() -> bool:
+    """Reset this process's peak RSS (Linux: write 5 to clear_refs), so a worker reports each
+    file's own peak rather than the worst file it ever ran."""
+    try:
+        with open("/proc/self/clear_refs", "w") as f:
+            f.write("5")
+        return True
+    except OSError:
+        return False
+
+
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def _fsync(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def versions() -> dict:
+    v = {"stillpoint": code_version(), "python": platform.python_version()}
+    for mod in ("numpy", "scipy", "mcap", "dask", "distributed"):
+        m = sys.modules.get(mod)
+        if m is not None:
+            v[mod] = getattr(m, "__version__", "?")
+    return v
+
+
+# ---------------------------------------------------------------------------- the job
+def run_job(entry: dict, outdir: str, settings: dict, code: str, attempt: int = 1) -> dict:
+    """Process one entry of the plan (``path``, ``key``, ``folder``, ``error``) into its folder.
+
+    Returns ``{"state": "done" | "skipped" | "failed", "key", "path", ...}``; never raises for a
+    bad file (the failure is in the result and in ``_FAILED.json``). ``code`` is the code
+    version the key was made with: a worker running other code refuses (class ``bug``).
+    """
+    from stillpoint.engine.mcap.writer import peak_rss_mb
+    from stillpoint.engine.run import RunSettings, process_file
+
+    t0, cpu0 = time.perf_counter(), time.process_time()
+    started = time.time()
+    path = entry["path"]
+    final, tmp, lock = paths(outdir, entry["folder"])
+    final.parent.mkdir(parents=True, exist_ok=True)
+    if entry.get("error"):
+        return write_failure(outdir, entry, "corrupt_input", f"{path}: {entry['error']}", attempt=attempt)
+    with _locked(lock):
+        done = read_marker(final / DONE)
+        if done is not None and done.get("key") == entry["key"]:
+            return {"key": entry["key"], "path": path, "state": "skipped"}
+        if code != code_version():
+            return write_failure(outdir, entry, "bug", f"this worker runs stillpoint {code_version()} "
+                                 f"but the plan was made with {code}: install the same version "
+                                 "on the client and every worker", attempt=attempt)
+        if tmp.exists():  # left by a killed run (we hold the lock): discard
+            shutil.rmtree(tmp)
+        try:
+            fp = fingerprint(Path(path))
+            if make_key(fp, canonical_settings(settings), code) != entry["key"]:
+                return write_failure(outdir, entry, "transient_io",
+                                     f"{path}: the file changed since the run was planned "
+                                     "(rerun to plan it again)", attempt=attempt)
+            tmp.mkdir()
+            write_json(tmp / RUNNING, {"host": socket.gethostname(), "pid": os.getpid(),
+                                       "started_utc": _utc(started), "attempt": attempt})
+            scoped = _reset_peak_rss()
+            summary = process_file(path, tmp / MCAP_NAME, RunSettings.from_dict(settings))
+            t_engine = time.perf_counter() - t0
+            rss = peak_rss_mb()
+            summary = {k: v for k, v in summary.items() if k not in _VOLATILE}
+            summary["outputs"] = {"mcap": MCAP_NAME}
+            write_json(tmp / SUMMARY_NAME, summary)
+            os.unlink(tmp / RUNNING)
+            outputs = {}
+            for f in sorted(tmp.iterdir()):
+                _fsync(f)
+                outputs[f.name] = {"sha256": _sha256(f), "bytes": f.stat().st_size}
+            marker = {
+                "key": entry["key"], "input": dict(fp, path=path), "settings": settings,
+                "code_version": code, "outputs": outputs, "attempts": attempt,
+                "timings": {"wall_s": round(time.perf_counter() - t0, 4),
+                            "engine_wall_s": round(t_engine, 4),
+                            "cpu_s": round(time.process_time() - cpu0, 4),
+                            "started_utc": _utc(started), "finished_utc": _utc()},
+                "peak_rss_mb": rss, "peak_rss_scope": "file" if scoped else "process",
+                "host": socket.gethostname(), "pid": os.getpid(), "versions": versions(),
+            }
+            write_json(tmp / DONE, marker)  # last: the folder is complete once it has this
+            fsync_folder(tmp)
+            if final.exists():  # a failure folder from an earlier attempt
+                shutil.rmtree(final)
+            os.rename(tmp, final)
+            fsync_folder(final.parent)
+        except (KeyboardInterrupt, SystemExit):
+            raise
+        except BaseException as e:  # noqa: BLE001 - every failure is classified and recorded
+            cls = classify(e, path)
+            shutil.rmtree(tmp, ignore_errors=True)
+            tb = traceback.format_exc() if cls == "bug" else ""
+            msg = one_line(e)
+            if path not in msg:
+                msg = f"{path}: {msg}"
+            return write_failure(outdir, entry, cls, msg, attempt=attempt, tb=tb)
+    return {"key": entry["key"], "path": path, "state": "done", "attempt": attempt,
+            "wall_s": marker["timings"]["wall_s"], "bytes": fp["size"], "peak_rss_mb": rss,
+            "pid": os.getpid()}

@@ -1,0 +1,308 @@
+"""Nonwear and clipping per 15-min window: GGIR's rule (van Hees et al. 2013) as a streaming operator.
+
+The rule, as published in GGIR (``detect_nonwear_clipping``, ``g.weardec``):
+
+* **windows**: 15-min *medium* windows (here on the UTC clock grid, :00/:15/:30/:45) and a 60-min
+  *long* window that is tested for each medium window;
+* **still axis**: over the long window an axis is still when its range (max - min) is below 50 mg
+  and its SD below 13 mg; the window's *nonwear score* is the number of still axes (0-3);
+  **nonwear** when the score is >= 2. A single score of 1 between two windows scoring >= 2
+  becomes 2;
+* **2013 form**: the long window is centred on the medium window (it covers half of the window
+  two before, the one before, the window, the one after and half of the window two after) and
+  only the medium window takes the flag. The first three windows of a recording use the first
+  hour; the last four use the last three windows (GGIR's edge rule);
+* **2023 form** (default): the long window starts at the medium window's left edge, the range and
+  SD are computed on every ``ceil(rate / 5)``-th sample (about 5 Hz), and when an axis is still
+  the whole long window (this medium window and the next three) takes that axis's flag;
+* **clipping**: per medium window and axis, the share of samples beyond ``clip_g`` (default
+  0.5 g below the device range, 7.5 g for a +-8 g device); a single sample beyond 1.5 x
+  ``clip_g`` marks the whole window; the window is **clipping** when the largest share is above
+  0.3.
+
+Streaming: samples are reduced to statistics of 7.5-min half windows (count, mean, sum of squared
+deviations, min, max per axis; the same on the 5 Hz subsample; clipping counts), computed on each
+half window's contiguous samples, and long windows are combined from them (Chan's pairwise
+update), so results do not depend on how the input was cut into blocks. A medium window is final
+once data 75 min past its start have arrived (or at the end of the stream); state is a few
+half-window records. The 5 Hz subsample of the 2023 form starts at each half window's first sample
+(GGIR: at the long window's first sample), the only difference from GGIR's indexing.
+Not done here: GGIR's later ``g.weardec`` pass that turns short wear periods between nonwear into
+nonwear (it needs the whole recording).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from .base import ring_capacity
+from .binning import BinChunk, TimeBinner
+
+MEDIUM_S = 900.0  # GGIR windowsizes[2]: 15-min windows for nonwear and clipping
+LONG_S = 3600.0  # GGIR windowsizes[3]: the 60-min window tested for each medium window
+SD_CRITERION_G = 0.013  # GGIR sdcriter: per-axis SD below 13 mg
+RANGE_CRITERION_G = 0.05  # GGIR racriter: per-axis range below 50 mg
+NONWEAR_MIN_AXES = 2  # GGIR g.impute wearthreshold: nonwear when >= 2 axes are still
+CLIP_SHARE = 0.3  # GGIR g.weardec: clipping when more than 30 % of a window's samples clip
+CLIP_MARGIN_G = 0.5  # GGIR: clipping threshold 0.5 g below the device's dynamic range
+CLIP_DEFAULT_G = 7.5  # GGIR's threshold for the usual +-8 g devices
+SUBSAMPLE_HZ = 5.0  # 2023 form: range and SD on every ceil(sf/5)-th sample
+VERSIONS = ("2013", "2023")
+DEFAULT_VERSION = "2023"
+
+
+def clip_threshold_g(range_g) -> float:
+    """GGIR's clipping threshold for a device range: range - 0.5 g (7.5 g when unknown)."""
+    if range_g is None or not range_g or range_g <= CLIP_MARGIN_G:
+        return CLIP_DEFAULT_G
+    return float(range_g) - CLIP_MARGIN_G
+
+
+@dataclass
+class NonwearWindows:
+    """One row per medium window (consecutive, gaps included)."""
+
+    start_ns: np.ndarray  # (k,) int64 window start on the UTC grid
+    n: np.ndarray  # (k,) int64 samples in the window
+    score: np.ndarray  # (k,) int8 still axes, 0-3 (after the single-1 rule)
+    nonwear: np.ndarray  # (k,) bool
+    clip_share: np.ndarray  # (k,) float largest per-axis share of clipping samples (NaN: no data)
+    clipping: np.ndarray  # (k,) bool
+
+    def __len__(self) -> int:
+        return int(self.start_ns.shape[0])
+
+    @staticmethod
+    def empty() -> "NonwearWindows":
+        return NonwearWindows(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int8),
+                              np.zeros(0, bool), np.zeros(0), np.zeros(0, bool))
+
+    @staticmethod
+    def concat(parts) -> "NonwearWindows":
+        parts = [p for p in parts if len(p)]
+        if not parts:
+            return NonwearWindows.empty()
+        return NonwearWindows(**{f.name: np.concatenate([getattr(p, f.name) for p in parts])
+                                 for f in fields(NonwearWindows)})
+
+
+class _Stats:
+    """Per-axis count, mean, sum of squared deviations, min, max (mergeable)."""
+
+    __slots__ = ("n", "mean", "m2", "lo", "hi")
+
+    def __init__(self, n, mean, m2, lo, hi):
+        self.n, self.mean, self.m2, self.lo, self.hi = float(n), mean, m2, lo, hi
+
+    def merge(self, o: "_Stats") -> "_Stats":
+        if o.n == 0:
+            return self
+        if self.n == 0:
+            return o
+        n = self.n + o.n
+        d = o.mean - self.mean
+        return _Stats(n, self.mean + d * (o.n / n), self.m2 + o.m2 + d * d * (self.n * o.n / n),
+                      np.minimum(self.lo, o.lo), np.maximum(self.hi, o.hi))
+
+    def still(self, sd_g: float, range_g: float) -> np.ndarray:
+        """(3,) bool: range below ``range_g`` and sample SD below ``sd_g`` (R's ``sd``: n - 1)."""
+        if self.n < 2:
+            return np.zeros(3, bool)
+        sd = np.sqrt(self.m2 / (self.n - 1.0))
+        return ((self.hi - self.lo) < range_g) & (sd < sd_g)
+
+
+_EMPTY = _Stats(0, np.zeros(3), np.zeros(3), np.full(3, np.inf), np.full(3, -np.inf))
+
+
+def _bin_stats(a: np.ndarray, st: np.ndarray, cnt: np.ndarray) -> list:
+    """_Stats of each bin of rows a[st[i]:st[i]+cnt[i]] (two passes: mean, then deviations)."""
+    mean = np.empty((len(cnt), 3))
+    m2 = np.empty((len(cnt), 3))
+    for j in range(3):
+        c = a[:, j]
+        m = np.add.reduceat(c, st) / cnt
+        mean[:, j] = m
+        dev = c - np.repeat(m, cnt)
+        m2[:, j] = np.add.reduceat(dev * dev, st)
+    lo = np.minimum.reduceat(a, st, axis=0)
+    hi = np.maximum.reduceat(a, st, axis=0)
+    return [_Stats(cnt[i], mean[i], m2[i], lo[i], hi[i]) for i in range(len(cnt))]
+
+
+class _Half:
+    """Statistics of one 7.5-min half window (merged over segments in arrival order)."""
+
+    __slots__ = ("full", "sub", "clip", "hard", "n")
+
+    def __init__(self):
+        self.full = _EMPTY
+        self.sub = _EMPTY
+        self.clip = np.zeros(3)
+        self.hard = np.zeros(3, bool)
+        self.n = 0
+
+
+class NonwearOperator:
+    """push(batch with ``time_ns``, ``accel`` (n, 3) g, ``segment``) -> NonwearWindows now final;
+    flush() -> the rest."""
+
+    def __init__(self, rate_hz: float, *, version: str = DEFAULT_VERSION, clip_g: float = CLIP_DEFAULT_G,
+                 sd_g: float = SD_CRITERION_G, range_g: float = RANGE_CRITERION_G,
+                 medium_s: float = MEDIUM_S, long_s: float = LONG_S):
+        if version not in VERSIONS:
+            raise ValueError(f"nonwear version must be one of {VERSIONS}, not {version!r}")
+        ratio = long_s / medium_s
+        if ratio != int(ratio) or int(ratio) < 1:
+            raise ValueError("the long window must be a whole number of medium windows")
+        self.version = version
+        self.rate_hz = float(rate_hz)
+        self.clip_g = float(clip_g)
+        self.sd_g, self.range_g = float(sd_g), float(range_g)
+        self.medium_ns = int(round(medium_s * 1e9))
+        self.per_long = int(ratio)  # medium windows per long window (4)
+        self.step = max(1, math.ceil(self.rate_hz / SUBSAMPLE_HZ))
+        self._binner = TimeBinner(medium_s / 2.0, {"accel": (np.float64, (3,))}, align="clock",
+                                  capacity=ring_capacity(medium_s / 2.0, rate_hz))
+        self._half: dict[int, _Half] = {}
+        self._checks: dict[int, np.ndarray] = {}  # 2023: still axes of the long window at window c
+        self._flags: dict[int, np.ndarray] = {}  # per window: still axes (3,) bool before scoring
+        self.first_w = None
+        self.last_w = None
+        self.next_w = None  # next window to emit
+        self.windows = 0
+        self.nonwear_windows = 0
+        self.clipping_windows = 0
+
+    # ------------------------------------------------------------------ statistics
+    def _take(self, chunks: list[BinChunk]) -> None:
+        for ch in chunks:
+            a = ch.cols["accel"]
+            st, cnt = ch.starts, ch.counts
+            full = _bin_stats(a, st, cnt)
+            pos = np.arange(a.shape[0]) - np.repeat(st, cnt)
+            keep = pos % self.step == 0
+            sub_cnt = np.add.reduceat(keep.astype(np.int64), st)
+            sub_st = np.concatenate([[0], np.cumsum(sub_cnt)[:-1]]).astype(np.int64)
+            sub = _bin_stats(a[keep], sub_st, sub_cnt)
+            over = np.abs(a) > self.clip_g
+            hard = np.abs(a) > 1.5 * self.clip_g
+            clip = np.add.reduceat(over.astype(np.int64), st, axis=0)
+            hard_any = np.logical_or.reduceat(hard, st, axis=0)
+            for i, b in enumerate(ch.bins):
+                h = self._half.get(int(b))
+                if h is None:
+                    h = self._half[int(b)] = _Half()
+                h.full = h.full.merge(full[i])
+                h.sub = h.sub.merge(sub[i])
+                h.clip = h.clip + clip[i]
+                h.hard = h.hard | hard_any[i]
+                h.n += int(cnt[i])
+
+    def _long(self, h0: int, h1: int, sub: bool) -> _Stats:
+        s = _EMPTY
+        for h in range(h0, h1):
+            x = self._half.get(h)
+            if x is not None:
+                s = s.merge(x.sub if sub else x.full)
+        return s
+
+    # ------------------------------------------------------------------ the rule
+    def _still_2013(self, w: int, final: bool) -> np.ndarray:
+        k = w - self.first_w
+        crit = self.per_long // 2 + 1  # GGIR: (window / window2) / 2 + 1 = 3
+        if k + 1 <= crit:  # first windows: the first long window of the recording
+            h0, h1 = 2 * self.first_w, 2 * (self.first_w + self.per_long)
+        elif final and k + 1 >= (self.last_w - self.first_w + 1) - crit:  # last windows
+            h0, h1 = 2 * (self.last_w + 1 - crit), 2 * (self.last_w + 1)
+        else:  # centred on the middle of window w
+            h0, h1 = 2 * w + 1 - self.per_long, 2 * w + 1 + self.per_long
+        return self._long(h0, h1, sub=False).still(self.sd_g, self.range_g)
+
+    def _check_2023(self, c: int) -> np.ndarray:
+        r = self._checks.get(c)
+        if r is None:
+            r = self._long(2 * c, 2 * (c + self.per_long), sub=True).still(self.sd_g, self.range_g)
+            self._checks[c] = r
+        return r
+
+    def _axes(self, w: int, final: bool) -> np.ndarray:
+        f = self._flags.get(w)
+        if f is None:
+            if self.version == "2013":
+                f = self._still_2013(w, final)
+            else:
+                f = np.zeros(3, bool)
+                for c in range(max(self.first_w, w - self.per_long + 1), w + 1):
+                    f = f | self._check_2023(c)
+            self._flags[w] = f
+        return f
+
+    def _score(self, w: int, final: bool) -> int:
+        s = int(self._axes(w, final).sum())
+        if s == 1 and w > self.first_w and w < self.last_w:
+            if self._axes(w - 1, final).sum() > 1 and self._axes(w + 1, final).sum() > 1:
+                s = 2
+        return s
+
+    def _emit(self, final: bool) -> NonwearWindows:
+        if self.first_w is None:
+            return NonwearWindows.empty()
+        # window w is final once data from window w + per_long + 1 on have been seen
+        stop = self.last_w + 1 if final else self.last_w - self.per_long
+        if stop <= self.next_w:
+            return NonwearWindows.empty()
+        ws = range(self.next_w, stop)
+        k = len(ws)
+        n = np.zeros(k, np.int64)
+        score = np.zeros(k, np.int8)
+        share = np.full(k, np.nan)
+        for i, w in enumerate(ws):
+            score[i] = self._score(w, final)
+            a, b = self._half.get(2 * w), self._half.get(2 * w + 1)
+            parts = [x for x in (a, b) if x is not None and x.n]
+            if parts:
+                cnt = sum(x.n for x in parts)
+                clip = sum(x.clip for x in parts) / cnt
+                hard = np.logical_or.reduce([x.hard for x in parts])
+                clip = np.where(hard, 1.0, clip)
+                n[i], share[i] = cnt, float(clip.max())
+        self.next_w = stop
+        self._forget()
+        nonwear = score >= NONWEAR_MIN_AXES
+        clipping = np.nan_to_num(share, nan=0.0) > CLIP_SHARE
+        self.windows += k
+        self.nonwear_windows += int(nonwear.sum())
+        self.clipping_windows += int(clipping.sum())
+        start = np.arange(ws.start, ws.stop, dtype=np.int64) * self.medium_ns
+        return NonwearWindows(start, n, score, nonwear, share, clipping)
+
+    def _forget(self) -> None:
+        """Drop the statistics no window still to be emitted can use."""
+        keep_w = self.next_w - self.per_long - 1  # 2013 centred window reaches 2 windows back
+        first_hour = self.next_w <= self.first_w + self.per_long  # 2013 edge rule still needs it
+        for h in [h for h in self._half if h < 2 * keep_w]:
+            if not (first_hour and h < 2 * (self.first_w + self.per_long)):
+                del self._half[h]
+        for d in (self._checks, self._flags):
+            for w in [w for w in d if w < keep_w]:
+                del d[w]
+
+    # ------------------------------------------------------------------ operator
+    def push(self, batch) -> NonwearWindows:
+        t = batch.time_ns
+        if t.shape[0] == 0:
+            return NonwearWindows.empty()
+        if self.first_w is None:
+            self.first_w = self.next_w = int(t[0]) // self.medium_ns
+        self.last_w = max(self.last_w if self.last_w is not None else self.first_w,
+                          int(t[-1]) // self.medium_ns)
+        self._take(self._binner.push(batch.segment, t, accel=np.asarray(batch.accel, np.float64)))
+        return self._emit(final=False)
+
+    def flush(self) -> NonwearWindows:
+        self._take(self._binner.flush())
+        return self._emit(final=True)

@@ -1,0 +1,236 @@
+"""One device through the station's states (``DeviceFlow.run`` on its own thread).
+
+States: ``identifying`` -> ``empty`` (nothing recorded) | ``downloading`` -> ``verifying`` ->
+``verified`` -> [``clearing`` -> ``cleared``] -> [``configuring`` -> ``configured``]; or ``error``
+(with the reason) from any state. Every state change is one ledger transaction (``events``).
+An unplug during the copy ends in ``error`` ("... resumes when it comes back"): when the same
+device and session return, the download resumes from the verified prefix of the partial copy.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Optional
+
+from stillpoint.drivers import constants as C
+from stillpoint.drivers.ax.discovery import Attached, discover
+from stillpoint.drivers.ax.errors import DeviceError, IdentityMismatch
+from stillpoint.drivers.ax.protocol import AxClient
+from stillpoint.drivers.errors import StillpointError
+
+from .clearing import clear_verified
+from .configure import clock_offset_s, configure_device
+from .download import DownloadJob
+from .ledger import Ledger, host_timezone, station_id
+from .profile import StudyProfile
+from .worker import DownloadWorker
+
+FINAL_STATES = ("empty", "verified", "cleared", "configured", "error")
+
+
+@dataclass
+class StationOptions:
+    out_dir: str
+    profile: Optional[StudyProfile] = None
+    clear_after_verify: bool = False
+    configure_after: bool = False
+    stall_s: float = 30.0  # a download without progress this long is stopped (hung read)
+    inline: bool = False  # downloads on threads instead of worker processes (tests)
+    throttle_bps: Optional[float] = None
+    run_settings: dict = field(default_factory=dict)
+    remount_s: float = C.AX_COMMIT_REMOUNT_S
+    volume_wait_s: float = C.AX_BOOTLOADER_S
+    pipeline: bool = True
+
+
+class DeviceFlow:
+    def __init__(self, att: Attached, opts: StationOptions, ledger: Ledger, backend=None,
+                 on_change: Optional[Callable[["DeviceFlow"], None]] = None):
+        self.att = att
+        self.opts = opts
+        self.ledger = ledger
+        self.backend = backend
+        self.on_change = on_change or (lambda f: None)
+        self.state = "attached"
+        self.reason: Optional[str] = None
+        self.info: str = ""
+        self.session: Optional[int] = None
+        self.done_bytes = 0
+        self.total_bytes = 0
+        self.mbps: Optional[float] = None
+        self.result = None
+        self.detached = False
+        self.worker: Optional[DownloadWorker] = None
+        self.cancel = threading.Event()
+        self.finished = threading.Event()
+        self.thread = threading.Thread(target=self.run, daemon=True, name=f"flow-{att.serial}")
+
+    # ------------------------------------------------------------------ state
+    def _set(self, state: str, reason: Optional[str] = None) -> None:
+        self.state, self.reason = state, reason
+        try:
+            self.ledger.event(self.att.device_id, self.att.serial, state, reason)
+        except StillpointError:
+            pass
+        self.on_change(self)
+
+    def start(self) -> "DeviceFlow":
+        self.thread.start()
+        return self
+
+    def run(self) -> None:
+        try:
+            self._run()
+        except (DeviceError, StillpointError) as e:
+            self._set("error", getattr(e, "reason", None) or str(e))
+        except OSError as e:
+            self._set("error", f"{e.strerror or e}")
+        except Exception as e:  # noqa: BLE001 - one device's bug never stops the station
+            self._set("error", f"unexpected {type(e).__name__}: {e}")
+        finally:
+            if self.worker is not None and not self.worker.finished:
+                self.worker.cancel()
+            self.finished.set()
+
+    def stop(self) -> None:
+        self.cancel.set()
+        if self.worker is not None and not self.worker.finished:
+            self.worker.cancel()
+
+    # ------------------------------------------------------------------ helpers
+    def _find(self) -> Optional[Attached]:
+        for a in discover(self.backend):
+            if a.serial == self.att.serial or a.slot == self.att.slot:
+                return a
+        return None
+
+    def wait_volume(self, timeout_s: Optional[float] = None) -> str:
+        """Wait for this device's drive (after a delayed activation or enumeration); returns the
+        data file path."""
+        end = time.monotonic() + (timeout_s if timeout_s is not None else self.opts.remount_s)
+        while True:
+            if self.cancel.is_set():
+                raise DeviceError(self.att.device_id, "stopped")
+            a = self._find()
+            if a is not None and a.volume and a.data_file.exists():
+                self.att.volume = a.volume
+                return str(a.data_file)
+            if time.monotonic() >= end:
+                raise DeviceError(self.att.device_id, "the drive did not come back within "
+                                  f"{timeout_s or self.opts.remount_s:g} s (after COMMIT/CLEAR or "
+                                  "enumeration); unplug and re-plug the device")
+            time.sleep(0.1)
+
+    # ------------------------------------------------------------------ the flow
+    def _run(self) -> None:
+        att, opts = self.att, self.opts
+        self._set("identifying")
+        if not att.volume:
+            self.wait_volume(opts.volume_wait_s)
+        client = AxClient.open(att.port, f"{att.device_id}")
+        try:
+            self._with_client(client)
+        finally:
+            client.close()
+
+    def _with_client(self, client: AxClient) -> None:
+        att, opts = self.att, self.opts
+        client.stream_stop()  # a preview left running would hide every reply [USB] A6
+        ident = client.identify()
+        if ident.device_id != att.device_id:
+            raise IdentityMismatch(att.device_id, f"ID names device {ident.device_id} but the USB serial "
+                                                  f"{att.serial} and the drive label say {att.device_id}")
+        if ident.device_type != att.device_type:
+            raise IdentityMismatch(att.device_id, f"ID says {ident.device_type}, the USB serial "
+                                                  f"{att.device_type}")
+        self.ledger.device_seen(att.device_id, ident.device_type, att.serial, ident.firmware, att.slot)
+        offset = clock_offset_s(client)
+        batt = client.battery()
+        session = client.session()
+        self.session = session
+        self.info = f"fw {ident.firmware}, battery {batt.percent} %, clock {offset:+.1f} s"
+        data_file = att.data_file
+        size = os.stat(data_file).st_size
+        self.total_bytes = size
+        if size <= C.AX_EMPTY_DATA_BYTES:
+            self._set("empty", "no data on the device")
+        else:
+            rec = self.ledger.verified_download(att.device_id, session)
+            if rec is not None and rec.bytes == size:
+                self.done_bytes = size
+                self._set("verified", f"already downloaded: {Path(rec.cwa_path).name}")
+            else:
+                self._download(data_file, session, offset, batt.percent)
+        if opts.clear_after_verify and self.state == "verified":
+            self._set("clearing")
+            clear_verified(client, self.ledger, att.device_id, session, self.att.data_file,
+                           self.wait_volume)
+            self._set("cleared", self.info)
+        if opts.configure_after and opts.profile is not None and self.state in ("cleared", "empty"):
+            self._set("configuring")
+            try:
+                settings, warnings = configure_device(client, opts.profile, data_file=self.att.data_file,
+                                                      wait_volume=self.wait_volume, session_now=session)
+            except DeviceError as e:
+                self.ledger.configured(att.device_id, None, {}, "error", e.reason)
+                raise
+            self.ledger.configured(att.device_id, settings["session"], settings, "ok",
+                                   "; ".join(warnings) or None)
+            self._set("configured", f"session {settings['session']}, start {settings['start']}"
+                      + (f" (warning: {'; '.join(warnings)})" if warnings else ""))
+
+    def _download(self, data_file: Path, session: int, offset: float, battery: int) -> None:
+        att, opts = self.att, self.opts
+        out = Path(opts.out_dir)
+        stem = f"{att.device_id}_{session}"
+        dl_id = self.ledger.download_started(att.device_id, session, clock_offset_s=offset,
+                                             battery_pct=battery, cwa_path=str(out / f"{stem}.cwa"),
+                                             mcap_path=str(out / f"{stem}.mcap"))
+        meta = {"station": {"station_id": station_id(), "host_time_zone": host_timezone(),
+                            "clock_offset_s": f"{offset:.3f}", "device_serial": att.serial,
+                            "dock_slot": att.slot, "battery_pct": str(battery),
+                            "attached_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}}
+        job = DownloadJob(att.device_id, session, str(data_file), str(out), att.device_type,
+                          tuple(att.faults), att.control, meta, dict(opts.run_settings),
+                          opts.throttle_bps, pipeline=opts.pipeline)
+        self._set("downloading")
+        self.worker = w = DownloadWorker(job, stall_s=opts.stall_s, inline=opts.inline).start()
+        t0 = time.monotonic()
+        phase = "copy"
+        while not w.finished:
+            if self.cancel.is_set():
+                w.cancel()
+                w.result = None
+                self.ledger.download_failed(dl_id, "stopped by the user; the partial copy is kept",
+                                            w.done)
+                raise DeviceError(att.device_id, "stopped by the user; the partial copy is kept")
+            ph, self.done_bytes, total = w.poll(0.2)
+            self.total_bytes = total or self.total_bytes
+            if ph == "copy":
+                el = time.monotonic() - t0
+                self.mbps = self.done_bytes / el / 1e6 if el > 0 else None
+            if ph != phase and ph in ("verify", "finishing"):
+                phase = ph
+                self._set("verifying")
+            self.on_change(self)
+        r = self.result = w.result
+        if not r.ok:
+            self.ledger.download_failed(dl_id, r.reason, r.bytes)
+            raise DeviceError(att.device_id, r.reason + (" (resumes when the same device and "
+                                                         "session come back)"
+                                                         if "unplugged" in (r.reason or "") else ""))
+        self.ledger.download_verified(dl_id, bytes_=r.bytes, sha256=r.sha256, bad_sectors=r.bad_sectors,
+                                      cwa_path=r.cwa_path, mcap_path=r.mcap_path,
+                                      summary={"calibration": (r.summary or {}).get("calibration"),
+                                               "samples": (r.summary or {}).get("samples")})
+        cal = (r.summary or {}).get("calibration") or {}
+        self.info = (f"{r.bytes / 1e6:.1f} MB, {r.bad_sectors} bad sectors, calibration "
+                     f"{cal.get('status', '-')}"
+                     + (f" ({cal['error_before_mg']:.1f} -> {cal['error_after_mg']:.1f} mg)"
+                        if cal.get("error_after_mg") is not None and cal.get("error_before_mg") is not None
+                        else ""))
+        self._set("verified", self.info)

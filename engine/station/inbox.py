@@ -1,0 +1,143 @@
+"""The inbox: recordings dropped in a folder, ingested through the same correction and ledger path.
+
+GENEActiv devices have no public USB protocol (usb-protocols.md Part B), so the station never
+talks to them: the vendor software extracts ``.bin`` files into a folder, and ``.cwa`` files can
+be dropped there too. ``Inbox(folder, out_dir)`` ingests each file once its size and mtime have
+been stable for ``stable_s``: a raw copy ``<out>/<device>_<stem>.<ext>`` with its SHA-256 (written
+through ``.part``, fsynced, renamed), the online pipeline's MCAP beside it, and a ledger download
+record. Completeness is checked from the reader's QC: a page count that disagrees with the header,
+sequence gaps, a truncated or partial last page make the record ``error`` (the outputs are kept,
+not marked verified). Each file is ingested once (its SHA-256 is remembered in the ledger).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import threading
+import time
+from pathlib import Path
+from typing import Optional
+
+from stillpoint.drivers.outputs import AtomicOutput, describe_os_error, fsync_folder
+
+INCOMPLETE = ("page_count_mismatch", "sequence_gap", "truncated_page", "partial_page", "truncated",
+              "restart")
+SUFFIXES = (".bin", ".cwa")
+
+
+class Inbox:
+    def __init__(self, folder, out_dir, *, stable_s: float = 5.0, ledger=None):
+        self.folder = Path(folder)
+        self.out = Path(out_dir)
+        self.stable_s = stable_s
+        self.ledger = ledger
+        self._seen: dict[str, tuple] = {}  # path -> (size, mtime, since)
+        self.done: dict[str, str] = {}  # path -> state line
+        self.errors: list[str] = []
+        self._busy: Optional[threading.Thread] = None
+        self._queue: list[Path] = []
+        if not self.folder.is_dir():
+            from stillpoint.drivers.outputs import OutputError
+            raise OutputError(self.folder, "inbox folder does not exist")
+
+    def idle(self) -> bool:
+        self.step()
+        return not self._queue and (self._busy is None or not self._busy.is_alive()) and \
+            all(str(p) in self.done for p in self._candidates())
+
+    def _candidates(self):
+        return [p for p in sorted(self.folder.iterdir())
+                if p.is_file() and p.suffix.lower() in SUFFIXES and not p.name.startswith(".")]
+
+    def step(self) -> None:
+        now = time.monotonic()
+        for p in self._candidates():
+            key = str(p)
+            if key in self.done or p in self._queue:
+                continue
+            try:
+                st = p.stat()
+            except OSError:
+                continue
+            sig = (st.st_size, st.st_mtime_ns)
+            old = self._seen.get(key)
+            if old is None or old[:2] != sig:
+                self._seen[key] = (*sig, now)
+            elif now - old[2] >= self.stable_s and st.st_size > 0:
+                self._queue.append(p)
+        if self._queue and (self._busy is None or not self._busy.is_alive()):
+            p = self._queue.pop(0)
+            self.done[str(p)] = "ingesting"
+            self._busy = threading.Thread(target=self._ingest_safe, args=(p,), daemon=True)
+            self._busy.start()
+
+    def lines(self) -> list[str]:
+        return [f"inbox      {Path(k).name}: {v}" for k, v in self.done.items()]
+
+    def _ingest_safe(self, p: Path) -> None:
+        try:
+            self.done[str(p)] = self.ingest(p)
+        except Exception as e:  # noqa: BLE001 - one file's problem never stops the station
+            msg = f"error: {getattr(e, 'reason', None) or e}"
+            self.done[str(p)] = msg
+            self.errors.append(f"{p}: {msg}")
+        print(f"{time.strftime('%H:%M:%S')} inbox {p.name}: {self.done[str(p)]}", flush=True)
+
+    def ingest(self, p: Path) -> str:
+        from stillpoint.drivers import open_recording
+        from stillpoint.engine.run import RunSettings, process_file
+        src = open_recording(p)
+        info = src.info
+        src.close()
+        dev = str(info.device_id or "unknown")
+        session = info.session_id if info.session_id is not None else 0
+        stem = f"{dev}_{p.stem}"
+        raw_out = self.out / f"{stem}{p.suffix.lower()}"
+        mcap_out = self.out / f"{stem}.mcap"
+        if raw_out.exists():
+            return f"already ingested as {raw_out.name}"
+        dl = None
+        dev_id = int(dev) if dev.isdigit() else -1
+        if self.ledger is not None:
+            dl = self.ledger.download_started(dev_id, int(session), cwa_path=str(raw_out),
+                                              mcap_path=str(mcap_out))
+        try:
+            ao = AtomicOutput(raw_out, what="raw copy")
+            h = hashlib.sha256()
+            n = 0
+            try:
+                with open(p, "rb") as f:
+                    while True:
+                        b = f.read(1 << 20)
+                        if not b:
+                            break
+                        ao.file.write(b)
+                        h.update(b)
+                        n += len(b)
+            except OSError as e:
+                ao.abandon()
+                raise OSError(e.errno, f"copying {p}: {describe_os_error(e)}") from None
+            summary = process_file(p, self.out / f"{stem}.mcap.part", RunSettings(mode="online"),
+                                   metadata={"station": {"inbox_file": str(p), "sha256": h.hexdigest()}})
+            ao.commit()
+            os.replace(self.out / f"{stem}.mcap.part", mcap_out)
+            fsync_folder(self.out)
+            reasons = (summary.get("qc") or {}).get("reasons", {})
+            bad = {k: v for k, v in reasons.items() if k in INCOMPLETE}
+            if bad:
+                why = "incomplete: " + ", ".join(f"{k} x{v}" for k, v in bad.items())
+                if self.ledger is not None:
+                    self.ledger.download_failed(dl, why + "; outputs kept", n)
+                self.errors.append(f"{p}: {why}")
+                return f"error: {why} (outputs kept: {raw_out.name}, {mcap_out.name})"
+            if self.ledger is not None:
+                self.ledger.download_verified(dl, bytes_=n, sha256=h.hexdigest(), bad_sectors=0,
+                                              cwa_path=str(raw_out), mcap_path=str(mcap_out),
+                                              summary={"calibration": summary.get("calibration")})
+            cal = (summary.get("calibration") or {}).get("status", "-")
+            return f"ingested -> {raw_out.name}, {mcap_out.name} (calibration {cal})"
+        except BaseException as e:
+            if self.ledger is not None and dl is not None:
+                self.ledger.download_failed(dl, str(e))
+            raise

@@ -1,0 +1,224 @@
+"""The station's ledger: an SQLite database in the output folder (``stillpoint-ledger.sqlite``).
+
+It records the devices seen, every download (device, session, bytes, SHA-256, verified, times,
+clock offset, host time zone, station id, battery, bad sectors), every clear, every
+configuration, and every state change of a device (``events``). WAL journal, one transaction
+per state change, so a crash at any moment leaves it consistent. The clear rule
+(``clearing``) asks it for a verified download of the exact device, session and hash.
+
+A second station on the same folder is refused: the station holds an exclusive ``flock`` on
+``.stillpoint-station.lock`` for its lifetime (``acquire_station_lock``).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import sqlite3
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Optional
+
+from stillpoint.drivers.errors import StillpointError
+
+LEDGER_NAME = "stillpoint-ledger.sqlite"
+LOCK_NAME = ".stillpoint-station.lock"
+
+_SCHEMA = """
+CREATE TABLE IF NOT EXISTS devices (
+    device_id INTEGER PRIMARY KEY, device_type TEXT, serial TEXT, firmware INTEGER,
+    slot TEXT, first_seen REAL, last_seen REAL);
+CREATE TABLE IF NOT EXISTS downloads (
+    id INTEGER PRIMARY KEY AUTOINCREMENT, device_id INTEGER NOT NULL, session_id INTEGER NOT NULL,
+    state TEXT NOT NULL, bytes INTEGER, sha256 TEXT, verified INTEGER NOT NULL DEFAULT 0,
+    started REAL, finished REAL, clock_offset_s REAL, host_tz TEXT, station_id TEXT,
+    battery_pct INTEGER, bad_sectors INTEGER, cwa_path TEXT, mcap_path TEXT, reason TEXT,
+    summary TEXT);
+CREATE TABLE IF NOT EXISTS clears (
+    id INTEGER PRIMARY KEY AUTOINCREMENT, device_id INTEGER NOT NULL, session_id INTEGER NOT NULL,
+    download_id INTEGER, sha256 TEXT, time REAL, result TEXT, reason TEXT);
+CREATE TABLE IF NOT EXISTS configurations (
+    id INTEGER PRIMARY KEY AUTOINCREMENT, device_id INTEGER NOT NULL, session_id INTEGER,
+    time REAL, settings TEXT, result TEXT, reason TEXT);
+CREATE TABLE IF NOT EXISTS events (
+    id INTEGER PRIMARY KEY AUTOINCREMENT, time REAL, device_id INTEGER, serial TEXT,
+    state TEXT, reason TEXT);
+"""
+
+
+class LedgerError(StillpointError):
+    """The ledger cannot be opened or a second station wants the same folder."""
+
+
+@dataclass
+class DownloadRecord:
+    id: int
+    device_id: int
+    session_id: int
+    state: str
+    bytes: Optional[int]
+    sha256: Optional[str]
+    verified: bool
+    cwa_path: Optional[str]
+    mcap_path: Optional[str]
+    reason: Optional[str]
+
+
+def station_id() -> str:
+    return f"{socket.gethostname()}:{os.getpid()}"
+
+
+def host_timezone() -> str:
+    off = time.localtime().tm_gmtoff
+    sign = "+" if off >= 0 else "-"
+    return f"{time.strftime('%Z')} (UTC{sign}{abs(off) // 3600:02d}:{abs(off) % 3600 // 60:02d})"
+
+
+def acquire_station_lock(folder) -> int:
+    """Hold the folder's station lock (returns the fd; close it to release)."""
+    import fcntl
+    p = Path(folder) / LOCK_NAME
+    try:
+        fd = os.open(p, os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError as e:
+        raise LedgerError(f"{folder}: cannot create the station lock: {e.strerror}") from None
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        other = ""
+        try:
+            other = os.pread(fd, 200, 0).decode(errors="replace").strip()
+        except OSError:
+            pass
+        os.close(fd)
+        raise LedgerError(f"{folder}: another station is already using this folder"
+                          + (f" ({other})" if other else "")) from None
+    os.ftruncate(fd, 0)
+    os.pwrite(fd, station_id().encode(), 0)
+    return fd
+
+
+class Ledger:
+    """The ledger of one output folder (see module docstring). Thread-safe: one connection per
+    call site is not needed; every method runs one short transaction under a lock."""
+
+    def __init__(self, folder):
+        import threading
+        self.folder = Path(folder)
+        self.path = self.folder / LEDGER_NAME
+        try:
+            self.db = sqlite3.connect(self.path, timeout=10.0, isolation_level=None,
+                                      check_same_thread=False)
+            self.db.execute("PRAGMA journal_mode=WAL")
+            self.db.execute("PRAGMA synchronous=FULL")
+            self.db.executescript(_SCHEMA)
+        except sqlite3.Error as e:
+            raise LedgerError(f"{self.path}: cannot open the ledger: {e}") from None
+        self._lock = threading.Lock()
+
+    def close(self) -> None:
+        self.db.close()
+
+    def _tx(self, sql: str, args=()) -> int:
+        with self._lock:
+            try:
+                self.db.execute("BEGIN IMMEDIATE")
+                cur = self.db.execute(sql, args)
+                self.db.execute("COMMIT")
+            except sqlite3.Error as e:
+                try:
+                    self.db.execute("ROLLBACK")
+                except sqlite3.Error:
+                    pass
+                raise LedgerError(f"{self.path}: {e}") from None
+            return cur.lastrowid
+
+    def _q(self, sql: str, args=()) -> list:
+        with self._lock:
+            return self.db.execute(sql, args).fetchall()
+
+    # ------------------------------------------------------------------ writes
+    def event(self, device_id, serial, state: str, reason: Optional[str] = None) -> None:
+        self._tx("INSERT INTO events(time, device_id, serial, state, reason) VALUES (?,?,?,?,?)",
+                 (time.time(), device_id, serial, state, reason))
+
+    def device_seen(self, device_id: int, device_type: str, serial: str, firmware, slot) -> None:
+        now = time.time()
+        self._tx("INSERT INTO devices VALUES (?,?,?,?,?,?,?) ON CONFLICT(device_id) DO UPDATE SET "
+                 "device_type=excluded.device_type, serial=excluded.serial, firmware=excluded.firmware, "
+                 "slot=excluded.slot, last_seen=excluded.last_seen",
+                 (device_id, device_type, serial, firmware, slot, now, now))
+
+    def download_started(self, device_id: int, session_id: int, *, clock_offset_s=None,
+                         battery_pct=None, cwa_path=None, mcap_path=None) -> int:
+        return self._tx(
+            "INSERT INTO downloads(device_id, session_id, state, started, clock_offset_s, host_tz, "
+            "station_id, battery_pct, cwa_path, mcap_path) VALUES (?,?,?,?,?,?,?,?,?,?)",
+            (device_id, session_id, "downloading", time.time(), clock_offset_s, host_timezone(),
+             station_id(), battery_pct, cwa_path, mcap_path))
+
+    def download_failed(self, download_id: int, reason: str, bytes_=None) -> None:
+        self._tx("UPDATE downloads SET state='error', verified=0, reason=?, bytes=?, finished=? "
+                 "WHERE id=?", (reason, bytes_, time.time(), download_id))
+
+    def download_verified(self, download_id: int, *, bytes_: int, sha256: str, bad_sectors: int,
+                          cwa_path: str, mcap_path: str, summary: Optional[dict] = None) -> None:
+        self._tx("UPDATE downloads SET state='verified', verified=1, bytes=?, sha256=?, "
+                 "bad_sectors=?, cwa_path=?, mcap_path=?, finished=?, summary=?, reason=NULL "
+                 "WHERE id=?", (bytes_, sha256, bad_sectors, cwa_path, mcap_path, time.time(),
+                                json.dumps(summary, default=str) if summary else None, download_id))
+
+    def clear_attempt(self, device_id: int, session_id: int, download_id: int, sha256: str) -> int:
+        return self._tx("INSERT INTO clears(device_id, session_id, download_id, sha256, time, result) "
+                        "VALUES (?,?,?,?,?,?)", (device_id, session_id, download_id, sha256,
+                                                 time.time(), "sent"))
+
+    def clear_result(self, clear_id: int, result: str, reason: Optional[str] = None) -> None:
+        self._tx("UPDATE clears SET result=?, reason=? WHERE id=?", (result, reason, clear_id))
+
+    def configured(self, device_id: int, session_id, settings: dict, result: str,
+                   reason: Optional[str] = None) -> None:
+        self._tx("INSERT INTO configurations(device_id, session_id, time, settings, result, reason) "
+                 "VALUES (?,?,?,?,?,?)", (device_id, session_id, time.time(),
+                                          json.dumps(settings, default=str), result, reason))
+
+    # ------------------------------------------------------------------ reads
+    def _rec(self, row) -> DownloadRecord:
+        return DownloadRecord(row[0], row[1], row[2], row[3], row[4], row[5], bool(row[6]),
+                              row[7], row[8], row[9])
+
+    _COLS = "id, device_id, session_id, state, bytes, sha256, verified, cwa_path, mcap_path, reason"
+
+    def verified_download(self, device_id: int, session_id: int,
+                          sha256: Optional[str] = None) -> Optional[DownloadRecord]:
+        """The latest verified download of this device and session (and hash, if given) whose
+        raw copy is still where the ledger says."""
+        rows = self._q(f"SELECT {self._COLS} FROM downloads WHERE device_id=? AND session_id=? "
+                       "AND verified=1 AND state='verified' ORDER BY id DESC", (device_id, session_id))
+        for r in rows:
+            rec = self._rec(r)
+            if sha256 is not None and rec.sha256 != sha256:
+                continue
+            if rec.cwa_path and os.path.isfile(rec.cwa_path):
+                return rec
+        return None
+
+    def downloads(self, device_id: Optional[int] = None) -> list[DownloadRecord]:
+        if device_id is None:
+            rows = self._q(f"SELECT {self._COLS} FROM downloads ORDER BY id")
+        else:
+            rows = self._q(f"SELECT {self._COLS} FROM downloads WHERE device_id=? ORDER BY id",
+                           (device_id,))
+        return [self._rec(r) for r in rows]
+
+    def clears(self) -> list[tuple]:
+        return self._q("SELECT device_id, session_id, download_id, sha256, result, reason FROM clears "
+                       "ORDER BY id")
+
+    def events(self, device_id: Optional[int] = None) -> list[tuple]:
+        if device_id is None:
+            return self._q("SELECT device_id, state, reason FROM events ORDER BY id")
+        return self._q("SELECT device_id, state, reason FROM events WHERE device_id=? ORDER BY id",
+                       (device_id,))

@@ -1,0 +1,156 @@
+"""The station: watch for devices, run each through its states in parallel, show a table.
+
+``Station(options, backend=None)``: ``run(once=False, stop=None)`` polls discovery every
+``poll_s``; a device that appears gets a ``DeviceFlow`` on its own thread (downloads run in their
+own worker processes); a device that leaves is marked ``detached`` and, when it comes back, runs
+again (an interrupted download resumes). ``once=True`` handles the devices attached at start and
+returns when they are all in a final state. The ledger lock refuses a second station on the same
+folder. ``render`` draws the live table (TTY) or prints one plain line per state change.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Optional
+
+from stillpoint.drivers.ax.discovery import discover
+from stillpoint.drivers.outputs import OutputError
+
+from .flow import FINAL_STATES, DeviceFlow, StationOptions
+from .ledger import Ledger, acquire_station_lock
+
+
+def _bar(done: int, total: int, width: int = 20) -> str:
+    if not total:
+        return " " * (width + 2)
+    k = int(width * min(1.0, done / total))
+    return "[" + "#" * k + "." * (width - k) + "]"
+
+
+def table_lines(flows) -> list[str]:
+    head = f"{'slot':<10} {'device':>8} {'type':<4} {'state':<12} {'progress':<22} {'MB/s':>6}  detail"
+    out = [head]
+    for f in flows:
+        mbps = f"{f.mbps:6.2f}" if f.mbps else "     -"
+        detail = (f.reason if f.state == "error" else (f.reason or f.info)) or ""
+        detail += " (detached)" if f.detached else ""
+        out.append(f"{f.att.slot[:10]:<10} {f.att.device_id:>8} {f.att.device_type:<4} {f.state:<12} "
+                   f"{_bar(f.done_bytes, f.total_bytes)} {mbps}  {detail or ''}")
+    return out
+
+
+class Station:
+    def __init__(self, options: StationOptions, backend=None, *, poll_s: float = 0.5,
+                 out=None, tty: Optional[bool] = None, inbox=None):
+        folder = Path(options.out_dir)
+        if not folder.is_dir():
+            raise OutputError(folder, "output folder does not exist")
+        self._lock_fd = acquire_station_lock(folder)
+        self.opts = options
+        self.backend = backend
+        self.poll_s = poll_s
+        self.ledger = Ledger(folder)
+        self.flows: dict[str, DeviceFlow] = {}
+        self.detached: set[str] = set()
+        self.out = out or sys.stdout
+        self.tty = self.out.isatty() if tty is None else tty
+        self.inbox = inbox
+        self._printed: dict[str, tuple] = {}
+        self._drawn = 0
+        self._lock = threading.Lock()
+
+    def close(self) -> None:
+        import os
+        for f in self.flows.values():
+            f.stop()
+        for f in self.flows.values():
+            f.finished.wait(5.0)
+        self.ledger.close()
+        if self._lock_fd is not None:
+            os.close(self._lock_fd)
+            self._lock_fd = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    # ------------------------------------------------------------------ output
+    def _changed(self, flow: DeviceFlow) -> None:
+        if self.tty:
+            return
+        key = (flow.state, flow.reason, flow.detached)
+        with self._lock:
+            if self._printed.get(flow.att.serial) == key:
+                return
+            self._printed[flow.att.serial] = key
+            detail = (flow.reason or flow.info) + (" (detached)" if flow.detached else "")
+            print(f"{time.strftime('%H:%M:%S')} {flow.att.device_type} {flow.att.device_id} "
+                  f"[{flow.att.slot}] {flow.state}" + (f": {detail}" if detail else ""),
+                  file=self.out, flush=True)
+
+    def render(self) -> None:
+        if not self.tty:
+            return
+        lines = table_lines(self.flows.values())
+        if self.inbox is not None:
+            lines += self.inbox.lines()
+        buf = ("\x1b[%dA" % self._drawn if self._drawn else "") + "".join(
+            "\x1b[2K" + line + "\n" for line in lines)
+        self.out.write(buf)
+        self.out.flush()
+        self._drawn = len(lines)
+
+    # ------------------------------------------------------------------ loop
+    def step(self) -> list:
+        """One discovery pass: start flows for new devices, mark the ones that left."""
+        attached = discover(self.backend)
+        seen = set()
+        for a in attached:
+            seen.add(a.serial)
+            f = self.flows.get(a.serial)
+            if f is None or (a.serial in self.detached and f.finished.is_set()):
+                self.detached.discard(a.serial)
+                f = DeviceFlow(a, self.opts, self.ledger, self.backend, on_change=self._changed)
+                self.flows[a.serial] = f
+                f.start()
+        for serial, f in self.flows.items():
+            if serial not in seen and serial not in self.detached:
+                if f.finished.is_set():
+                    self.detached.add(serial)
+                    f.detached = True
+                    self._changed(f)
+                # a flow still running notices the unplug itself (the port or the drive fails)
+        if self.inbox is not None:
+            self.inbox.step()
+        return attached
+
+    def run(self, once: bool = False, stop: Optional[threading.Event] = None) -> int:
+        """Run until ``stop`` is set (or, ``once``, until the devices present are done).
+        Returns 2 if any device ended in ``error``, else 0."""
+        stop = stop or threading.Event()
+        try:
+            self.step()
+            while not stop.is_set():
+                self.render()
+                if once and all(f.finished.is_set() for f in self.flows.values()) and \
+                        (self.inbox is None or self.inbox.idle()):
+                    break
+                stop.wait(self.poll_s)
+                if not once:
+                    self.step()
+                elif self.inbox is not None:
+                    self.inbox.step()
+            self.render()
+        finally:
+            for f in self.flows.values():
+                if not f.finished.is_set():
+                    f.stop()
+        errors = [f for f in self.flows.values() if f.state == "error"]
+        if self.inbox is not None and self.inbox.errors:
+            return 2
+        return 2 if errors else 0

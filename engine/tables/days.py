@@ -1,0 +1,200 @@
+"""The day table: one row per local calendar day (midnight to midnight in the participant's zone)
+and a file summary row, from the epoch rows as they stream.
+
+Only **clean** epochs (no flag: nonwear, clipping, gap, qc, filter_warmup) enter the means, the
+intensity minutes, MVPA and M10/L5; ``wear_hours`` counts clean epochs. Per day:
+
+* ``day_hours``: the local day's length (23 or 25 at DST changes with an IANA zone; 24 otherwise);
+  ``recorded_hours``: the part of it inside the recording; ``data_hours``: epochs with data;
+  ``nonwear_hours``, ``clipping_hours``, ``qc_hours``: epochs with data and that flag;
+* ``valid_day``: ``wear_hours >= valid_day_hours`` (default 16);
+* ``enmo_mean_mg``: mean ENMO over clean epochs;
+* ``min_enmo_<a>_<b>mg``: minutes of clean epochs with a <= ENMO < b for the band edges (default
+  40/100/400 mg, GGIR's common light/moderate/vigorous thresholds);
+* ``mvpa_bout_min``: minutes in runs of consecutive clean epochs with ENMO >= the MVPA threshold
+  (the second band edge, 100 mg) lasting at least ``mvpa_bout_s`` (60 s); every epoch of the run
+  must meet it (GGIR's bout rules tolerate 20 % below);
+* ``m10_mg`` / ``l5_mg``: GGIR's M10 and L5: the highest mean ENMO over 10 consecutive hours and
+  the lowest over 5, windows starting every 10 min inside the day; a window counts when at least
+  half of its epochs are clean (GGIR imputes the rest from the average day instead), on valid
+  days only; ``m10_start`` / ``l5_start``: local clock time of the window start;
+* ``data_coverage`` / ``qc_coverage``: data hours and QC-flagged hours over ``day_hours``.
+
+The summary row (``date`` = ``all``) sums the hours, counts valid days in ``valid_day``, gives the
+mean ENMO over every clean epoch of the file, and the minutes per band, MVPA and M10/L5 averaged
+over valid days (empty when there is none).
+Every row also carries the time zone used and the calibration status.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+from typing import Optional
+
+import numpy as np
+
+from ..timezones import Zone
+from .epochs import EpochRows
+
+DAY_NS = 86400 * 10**9
+VALID_DAY_HOURS = 16.0
+ENMO_BANDS_MG = (40.0, 100.0, 400.0)
+MVPA_BOUT_S = 60.0
+M_STEP_S = 600.0  # GGIR M5L5res: windows every 10 min
+MIN_WINDOW_CLEAN = 0.5
+
+
+def _band_names(bands) -> list[str]:
+    edges = [0.0] + [float(b) for b in bands]
+    names = []
+    for i, lo in enumerate(edges):
+        hi = edges[i + 1] if i + 1 < len(edges) else None
+        names.append(f"min_enmo_{lo:g}_{hi:g}mg" if hi is not None else f"min_enmo_ge{lo:g}mg")
+    return names
+
+
+def day_columns(bands=ENMO_BANDS_MG) -> list[str]:
+    return (["date", "day_hours", "recorded_hours", "data_hours", "wear_hours", "nonwear_hours",
+             "clipping_hours", "qc_hours", "valid_day", "enmo_mean_mg"] + _band_names(bands) +
+            ["mvpa_bout_min", "m10_mg", "m10_start", "l5_mg", "l5_start", "data_coverage",
+             "qc_coverage", "timezone", "calibration"])
+
+
+def _runs(mask: np.ndarray):
+    """(start, length) of the runs of True."""
+    d = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
+    s = np.flatnonzero(d == 1)
+    e = np.flatnonzero(d == -1)
+    return s, e - s
+
+
+class DayAccumulator:
+    def __init__(self, zone: Zone, epoch_s: float, *, valid_day_hours: float = VALID_DAY_HOURS,
+                 bands=ENMO_BANDS_MG, mvpa_bout_s: float = MVPA_BOUT_S, calibration: str = ""):
+        self.zone = zone
+        self.epoch_s = float(epoch_s)
+        self.epoch_h = self.epoch_s / 3600.0
+        self.valid_day_hours = float(valid_day_hours)
+        self.bands = tuple(float(b) for b in bands)
+        self.mvpa_mg = self.bands[1] if len(self.bands) > 1 else self.bands[0]
+        self.mvpa_bout_s = float(mvpa_bout_s)
+        self.calibration = calibration
+        self.columns = day_columns(self.bands)
+        self._day: Optional[int] = None
+        self._parts: list[EpochRows] = []
+        self._local: list[np.ndarray] = []
+        self.days: list[dict] = []
+        # epoch-level totals (for the summary and the day-sum = epoch-sum check)
+        self.totals = {"epochs": 0, "clean": 0, "enmo_clean_sum": 0.0}
+
+    # ------------------------------------------------------------------ streaming
+    def push(self, rows: EpochRows) -> None:
+        if not len(rows):
+            return
+        local = self.zone.local_ns(rows.start_ns) if self.zone.known else rows.start_ns.copy()
+        day = np.floor_divide(local, DAY_NS)
+        self.totals["epochs"] += len(rows)
+        c = rows.clean
+        self.totals["clean"] += int(c.sum())
+        self.totals["enmo_clean_sum"] += float(np.nansum(rows.enmo_mg[c]))
+        cuts = np.flatnonzero(np.diff(day)) + 1
+        for a, b in zip(np.r_[0, cuts], np.r_[cuts, len(rows)]):
+            d = int(day[a])
+            if self._day is not None and d != self._day:
+                self._finish()
+            self._day = d
+            self._parts.append(_slice(rows, a, b))
+            self._local.append(local[a:b])
+
+    def close(self) -> list[dict]:
+        if self._day is not None:
+            self._finish()
+        return self.days
+
+    # ------------------------------------------------------------------ one day
+    def _day_hours(self, d: int) -> float:
+        if self.zone.iana:
+            return (self.zone.utc_of_local_midnight_ns(d + 1) -
+                    self.zone.utc_of_local_midnight_ns(d)) / 3.6e12
+        return 24.0
+
+    def _finish(self) -> None:
+        r = EpochRows.concat(self._parts)
+        local = np.concatenate(self._local)
+        d = self._day
+        self._parts, self._local, self._day = [], [], None
+        h = self.epoch_h
+        has = ~r.gap
+        clean = r.clean
+        e = r.enmo_mg
+        row = {
+            "date": (_dt.date(1970, 1, 1) + _dt.timedelta(days=d)).isoformat(),
+            "day_hours": self._day_hours(d),
+            "recorded_hours": len(r) * h,
+            "data_hours": int(has.sum()) * h,
+            "wear_hours": int(clean.sum()) * h,
+            "nonwear_hours": int((r.nonwear & has).sum()) * h,
+            "clipping_hours": int((r.clipping & has).sum()) * h,
+            "qc_hours": int((r.qc & has).sum()) * h,
+        }
+        row["valid_day"] = int(row["wear_hours"] >= self.valid_day_hours - 1e-9)
+        row["enmo_mean_mg"] = float(e[clean].mean()) if clean.any() else None
+        edges = [0.0] + list(self.bands) + [np.inf]
+        for name, lo, hi in zip(_band_names(self.bands), edges[:-1], edges[1:]):
+            row[name] = int((clean & (e >= lo) & (e < hi)).sum()) * self.epoch_s / 60.0
+        s, n = _runs(clean & (e >= self.mvpa_mg))
+        long = n * self.epoch_s >= self.mvpa_bout_s - 1e-9
+        row["mvpa_bout_min"] = float(n[long].sum()) * self.epoch_s / 60.0
+        for key, hours, pick in (("m10", 10.0, np.argmax), ("l5", 5.0, np.argmin)):
+            val, start = (self._window(e, clean, local, hours, pick) if row["valid_day"]
+                          else (None, None))
+            row[f"{key}_mg"], row[f"{key}_start"] = val, start
+        dh = row["day_hours"]
+        row["data_coverage"] = row["data_hours"] / dh
+        row["qc_coverage"] = row["qc_hours"] / dh
+        row["timezone"] = self.zone.label
+        row["calibration"] = self.calibration
+        self.days.append(row)
+
+    def _window(self, e, clean, local, hours, pick):
+        w = int(round(hours * 3600 / self.epoch_s))
+        step = max(1, int(round(M_STEP_S / self.epoch_s)))
+        if len(e) < w:
+            return None, None
+        x = np.where(clean, e, 0.0)
+        cs = np.concatenate([[0.0], np.cumsum(x)])
+        cn = np.concatenate([[0], np.cumsum(clean.astype(np.int64))])
+        starts = np.arange(0, len(e) - w + 1, step)
+        cnt = cn[starts + w] - cn[starts]
+        ok = cnt >= MIN_WINDOW_CLEAN * w
+        if not ok.any():
+            return None, None
+        mean = np.where(ok, (cs[starts + w] - cs[starts]) / np.maximum(cnt, 1), np.nan)
+        i = int(pick(np.where(ok, mean, -np.inf if pick is np.argmax else np.inf)))
+        t = int(local[starts[i]] % DAY_NS) // 10**9
+        return float(mean[i]), f"{t // 3600:02d}:{(t // 60) % 60:02d}"
+
+    # ------------------------------------------------------------------ summary
+    def summary(self) -> dict:
+        valid = [d for d in self.days if d["valid_day"]]
+        row = {"date": "all"}
+        for k in ("day_hours", "recorded_hours", "data_hours", "wear_hours", "nonwear_hours",
+                  "clipping_hours", "qc_hours"):
+            row[k] = float(sum(d[k] for d in self.days))
+        row["valid_day"] = len(valid)
+        clean = self.totals["clean"]
+        row["enmo_mean_mg"] = self.totals["enmo_clean_sum"] / clean if clean else None
+        for k in _band_names(self.bands) + ["mvpa_bout_min", "m10_mg", "l5_mg"]:
+            v = [d[k] for d in valid if d[k] is not None]
+            row[k] = float(np.mean(v)) if v else None
+        row["m10_start"] = row["l5_start"] = None
+        row["data_coverage"] = row["data_hours"] / row["day_hours"] if row["day_hours"] else None
+        row["qc_coverage"] = row["qc_hours"] / row["day_hours"] if row["day_hours"] else None
+        row["timezone"] = self.zone.label
+        row["calibration"] = self.calibration
+        return row
+
+
+def _slice(r: EpochRows, a: int, b: int) -> EpochRows:
+    from dataclasses import fields
+    return EpochRows(**{f.name: getattr(r, f.name)[a:b] for f in fields(EpochRows)})

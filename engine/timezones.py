@@ -1,0 +1,224 @@
+"""Time zones: one mechanism for the device clock's zone and for local (calendar) time.
+
+``parse_zone(spec)`` accepts an IANA name (``Europe/London``, through the standard ``zoneinfo``;
+systems without a zone database need ``pip install tzdata``), a fixed offset (``+01:00``,
+``-0530``, ``GMT +01:00``, ``UTC``) or ``None`` (zone unknown).
+
+How recordings use it:
+
+* **.cwa** stores no zone: its clock is the wall-clock time of the computer that configured it.
+  With a zone, the clock's offset from UTC is the zone's offset in force at the recording's first
+  sample (DST-aware: a device set up in British summer time runs at +01:00). The device does not
+  change its clock at a DST change, so that one offset converts every sample to UTC. Without a
+  zone the times are **device local time, zone unknown**: the readers then treat the clock as if
+  it were UTC (offset 0) and every output says so instead of claiming UTC.
+* **GENEActiv .bin** stores its zone (``Time Zone``, a fixed offset) and keeps it unless a zone is
+  given, which then replaces it the same way.
+* **local time** (epoch table, calendar days) is UTC + the zone's offset at each instant, so with
+  an IANA zone local days have 23 or 25 hours at DST changes; with a fixed offset they never do.
+
+``Zone.offsets_s(utc_ns)`` is vectorised: offsets are looked up once per hour of data (and the
+change instant found to the second by bisection), never per sample.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+from dataclasses import dataclass, field
+from typing import Optional
+
+import numpy as np
+
+from stillpoint.drivers.errors import StillpointError
+
+UNKNOWN_LABEL = "device local time, zone unknown"
+_HOUR_NS = 3600 * 10**9
+
+
+class ZoneError(StillpointError):
+    """A time zone that cannot be used (unknown name, bad offset, no zone database)."""
+
+
+def _fixed_offset(spec: str) -> Optional[int]:
+    from stillpoint.drivers.geneactiv_header import parse_timezone
+    try:
+        return parse_timezone(spec)
+    except ValueError:
+        return None
+
+
+@dataclass(frozen=True)
+class Zone:
+    """A participant's time zone: IANA (``name``), a fixed offset, or unknown."""
+
+    name: str  # IANA name, "+01:00"-style text for a fixed offset, "" when unknown
+    fixed_s: Optional[int] = None  # fixed offset in seconds (None for IANA or unknown)
+    _cache: dict = field(default_factory=dict, compare=False, repr=False)
+
+    @property
+    def known(self) -> bool:
+        return bool(self.name)
+
+    @property
+    def iana(self) -> bool:
+        return self.known and self.fixed_s is None
+
+    @property
+    def label(self) -> str:
+        return self.name if self.known else UNKNOWN_LABEL
+
+    def _tz(self):
+        import zoneinfo
+        return zoneinfo.ZoneInfo(self.name)
+
+    def offset_at_s(self, utc_s: int) -> int:
+        """UTC offset (seconds) in force at one instant (UTC seconds)."""
+        if not self.iana:
+            return int(self.fixed_s or 0)
+        d = _dt.datetime.fromtimestamp(int(utc_s), tz=_dt.timezone.utc).astimezone(self._tz())
+        return int(d.utcoffset().total_seconds())
+
+    def _hour(self, h: int) -> tuple:
+        """(offset at the hour's start, change second or None, offset after the change)."""
+        r = self._cache.get(h)
+        if r is None:
+            s0 = h * 3600
+            a, b = self.offset_at_s(s0), self.offset_at_s(s0 + 3600)
+            if a == b:
+                r = (a, None, a)
+            else:  # bisect to the second where the offset changes
+                lo, hi = s0, s0 + 3600
+                while hi - lo > 1:
+                    mid = (lo + hi) // 2
+                    if self.offset_at_s(mid) == a:
+                        lo = mid
+                    else:
+                        hi = mid
+                r = (a, hi, b)
+            if len(self._cache) > 100_000:
+                self._cache.clear()
+            self._cache[h] = r
+        return r
+
+    def offsets_s(self, utc_ns) -> np.ndarray:
+        """(n,) int64 UTC offsets in seconds at each instant (UTC ns)."""
+        t = np.asarray(utc_ns, np.int64)
+        if not self.iana:
+            return np.full(t.shape, int(self.fixed_s or 0), np.int64)
+        hours = np.floor_divide(t, _HOUR_NS)
+        out = np.empty(t.shape, np.int64)
+        for h in np.unique(hours):
+            sel = hours == h
+            a, change, b = self._hour(int(h))
+            if change is None:
+                out[sel] = a
+            else:
+                out[sel] = np.where(t[sel] >= change * 10**9, b, a)
+        return out
+
+    def local_ns(self, utc_ns) -> np.ndarray:
+        t = np.asarray(utc_ns, np.int64)
+        return t + self.offsets_s(t) * 10**9
+
+    def utc_of_local_midnight_ns(self, day: int) -> int:
+        """UTC ns of local midnight starting ``day`` (days since 1970-01-01, local calendar)."""
+        if not self.iana:
+            return (day * 86400 - int(self.fixed_s or 0)) * 10**9
+        d = _dt.date(1970, 1, 1) + _dt.timedelta(days=int(day))
+        local = _dt.datetime(d.year, d.month, d.day, tzinfo=self._tz())
+        return int(local.timestamp()) * 10**9
+
+    def device_offset_s(self, device_clock_s: float) -> int:
+        """The offset of a device clock set to this zone's wall-clock time, judged at a device
+        clock reading (e.g. the first sample): the zone's offset at that local time."""
+        if not self.iana:
+            return int(self.fixed_s or 0)
+        guess = int(device_clock_s) - self.offset_at_s(int(device_clock_s))
+        return self.offset_at_s(guess)
+
+    def to_dict(self) -> dict:
+        return {"zone": self.label, "known": self.known, "iana": self.iana,
+                "fixed_offset_s": self.fixed_s}
+
+
+def parse_zone(spec) -> Zone:
+    """IANA name, fixed offset text/seconds, or None (unknown)."""
+    if spec is None or (isinstance(spec, str) and not spec.strip()):
+        return Zone("")
+    if isinstance(spec, Zone):
+        return spec
+    if isinstance(spec, (int, float, np.integer)) and not isinstance(spec, bool):
+        return fixed_zone(int(spec))
+    text = str(spec).strip()
+    off = _fixed_offset(text)
+    if off is not None and not ("/" in text):
+        return fixed_zone(off)
+    try:
+        import zoneinfo
+        zoneinfo.ZoneInfo(text)
+    except ModuleNotFoundError:  # pragma: no cover - Python < 3.9
+        raise ZoneError(f"time zone {text!r}: this Python has no zoneinfo") from None
+    except (zoneinfo.ZoneInfoNotFoundError, ValueError):
+        import zoneinfo as _zi
+        hint = "" if _zi.available_timezones() else (
+            "; this system has no time zone database: pip install tzdata")
+        raise ZoneError(f"time zone {text!r} is neither an IANA name (e.g. Europe/London) nor an "
+                        f"offset like +01:00{hint}") from None
+    return Zone(text)
+
+
+def fixed_zone(offset_s: int) -> Zone:
+    sign = "-" if offset_s < 0 else "+"
+    a = abs(int(offset_s)) // 60
+    return Zone(f"{sign}{a // 60:02d}:{a % 60:02d}", int(offset_s))
+
+
+def reader_timezone(path, fmt: str, spec) -> tuple[Optional[int], Zone]:
+    """What to pass as ``timezone=`` to the reader of ``path`` (None: the reader's default) and
+    the Zone of local time, for a user's zone ``spec`` (None: not given)."""
+    if fmt == "mcap":
+        return None, parse_zone(spec)
+    zone = parse_zone(spec)
+    if fmt == "geneactiv":
+        from stillpoint.drivers.geneactiv import read_header
+        if not zone.known:
+            info = read_header(path)
+            return None, fixed_zone(info.timezone_offset_s)
+        if zone.fixed_s is not None:
+            return zone.fixed_s, zone
+        info = read_header(path, timezone=0)
+        start = _header_start_s(info)
+        return (zone.device_offset_s(start) if start is not None else zone.offset_at_s(0)), zone
+    # .cwa (and anything else with a local clock and no stored zone)
+    if not zone.known:
+        return 0, zone
+    if zone.fixed_s is not None:
+        return zone.fixed_s, zone
+    from stillpoint.drivers.cwa import read_header
+    info = read_header(path, timezone=0)
+    start = _header_start_s(info)
+    if start is None:
+        raise ZoneError(f"{path}: no readable sector time to place the recording in {zone.name}")
+    return zone.device_offset_s(start), zone
+
+
+def _header_start_s(info) -> Optional[float]:
+    """First sample time (device clock read as UTC, seconds) from a reader's header dict."""
+    h = info.header or {}
+    for key in ("first_sector_time", "start_time_ns", "Config Time"):
+        v = h.get(key)
+        if v is None:
+            continue
+        if key == "Config Time":  # GENEActiv: "2012-05-23 16:47:31:901", the device clock
+            v = str(v)[:19].replace(" ", "T")
+        if isinstance(v, (int, float)):
+            return float(v) / (1e9 if v > 1e12 else 1.0)
+        try:
+            text = str(v).replace("Z", "+00:00")
+            d = _dt.datetime.fromisoformat(text)
+            if d.tzinfo is None:
+                d = d.replace(tzinfo=_dt.timezone.utc)
+            return d.timestamp()
+        except ValueError:
+            continue
+    return None

@@ -1,0 +1,115 @@
+"""The verified download: copy + hash + online pipeline, verification, resume, faults."""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import time
+
+import pytest
+
+from stillpoint.engine.station.download import DownloadJob, run_download
+
+from station_helpers import emu, runtime  # noqa: F401
+
+
+def _job(d, out, **kw):
+    return DownloadJob(d.device_id, d.session_id, str(d.data_file), str(out), d.kind,
+                       tuple(sorted(d.faults)), str(d.control), **kw)
+
+
+def test_download_verified_with_mcap(emu, tmp_path):
+    d = emu(12345)
+    out = tmp_path / "out"
+    out.mkdir()
+    want = hashlib.sha256(d.data_file.read_bytes()).hexdigest()
+    r = run_download(_job(d, out, metadata={"station": {"clock_offset_s": "2.5", "station_id": "s1"}}))
+    assert r.ok, r.reason
+    assert r.sha256 == want and r.bytes == d.data_file.stat().st_size and r.bad_sectors == 0
+    assert sorted(os.listdir(out)) == ["12345_1.cwa", "12345_1.mcap"]
+    assert hashlib.sha256((out / "12345_1.cwa").read_bytes()).hexdigest() == want
+    # the MCAP is complete and readable by the mcap package, with the station's metadata
+    from mcap.reader import make_reader
+    with open(out / "12345_1.mcap", "rb") as f:
+        reader = make_reader(f)
+        meta = {m.name: m.metadata for m in reader.iter_metadata()}
+        topics = {ch.topic for _, ch, _ in reader.iter_messages()}
+    assert meta["station"]["clock_offset_s"] == "2.5"
+    assert {"/raw/accel", "/corrected/accel", "/metrics/epoch"} <= topics
+    assert r.summary["samples"] > 0 and r.mcap_after_copy_s is not None
+
+
+def test_existing_copy_is_never_overwritten(emu, tmp_path):
+    d = emu(12345)
+    (tmp_path / "12345_1.cwa").write_bytes(b"keep me")
+    r = run_download(_job(d, tmp_path))
+    assert not r.ok and "already exists" in r.reason
+    assert (tmp_path / "12345_1.cwa").read_bytes() == b"keep me"
+
+
+def test_unplug_then_resume_from_verified_prefix(emu, tmp_path):
+    d = emu(12345, faults=("unplug-mid-copy",))
+    job = _job(d, tmp_path, chunk_bytes=64 * 1024)
+    r = run_download(job)
+    assert not r.ok and "unplugged" in r.reason
+    part = tmp_path / "12345_1.cwa.part"
+    kept = part.stat().st_size
+    assert 0 < kept < r.size
+    end = time.monotonic() + 5
+    while not d.plugged and time.monotonic() < end:  # the emulator re-plugs the device
+        time.sleep(0.05)
+    assert d.plugged
+    r2 = run_download(job)
+    assert r2.ok, r2.reason
+    assert r2.resumed_from == kept // 512 * 512 and r2.resumed_from > 0
+    assert hashlib.sha256((tmp_path / "12345_1.cwa").read_bytes()).hexdigest() == \
+        hashlib.sha256(d.data_file.read_bytes()).hexdigest()
+
+
+def test_resume_with_a_differing_prefix_starts_over_and_keeps_it(emu, tmp_path):
+    d = emu(12345)
+    (tmp_path / "12345_1.cwa.part").write_bytes(b"MD" + b"\x01" * 4094)
+    r = run_download(_job(d, tmp_path))
+    assert r.ok and r.resumed_from == 0
+    asides = [p for p in os.listdir(tmp_path) if p.startswith("12345_1.cwa.part.")]
+    assert len(asides) == 1  # the old partial copy is set aside, not deleted
+
+
+@pytest.mark.parametrize("fault, reason", [
+    ("short-read", "short read"),
+    ("io-error", "Input/output error"),
+    ("bit-flip", "verification failed"),
+    ("change-between-reads", "verification failed"),
+])
+def test_read_faults_keep_partial_and_never_finalise(emu, tmp_path, fault, reason):
+    d = emu(12345, faults=(fault,))
+    r = run_download(_job(d, tmp_path))
+    assert not r.ok and reason in r.reason
+    names = os.listdir(tmp_path)
+    assert "12345_1.cwa" not in names and "12345_1.mcap" not in names
+    assert "12345_1.cwa.part" in names and (tmp_path / "12345_1.cwa.part").stat().st_size > 0
+
+
+def test_session_mismatch_with_header_is_refused(emu, tmp_path):
+    d = emu(12345)
+    job = _job(d, tmp_path)
+    job.session_id = 2  # what SESSION said; the header says 1
+    r = run_download(job)
+    assert not r.ok and "session mismatch" in r.reason
+    assert not (tmp_path / "12345_2.cwa").exists()
+
+
+def test_missing_output_folder_is_a_clear_error(emu, tmp_path):
+    d = emu(12345)
+    r = run_download(_job(d, tmp_path / "missing"))
+    assert not r.ok and "cannot create" in r.reason and "folder does not exist" in r.reason
+
+
+def test_bad_sectors_are_counted_not_blocking(emu, tmp_path):
+    from stillpoint.drivers.cwa_writer import corrupt_sector
+    d = emu(12345)
+    corrupt_sector(d.data_file, 5, "checksum")
+    corrupt_sector(d.data_file, 9, "checksum")
+    r = run_download(_job(d, tmp_path))
+    assert r.ok, r.reason
+    assert r.bad_sectors == 2

@@ -1,0 +1,213 @@
+"""Epoch and day tables: nonwear against the simulator's labels, a DST day, day sums = epoch sums,
+reader-flagged data kept out of the means (real AX6 file), block-cut invariance, time zones."""
+
+import csv
+import gzip
+import os
+import subprocess
+import sys
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from stillpoint.engine.operators.anglez import AnglezOperator, anglez_deg
+from stillpoint.engine.run import RunSettings, process_file
+from stillpoint.engine.sim import simulate_recording
+from stillpoint.engine.sim.truth import load_labels
+from stillpoint.engine.sim.wearer import WearerParams
+from stillpoint.engine.tables import TablesSettings, table_paths
+from stillpoint.engine.timezones import UNKNOWN_LABEL, ZoneError, parse_zone
+
+REAL = os.environ.get("STILLPOINT_REAL_DATA")
+
+
+def read_epochs(path):
+    with gzip.open(path, "rt") as f:
+        return list(csv.DictReader(f))
+
+
+def read_days(path):
+    with open(path) as f:
+        return list(csv.DictReader(f))
+
+
+def t_ns(iso_z):
+    return np.array([np.datetime64(s[:-1], "ns").astype(np.int64) for s in iso_z])
+
+
+def run_tables(src, out, settings=None, **kw):
+    ep, dp = table_paths(out)
+    s = process_file(src, out, settings or RunSettings(), tables=TablesSettings(ep, dp, **kw))
+    return s, read_epochs(ep), read_days(dp)
+
+
+@pytest.fixture(scope="module")
+def dst_run(tmp_path_factory):
+    """36 h across the spring DST change in London (29 March 2026), with a drawer period."""
+    d = tmp_path_factory.mktemp("dst")
+    rec = d / "dst.cwa"
+    simulate_recording(rec, days=1.5, hz=12.5, seed=5, start="2026-03-28T12:00:00",
+                       wearer=WearerParams(drawer_per_day=1.0, shower_per_day=0.0),
+                       effects="offset,gain,noise")
+    s, epochs, days = run_tables(rec, d / "dst.mcap", RunSettings(timezone="Europe/London"))
+    return SimpleNamespace(dir=d, rec=rec, summary=s, epochs=epochs, days=days)
+
+
+def test_dst_day_has_23_hours(dst_run):
+    by_date = {r["date"]: r for r in dst_run.days}
+    assert float(by_date["2026-03-29"]["day_hours"]) == 23.0
+    assert float(by_date["2026-03-29"]["recorded_hours"]) == pytest.approx(23.0)
+    assert float(by_date["2026-03-28"]["day_hours"]) == 24.0
+    # local time jumps from +00:00 to +01:00 at 01:00 UTC
+    local = {r["time_utc"]: r["time_local"] for r in dst_run.epochs}
+    assert local["2026-03-29T00:59:55Z"] == "2026-03-29T00:59:55+00:00"
+    assert local["2026-03-29T01:00:00Z"] == "2026-03-29T02:00:00+01:00"
+    assert dst_run.summary["timezone"] == "Europe/London"
+
+
+def test_nonwear_agrees_with_the_simulated_labels(dst_run):
+    lab = load_labels(dst_run.rec.with_name("dst.labels.csv"))
+    t = np.asarray(lab["device_start_ns"], np.int64)  # device clock = UTC here (GMT at set-up)
+    off = np.asarray(lab["activity"]) <= 1  # nonwear_table, nonwear_drawer
+    e = dst_run.epochs
+    ts = t_ns([r["time_utc"] for r in e])
+    flagged = np.array([r["nonwear"] == "1" for r in e])
+    gap = np.array([r["gap"] == "1" for r in e])
+    i = np.clip(np.searchsorted(t, ts, side="right") - 1, 0, len(t) - 1)
+    truth = off[i]
+    changes = t[np.flatnonzero(np.diff(off.astype(np.int8))) + 1]
+    assert len(changes) >= 2, "the simulation must hold a nonwear period"
+    dist = np.min(np.abs(ts[:, None] - changes[None, :]), axis=1)
+    far = (dist > 3600 * 10**9) & ~gap & (ts > t[0] + 3600 * 10**9) & (ts < t[-1] - 3600 * 10**9)
+    assert truth[far].sum() > 100 and (~truth[far]).sum() > 1000
+    agreement = (flagged[far] == truth[far]).mean()
+    assert agreement >= 0.99, agreement
+
+
+def test_day_sums_equal_epoch_sums(dst_run):
+    e = dst_run.epochs
+    flags = ("nonwear", "clipping", "gap", "qc", "filter_warmup")
+    clean = np.array([all(r[f] == "0" for f in flags) for r in e])
+    date = np.array([r["time_local"][:10] for r in e])
+    enmo = np.array([float(r["enmo_mg"]) if r["enmo_mg"] else np.nan for r in e])
+    h = 5.0 / 3600
+    rows = [r for r in dst_run.days if r["date"] != "all"]
+    for r in rows:
+        sel = date == r["date"]
+        assert float(r["recorded_hours"]) == pytest.approx(sel.sum() * h, abs=1e-3)
+        assert float(r["wear_hours"]) == pytest.approx((sel & clean).sum() * h, abs=1e-3)
+        assert float(r["enmo_mean_mg"]) == pytest.approx(enmo[sel & clean].mean(), rel=1e-4)
+        bands = [k for k in r if k.startswith("min_enmo_")]
+        assert sum(float(r[k]) for k in bands) == pytest.approx((sel & clean).sum() * 5 / 60, abs=0.01)
+    total = dst_run.days[-1]
+    assert total["date"] == "all"
+    assert float(total["wear_hours"]) == pytest.approx(clean.sum() * h, abs=1e-3)
+    assert float(total["enmo_mean_mg"]) == pytest.approx(enmo[clean].mean(), rel=1e-4)
+    assert int(total["valid_day"]) == sum(int(r["valid_day"]) for r in rows)
+    assert int(total["valid_day"]) >= 1
+
+
+def test_rows_cover_the_span_with_gap_rows(tmp_path):
+    """A restart gap becomes flagged rows; the first epoch after each segment start carries the
+    BFEN start-up flag; tables do not depend on the pipeline's block size."""
+    rec = tmp_path / "r.cwa"
+    simulate_recording(rec, days=0.1, hz=12.5, seed=2, effects="offset,noise,restarts",
+                       truth_path=False, labels_path=False)
+    s1, e1, d1 = run_tables(rec, tmp_path / "a.mcap", RunSettings(max_block_s=600.0))
+    s2, e2, d2 = run_tables(rec, tmp_path / "b.mcap", RunSettings(max_block_s=7.3))
+    assert e1 == e2 and d1 == d2
+    t = t_ns([r["time_local"] + "Z" for r in e1])  # zone unknown: time_local is the device clock
+    assert np.all(np.diff(t) == 5 * 10**9)
+    assert all(r["time_utc"] == "" for r in e1) and d1[0]["timezone"] == UNKNOWN_LABEL
+    gaps = [r for r in e1 if r["gap"] == "1"]
+    assert any(r["n"] == "0" and r["enmo_mg"] == "" for r in gaps)
+    warm = [i for i, r in enumerate(e1) if r["filter_warmup"] == "1"]
+    assert warm and warm[0] <= 1 and len(warm) < len(e1) // 10
+
+
+@pytest.mark.skipif(not REAL, reason="STILLPOINT_REAL_DATA is not set: real-recording test skipped")
+def test_reader_flagged_sectors_stay_out_of_the_means(tmp_path):
+    """GGIRread's AX6 file: sectors 0-25 hold gyro in the accel slots (the reader flags them)."""
+    path = Path(REAL) / "ax6_ggirread_testfile_100hz_16g_gyro250dps.cwa"
+    s, e, days = run_tables(path, tmp_path / "ax6.mcap")
+    qc = [r for r in e if r["qc"] == "1"]
+    assert 2 <= len(qc) <= 4 and e.index(qc[0]) == 0  # ~10.4 s of data from the first sector
+    flags = ("nonwear", "clipping", "gap", "qc", "filter_warmup")
+    clean = [float(r["enmo_mg"]) for r in e if all(r[f] == "0" for f in flags)]
+    with_qc = clean + [float(r["enmo_mg"]) for r in qc]
+    day = days[0]
+    assert float(day["enmo_mean_mg"]) == pytest.approx(np.mean(clean), rel=1e-4)
+    assert np.mean(clean) != pytest.approx(np.mean(with_qc), rel=1e-3)
+    assert float(day["qc_hours"]) == pytest.approx(len(qc) * 5 / 3600, abs=1e-4)
+    assert s["tables"]["flags"]["qc"] == len(qc)
+
+
+# ---------------------------------------------------------------------------- anglez
+RATE = 50.0
+
+
+def _anglez_run(t, a, cuts):
+    op = AnglezOperator(RATE)
+    out = []
+    b = [0] + sorted(cuts) + [len(t)]
+    for i, j in zip(b[:-1], b[1:]):
+        if j > i:
+            out.append(op.push(SimpleNamespace(time_ns=t[i:j], accel=a[i:j], segment=0)))
+    out.append(op.flush())
+    return [np.concatenate([o[k] for o in out]) for k in range(3)]
+
+
+def _signal():
+    rng = np.random.default_rng(4)
+    n = 9000
+    t = (1_700_000_003 * 10**9 + np.arange(n) * 20_000_000).astype(np.int64)
+    return t, rng.normal(0, 0.3, (n, 3)) + [0.2, 0.3, 0.8]
+
+
+def test_anglez_is_ggirs_definition():
+    t, a = _signal()
+    s, n, v = _anglez_run(t, a, [])
+    step, k, h = 5, 51, 25  # 50 Hz -> every 5th sample (10 Hz), 5 s median = 51 subsamples
+    sub = a[::step]
+    med = np.array([np.median(sub[q - h:q + h + 1], axis=0) if h <= q < len(sub) - h else [np.nan] * 3
+                    for q in range(len(sub))])
+    med[:h], med[len(sub) - h:] = med[h], med[len(sub) - h - 1]
+    per_sample = anglez_deg(med)[np.arange(len(t)) // step]
+    e = t // (5 * 10**9)
+    ref = np.array([per_sample[e == u].mean() for u in np.unique(e)])
+    np.testing.assert_allclose(v, ref, atol=1e-9)
+    assert n.sum() == len(t)
+
+
+@settings(max_examples=10, deadline=None)
+@given(st.lists(st.integers(0, 9000), max_size=30))
+def test_anglez_block_cut_invariance(cuts):
+    t, a = _signal()
+    ref = _anglez_run(t, a, [])
+    got = _anglez_run(t, a, cuts)
+    for x, y in zip(ref, got):
+        np.testing.assert_array_equal(x, y)
+
+
+# ---------------------------------------------------------------------------- time zones
+def test_zones():
+    z = parse_zone("Europe/London")
+    t = np.array([1774745999, 1774746000]) * 10**9  # 2026-03-29 00:59:59 / 01:00:00 UTC
+    assert z.offsets_s(t).tolist() == [0, 3600]
+    assert z.device_offset_s(1782900000) == 3600  # a clock set in British summer time
+    f = parse_zone("+05:30")
+    assert f.fixed_s == 19800 and not f.iana and f.label == "+05:30"
+    assert parse_zone(None).label == UNKNOWN_LABEL
+    with pytest.raises(ZoneError):
+        parse_zone("Mars/Olympus_Mons")
+
+
+def test_cli_bad_zone_is_one_line(tmp_path):
+    rec = tmp_path / "x.cwa"
+    rec.write_bytes(b"")
+    r = subprocess.run([sys.executable, "-m", "stillpoint.tools", "process", str(rec), "--timezone",
+                        "Nowhere/Land"], capture_output=True, text=True)
+    assert r.returncode == 2 and "Nowhere/Land" in r.stderr and "Traceback" not in r.stderr

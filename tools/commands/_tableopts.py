@@ -1,0 +1,72 @@
+"""Options shared by `process`, `export` and `report` for the epoch/day tables and time zones."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ._runopts import OptionError
+
+
+def add_timezone_argument(p) -> None:
+    p.add_argument("--timezone", default=None, metavar="ZONE",
+                   help="the participant's time zone: an IANA name (Europe/London) or an offset "
+                        "(+01:00). .cwa: the device clock is that zone's wall-clock time (DST-aware); "
+                        "without it times are 'device local time, zone unknown'. GENEActiv: overrides "
+                        "the header's zone")
+
+
+def add_table_arguments(p, *, with_switch: bool = True) -> None:
+    g = p.add_argument_group("epoch and day tables")
+    if with_switch:
+        g.add_argument("--no-tables", dest="tables", action="store_false",
+                       help="do not write <stem>.epochs.csv.gz and <stem>.days.csv beside the MCAP")
+    g.add_argument("--nonwear", choices=("2013", "2023"), default="2023",
+                   help="GGIR nonwear rule: 2023 (default; flags the whole 60-min window) or 2013 "
+                        "(centred window, flags the 15-min window)")
+    g.add_argument("--valid-day-hours", type=float, default=16.0,
+                   help="a valid day has at least this many hours of clean wear (default 16)")
+    g.add_argument("--enmo-bands", default="40,100,400", metavar="MG,MG,...",
+                   help="ENMO band edges in mg for minutes per band (default 40,100,400; the second "
+                        "edge is the MVPA threshold)")
+    g.add_argument("--mvpa-bout-s", type=float, default=60.0,
+                   help="MVPA counts runs of at least this many seconds (default 60)")
+
+
+def table_settings(args, mcap_out: Path):
+    from stillpoint.engine.tables import TablesSettings, table_paths
+    try:
+        bands = tuple(float(x) for x in str(args.enmo_bands).split(",") if x.strip())
+    except ValueError:
+        raise OptionError(f"--enmo-bands {args.enmo_bands!r}: give numbers like 40,100,400") from None
+    if not bands or any(b <= 0 for b in bands) or list(bands) != sorted(bands):
+        raise OptionError("--enmo-bands: positive increasing mg values, e.g. 40,100,400")
+    if args.valid_day_hours <= 0 or args.valid_day_hours > 25:
+        raise OptionError("--valid-day-hours must be in (0, 25]")
+    if args.mvpa_bout_s <= 0:
+        raise OptionError("--mvpa-bout-s must be positive")
+    ep, dp = table_paths(mcap_out)
+    return TablesSettings(ep, dp, nonwear_version=args.nonwear, valid_day_hours=args.valid_day_hours,
+                          enmo_bands_mg=bands, mvpa_bout_s=args.mvpa_bout_s)
+
+
+def check_zone(spec):
+    """Validate a --timezone value before any work (one line, exit 2 on a bad one)."""
+    from stillpoint.engine.timezones import parse_zone
+    return parse_zone(spec)
+
+
+def tables_text(summary: dict) -> str:
+    """Lines for the text summary: the zone and what the tables hold."""
+    lines = [f"times: {summary.get('timezone', 'UTC')}"]
+    t = summary.get("tables")
+    if t:
+        f = t["file"]
+        fl = t["flags"]
+        enmo = f.get("enmo_mean_mg")
+        lines.append(
+            f"tables: {t['epoch_rows']:,} epochs ({t['clean_epochs']:,} clean; nonwear "
+            f"{fl['nonwear']:,}, clipping {fl['clipping']:,}, gap {fl['gap']:,}, qc {fl['qc']:,}, "
+            f"filter warm-up {fl['filter_warmup']:,}), {t['day_rows']} day(s), "
+            f"{f['valid_day']} valid; ENMO over valid days "
+            f"{'n/a' if enmo is None else f'{enmo:.2f} mg'} (nonwear rule {t['nonwear_version']})")
+    return "\n".join(lines)

@@ -1,0 +1,196 @@
+"""`stillpoint cohort run|status|retry|collate`: process a cohort of recordings on Dask
+distributed (laptop to cluster) into one output folder that is the single source of truth.
+
+    stillpoint cohort run DATA/ -o OUT [-j N] [--scheduler local|processes|serial|ADDRESS]
+                          [--shard K/N] [--strict] [processing settings...]
+    stillpoint cohort status OUT [--json]
+    stillpoint cohort retry OUT --class transient_io|resource|corrupt_input|bug|all
+    stillpoint cohort collate OUT [--verify]
+
+A rerun of the same command does only what is not finished; Ctrl-C stops cleanly (exit 130).
+Exit codes: 0 (failed files are in the failure table), 1 with ``--strict`` when any file failed,
+2 for unusable arguments or an unusable output folder, 130 when interrupted.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+from ._runopts import OptionError, add_setting_arguments, settings_overrides
+
+NAME = "cohort"
+HELP = "process many recordings (Dask or a process pool), resumable; status, retry, collate"
+DESCRIPTION = (HELP + ". Each file gets a key (hash of its first bytes, size, settings and code "
+               "version) and an output folder; finished folders are never recomputed.")
+
+CLASSES = ("corrupt_input", "transient_io", "resource", "bug")
+
+
+def _exec_arguments(p) -> None:
+    g = p.add_argument_group("execution")
+    g.add_argument("--scheduler", default="local", metavar="local|processes|serial|ADDRESS",
+                   help="local: a Dask LocalCluster on this machine (default; a process pool when "
+                        "Dask is not installed); processes: a process pool; serial: one file after "
+                        "another in this process; or a Dask scheduler address (tcp://host:8786)")
+    g.add_argument("-j", "--jobs", type=int, default=None,
+                   help="worker processes for local/processes (default: the cores available)")
+    g.add_argument("--memory-limit", default="auto",
+                   help="LocalCluster memory limit per worker, e.g. 4GB (default: memory / workers)")
+    g.add_argument("--max-in-flight", type=int, default=None,
+                   help="jobs submitted at a time (default: twice the worker slots)")
+    g.add_argument("--strict", action="store_true", help="exit 1 when any file failed")
+    g.add_argument("-q", "--quiet", action="store_true", help="no progress and no failure lines")
+
+
+def add_arguments(p) -> None:
+    sub = p.add_subparsers(dest="action", metavar="ACTION")
+    sub.required = True
+    r = sub.add_parser("run", help="plan, process and collate a cohort",
+                       description="Process recordings into OUTDIR; a rerun resumes.")
+    r.add_argument("inputs", nargs="+", help="recordings, folders (searched recursively for "
+                   ".cwa/.cwa.gz/.bin/.bin.gz) or manifest CSVs (a 'path' column)")
+    r.add_argument("-o", "--output", type=Path, required=True, help="the cohort folder")
+    r.add_argument("--shard", metavar="K/N", help="process only shard K of N (0-based; for job "
+                   "arrays: --shard $SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT); no collation")
+    _exec_arguments(r)
+    add_setting_arguments(r)
+    s = sub.add_parser("status", help="done / failed by class / pending")
+    s.add_argument("outdir", type=Path)
+    s.add_argument("--json", action="store_true", help="one JSON object")
+    t = sub.add_parser("retry", help="run the files that failed with a class again")
+    t.add_argument("outdir", type=Path)
+    t.add_argument("--class", dest="classes", action="append", required=True,
+                   choices=CLASSES + ("all",), help="failure class to retry (repeatable)")
+    _exec_arguments(t)
+    c = sub.add_parser("collate", help="write cohort_summary.csv and cohort_failures.csv")
+    c.add_argument("outdir", type=Path)
+    c.add_argument("--verify", action="store_true",
+                   help="also check every output's SHA-256 against its marker (reads everything)")
+
+
+def _parse_shard(text):
+    if text is None:
+        return None
+    try:
+        k, n = (int(x) for x in text.split("/"))
+    except ValueError:
+        raise OptionError(f"--shard {text}: expected K/N, e.g. 0/4") from None
+    if not (n >= 1 and 0 <= k < n):
+        raise OptionError(f"--shard {text}: need 0 <= K < N")
+    return k, n
+
+
+def _prepare_outdir(out: Path) -> Path:
+    from stillpoint.drivers.outputs import OutputError, check_output_path
+    out = out.absolute()
+    if out.exists() and not out.is_dir():
+        raise OutputError(out, "the cohort folder is a file")
+    if not out.exists():
+        parent = out.parent if str(out.parent) else Path(".")
+        if not parent.is_dir():
+            raise OutputError(out, f"folder {parent} does not exist")
+        try:
+            out.mkdir()
+        except OSError as e:
+            from stillpoint.drivers.outputs import describe_os_error
+            raise OutputError(out, f"cannot create the cohort folder: {describe_os_error(e)}") from None
+    check_output_path(out / "manifest.csv", what="cohort")
+    return out
+
+
+def _execute(args, plan, outdir: Path, retry_classes=(), collate_after=True) -> int:
+    from stillpoint.engine.cohort import collate, run_cohort
+    if args.jobs is not None and args.jobs < 1:
+        raise OptionError("--jobs must be at least 1")
+    res = run_cohort(plan, outdir, scheduler=args.scheduler, jobs=args.jobs,
+                     memory_limit=args.memory_limit, retry_classes=tuple(retry_classes),
+                     max_in_flight=args.max_in_flight, progress=not args.quiet)
+    failed = ", ".join(f"{k} {v}" for k, v in sorted(res.failed.items()))
+    line = (f"cohort: {res.done} done now, {res.already_done} already done, "
+            f"{res.failed_total} failed now{f' ({failed})' if failed else ''}, "
+            f"{res.already_failed} failed earlier, {res.pending} pending; "
+            f"{res.wall_s:.1f} s")
+    print(line, file=sys.stderr)
+    if res.interrupted:
+        print(f"stillpoint cohort: interrupted; {res.pending} file(s) not finished. Rerun the same "
+              "command to resume (finished files are kept).", file=sys.stderr)
+        return 130
+    if res.failed.get("bug"):
+        print(f"stillpoint cohort: {res.failed['bug']} file(s) hit a stillpoint bug; their "
+              "_FAILED.json holds the traceback. Please report it.", file=sys.stderr)
+    if collate_after:
+        col = collate(outdir)
+        print(f"summary: {col.summary_csv} ({len(col.rows)} file(s)); failures: "
+              f"{col.failures_csv} ({len(col.failures)})", file=sys.stderr)
+        n_failed = len(col.failures)
+    else:
+        print("shard finished; when every shard is done: stillpoint cohort collate "
+              f"{outdir}", file=sys.stderr)
+        n_failed = res.failed_total + res.already_failed
+    return 1 if (args.strict and n_failed) else 0
+
+
+def _run(args) -> int:
+    from stillpoint.engine.cohort import discover_inputs, make_plan
+    from stillpoint.engine.run import RunSettings
+    shard = _parse_shard(args.shard)
+    outdir = _prepare_outdir(args.output)
+    settings = RunSettings.from_dict({}, **settings_overrides(args))
+    files = discover_inputs(args.inputs)
+    if not files:
+        raise OptionError("no recordings (.cwa, .cwa.gz, .bin, .bin.gz) found in "
+                          + ", ".join(str(x) for x in args.inputs))
+    plan = make_plan(files, settings)
+    plan.write(outdir)
+    for dup, first in plan.duplicates:
+        print(f"note: {dup} has the same bytes and name as {first}: processed once", file=sys.stderr)
+    if shard is not None:
+        plan = plan.shard(*shard)
+        print(f"shard {shard[0]}/{shard[1]}: {len(plan.entries)} file(s)", file=sys.stderr)
+    return _execute(args, plan, outdir, collate_after=shard is None)
+
+
+def _retry(args) -> int:
+    from stillpoint.engine.cohort import make_plan
+    from stillpoint.engine.cohort.plan import read_plan
+    outdir = args.outdir.absolute()
+    old = read_plan(outdir)
+    classes = CLASSES if "all" in args.classes else tuple(args.classes)
+    plan = make_plan([Path(e.path) for e in old.entries], old.settings)
+    if plan.code_version != old.code_version:
+        print(f"note: the code changed ({old.code_version} -> {plan.code_version}): files get new "
+              "keys and are processed again", file=sys.stderr)
+    plan.write(outdir)
+    return _execute(args, plan, outdir, retry_classes=classes)
+
+
+def _status(args) -> int:
+    from stillpoint.engine.cohort import status
+    st = status(args.outdir)
+    if args.json:
+        print(json.dumps(st.as_dict(), sort_keys=True))
+        return 0
+    by = ", ".join(f"{k} {v}" for k, v in sorted(st.failed.items()))
+    print(f"cohort {args.outdir}: {st.total} file(s), code {st.code_version}")
+    print(f"  done     {st.done}")
+    print(f"  failed   {st.failed_total}" + (f"  ({by})" if by else ""))
+    print(f"  pending  {st.pending}" + (f"  ({len(st.running)} being processed now)" if st.running else ""))
+    for path, host, pid in st.running:
+        print(f"    running: {path} on {host} pid {pid}")
+    return 0
+
+
+def _collate(args) -> int:
+    from stillpoint.engine.cohort import collate
+    col = collate(args.outdir, verify=args.verify)
+    print(f"summary: {col.summary_csv} ({len(col.rows)} file(s))")
+    print(f"failures: {col.failures_csv} ({len(col.failures)} file(s))")
+    if col.pending:
+        print(f"pending: {col.pending} file(s) not processed yet")
+    return 0
+
+
+def run(args) -> int:
+    return {"run": _run, "status": _status, "retry": _retry, "collate": _collate}[args.action](args)

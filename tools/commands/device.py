@@ -1,0 +1,288 @@
+"""`stillpoint device ACTION [ID]`: one device at a time (download, verify, clear, configure,
+sync-time, stream) and `device emulate` (emulated AX3/AX6 devices for trying the station)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from stillpoint.drivers.errors import StillpointError
+
+NAME = "device"
+HELP = "act on one attached AX3/AX6 (download, verify, clear, configure, sync-time, stream) or emulate devices"
+
+
+def add_arguments(p) -> None:
+    sub = p.add_subparsers(dest="action", metavar="ACTION", required=True)
+
+    def dev(name, help_):
+        s = sub.add_parser(name, help=help_, description=help_)
+        s.add_argument("id", nargs="?", default=None,
+                       help="device id or USB serial (optional when one device is attached)")
+        s.add_argument("--port", default=None, help="serial port (manual override)")
+        s.add_argument("--volume", default=None, help="the device's drive (manual override)")
+        return s
+
+    s = dev("download", "verified download + corrected MCAP into OUTDIR (the device is not cleared)")
+    s.add_argument("-o", "--output", type=Path, required=True, help="output folder (holds the ledger)")
+    s.add_argument("--stall-s", type=float, default=30.0, help="stop a download without progress this long")
+    s = dev("verify", "re-read the device (bypassing the cache) and compare with the ledger's verified copy")
+    s.add_argument("-o", "--output", type=Path, required=True, help="the station output folder")
+    s = dev("clear", "clear the device: only if OUTDIR's ledger holds a verified download of its session")
+    s.add_argument("-o", "--output", type=Path, required=True, help="the station output folder")
+    s = dev("configure", "configure for the next wearer from a study profile (TOML)")
+    s.add_argument("--profile", type=Path, required=True)
+    s.add_argument("-o", "--output", type=Path, default=None, help="record it in this folder's ledger")
+    s.add_argument("--allow-data", action="store_true", help="configure even if the device holds data")
+    dev("sync-time", "set the device clock to host local time (as OMGui does) and read it back")
+    s = dev("stream", "log the STREAM preview (irregular, not analysis data) to MCAP")
+    s.add_argument("-o", "--output", type=Path, required=True, help="preview MCAP")
+    s.add_argument("--seconds", type=float, default=10.0)
+    s = sub.add_parser("emulate", help="run emulated AX3/AX6 devices until Ctrl-C",
+                       description="Run emulated devices (pseudo-terminal serial ports, a folder as "
+                                   "each drive, a simulated recording) that `stillpoint devices` and "
+                                   "`stillpoint station` in another terminal find with no flags.")
+    s.add_argument("--count", type=int, default=3)
+    s.add_argument("--days", type=float, default=1.0, help="simulated recording length per device")
+    s.add_argument("--ax6", type=int, default=0, help="how many of them are AX6")
+    s.add_argument("--faults", default="", help="NAME[:DEVICE],... (DEVICE: 1-based index or id; "
+                                                "none: every device). Names: see --list-faults")
+    s.add_argument("--list-faults", action="store_true")
+    s.add_argument("--dir", type=Path, default=None, help="where the emulated drives live")
+    s.add_argument("--first-id", type=int, default=10001)
+    s.add_argument("--seconds", type=float, default=None, help="stop after this long (default: Ctrl-C)")
+
+
+class _Err(StillpointError):
+    pass
+
+
+def _find(args):
+    from stillpoint.drivers.ax.discovery import discover
+    atts = discover(port=args.port, volume=args.volume)
+    if args.id is None:
+        if len(atts) != 1:
+            raise _Err(f"{len(atts)} devices attached: name one (device id or serial)")
+        return atts[0]
+    for a in atts:
+        if args.id in (str(a.device_id), a.serial):
+            return a
+    raise _Err(f"device {args.id}: not attached (see `stillpoint devices`)")
+
+
+def _say(msg: str) -> None:
+    print(msg, flush=True)
+
+
+def run(args) -> int:
+    if args.action == "emulate":
+        return _emulate(args)
+    att = _find(args)
+    if args.action in ("download", "clear", "verify"):
+        return _with_ledger(args, att)
+    from stillpoint.drivers.ax.protocol import AxClient
+    from stillpoint.engine.station import configure as cfg
+    with AxClient.open(att.port, str(att.device_id)) as client:
+        client.stream_stop()
+        ident = client.identify()
+        if ident.device_id != att.device_id:
+            raise _Err(f"device {att.device_id}: ID names device {ident.device_id}")
+        if args.action == "sync-time":
+            before = cfg.clock_offset_s(client)
+            after = cfg.sync_time(client)
+            _say(f"device {att.device_id}: clock offset {before:+.3f} s -> {after:+.3f} s (host local time)")
+            return 0
+        if args.action == "stream":
+            from stillpoint.engine.station.preview import stream_preview
+            r = stream_preview(client, args.output, args.seconds, att.device_type,
+                               report=lambda m: print(m, file=sys.stderr, flush=True))
+            _say(f"device {att.device_id}: {r['readings']} preview readings at {r['rate_hz']} Hz -> "
+                 f"{r['output']} (preview only, not analysis data)")
+            return 0
+        if args.action == "configure":
+            from stillpoint.engine.station.profile import load_profile
+            prof = load_profile(args.profile)
+            flow_wait = _volume_waiter(att)
+            settings, warnings = cfg.configure_device(client, prof, data_file=att.data_file,
+                                                      wait_volume=flow_wait,
+                                                      session_now=ident.session_id,
+                                                      allow_data=args.allow_data)
+            if args.output:
+                from stillpoint.engine.station.ledger import Ledger
+                Ledger(args.output).configured(att.device_id, settings["session"], settings, "ok",
+                                               "; ".join(warnings) or None)
+            for w in warnings:
+                print(f"warning: device {att.device_id}: {w}", file=sys.stderr)
+            _say(f"device {att.device_id}: configured session {settings['session']}, rate "
+                 f"{settings['rate_hz']:g} Hz +-{settings['range_g']} g, start {settings['start']}, "
+                 f"stop {settings['stop']}")
+            return 0
+    raise _Err(f"unknown action {args.action}")
+
+
+def _volume_waiter(att):
+    from stillpoint.engine.station.flow import DeviceFlow, StationOptions
+    f = DeviceFlow(att, StationOptions("."), ledger=None)
+    return f.wait_volume
+
+
+def _with_ledger(args, att) -> int:
+    from stillpoint.drivers.outputs import OutputError
+    from stillpoint.engine.station.flow import DeviceFlow, StationOptions
+    from stillpoint.engine.station.ledger import Ledger, acquire_station_lock
+    out = args.output
+    if not out.is_dir():
+        raise OutputError(out, "output folder does not exist")
+    import os
+    fd = acquire_station_lock(out)
+    ledger = Ledger(out)
+    try:
+        if args.action == "download":
+            opts = StationOptions(str(out), stall_s=args.stall_s)
+            flow = DeviceFlow(att, opts, ledger,
+                              on_change=_progress_printer())
+            try:
+                flow.run()
+            except KeyboardInterrupt:
+                flow.stop()
+                raise
+            print(file=sys.stderr) if sys.stderr.isatty() else None
+            if flow.state == "error":
+                print(f"stillpoint device download: error: device {att.device_id}: {flow.reason}",
+                      file=sys.stderr)
+                return 2
+            r = flow.result
+            _say(f"device {att.device_id}: {flow.state}: {flow.reason or flow.info}"
+                 + (f" -> {r.cwa_path}, {r.mcap_path}" if r is not None else ""))
+            return 0
+        if args.action == "verify":
+            return _verify(att, ledger)
+        if args.action == "clear":
+            from stillpoint.drivers.ax.protocol import AxClient
+            from stillpoint.engine.station.clearing import clear_verified
+            flow = DeviceFlow(att, StationOptions(str(out)), ledger)
+            with AxClient.open(att.port, str(att.device_id)) as client:
+                client.stream_stop()
+                session = client.session()
+                clear_verified(client, ledger, att.device_id, session, att.data_file, flow.wait_volume)
+            _say(f"device {att.device_id}: cleared (session {session} was verified in {ledger.path})")
+            return 0
+    finally:
+        ledger.close()
+        os.close(fd)
+    return 0
+
+
+def _progress_printer():
+    last = [None, 0.0]
+
+    def show(flow):
+        if flow.state != last[0]:
+            last[0] = flow.state
+            print(f"device {flow.att.device_id}: {flow.state}" + (f": {flow.reason}" if flow.reason and
+                                                                 flow.state != "error" else ""),
+                  file=sys.stderr, flush=True)
+        elif sys.stderr.isatty() and time.monotonic() - last[1] > 0.5 and flow.total_bytes:
+            last[1] = time.monotonic()
+            pct = 100.0 * flow.done_bytes / flow.total_bytes
+            print(f"\r  {pct:5.1f} %  {flow.done_bytes / 1e6:8.1f} MB  "
+                  f"{(flow.mbps or 0):5.2f} MB/s", end="", file=sys.stderr, flush=True)
+    return show
+
+
+def _verify(att, ledger) -> int:
+    import hashlib
+    from stillpoint.drivers.ax.protocol import AxClient
+    from stillpoint.drivers.ax.volume import open_data_file
+    with AxClient.open(att.port, str(att.device_id)) as client:
+        client.stream_stop()
+        session = client.session()
+    rec = ledger.verified_download(att.device_id, session)
+    if rec is None:
+        raise _Err(f"device {att.device_id}: the ledger {ledger.path} holds no verified download of "
+                   f"session {session}")
+    f = open_data_file(att.data_file, verify=True)
+    h = hashlib.sha256()
+    n = 0
+    try:
+        while True:
+            b = f.read(1 << 20)
+            if not b:
+                break
+            h.update(b)
+            n += len(b)
+    finally:
+        f.close()
+    if h.hexdigest() != rec.sha256 or n != rec.bytes:
+        raise _Err(f"device {att.device_id}: the device file ({n} bytes, SHA-256 {h.hexdigest()[:16]}) "
+                   f"differs from the verified copy {rec.cwa_path} ({rec.bytes} bytes, {rec.sha256[:16]})")
+    _say(f"device {att.device_id}: session {session} matches the verified copy {rec.cwa_path} "
+         f"({n} bytes, SHA-256 {rec.sha256[:16]}...)")
+    return 0
+
+
+def _parse_faults(text: str, ids: list[int]) -> dict:
+    from stillpoint.drivers.ax.emulator import FAULTS
+    out = {i: set() for i in ids}
+    for item in [t.strip() for t in text.split(",") if t.strip()]:
+        name, _, target = item.partition(":")
+        if name not in FAULTS:
+            raise _Err(f"unknown fault {name!r}; known: {', '.join(FAULTS)}")
+        if not target:
+            for i in ids:
+                out[i].add(name)
+            continue
+        if not target.isdigit():
+            raise _Err(f"fault {item!r}: DEVICE must be a 1-based index or a device id")
+        t = int(target)
+        dev = ids[t - 1] if 1 <= t <= len(ids) else t
+        if dev not in out:
+            raise _Err(f"fault {item!r}: no emulated device {target}")
+        out[dev].add(name)
+    return out
+
+
+def _emulate(args) -> int:
+    from stillpoint.drivers.ax import registry
+    from stillpoint.drivers.ax.emulator import FAULTS, EmulatedDevice
+    if args.list_faults:
+        for k, v in FAULTS.items():
+            print(f"{k:<22} {v}")
+        return 0
+    if args.count < 1 or args.ax6 < 0 or args.ax6 > args.count:
+        raise _Err("--count must be >= 1 and --ax6 between 0 and --count")
+    if args.days <= 0:
+        raise _Err("--days must be positive")
+    ids = [args.first_id + i for i in range(args.count)]
+    faults = _parse_faults(args.faults, ids)
+    root = args.dir or (registry.runtime_dir() / "emulated")
+    devs = []
+    try:
+        for k, dev_id in enumerate(ids):
+            kind = "AX6" if k >= args.count - args.ax6 else "AX3"
+            print(f"simulating {kind} {dev_id}: {args.days:g} days ...", file=sys.stderr, flush=True)
+            d = EmulatedDevice(root / str(dev_id), dev_id, kind, days=args.days, seed=k + 1,
+                               faults=sorted(faults[dev_id]), slot=f"emu-{k + 1}", remount_s=1.0)
+            d.plug(pty=True)
+            devs.append(d)
+            print(f"{kind} {dev_id} on {d.pty_path}, drive {d.volume}"
+                  + (f", faults {', '.join(sorted(d.faults))}" if d.faults else ""), flush=True)
+        print(f"{len(devs)} emulated device(s) attached; run `stillpoint devices` or `stillpoint "
+              "station OUTDIR` in another terminal; Ctrl-C to stop", flush=True)
+        end = None if args.seconds is None else time.monotonic() + args.seconds
+        seen = {d.serial: list(d.events) for d in devs}
+        while end is None or time.monotonic() < end:
+            time.sleep(0.2)
+            for d in devs:
+                new = d.events[len(seen.get(d.serial, [])):]
+                for e in new:
+                    print(f"{time.strftime('%H:%M:%S')} {d.kind} {d.device_id}: {e}", flush=True)
+                seen[d.serial] = list(d.events)
+    except KeyboardInterrupt:
+        print("stopping the emulated devices", file=sys.stderr)
+    finally:
+        for d in devs:
+            d.shutdown()
+    return 0

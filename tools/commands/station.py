@@ -1,0 +1,65 @@
+"""`stillpoint station OUTDIR`: the download-and-correct station (see README, "The station")."""
+
+from __future__ import annotations
+
+import signal
+import sys
+import threading
+from pathlib import Path
+
+NAME = "station"
+HELP = "watch for AX3/AX6 devices: verified download + corrected MCAP, clear only after verification, configure"
+
+
+def add_arguments(p) -> None:
+    p.add_argument("outdir", type=Path, help="output folder (raw copies, MCAP logs, the ledger)")
+    p.add_argument("--profile", type=Path, default=None, help="study profile (TOML)")
+    p.add_argument("--clear-after-verify", action="store_true", default=None,
+                   help="clear each device once its download is verified (also from the profile)")
+    p.add_argument("--configure-after", action="store_true", default=None,
+                   help="configure each cleared (or empty) device from the profile")
+    p.add_argument("--inbox", type=Path, default=None,
+                   help="also ingest .bin/.cwa files dropped in this folder (GENEActiv extractions)")
+    p.add_argument("--once", action="store_true", help="handle the devices attached now, then exit")
+    p.add_argument("--stall-s", type=float, default=30.0,
+                   help="stop a download that makes no progress for this long (hung read)")
+    p.add_argument("--plain", action="store_true", help="plain lines even on a terminal")
+
+
+def run(args) -> int:
+    from stillpoint.engine.station.flow import StationOptions
+    from stillpoint.engine.station.profile import ProfileError, load_profile
+    from stillpoint.engine.station.station import Station
+    prof = load_profile(args.profile) if args.profile else None
+    clear = args.clear_after_verify if args.clear_after_verify is not None else bool(prof and prof.clear_after_verify)
+    configure = args.configure_after if args.configure_after is not None else bool(prof and prof.configure_after)
+    if configure and prof is None:
+        raise ProfileError("--configure-after needs --profile study.toml (what to configure)")
+    opts = StationOptions(str(args.outdir), profile=prof, clear_after_verify=clear,
+                          configure_after=configure, stall_s=args.stall_s)
+    inbox = None
+    if args.inbox:
+        from stillpoint.engine.station.inbox import Inbox
+        inbox = Inbox(args.inbox, args.outdir)
+    stop = threading.Event()
+
+    def on_signal(signum, frame):
+        stop.set()
+
+    old = signal.signal(signal.SIGINT, on_signal)
+    old_term = signal.signal(signal.SIGTERM, on_signal)
+    try:
+        with Station(opts, tty=False if args.plain else None, inbox=inbox) as st:
+            if inbox is not None:
+                inbox.ledger = st.ledger
+            if not (st.tty):
+                print(f"station on {args.outdir} (ledger {st.ledger.path}); clear after verify: "
+                      f"{'yes' if clear else 'no'}; configure: {'yes' if configure else 'no'}; Ctrl-C stops",
+                      flush=True)
+            rc = st.run(once=args.once, stop=stop)
+            if stop.is_set():
+                print("station stopped; partial downloads are kept and resume next time", file=sys.stderr)
+    finally:
+        signal.signal(signal.SIGINT, old)
+        signal.signal(signal.SIGTERM, old_term)
+    return rc

@@ -183,3 +183,30 @@ def test_process_applies_static_calibration(capsys, files, tmp_path):
     code, _, err = cli(capsys, "process", files["right"], "-o", tmp_path / "r2.mcap", "--static", cal,
                        "-q")
     assert code == 2 and "AX6-601" in err and not (tmp_path / "r2.mcap").exists()
+
+
+def test_station_download_applies_the_stored_static_calibration(tmp_path, monkeypatch):
+    from stillpoint.drivers.ax.emulator import EmulatedDevice
+    from stillpoint.engine.calibration import CalibrationStore
+    from stillpoint.engine.calibration.static import static_calibration, with_static_calibration
+    from stillpoint.engine.station.download import DownloadJob, run_download
+    monkeypatch.setenv("STILLPOINT_RUNTIME_DIR", str(tmp_path / "runtime"))
+    d = EmulatedDevice(tmp_path / "dev", 12346, "AX6", slot="emu-1", days=0.003, remount_s=0.05,
+                       replug_s=0.3)
+    d.plug()
+    try:
+        s = simulate_sixface(fs=25, errors=LEFT, seed=46)
+        cal = static_calibration(s.accel_g, 25, mode="robust", time_ns=s.time_ns,
+                                 device_key="AX6-12346")
+        CalibrationStore(tmp_path / "store").add(cal.to_estimate(), source="cal.cwa")
+        assert with_static_calibration({}, tmp_path / "store", "AX6-99999") == {}
+        settings = with_static_calibration({}, tmp_path / "store", "AX6-12346")
+        out = tmp_path / "out"
+        out.mkdir()
+        r = run_download(DownloadJob(d.device_id, d.session_id, str(d.data_file), str(out), d.kind,
+                                     tuple(sorted(d.faults)), str(d.control), settings=settings))
+        assert r.ok, r.reason
+        assert r.summary["calibration"]["method"] == "static-6"
+        np.testing.assert_allclose(r.summary["calibration"]["offset"], -np.asarray(cal.offset_g))
+    finally:
+        d.shutdown()

@@ -210,3 +210,32 @@ def test_station_download_applies_the_stored_static_calibration(tmp_path, monkey
         np.testing.assert_allclose(r.summary["calibration"]["offset"], -np.asarray(cal.offset_g))
     finally:
         d.shutdown()
+
+
+def test_mcap_logs_read_back_with_the_mcap_package(capsys, files, tmp_path):
+    from mcap.reader import make_reader
+
+    def read(p):
+        with open(p, "rb") as fh:
+            return [(ch.topic, sch.name if sch else None, json.loads(m.data))
+                    for sch, ch, m in make_reader(fh).iter_messages()]
+
+    cal = tmp_path / "cal.json"
+    code, _, _ = cli(capsys, "static-calibrate", files["cal_left"], "--mode", "robust", "-o", cal,
+                     "--mcap", tmp_path / "cal.mcap")
+    assert code == 0
+    (topic, schema, est), = read(tmp_path / "cal.mcap")
+    assert topic == "/static_calibration" and schema == "stillpoint.StaticCalibrationEstimate"
+    assert est["method"] == "static-6" and est["positions"] == 6
+    assert est["extra"]["static"]["offset_g"] == json.loads(cal.read_text())["offset_g"]
+    code, out, _ = cli(capsys, "movements", files["left"], "--calibration", cal, "--json",
+                       "--mcap", tmp_path / "mv.mcap")
+    assert code == 0
+    msgs = read(tmp_path / "mv.mcap")
+    events = [m for t, _, m in msgs if t == "/movements/left/events"]
+    assert len(events) == json.loads(out)["left"]["count"]
+    (summary,) = [m for t, _, m in msgs if t == "/movements/left/summary"]
+    (params,) = [m for t, _, m in msgs if t == "/movements/left/parameters"]
+    assert summary["count"] == len(events) and params["variant"] == "v2"
+    assert params["calibration"]["applied"] and any(t == "/static_calibration" for t, _, _ in msgs)
+    assert [e["start_ns"] for e in events] == sorted(e["start_ns"] for e in events)

@@ -48,6 +48,8 @@ def add_arguments(p) -> None:
     p.add_argument("-o", "--output", type=Path, help="CSV, one row per movement")
     p.add_argument("--plot", type=Path, metavar="PNG", help="figure: detrended norm, thresholds, "
                                                             "movements")
+    p.add_argument("--mcap", type=Path, metavar="OUT.mcap",
+                   help="log calibrations, detection parameters, every movement and the summaries")
 
 
 def _calibrations(args, files):
@@ -102,7 +104,7 @@ def run(args) -> int:
     from ._runopts import OptionError
     files = [args.file] + ([args.right_file] if args.right_file else [])
     labels = ["left", "right"] if len(files) == 2 else ["left"]
-    for p in (args.output, args.plot):
+    for p in (args.output, args.plot, args.mcap):
         if p is not None:
             check_output_path(p)
     if args.resample is not None and args.resample <= 0:
@@ -131,6 +133,10 @@ def run(args) -> int:
         from stillpoint.engine.movements.plot import plot_movements
         plot_movements([(lab, *r) for lab, r in zip(labels, results)], args.plot)
         outputs["plot"] = str(args.plot)
+    if args.mcap:
+        from stillpoint.engine.movements.mcap_out import write_movements_mcap
+        write_movements_mcap(args.mcap, list(zip(labels, legs, cals)))
+        outputs["mcap"] = str(args.mcap)
     summaries = {lab: leg.summary() for lab, leg in zip(labels, legs)}
     if args.json:
         print(json.dumps(dict(json.loads(dumps(summaries)), outputs=outputs), indent=1, sort_keys=True))

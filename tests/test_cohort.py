@@ -229,3 +229,37 @@ def test_unusable_output_folder_is_one_line_exit_2(cohort_dir, tmp_path, capsys)
     assert cli(["cohort", "status", str(tmp_path)]) == 2
     assert "not a cohort folder" in capsys.readouterr().err
     assert cli(["cohort", "run", str(tmp_path / "missing"), "-o", str(tmp_path / "o")]) == 2
+
+
+def test_transient_failure_is_retried_three_times(cohort_dir, tmp_path, monkeypatch):
+    from stillpoint.engine.cohort import execute
+    monkeypatch.setattr(execute, "TRANSIENT_DELAY_S", 0.01)
+    f = tmp_path / "growing.cwa"
+    f.write_bytes((cohort_dir / "p03.cwa").read_bytes())
+    plan = make_plan([f], RunSettings())
+    with open(f, "ab") as g:  # the file changes after it was planned (a copy still running)
+        g.write(b"\0" * 512)
+    out = tmp_path / "out"
+    res = run_cohort(plan, out, scheduler="serial", progress=False)
+    assert res.failed == {"transient_io": 1} and res.retried == 2
+    marker = json.loads(next(iter(_markers(out, FAILED).values())).read_text())
+    assert marker["attempts"] == 3 and "changed since the run was planned" in marker["error"]
+
+
+def test_ctrl_c_stops_cleanly_and_a_rerun_finishes(cohort_dir, tmp_path):
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "stillpoint.tools", "cohort", "run", str(cohort_dir), "-o", str(out),
+           "-j", "2", "--max-in-flight", "2"]
+    p = subprocess.Popen(cmd, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                         text=True)
+    deadline = time.monotonic() + 60
+    while not _markers(out, DONE) and time.monotonic() < deadline and p.poll() is None:
+        time.sleep(0.01)
+    os.killpg(p.pid, signal.SIGINT)  # what a terminal sends to the whole process group
+    err = p.communicate(timeout=60)[1]
+    assert p.returncode == 130, err
+    assert "interrupted" in err and "Rerun the same command to resume" in err
+    assert "Traceback" not in err
+    r = subprocess.run(cmd[:-4] + ["--scheduler", "serial", "-q"], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert len(_markers(out, DONE)) == N_GOOD and not list((out / "files").glob("*/*.tmp"))

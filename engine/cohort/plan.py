@@ -201,9 +201,12 @@ class Plan:
             raise CohortInputError(f"--shard {k}/{n}: need 0 <= K < N")
         return replace(self, entries=[e for e in self.entries if e.shard(n) == k])
 
-    def write(self, outdir: Path) -> None:
-        """``manifest.csv`` and ``cohort.json`` in OUTDIR, rewritten only when they change (so
-        shards of a job array, which all plan the same cohort, do not fight over them)."""
+    def write(self, outdir) -> None:
+        """``manifest.csv`` and ``cohort.json`` in OUTDIR (created if needed), rewritten only when
+        they change (so shards of a job array, which all plan the same cohort, do not fight over
+        them)."""
+        outdir = Path(outdir)
+        outdir.mkdir(parents=True, exist_ok=True)
         buf = io.StringIO()
         w = csv.DictWriter(buf, fieldnames=MANIFEST_FIELDS, lineterminator="\n")
         w.writeheader()

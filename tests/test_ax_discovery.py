@@ -5,7 +5,7 @@ from __future__ import annotations
 from stillpoint.drivers.ax.discovery import (EmulatedBackend, PortInfo, discover, is_ax_port,
                                              label_device, parse_mountinfo)
 
-from station_helpers import emu, runtime  # noqa: F401
+from station_fixtures import emu, runtime  # noqa: F401
 
 MANUF = "Newcastle University    "
 
@@ -69,7 +69,8 @@ def test_pairing_and_port_without_drive(tmp_path):
 
 
 def test_emulated_devices_are_found_through_the_registry(emu):
-    a, b = emu(10001), emu(20002, "AX6")
+    emu(10001)
+    b = emu(20002, "AX6")
     found = discover(EmulatedBackend())
     assert [(x.device_id, x.device_type) for x in found] == [(10001, "AX3"), (20002, "AX6")]
     assert all(x.emulated and x.volume and x.port.startswith("axemu://") for x in found)

@@ -10,7 +10,7 @@ from stillpoint.drivers.ax.errors import (DeviceCommandError, DeviceGone, Device
                                           DeviceTimeout, ForbiddenCommand)
 from stillpoint.drivers.ax.protocol import AxClient, check_allowed, format_time, parse_time
 
-from station_helpers import emu, runtime  # noqa: F401
+from station_fixtures import emu, runtime  # noqa: F401
 
 
 class SilentPort:

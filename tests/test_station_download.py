@@ -10,7 +10,7 @@ import pytest
 
 from stillpoint.engine.station.download import DownloadJob, run_download
 
-from station_helpers import emu, runtime  # noqa: F401
+from station_fixtures import emu, runtime  # noqa: F401
 
 
 def _job(d, out, **kw):
@@ -113,3 +113,26 @@ def test_bad_sectors_are_counted_not_blocking(emu, tmp_path):
     r = run_download(_job(d, tmp_path))
     assert r.ok, r.reason
     assert r.bad_sectors == 2
+
+
+def test_disk_full_stops_keeps_partial_and_touches_nothing(emu, tmp_path, monkeypatch):
+    import errno
+    import stillpoint.engine.station.download as dl
+    d = emu(12345)
+    before = hashlib.sha256(d.data_file.read_bytes()).hexdigest()
+    real_write = os.write
+    calls = {"n": 0}
+
+    def full_after_two(fd, data):
+        calls["n"] += 1
+        if calls["n"] > 2:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real_write(fd, data)
+
+    monkeypatch.setattr(dl.os, "write", full_after_two)
+    r = run_download(_job(d, tmp_path, chunk_bytes=64 * 1024))
+    monkeypatch.undo()
+    assert not r.ok and "no space left on device" in r.reason and "partial copy is kept" in r.reason
+    assert (tmp_path / "12345_1.cwa.part").stat().st_size == 2 * 64 * 1024
+    assert not (tmp_path / "12345_1.cwa").exists()
+    assert hashlib.sha256(d.data_file.read_bytes()).hexdigest() == before and d.clears == []

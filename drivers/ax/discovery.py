@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import os
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable, Optional
 
@@ -42,6 +42,7 @@ class PortInfo:
     faults: tuple = ()
     control: Optional[str] = None
     media: Optional[str] = None  # emulated: folder its drive mounts under
+    read_bps: Optional[float] = None  # emulated: the drive's read speed (None: as fast as the disk)
 
 
 @dataclass
@@ -58,6 +59,7 @@ class Attached:
     faults: tuple = ()
     control: Optional[str] = None
     problem: Optional[str] = None
+    read_bps: Optional[float] = None  # emulated drives: USB read speed to emulate
 
     @property
     def data_file(self) -> Optional[Path]:
@@ -156,7 +158,8 @@ class EmulatedBackend:
     def ports(self) -> list[PortInfo]:
         return [PortInfo(e["port"], e["serial"], e["manufacturer"], e["vid"], e["pid"], e["slot"],
                          emulated=True, faults=tuple(e.get("faults", ())), control=e.get("control"),
-                         media=e.get("media")) for e in registry.entries()]
+                         media=e.get("media"), read_bps=e.get("read_bps"))
+                for e in registry.entries()]
 
     def volumes(self) -> list[tuple[str, str]]:
         out = []
@@ -215,5 +218,5 @@ def discover(backend=None, *, port: Optional[str] = None, volume: Optional[str] 
         out.append(Attached(dev_id, kind, p.serial_number or "", p.device,
                             mounts[0] if len(mounts) == 1 else None, p.location or p.device,
                             emulated=p.emulated, faults=tuple(p.faults), control=p.control,
-                            problem=problem))
+                            problem=problem, read_bps=p.read_bps))
     return sorted(out, key=lambda a: (a.slot, a.device_id))

@@ -82,7 +82,8 @@ class EmulatedDevice:
                  days: float = 0.02, hz: float = 100.0, seed: int = 1, faults=(),
                  clock_offset_s: float = 2.5, clock_ppm: float = 40.0, battery_pct: float = 72.0,
                  remount_s: float = 0.4, replug_s: float = 1.5, slot: str = "emu-1",
-                 stream_hz: float = C.AX_STREAM_HZ, recording: Optional[Path] = None):
+                 stream_hz: float = C.AX_STREAM_HZ, recording: Optional[Path] = None,
+                 read_bps: Optional[float] = None):
         self.kind = kind.upper()
         if self.kind not in _HW:
             raise ValueError(f"kind must be AX3 or AX6, not {kind!r}")
@@ -97,6 +98,7 @@ class EmulatedDevice:
         self.remount_s, self.replug_s = remount_s, replug_s
         self.slot = slot
         self.stream_hz = stream_hz
+        self.read_bps = read_bps  # the drive's read speed (USB full speed ~1.2e6); None: unlimited
         self.clock_ppm = clock_ppm
         self._clock_base_host = time.time()
         self._clock_base_dev = self._host_local(self._clock_base_host) + clock_offset_s
@@ -236,7 +238,7 @@ class EmulatedDevice:
             "product": f"{self.kind} Composite Device", "vid": C.AX_USB_VID, "pid": C.AX_USB_PID,
             "port": self.pty_path if self._use_pty else f"axemu://{self.serial}",
             "media": str(self.media), "slot": self.slot, "owner_pid": os.getpid(),
-            "faults": sorted(self.faults), "control": str(self.control)})
+            "faults": sorted(self.faults), "control": str(self.control), "read_bps": self.read_bps})
 
     def unplug(self) -> None:
         """Pull the cable: the port and the drive vanish (the drive folder moves aside)."""

@@ -72,8 +72,8 @@ def check_allowed(command: str) -> None:
     up = " ".join(command.strip().upper().split())
     word = up.split(" ")[0] if up else ""
     for bad in C.AX_FORBIDDEN_COMMANDS:
-        if bad.endswith(" ") or " " in bad:  # forbidden with an argument / as a phrase
-            hit = up.startswith(bad) if bad.endswith(" ") else up.startswith(bad)
+        if " " in bad:  # a phrase ("FORMAT D") or a keyword with an argument ("DEVICE ")
+            hit = up.startswith(bad)
         else:
             hit = word.startswith(bad)
         if hit:

@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-import time
 
-import serial
 from serial.serialutil import PortNotOpenError, SerialBase, SerialException
 
 

@@ -11,7 +11,7 @@ only when all of these hold, checked immediately before the command:
 
 The clear is recorded in the ledger before the command is sent (``sent``) and its result after
 the drive comes back (``ok`` when the re-created file holds only a header with the same device
-id, or ``error`` with the reason). Any refusal raises ``ClearRefused``; nothing else in the
+id and the device's current rate and session, or ``error`` with the reason). Any refusal raises ``ClearRefused``; nothing else in the
 station sends ``CLEAR DATA``.
 """
 
@@ -72,6 +72,11 @@ def clear_verified(client, ledger, device_id: int, session_id: int, data_file, w
             raise DeviceError(device_id, f"after CLEAR the data file still has {size2} bytes")
         if h2["device_id"] != device_id:
             raise DeviceError(device_id, f"after CLEAR the data file names device {h2['device_id']}")
+        code = client.rate()[0]
+        if h2["rate_code"] != code or h2["session_id"] != client.session():
+            raise DeviceError(device_id, f"after CLEAR the header's settings (rate code "
+                                         f"{h2['rate_code']}, session {h2['session_id']}) differ from "
+                                         "the device's")
     except (DeviceError, OSError, ValueError) as e:
         ledger.clear_result(clear_id, "error", str(getattr(e, "reason", e)))
         raise DeviceError(device_id, f"clear did not complete: {getattr(e, 'reason', e)}") from None

@@ -79,7 +79,9 @@ class DownloadResult:
     mcap_path: Optional[str] = None
     cwa_part: Optional[str] = None
     copy_s: float = 0.0
-    mcap_after_copy_s: Optional[float] = None  # last byte copied -> MCAP final
+    mcap_after_copy_s: Optional[float] = None  # last byte copied -> MCAP final (after verification)
+    pipeline_after_copy_s: Optional[float] = None  # last byte copied -> MCAP written and closed
+    verify_s: float = 0.0
     summary: Optional[dict] = None
 
     def to_dict(self) -> dict:
@@ -304,10 +306,15 @@ def run_download(job: DownloadJob, progress: Optional[Callable[[str, int, int], 
         # ---------------------------------------------------------------- 4. verification read
         progress("verify", 0, size0)
         ver = open_data_file(data, verify=True, faults=job.faults, control=job.control)
+        t_ver = time.monotonic()
         try:
             h2 = hashlib.sha256()
             got = 0
             while True:
+                if job.throttle_bps:  # the second read comes from the device too
+                    lag = got / job.throttle_bps - (time.monotonic() - t_ver)
+                    if lag > 0:
+                        time.sleep(lag)
                 if cancel.is_set():
                     raise DownloadAborted("cancelled")
                 b = ver.read(job.chunk_bytes)
@@ -318,6 +325,7 @@ def run_download(job: DownloadJob, progress: Optional[Callable[[str, int, int], 
                 progress("verify", got, size0)
         finally:
             ver.close()
+        res.verify_s = time.monotonic() - t_ver
         if got != size0 or h2.hexdigest() != res.sha256:
             raise DownloadAborted(f"verification failed: the second read of {data} differs from "
                                   f"the copy ({got} bytes, SHA-256 {h2.hexdigest()[:12]} vs "
@@ -332,6 +340,7 @@ def run_download(job: DownloadJob, progress: Optional[Callable[[str, int, int], 
             if pipe.error:
                 raise DownloadAborted(f"the correction pipeline failed: {pipe.error}")
             res.summary = pipe.summary
+            res.pipeline_after_copy_s = max(0.0, pipe.finished_at - t_last)
         # ---------------------------------------------------------------- finalise
         os.fsync(fd)
         os.replace(part, final)

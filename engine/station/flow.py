@@ -102,10 +102,10 @@ class DeviceFlow:
         if self.worker is not None and not self.worker.finished:
             self.worker.cancel()
 
-    # ------------------------------------------------------------------ helpers
+    # ------------------------------------------------------------------ finding the drive again
     def _find(self) -> Optional[Attached]:
         for a in discover(self.backend):
-            if a.serial == self.att.serial or a.slot == self.att.slot:
+            if a.serial == self.att.serial:
                 return a
         return None
 
@@ -192,7 +192,9 @@ class DeviceFlow:
                                              battery_pct=battery, cwa_path=str(out / f"{stem}.cwa"),
                                              mcap_path=str(out / f"{stem}.mcap"))
         meta = {"station": {"station_id": station_id(), "host_time_zone": host_timezone(),
-                            "clock_offset_s": f"{offset:.3f}", "device_serial": att.serial,
+                            "clock_offset_s": f"{offset:.3f}",
+                            "clock_offset_vs_utc_s": f"{offset + time.localtime().tm_gmtoff:.3f}",
+                            "device_serial": att.serial,
                             "dock_slot": att.slot, "battery_pct": str(battery),
                             "attached_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}}
         settings = dict(opts.run_settings)
@@ -202,7 +204,7 @@ class DeviceFlow:
                                                f"{att.device_type}-{att.device_id}")
         job = DownloadJob(att.device_id, session, str(data_file), str(out), att.device_type,
                           tuple(att.faults), att.control, meta, settings,
-                          opts.throttle_bps, pipeline=opts.pipeline)
+                          opts.throttle_bps or att.read_bps, pipeline=opts.pipeline)
         self._set("downloading")
         self.worker = w = DownloadWorker(job, stall_s=opts.stall_s, inline=opts.inline).start()
         t0 = time.monotonic()

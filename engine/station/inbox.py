@@ -6,7 +6,7 @@ be dropped there too. ``Inbox(folder, out_dir)`` ingests each file once its size
 been stable for ``stable_s``: a raw copy ``<out>/<device>_<stem>.<ext>`` with its SHA-256 (written
 through ``.part``, fsynced, renamed), the online pipeline's MCAP beside it, and a ledger download
 record. Completeness is checked from the reader's QC: a page count that disagrees with the header,
-sequence gaps, a truncated or partial last page make the record ``error`` (the outputs are kept,
+sequence gaps, a last page cut inside its data line make the record ``error`` (the outputs are kept,
 not marked verified). Each file is ingested once (its SHA-256 is remembered in the ledger).
 """
 
@@ -21,7 +21,7 @@ from typing import Optional
 
 from stillpoint.drivers.outputs import AtomicOutput, describe_os_error, fsync_folder
 
-INCOMPLETE = ("page_count_mismatch", "sequence_gap", "truncated_page", "partial_page", "truncated",
+INCOMPLETE = ("page_count_mismatch", "sequence_gap", "truncated_page", "truncated",
               "restart")
 SUFFIXES = (".bin", ".cwa")
 

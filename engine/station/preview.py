@@ -29,7 +29,9 @@ def stream_preview(client, out, seconds: float, device_type: str = "AX3",
     t_first = t_last = None
     last_report = time.monotonic()
     try:
-        w = Writer(ao.file)
+        import io
+        buf = io.BufferedWriter(ao.file)  # flushed by us: the writer only flushes files it opened
+        w = Writer(buf)
         w.start(profile="", library="stillpoint preview")
         w.add_metadata("preview", {"kind": "STREAM preview: irregular on-demand reads, at most 100 Hz; "
                                            "not analysis data", "device_type": device_type,
@@ -58,6 +60,7 @@ def stream_preview(client, out, seconds: float, device_type: str = "AX3",
         finally:
             client.stream_stop()
         w.finish()
+        buf.flush()
     except BaseException:
         ao.abandon()
         raise

@@ -19,7 +19,7 @@ from typing import Optional
 from stillpoint.drivers.ax.discovery import discover
 from stillpoint.drivers.outputs import OutputError
 
-from .flow import FINAL_STATES, DeviceFlow, StationOptions
+from .flow import DeviceFlow, StationOptions
 from .ledger import Ledger, acquire_station_lock
 
 
@@ -61,6 +61,7 @@ class Station:
         self._printed: dict[str, tuple] = {}
         self._drawn = 0
         self._lock = threading.Lock()
+        self._pending = None  # a discovery pass still running (see _discover)
 
     def close(self) -> None:
         import os
@@ -106,9 +107,35 @@ class Station:
         self._drawn = len(lines)
 
     # ------------------------------------------------------------------ loop
+    def _discover(self, bound_s: float = 5.0):
+        """Discovery on its own thread with a bound: a stat on a drive that was just pulled can
+        block in the kernel, and the station loop must never wait on it. None: no answer yet."""
+        if self._pending is None:
+            box: dict = {}
+
+            def run():
+                try:
+                    box["result"] = discover(self.backend)
+                except Exception as e:  # noqa: BLE001 - reported below, never kills the loop
+                    box["error"] = e
+            t = threading.Thread(target=run, daemon=True, name="discovery")
+            t.start()
+            self._pending = (t, box)
+        t, box = self._pending
+        t.join(bound_s)
+        if t.is_alive():
+            return None  # still blocked: try again next pass, meanwhile the flows carry on
+        self._pending = None
+        if "error" in box:
+            print(f"discovery failed: {box['error']}", file=sys.stderr)
+            return []
+        return box["result"]
+
     def step(self) -> list:
         """One discovery pass: start flows for new devices, mark the ones that left."""
-        attached = discover(self.backend)
+        attached = self._discover()
+        if attached is None:
+            return []
         seen = set()
         for a in attached:
             seen.add(a.serial)

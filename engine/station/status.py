@@ -6,7 +6,6 @@ from __future__ import annotations
 import concurrent.futures as cf
 import datetime as _dt
 import os
-from typing import Optional
 
 from stillpoint.drivers import constants as C
 from stillpoint.drivers.ax.discovery import Attached, discover
@@ -41,8 +40,14 @@ def device_status(att: Attached, ledger=None) -> dict:
             stop = parse_time(row["stop"]) if row["stop"] not in ("-1",) else None
             if row["stop"] == "-1" or (stop is not None and stop > _dt.datetime.now()):
                 state = "has data (recording window still open)"
-            if ledger is not None and ledger.verified_download(att.device_id, row["session"]):
-                state = "verified"
+            if ledger is not None:
+                recs = [r for r in ledger.downloads(att.device_id) if r.session_id == row["session"]]
+                if ledger.verified_download(att.device_id, row["session"]):
+                    state = "verified"
+                elif recs and recs[-1].state == "downloading":
+                    state = "downloading"
+                elif recs and recs[-1].state == "error":
+                    state = f"has data (last download failed: {recs[-1].reason})"
         row.setdefault("state", state)
     return row
 

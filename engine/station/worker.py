@@ -14,7 +14,7 @@ import multiprocessing as mp
 import queue
 import threading
 import time
-from dataclasses import asdict
+
 from typing import Optional
 
 from .download import DownloadJob, DownloadResult, run_download
@@ -23,6 +23,16 @@ _CTX = mp.get_context("spawn")  # a fresh interpreter: no inherited threads or e
 
 
 def _peak_rss_mb() -> float:
+    """Peak RSS of this process. Linux: VmHWM, which starts afresh at exec (``ru_maxrss`` keeps
+    the high-water mark of the forked parent's pages, so a worker spawned from a large process
+    would report the parent's size)."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
     import resource
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
@@ -90,7 +100,9 @@ class DownloadWorker:
             except (queue.Empty, EOFError, OSError):
                 break
             if msg[0] == "progress":
-                changed = (msg[1], msg[2]) != (self.phase, self.done)
+                # the stall bound is about reading the device: a byte count that moves, or the
+                # heartbeat of the pipeline finishing on local data after the last read
+                changed = (msg[1], msg[2]) != (self.phase, self.done) or msg[1] == "finishing"
                 self.phase, self.done, self.total = msg[1], msg[2], msg[3]
                 if changed:
                     self._last_progress = time.monotonic()
@@ -100,7 +112,10 @@ class DownloadWorker:
                 self.result = DownloadResult(**d)
                 self._reap()
         if self.result is None:
-            if time.monotonic() - self._last_progress > self.stall_s:
+            if self._cancel.is_set():
+                self.result = DownloadResult(ok=False, reason="stopped by the user; the partial copy "
+                                             "is kept and resumes next time", bytes=self.done)
+            elif time.monotonic() - self._last_progress > self.stall_s:
                 self._fail(f"reading the device stalled: no progress for {self.stall_s:g} s "
                            f"({self.phase} at {self.done} of {self.total} bytes); the download "
                            "was stopped and the partial copy is kept")

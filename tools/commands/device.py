@@ -3,7 +3,6 @@ sync-time, stream) and `device emulate` (emulated AX3/AX6 devices for trying the
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from pathlib import Path
@@ -52,6 +51,8 @@ def add_arguments(p) -> None:
     s.add_argument("--list-faults", action="store_true")
     s.add_argument("--dir", type=Path, default=None, help="where the emulated drives live")
     s.add_argument("--first-id", type=int, default=10001)
+    s.add_argument("--read-mbps", type=float, default=None,
+                   help="emulate the drive's USB read speed in MB/s (full speed is ~1.2); default unlimited")
     s.add_argument("--seconds", type=float, default=None, help="stop after this long (default: Ctrl-C)")
 
 
@@ -264,7 +265,8 @@ def _emulate(args) -> int:
             kind = "AX6" if k >= args.count - args.ax6 else "AX3"
             print(f"simulating {kind} {dev_id}: {args.days:g} days ...", file=sys.stderr, flush=True)
             d = EmulatedDevice(root / str(dev_id), dev_id, kind, days=args.days, seed=k + 1,
-                               faults=sorted(faults[dev_id]), slot=f"emu-{k + 1}", remount_s=1.0)
+                               faults=sorted(faults[dev_id]), slot=f"emu-{k + 1}", remount_s=1.0,
+                               read_bps=args.read_mbps * 1e6 if args.read_mbps else None)
             d.plug(pty=True)
             devs.append(d)
             print(f"{kind} {dev_id} on {d.pty_path}, drive {d.volume}"

@@ -1,0 +1,81 @@
+"""Study profiles (TOML) and the inbox (GENEActiv .bin / .cwa files dropped in a folder)."""
+
+from __future__ import annotations
+
+import datetime as dt
+import time
+
+import pytest
+
+from stillpoint.engine.station.inbox import Inbox
+from stillpoint.engine.station.ledger import Ledger
+from stillpoint.engine.station.profile import ProfileError, StudyProfile, load_profile
+
+
+def test_profile_values_and_times(tmp_path):
+    p = tmp_path / "s.toml"
+    p.write_text('[device]\nrate_hz = 25\nrange_g = 2\ngyro_dps = 500\nstart = "+90m"\nstop = "+7d"\n'
+                 'session = "4242"\n[metadata]\nstudy = "A B"\n[station]\nclear_after_verify = true\n')
+    prof = load_profile(p)
+    assert prof.rate_code == 0xC0 | 8 and prof.clear_after_verify and not prof.configure_after
+    assert prof.session_for(7) == 4242
+    now = dt.datetime(2026, 1, 1, 12, 0, 0)
+    start, stop, start_dt = prof.times(now)
+    assert start == "2026/01/01,13:30:00" and stop == "2026/01/08,13:30:00"
+    slots = prof.annotation_slots()
+    assert len(slots) == 14 and "".join(slots) == "study=A+B"
+    assert StudyProfile().session_for(2 ** 31 - 1) == 0  # increment wraps within 31 bits
+
+
+@pytest.mark.parametrize("text, msg", [
+    ('[device]\nrate_hz = 33\n', "AX rate must be"),
+    ('[device]\nrange_g = 3\n', "range must be"),
+    ('[device]\ngyro_dps = 300\n', "gyro_dps"),
+    ('[device]\nstart = "tomorrow"\n', "neither"),
+    ('[device]\nsession = "random"\n', "session must be"),
+    ('[metadata]\nx = "' + "y" * 500 + '"\n', "device holds 448"),
+    ('[device\n', "not valid TOML"),
+])
+def test_profile_errors_name_the_file(tmp_path, text, msg):
+    p = tmp_path / "bad.toml"
+    p.write_text(text)
+    with pytest.raises(ProfileError, match=msg) as e:
+        load_profile(p)
+    assert str(p) in str(e.value)
+
+
+def test_inbox_ingests_stable_files_once(tmp_path):
+    from stillpoint.engine.sim.record import simulate_recording
+    inbox, out = tmp_path / "inbox", tmp_path / "out"
+    inbox.mkdir()
+    out.mkdir()
+    simulate_recording(inbox / "p01.bin", device="geneactiv", days=0.01, truth_path=False)
+    lg = Ledger(out)
+    ib = Inbox(inbox, out, stable_s=0.2, ledger=lg)
+    end = time.monotonic() + 30
+    while time.monotonic() < end and not ib.idle():
+        time.sleep(0.1)
+    names = sorted(x.name for x in out.iterdir() if not x.name.startswith("stillpoint-ledger"))
+    assert len([n for n in names if n.endswith(".bin")]) == 1 and len([n for n in names if n.endswith(".mcap")]) == 1
+    recs = lg.downloads()
+    assert len(recs) == 1 and recs[0].verified and recs[0].bytes == (inbox / "p01.bin").stat().st_size
+    ib.step()
+    assert len(lg.downloads()) == 1  # once
+
+
+def test_inbox_flags_an_incomplete_file(tmp_path):
+    from stillpoint.engine.sim.record import simulate_recording
+    inbox, out = tmp_path / "inbox", tmp_path / "out"
+    inbox.mkdir()
+    out.mkdir()
+    f = inbox / "p02.bin"
+    simulate_recording(f, device="geneactiv", days=0.01, truth_path=False)
+    data = f.read_bytes()
+    f.write_bytes(data[: int(len(data) * 0.7)])  # extraction stopped part-way
+    lg = Ledger(out)
+    ib = Inbox(inbox, out, stable_s=0.2, ledger=lg)
+    end = time.monotonic() + 30
+    while time.monotonic() < end and not ib.idle():
+        time.sleep(0.1)
+    assert ib.errors and "incomplete" in ib.errors[0]
+    assert lg.downloads()[0].verified is False

@@ -4,8 +4,12 @@ Replays ``/raw/accel`` (and ``/raw/gyro`` for AX6) message by message and return
 Blocks that were logged (same samples, times, counts, scales, per-unit arrays, segments). The
 ``DeviceInfo`` comes from the ``device`` metadata record and ``settings`` (the original run's
 settings) is exposed so replay can compare or reuse them. Reader QC events logged on ``/qc``
-(``source == "reader"``) are restored into ``qc``. Reads linearly (file order), so memory stays
-flat and a recovered file replays too.
+(``source == "reader"``) are restored into ``qc``. Reads linearly (file order) with
+engine/mcap/stream.py, one chunk at a time, guided by the message indexes, so memory stays flat
+however long the log; a recovered file replays too. Consecutive raw messages of one segment are
+joined into larger Blocks (fewer, larger blocks make replay about as fast as processing the
+recording) -- but never two messages of the same data-time cell, so the sink cuts the joined
+Blocks into exactly the logged raw messages again.
 """
 
 from __future__ import annotations
@@ -18,9 +22,9 @@ import numpy as np
 
 from stillpoint.engine.blocks import (Block, DeviceInfo, PER_SAMPLE_BUTTON, PER_SAMPLE_LIGHT_RAW,
                                       QCEvent, QCReport)
-from stillpoint.engine.mcap.reading import (McapReadError, check_raw_message, decode,
-                                            iter_messages, loads_json, open_reader)
+from stillpoint.engine.mcap.reading import McapReadError, check_raw_message, decode, loads_json
 from stillpoint.engine.mcap.schemas import ACCEL_BATCH_RAW, GYRO_BATCH_RAW, times_from_deltas
+from stillpoint.engine.mcap.stream import iter_messages, read_metadata
 
 from . import constants as C
 from .errors import CorruptRecordingError, RecordingError, UnsupportedFormatError
@@ -28,6 +32,7 @@ from .errors import CorruptRecordingError, RecordingError, UnsupportedFormatErro
 TOPIC_RAW = "/raw/accel"
 TOPIC_GYRO = "/raw/gyro"
 TOPIC_QC = "/qc"
+JOIN_FRACTION = 0.5  # a joined Block holds at most this fraction of the pipeline's block bound
 
 
 def _qc_event(path, topic: str, i: int, data) -> Optional[QCEvent]:
@@ -114,6 +119,21 @@ def _device_info(meta: dict, path: Path) -> DeviceInfo:
         bad(str(e))
 
 
+def _cell(b: Block, cell_ns: int) -> int:
+    return int(b.time_ns[b.unit_start[0] if b.m else 0]) // cell_ns
+
+
+def _joinable(a: Block, b: Block, cell_ns: int) -> bool:
+    """``b`` continues ``a`` in another cell: same segment, scales and per-sample channels,
+    next sample (two messages of one cell were cut apart by the logged run: keep them apart)."""
+    return (a.segment == b.segment and b.first_sample == a.first_sample + a.n
+            and _cell(a, cell_ns) != _cell(b, cell_ns)
+            and (a.gyro is None) == (b.gyro is None) and set(a.per_sample) == set(b.per_sample)
+            and a.gyro_dps_per_count == b.gyro_dps_per_count
+            and np.array_equal(a.accel_counts_per_g, b.accel_counts_per_g)
+            and np.array_equal(a.accel_zero, b.accel_zero))
+
+
 class McapRawSource:
     """Source over a stillpoint MCAP's raw topics (single pass; open again for another)."""
 
@@ -125,9 +145,7 @@ class McapRawSource:
         self.settings: Optional[dict] = None
         self.metadata: dict[str, dict] = {}
         try:
-            reader = open_reader(self._f)
-            for m in reader.iter_metadata():
-                self.metadata[m.name] = dict(m.metadata)
+            self.metadata = read_metadata(self._f)  # through the summary's metadata index
         except Exception as e:
             self._f.close()
             raise CorruptRecordingError(
@@ -160,6 +178,21 @@ class McapRawSource:
         pending_gyro: list[tuple] = []
         has_gyro = self.info.gyro_range_dps is not None
         path = self.path
+        group: list[Block] = []
+        st = self.settings or {}
+        # the logged run's raw-message cells (engine/mcap/sink.py) and pipeline block bound
+        cell_ns = int(float(st.get("flush_every_s") or 60.0) * 1e9)
+        rate = float(self.info.sample_rate_nominal or 0.0)
+        max_join = int(JOIN_FRACTION * float(st.get("max_block_s") or 0.0) * rate)
+        n_group = 0
+
+        def joined():
+            nonlocal n_group
+            b = group[0] if len(group) == 1 else Block.concat(group)
+            group.clear()
+            n_group = 0
+            return b
+
         for topic, i, message in iter_messages(path, [TOPIC_RAW, TOPIC_GYRO, TOPIC_QC]):
             if topic == TOPIC_RAW:
                 m = decode(ACCEL_BATCH_RAW, path, topic, i, message.data)
@@ -170,6 +203,8 @@ class McapRawSource:
             else:
                 ev = _qc_event(path, topic, i, message.data)
                 if ev is not None:
+                    if group:  # the blocks logged before this event go first, as in the run
+                        yield joined()
                     self.qc.add(ev)
             while pending_raw and (not has_gyro or pending_gyro):
                 i, raw, n = pending_raw.pop(0)
@@ -183,7 +218,12 @@ class McapRawSource:
                 b = block_from_message(raw, gyro)
                 self.qc.total += b.m
                 self.qc.valid += b.m
-                yield b
+                if group and (not _joinable(group[-1], b, cell_ns) or n_group + b.n > max_join):
+                    yield joined()
+                group.append(b)
+                n_group += b.n
+        if group:
+            yield joined()
         # a gyro-less tail (should not happen in a complete log): yield accel only
         for _i, raw, _n in pending_raw:
             yield block_from_message(raw, None)

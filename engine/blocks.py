@@ -147,7 +147,7 @@ class Block:
 
     def temperature_per_sample(self) -> np.ndarray:
         """(n,) temperature, each unit's value held over its samples (no interpolation)."""
-        return self.temperature_c[self.unit_of_sample()]
+        return np.repeat(self.temperature_c, np.diff(np.append(self.unit_start, self.n)))
 
     # ------------------------------------------------------------------ slicing / joining
     def slice(self, start: int, stop: int) -> "Block":

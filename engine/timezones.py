@@ -162,7 +162,7 @@ def parse_zone(spec) -> Zone:
         import zoneinfo as _zi
         hint = "" if _zi.available_timezones() else (
             "; this system has no time zone database: pip install tzdata")
-        raise ZoneError(f"time zone {text!r} is neither an IANA name (e.g. Europe/London) nor an "
+        raise ZoneError(f"--timezone {text!r} is neither an IANA name (e.g. Europe/London) nor an "
                         f"offset like +01:00{hint}") from None
     return Zone(text)
 

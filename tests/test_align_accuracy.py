@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from stillpoint.engine.alignment import AlignConfig, estimate_alignment
-from stillpoint.engine.alignment.synthetic import DeviceClock, SyntheticPair
+from synthetic_alignment import DeviceClock, SyntheticPair
 
 RATE = 30.0
 

@@ -9,7 +9,7 @@ import pytest
 from stillpoint.engine.alignment.lags import LagEstimator, normalized_xcorr, peak_lag
 from stillpoint.engine.alignment.signal import (DEAD_BAND_G, GridResampler, TemperatureTrack,
                                                 brond_filter)
-from stillpoint.engine.alignment.synthetic import DeviceClock, SyntheticPair
+from synthetic_alignment import DeviceClock, SyntheticPair
 from stillpoint.engine.blocks import Block
 
 
@@ -172,3 +172,19 @@ def test_temperature_track_bins_and_fills():
     s = tr.series(0, 4)
     np.testing.assert_allclose(s, [21.0, 25.0, 25.0, 25.0])
     assert np.isnan(TemperatureTrack().series(0, 3)).all()
+
+
+def test_magnitude_columns_equal_the_broadcast_form():
+    """The column-by-column |a| - 1 gives the numbers of the (n, 3) einsum form (AX scale and
+    a GENEActiv-like per-axis gain and offset)."""
+    from stillpoint.engine.alignment.signal import magnitude_minus_one
+    from stillpoint.engine.blocks import Block
+
+    rng = np.random.default_rng(5)
+    for cpg, zero in (([256.0] * 3, [0.0] * 3), ([312.7, 315.9, 309.6], [3.1, -2.2, 0.7])):
+        acc = rng.integers(-2048, 2048, (5000, 3)).astype(np.int16)
+        b = Block(time_ns=np.arange(5000, dtype=np.int64), accel=acc,
+                  accel_counts_per_g=np.array(cpg), accel_zero=np.array(zero))
+        a = b.accel_g()
+        np.testing.assert_allclose(magnitude_minus_one(b), np.sqrt(np.einsum("ij,ij->i", a, a)) - 1.0,
+                                   rtol=0, atol=1e-15)

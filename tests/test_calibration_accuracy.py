@@ -1,4 +1,4 @@
-"""Accuracy on synthetic window features with known errors (issue 5 targets), CI-sized.
+"""Accuracy on synthetic window features with known errors (the accuracy targets), CI-sized.
 
 Offsets of tens of mg, gains within +/-2%, temperature offsets <= 1 mg/degC, 5 mg noise at
 100 Hz: recovered offsets within 0.05 mg, gains within 0.005%, temperature offsets within
@@ -15,7 +15,7 @@ from stillpoint.engine.calibration import (OnlineCalibrator, calibration_error_g
                                            estimate_error_mg, fit_batch_schedule,
                                            select_calibration_windows)
 from stillpoint.engine.calibration.fit import rereference
-from stillpoint.engine.calibration.synthetic import random_truth, synthetic_recording
+from synthetic_calibration import random_truth, synthetic_recording
 
 
 def check_recovery(est, truth, feats):

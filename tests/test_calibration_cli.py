@@ -11,7 +11,7 @@ import pytest
 
 from stillpoint.engine.calibration import fit_calibration
 from stillpoint.engine.calibration.fit import rereference
-from stillpoint.engine.calibration.synthetic import (random_truth, synthetic_recording,
+from synthetic_calibration import (random_truth, synthetic_recording,
                                                      write_synthetic_cwa)
 from stillpoint.engine.calibration.table import read_features_csv
 from stillpoint.tools.cli import main

@@ -9,7 +9,7 @@ from stillpoint.engine.calibration import (OnlineCalibrator, fit_batch_schedule,
                                            select_calibration_windows)
 from stillpoint.engine.calibration import fit as fitmod
 from stillpoint.engine.calibration.fit import IcpResult, rereference
-from stillpoint.engine.calibration.synthetic import (random_directions, random_truth,
+from synthetic_calibration import (random_directions, random_truth,
                                                      synthetic_recording)
 from stillpoint.engine.features import WindowFeatures
 

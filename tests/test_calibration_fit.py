@@ -9,7 +9,7 @@ import pytest
 from stillpoint.engine.calibration import (apply_model, calibration_error_g, fit_calibration,
                                            icp_sphere_fit, sphere_coverage, temperature_check)
 from stillpoint.engine.calibration.fit import rereference
-from stillpoint.engine.calibration.synthetic import random_truth, synthetic_recording
+from synthetic_calibration import random_truth, synthetic_recording
 from stillpoint.engine.calibration.table import read_features_csv
 from stillpoint.engine.features import WindowFeatures
 

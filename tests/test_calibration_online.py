@@ -13,7 +13,7 @@ from stillpoint.engine.calibration import (BatchSchedule, OnlineCalibrator, fit_
 from stillpoint.engine.calibration import fit as fitmod
 from stillpoint.engine.calibration.fit import IcpResult
 from stillpoint.engine.calibration.recording import calibrate_source
-from stillpoint.engine.calibration.synthetic import (SyntheticSource, random_truth,
+from synthetic_calibration import (SyntheticSource, random_truth,
                                                      synthetic_recording)
 
 H = 3600 * 10**9

@@ -11,7 +11,7 @@ from stillpoint.engine.calibration import (CalibrationEstimate, CalibrationStore
                                            CalibrationStoreError, OnlineCalibrator,
                                            estimate_error_mg, fit_calibration)
 from stillpoint.engine.calibration.store import HOME_ENV, default_root, device_file_name
-from stillpoint.engine.calibration.synthetic import random_truth, synthetic_recording
+from synthetic_calibration import random_truth, synthetic_recording
 
 
 def est(status="ok", off=0.01, end_h=72, key="AX3-39434"):

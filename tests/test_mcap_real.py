@@ -14,6 +14,7 @@ from stillpoint.drivers.mcap_replay import McapRawSource
 from stillpoint.engine.mcap.compare import compare
 from stillpoint.engine.run import RunSettings, process_file
 from stillpoint.tools.cli import main as cli
+from mcap_layout import conforms
 
 
 def _topics(path):
@@ -33,6 +34,7 @@ def test_real_file_process_and_replay(real_file, tmp_path, name):
     path = real_file(name)
     out = tmp_path / "o.mcap"
     s = process_file(path, out, RunSettings(mode="online"))
+    conforms(out)  # spec-complete layout (tests/mcap_layout.py) and the mcap indexed reader
     with open_recording(path) as src:
         n = sum(b.n for b in src)
         qc = src.qc

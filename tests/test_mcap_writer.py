@@ -209,7 +209,7 @@ def test_writer_modes_write_the_same_messages(tmp_path):
     for mode in ("inline", "thread", "process"):
         outs[mode] = tmp_path / f"{mode}.mcap"
         s = process_file(rec_path, outs[mode], RunSettings(mode="batch"), writer=mode)
-        assert s["mcap_flushes"] >= 0.25 * 3600 / 10 - 2
+        assert s["mcap_flushes"] >= 0.25 * 3600 / 60 - 2  # batch: 60 s chunks
     for mode in ("thread", "process"):
         res = compare(outs["inline"], outs[mode])
         assert all(r["identical"] for r in res.values()), (mode, res)

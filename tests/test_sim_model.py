@@ -131,3 +131,37 @@ def test_resolve_fills_typical_values_reproducibly():
     c = resolve_model(SensorModel({"gain": None}), seed=7)
     assert c.effects["gain"] == a.effects["gain"]
     assert resolve_model(SensorModel({"gain": {}}), seed=8).effects["gain"] != c.effects["gain"]
+
+
+def _broadcast_deterministic(f, model, Ta, t):
+    """The deterministic steps in their (n, 3) broadcast form (the reference for the column form)."""
+    dt = f.dtype
+    a = f @ model.misalignment_matrix().T.astype(dt)
+    a *= (1.0 + model.axis_vector("gain", "pct") / 100.0).astype(dt)
+    a *= 1.0 + (Ta - 25.0).astype(dt)[:, None] * (model.axis_vector("temperature_gain", "pct_per_c") / 100.0).astype(dt)
+    a += (model.axis_vector("offset", "mg") / 1000.0).astype(dt)
+    a += (Ta - 25.0).astype(dt)[:, None] * (model.axis_vector("temperature_offset", "mg_per_c") / 1000.0).astype(dt)
+    a += (model.axis_vector("nonlinearity", "mg_per_g2") / 1000.0).astype(dt) * (a * a)
+    a += (t / 86400.0).astype(dt)[:, None] * (model.axis_vector("offset_drift", "mg_per_day") / 1000.0).astype(dt)
+    return a
+
+
+def test_deterministic_columns_equal_broadcast_form():
+    from stillpoint.engine.sim.model import SensorModel, apply_deterministic
+
+    rng = np.random.default_rng(3)
+    eff = {"misalignment": {"x_from_y_pct": 1.0, "z_from_x_pct": -0.5},
+           "gain": {"x_pct": 1.5, "y_pct": -1.0, "z_pct": 0.3},
+           "temperature_gain": {"x_pct_per_c": 0.02, "z_pct_per_c": -0.01, "reference_c": 25.0},
+           "offset": {"x_mg": 30.0, "y_mg": -20.0, "z_mg": 5.0},
+           "temperature_offset": {"x_mg_per_c": 0.8, "y_mg_per_c": -0.4, "reference_c": 25.0},
+           "nonlinearity": {"x_mg_per_g2": 2.0, "z_mg_per_g2": -1.0},
+           "offset_drift": {"x_mg_per_day": 0.5, "y_mg_per_day": -0.3}}
+    model = SensorModel(eff)
+    assert set(model.effects) >= set(eff)
+    for dtype in (np.float32, np.float64):
+        f = rng.normal(0, 1, (4000, 3)).astype(dtype)
+        T = rng.uniform(20, 35, 4000)
+        t = np.sort(rng.uniform(0, 86400 * 3, 4000))
+        got = apply_deterministic(f, model, temperature_c=T, time_s=t, accel_temperature_c=T)
+        assert np.array_equal(got, _broadcast_deterministic(f, model, T, t))

@@ -110,14 +110,22 @@ def test_day_sums_equal_epoch_sums(dst_run):
     assert int(total["valid_day"]) >= 1
 
 
-def test_rows_cover_the_span_with_gap_rows(tmp_path):
-    """A restart gap becomes flagged rows; the first epoch after each segment start carries the
-    BFEN start-up flag; tables do not depend on the pipeline's block size."""
-    rec = tmp_path / "r.cwa"
+@pytest.fixture(scope="module")
+def small_run(tmp_path_factory):
+    """2.4 h with logging restarts (gaps), zone unknown."""
+    d = tmp_path_factory.mktemp("small")
+    rec = d / "r.cwa"
     simulate_recording(rec, days=0.1, hz=12.5, seed=2, effects="offset,noise,restarts",
                        truth_path=False, labels_path=False)
-    s1, e1, d1 = run_tables(rec, tmp_path / "a.mcap", RunSettings(max_block_s=600.0))
-    s2, e2, d2 = run_tables(rec, tmp_path / "b.mcap", RunSettings(max_block_s=7.3))
+    s, e, days = run_tables(rec, d / "a.mcap", RunSettings(max_block_s=600.0))
+    return SimpleNamespace(dir=d, rec=rec, summary=s, epochs=e, days=days)
+
+
+def test_rows_cover_the_span_with_gap_rows(small_run, tmp_path):
+    """A restart gap becomes flagged rows; the first epoch after each segment start carries the
+    BFEN start-up flag; tables do not depend on the pipeline's block size."""
+    e1, d1 = small_run.epochs, small_run.days
+    s2, e2, d2 = run_tables(small_run.rec, tmp_path / "b.mcap", RunSettings(max_block_s=7.3))
     assert e1 == e2 and d1 == d2
     t = t_ns([r["time_local"] + "Z" for r in e1])  # zone unknown: time_local is the device clock
     assert np.all(np.diff(t) == 5 * 10**9)
@@ -211,3 +219,52 @@ def test_cli_bad_zone_is_one_line(tmp_path):
     r = subprocess.run([sys.executable, "-m", "stillpoint.tools", "process", str(rec), "--timezone",
                         "Nowhere/Land"], capture_output=True, text=True)
     assert r.returncode == 2 and "Nowhere/Land" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_export_from_the_mcap_gives_the_same_tables(small_run):
+    out = small_run.dir / "again.epochs.csv.gz"
+    r = subprocess.run([sys.executable, "-m", "stillpoint.tools", "export", str(small_run.dir / "a.mcap"),
+                        "-o", str(out)], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert UNKNOWN_LABEL in r.stdout
+    assert read_epochs(out) == small_run.epochs
+    assert read_days(small_run.dir / "again.days.csv") == small_run.days
+    assert not list(small_run.dir.glob(".tables-*"))  # the re-run's MCAP is removed
+
+
+def test_report_page_is_written(small_run, tmp_path):
+    from stillpoint.engine.report import write_report
+    out = write_report(small_run.dir / "a.mcap", out_png=tmp_path / "r.png", out_html=tmp_path / "r.html")
+    png = Path(out["report"]).read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 30_000
+    page = Path(out["report_html"]).read_text()
+    assert "data:image/png;base64," in page and small_run.days[0]["date"] in page
+
+
+def test_report_without_matplotlib_says_how_to_install(monkeypatch):
+    from stillpoint.engine import report
+    monkeypatch.setitem(sys.modules, "matplotlib", None)
+    with pytest.raises(report.ReportUnavailableError, match="pip install"):
+        report.require_matplotlib()
+
+
+@pytest.mark.skipif(not REAL, reason="STILLPOINT_REAL_DATA is not set: real-recording test skipped")
+def test_cohort_takes_the_zone_and_writes_the_tables(tmp_path):
+    rec = Path(REAL) / "ax3_ggirread_testfile_100hz_145blocks.cwa"
+    out = tmp_path / "coh"
+    r = subprocess.run([sys.executable, "-m", "stillpoint.tools", "cohort", "run", str(rec), "-o", str(out),
+                        "--timezone", "Europe/London", "--scheduler", "serial"],
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    [days] = list(out.glob("files/*/*/recording.days.csv"))
+    rows = read_days(days)
+    assert rows[0]["timezone"] == "Europe/London" and rows[-1]["date"] == "all"
+    e = read_epochs(days.with_name("recording.epochs.csv.gz"))
+    assert e[0]["time_local"].endswith("+00:00") and e[0]["time_utc"].endswith("Z")
+
+
+def test_export_from_an_online_run_gives_the_same_tables(small_run, tmp_path):
+    s, e, d = run_tables(small_run.rec, tmp_path / "o.mcap", RunSettings(mode="online"))
+    from stillpoint.engine.tables import tables_from_mcap
+    tables_from_mcap(tmp_path / "o.mcap", tmp_path / "x.epochs.csv.gz")
+    assert read_epochs(tmp_path / "x.epochs.csv.gz") == e and read_days(tmp_path / "x.days.csv") == d

@@ -1,11 +1,11 @@
 """The alignment accuracy table: 20 seeds of simulated two-device pairs per scenario.
 
-Scenarios (issue 7):
+Scenarios:
   linear   clocks with offset up to +-10 s and skew up to +-50 ppm, no temperature dependence
   halt     as linear, plus one sampling halt of 2-400 s after day 1 in the second device
            (simulator: the RTC runs on through a halt, so the halt is a gap in the timestamps)
   clockstop as halt, but the device clock stops during the halt (the AX3 behaviour Brønd et al.
-           report; synthetic pair from engine/alignment/synthetic.py): a step in the lag
+           report; synthetic pair from tests/synthetic_alignment.py): a step in the lag
   temperature  crystal parabola -0.035 ppm/degC^2 on both devices (held-out RMSE compared)
 
 Usage:
@@ -14,7 +14,7 @@ Usage:
 
 For each seed: the pair is simulated (stillpoint.engine.sim.simulate_pair, real .cwa files in a
 temporary directory) and aligned with both methods; errors are against the truth JSON clocks.
-Prints one row per seed and a summary (pass counts against the issue's targets).
+Prints one row per seed and a summary (pass counts against the targets).
 """
 
 from __future__ import annotations
@@ -122,7 +122,8 @@ def run_sim_seed(args):
 def run_clockstop_seed(args):
     _, seed, days, hz, _ = args
     from stillpoint.engine.alignment import AlignConfig, estimate_alignment
-    from stillpoint.engine.alignment.synthetic import DeviceClock, SyntheticPair
+    import testdoubles  # noqa: F401  (tests/ on sys.path)
+    from synthetic_alignment import DeviceClock, SyntheticPair
     rng = np.random.default_rng(20_000 + seed)
     halt = float(rng.uniform(2, 400))
     at = float(rng.uniform(1.05, min(days, 6.0) - 0.1)) * DAY

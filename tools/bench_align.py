@@ -9,7 +9,7 @@ RSS of that child):
   4. `stillpoint align A B -o OUT.mcap`: estimate + resample OTHER onto the reference clock and
      write it (pass 2).
 Prints figures and ratios to the baseline measured in the same run (machines are noisy).
-Targets (issue 7): estimate in < 30 s with peak RSS < 300 MB.
+Targets: estimate in < 30 s with peak RSS < 300 MB.
 
     /work/venv/bin/python tools/bench_align.py [--days 7] [--hz 100] [--dir DIR] [--keep]
 """

@@ -11,11 +11,15 @@ peak RSS of that child and its children via ``getrusage(RUSAGE_CHILDREN)``):
   the writer in a child process (``writer="process"``, API), and with 60 s flushes;
 * the same command at an earlier commit (``--before REV``: ``git archive`` of engine/, drivers/,
   tools/ into the workdir, run with that tree first on PYTHONPATH), for a before/after table;
-* scikit-digital-health read + autocalibration (if ``--peers`` python has skdh);
+* scikit-digital-health read + autocalibration + ENMO (if ``--peers`` python has skdh; it
+  does not log anything, so this is less work than process);
+* the vectorised same-work bound (tools/bound_process.py: two decodes, window features, affine
+  correction, ENMO, BFEN filter, zstd as straight numpy per block), with and without the filter
+  and compression;
 * peak RSS of ``process`` on 1-, 7- and 14-day files (must be flat and < 300 MB);
 * MCAP size against the input .cwa (must be <= 2x).
 
-Recordings are written once with the calibration issue's synthetic generator (packed AX3, 100 Hz,
+Recordings are written once with the synthetic window-feature generator of tests/synthetic_calibration.py (packed AX3, 100 Hz,
 known sensor errors) into ``--workdir`` and reused (same names as tools/bench_calibrate.py).
 The machine is shared and noisy: read the ratios, not the seconds.
 """
@@ -31,7 +35,9 @@ import tempfile
 import time
 from pathlib import Path
 
-from benchlib import DECODE_PASS, SKDH_READ_AUTOCAL, measure, peers_python
+from benchlib import DECODE_PASS, SKDH_READ_AUTOCAL_ENMO, measure, peers_python
+
+BOUND = str(Path(__file__).resolve().parent / "bound_process.py")
 
 PROCESS_API = r"""
 import sys
@@ -75,8 +81,9 @@ def recording(workdir: Path, days: float, rate: float) -> Path:
         return path
     import numpy as np
 
-    from stillpoint.engine.calibration.synthetic import (random_truth, synthetic_recording,
-                                                         write_synthetic_cwa)
+    import testdoubles  # noqa: F401  (tests/ on sys.path)
+    from synthetic_calibration import (random_truth, synthetic_recording,
+                                       write_synthetic_cwa)
     t = time.perf_counter()
     truth = random_truth(np.random.default_rng(7))
     rec = synthetic_recording(days * 24.0, truth, seed=8)
@@ -118,6 +125,8 @@ def main(argv=None) -> int:
     res["process60"] = best(sp + ["process", path, "-o", out, "--mode", "batch", "-q",
                                   "--flush-every-s", "60"], args.repeat)
     res["process_wp"] = best([sys.executable, "-c", PROCESS_API, path, out, "process"], args.repeat)
+    res["bound"] = best([sys.executable, BOUND, path], args.repeat)
+    res["bound_bare"] = best([sys.executable, BOUND, path, "--no-filter", "--no-zstd"], args.repeat)
     if args.before:
         bt = before_tree(wd, args.before)
         res["before"] = best(sp + ["process", path, "-o", wd / "bench_before.mcap", "--mode",
@@ -127,7 +136,10 @@ def main(argv=None) -> int:
     peers_py = peers_python(args.peers)
     have_skdh = peers_py is not None
     if have_skdh:
-        res["skdh"] = best([peers_py, "-c", SKDH_READ_AUTOCAL, path], args.repeat)
+        res["skdh"] = best([peers_py, "-c", SKDH_READ_AUTOCAL_ENMO, path], args.repeat)
+    else:
+        print(f"skdh skipped: no peers Python (--peers, $STILLPOINT_PEERS_PYTHON); process is "
+              f"compared with the same-work bound only", flush=True)
 
     dec, pr, pr60 = res["decode"], res["process"], res["process60"]
     print(f"\nfile: {path.name}: {s['samples']:,} samples, {s['duration_s'] / 86400:.2f} days, "
@@ -139,9 +151,11 @@ def main(argv=None) -> int:
         rows.append((f"before ({bt['sha']}): process --mode batch", res["before"]))
     rows += [("process --mode batch (flush every 10 s)", pr),
              ("  same, writer in a child process (API)", res["process_wp"]),
-             ("process --mode batch --flush-every-s 60", pr60)]
+             ("process --mode batch --flush-every-s 60", pr60),
+             ("same-work bound (tools/bound_process.py)", res["bound"]),
+             ("  bound without BFEN filter and zstd", res["bound_bare"])]
     if have_skdh:
-        rows.append(("skdh read + autocalibration", res["skdh"]))
+        rows.append(("skdh read + autocalibration + ENMO", res["skdh"]))
     for name, r in rows:
         print(f"{name:48s} {r['wall']:8.2f} {r['cpu']:8.2f} {r['rss_mb']:12.0f}")
     rss = s.get("peak_rss_mb") or {}
@@ -155,10 +169,15 @@ def main(argv=None) -> int:
         b = res["before"]
         print(f"  before / now                                = {b['wall'] / pr['wall']:.2f}x wall, "
               f"{b['cpu'] / pr['cpu']:.2f}x cpu (before's MCAP {before_mb / cwa_mb:.2f}x the .cwa)")
+    bd, bb = res["bound"], res["bound_bare"]
+    print(f"  process / same-work bound                   = {pr['wall'] / bd['wall']:.2f}x wall, "
+          f"{pr['cpu'] / bd['cpu']:.2f}x cpu (target <= 1.2x)")
+    print(f"  process / bound without filter and zstd     = {pr['wall'] / bb['wall']:.2f}x wall, "
+          f"{pr['cpu'] / bb['cpu']:.2f}x cpu")
     if have_skdh:
         sk = res["skdh"]
-        print(f"  skdh read+autocal / process                 = {sk['wall'] / pr['wall']:.2f}x wall "
-              f"(target > 1), {sk['cpu'] / pr['cpu']:.2f}x cpu, "
+        print(f"  skdh read+autocal+ENMO / process            = {sk['wall'] / pr['wall']:.2f}x wall, "
+              f"{sk['cpu'] / pr['cpu']:.2f}x cpu (target >= 2x), "
               f"{sk['wall'] / pr60['wall']:.2f}x wall with 60 s flushes")
         print(f"  peak RSS skdh / process                     = {sk['rss_mb'] / pr['rss_mb']:.1f}x")
     print(f"  MCAP size / input .cwa                      = {mcap_mb / cwa_mb:.2f}x "

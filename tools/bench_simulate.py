@@ -4,7 +4,7 @@ Each measurement runs in a fresh subprocess (wall time and peak RSS of that chil
   1. baseline: write the same number of samples of zeros through CwaWriter (1 h per write);
   2. `stillpoint simulate` API (simulate_recording), the full wearer + sensor + writer + truth.
 Prints both and the ratio simulate / baseline (machines are noisy; the ratio is the stable figure).
-Targets (issue 3): <= 20 s, peak RSS < 300 MB.
+Targets: <= 20 s, peak RSS < 300 MB.
 
     /work/venv/bin/python tools/bench_simulate.py [--days 7] [--hz 100] [--dir /tmp]
     /work/venv/bin/python tools/bench_simulate.py --realism [--days 1] [--hz 25] [--seed 11]

@@ -59,6 +59,21 @@ print({k: (v.tolist() if hasattr(v, "tolist") else v) for k, v in r.items()
        if k in ("offset", "scale", "temperature scale", "temp_scale")})
 """
 
+# ... the same plus ENMO per sample on the calibrated stream (what process computes besides logging).
+SKDH_READ_AUTOCAL_ENMO = r"""
+import sys, warnings
+warnings.simplefilter("ignore")
+import numpy as np
+from skdh.io import ReadCwa
+from skdh.preprocessing import CalibrateAccelerometer
+d = ReadCwa().predict(file=sys.argv[1])
+r = CalibrateAccelerometer().predict(time=d["time"], accel=d["accel"], fs=d.get("fs"),
+                                     temperature=d.get("temperature"))
+a = r.get("accel", d["accel"])
+enmo = np.maximum(np.linalg.norm(a, axis=1) - 1.0, 0.0)
+print(a.shape[0], float(enmo.mean()))
+"""
+
 
 def measure(cmd: list, env: Optional[dict] = None) -> dict:
     """{"wall", "cpu", "rss_mb", "rc", "out", "err"} of one run of ``cmd`` in a fresh child."""

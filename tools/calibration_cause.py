@@ -12,6 +12,9 @@ samples, so exactly one thing differs between the rows:
 * ``no quantisation, no bias instability``  the same minus the simulated bias wander
 * ``noise-free``   the deterministic sensor model applied to the true window mean (offset,
                    gain, temperature offset only): what a perfect window mean would be
+* ``+5 mg within-window motion``  the measured values plus 5 mg of white variation per sample,
+                   then stored: what the micro-movement of a worn still wrist (real still-window
+                   SDs are 6-11 mg) would do to the quantisation
 
 All rows use the same windows (selected on the stored samples: SD < 13 mg, |mean| < 2 g,
 repeats collapsed) and the same temperatures (the stored 10-bit sector codes), so the rows
@@ -38,6 +41,7 @@ from stillpoint.engine.sim.device import make_devices, build_model
 from stillpoint.engine.sim.model import DEFAULT_EFFECTS
 
 WINDOW_S = 10.0
+MICRO_MOTION_MG = 5.0  # within-window variation of a worn still wrist (real still-window SDs 6-11 mg)
 
 
 def _window_sums(idx, x):
@@ -50,7 +54,8 @@ def window_table(sim, hours: float):
     """Window means of several variants of the same samples (see the module docstring)."""
     cpg = sim.spec.counts_per_g
     end_s = hours * 3600.0
-    acc = {k: [] for k in ("win", "n", "stored", "stored_sq", "meas", "true", "temp")}
+    acc = {k: [] for k in ("win", "n", "stored", "stored_sq", "meas", "true", "temp", "dith")}
+    rng = np.random.default_rng(sim.seed)
     for c in sim.chunks():
         keep = c.true_s < end_s
         if not np.any(keep):
@@ -65,8 +70,11 @@ def window_table(sim, hours: float):
         _, m_sum, _ = _window_sums(w, c.measured_g[keep].astype(np.float64))
         _, t_sum, _ = _window_sums(w, c.true_g[keep].astype(np.float64))
         _, T_sum, _ = _window_sums(w, temp[:, None])
+        # the same samples with MICRO_MOTION_MG of extra within-window variation before storage
+        extra = c.measured_g[keep] + rng.standard_normal(stored.shape) * (MICRO_MOTION_MG / 1e3)
+        _, d_sum, _ = _window_sums(w, sim.spec.to_counts(extra) / cpg)
         for k, v in (("win", win), ("n", n), ("stored", s_sum), ("stored_sq", s_sq),
-                     ("meas", m_sum), ("true", t_sum), ("temp", T_sum[:, 0])):
+                     ("meas", m_sum), ("true", t_sum), ("temp", T_sum[:, 0]), ("dith", d_sum)):
             acc[k].append(v)
         if not np.all(keep):
             break
@@ -83,6 +91,7 @@ def window_table(sim, hours: float):
     nn = merge([np.concatenate(acc["n"]).astype(np.float64)])
     s, sq = merge(acc["stored"]), merge(acc["stored_sq"])
     meas, true, temp = merge(acc["meas"]), merge(acc["true"]), merge(acc["temp"])
+    dith = merge(acc["dith"])
     full = nn >= 0.95 * WINDOW_S * sim.hz
     nn = nn[full]
     mean = s[full] / nn[:, None]
@@ -93,6 +102,7 @@ def window_table(sim, hours: float):
     tmid = (uw[full] + 0.5) * WINDOW_S
     bias = np.column_stack([np.interp(tmid, sim.t_grid, sim.bias_grid[:, k]) for k in range(3)])
     return feats, {"meas": meas[full] / nn[:, None], "true": true[full] / nn[:, None],
+                   "dithered": dith[full] / nn[:, None],
                    "bias": bias, "accel_temperature": np.interp(tmid, sim.t_grid, sim.Ta_grid)}
 
 
@@ -131,13 +141,14 @@ def ablate(seed: int, hours: float, days: float = 7.0) -> None:
     print("  variant                                  offset x y z (mg)     |"
           " gain x y z (%)             | tempoffset x y z (mg/degC)")
     rows = [("stored counts (what calibrate sees)", f.mean),
+            (f"stored, +{MICRO_MOTION_MG:g} mg within-window motion", alt["dithered"][keep]),
             ("no quantisation (same samples)", alt["meas"][keep]),
             ("no quantisation, no bias instability", alt["meas"][keep] - alt["bias"][keep])]
     det = apply_deterministic(alt["true"][keep], tm, temperature_c=alt["accel_temperature"][keep])
     rows.append(("noise-free window means", det))
     for name, mean in rows:
         ff = WindowFeatures.from_arrays(mean, f.sd, T, start_ns=f.start_ns)
-        est = fit_calibration(ff, select=False)
+        est = fit_calibration(ff, select=False, variant="c2")
         print(f"  {name:40s} {fmt(errors(est, tm))}   ({est.status}, {est.error_after_mg:.2f} mg)")
     q = f.mean - alt["meas"][keep]
     print(f"  quantisation bias of the window means: SD {q.std(axis=0).round(5) * 1e3} mg, "
@@ -163,7 +174,7 @@ def resimulate(seed: int, days: float) -> None:
         src = SimSource(days=days, seed=seed, effects=build_model(effects), **kw)
         if tm is None:
             tm = truth_model(src.sim)
-        est = calibrate_source(src).estimate
+        est = calibrate_source(src, variant="c2").estimate
         print(f"  {label:40s} {fmt(errors(est, tm))}   ({est.status}, {est.error_after_mg:.2f} mg,"
               f" {est.windows} windows)")
         sys.stdout.flush()

@@ -1,4 +1,4 @@
-"""The 20-seed table of the discrepancy workflow's hidden-effect tests (issue 6).
+"""The 20-seed table of the discrepancy workflow's hidden-effect tests.
 
 For every scenario of engine.workflows.scenarios (one hidden effect each, the null control with
 nothing hidden, and two hidden effects) and every seed: simulate a wrist recording with the simulator

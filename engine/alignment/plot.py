@@ -1,5 +1,8 @@
-"""Alignment figure: lag against time with the fitted model and the excluded blocks (Brønd et al.
-2021, Fig. 3), and the normalised cross-correlation of the blocks used (their Fig. 2).
+"""Alignment figure: lag against time with the fitted model, its 95 % confidence band, the excluded
+blocks, lag steps and sampling halts (Brønd et al. 2021, Fig. 3), and the normalised
+cross-correlation of the blocks used (their Fig. 2). Points outside the drawn lag range are
+counted as off-scale in the legend; the drift is reported over the recording's own span (never
+extrapolated past it).
 
 matplotlib is optional (``pip install stillpoint[plot]``) and imported only when plotting.
 """
@@ -34,30 +37,57 @@ def plot_alignment(result: AlignmentResult, path, max_correlograms: int = 40) ->
         t_exc, y_exc = fit.t[~inc] / 3600, fit.y[~inc] / rate
         seen = set(int(i) for i in fit.block_index)
         other = [b for b in valid if b.index not in seen]
-        if other:
-            ax1.plot([_t(b, result) / 3600 for b in other], [b.lag / rate for b in other], ".",
-                     color="0.7", ms=3, label=f"not used (low correlation, {len(other)})")
     else:
         t_used = np.array([_t(b, result) / 3600 for b in valid])
         y_used = np.array([b.lag / rate for b in valid])
         t_exc = y_exc = np.zeros(0)
-    ax1.plot(t_used, y_used, "o", ms=4, color="tab:blue", label=f"block lag ({t_used.size} used)")
-    if t_exc.size:
-        ax1.plot(t_exc, y_exc, "x", ms=6, color="tab:red", label=f"excluded ({t_exc.size})")
+    ylim = None
     if fit is not None:
         span = max(result.ref_span_s[1], 3600.0)
         tt = np.linspace(0, span, 2000)
-        ax1.plot(tt / 3600, fit.offset_s(tt), "-", color="k", lw=1.2, label=f"fit ({fit.model})")
-        for s in fit.steps:
-            ax1.axvspan(s.window_s[0] / 3600, s.window_s[1] / 3600, color="orange", alpha=0.3,
-                        label=f"step {s.size / rate:+.2f} s")
         lo_y = np.concatenate([y_used, fit.offset_s(tt)]) if y_used.size else fit.offset_s(tt)
         pad = 0.1 * max(np.ptp(lo_y), 1.0 / rate)
-        ax1.set_ylim(lo_y.min() - pad, lo_y.max() + pad)
+        ylim = (lo_y.min() - pad, lo_y.max() + pad)
+
+    def off(y):
+        return 0 if ylim is None else int(((y < ylim[0]) | (y > ylim[1])).sum())
+
+    def label(text, y):
+        k = off(np.asarray(y))
+        return f"{text} ({len(y)}{f', {k} off-scale' if k else ''})"
+
+    if fit is not None and other:
+        y_oth = np.array([b.lag / rate for b in other])
+        ax1.plot([_t(b, result) / 3600 for b in other], y_oth, ".", color="0.7", ms=3,
+                 label=label("not used, low correlation", y_oth))
+    ax1.plot(t_used, y_used, "o", ms=4, color="tab:blue", label=label("block lag, used", y_used))
+    if t_exc.size:
+        ax1.plot(t_exc, y_exc, "x", ms=6, color="tab:red", label=label("excluded", y_exc))
+    if fit is not None:
+        ax1.plot(tt / 3600, fit.offset_s(tt), "-", color="k", lw=1.2, label=f"fit ({fit.model})")
+        band = _band(fit, tt)
+        if band is not None:
+            ax1.fill_between(tt / 3600, fit.offset_s(tt) - band, fit.offset_s(tt) + band,
+                             color="k", alpha=0.15, lw=0, label="95 % confidence band")
+        for s in fit.steps:
+            ax1.axvspan(s.window_s[0] / 3600, s.window_s[1] / 3600, color="orange", alpha=0.3,
+                        label=f"lag step {s.size / rate:+.2f} s (clock stopped)")
+        ax1.set_ylim(*ylim)
+        days = span / 86400.0
+        change = float(fit.offset_s(span) - fit.offset_s(0.0))
         title = (f"offset {fit.initial_offset_s:+.3f} s, drift {fit.drift_s_per_day:+.3f} s/day, "
-                 f"day 7 {fit.drift_day7_s:+.2f} s")
+                 f"change over the {days:.1f}-day record {change:+.2f} s")
     else:
         title = "not aligned: " + result.reason[:80]
+    first = True
+    for dev, gaps in (result.gaps or {}).items():
+        for a, b in gaps:
+            if dev == "other" and fit is not None:
+                a, b = a - float(fit.offset_s(a)), b - float(fit.offset_s(b))
+            who = "reference" if dev == "ref" else "other device"
+            ax1.axvspan(a / 3600, max(b, a + 60.0) / 3600, color="tab:purple", alpha=0.35,
+                        label=(f"sampling halt / gap ({who})" if first else None))
+            first = False
     ax1.set_title(title, fontsize=10)
     ax1.set_xlabel("time since reference start (h)")
     ax1.set_ylabel("lag of other device (s)")
@@ -86,9 +116,25 @@ def plot_alignment(result: AlignmentResult, path, max_correlograms: int = 40) ->
     else:
         ax2.text(0.5, 0.5, "no correlograms", ha="center", va="center", transform=ax2.transAxes)
     fig.tight_layout()
-    fig.savefig(str(path), dpi=110)
+    from pathlib import Path
+
+    from stillpoint.drivers.outputs import atomic_output
+    fmt = Path(str(path)).suffix.lstrip(".").lower() or "png"
+    with atomic_output(path) as f:
+        fig.savefig(f, dpi=110, format=fmt)
     plt.close(fig)
     return str(path)
+
+
+def _band(fit, tt, level: float = 0.95):
+    """Half-width (s) of the confidence band of the linear part of the clock model."""
+    if fit.cov is None or fit.dof <= 0:
+        return None
+    from scipy import stats
+    q = float(stats.t.ppf(0.5 + level / 2, fit.dof))
+    c = fit.cov
+    var = c[0, 0] + 2 * tt * c[0, 1] + tt * tt * c[1, 1]
+    return q * np.sqrt(np.maximum(var, 0.0)) / fit.rate
 
 
 def _t(b, result):

@@ -30,6 +30,7 @@ import numpy as np
 from scipy import signal as _sig
 
 from stillpoint.engine.blocks import Block
+from stillpoint.engine.operators.base import accel_g_columns
 
 # ---------------------------------------------------------------- Brønd 2021 method constants
 COMMON_RATE_HZ = 30.0  # both recordings resampled to 30 Hz before anything else
@@ -49,9 +50,17 @@ TEMP_BIN_S = 60.0  # temperature track resolution
 
 
 def magnitude_minus_one(block: Block) -> np.ndarray:
-    """‖a‖ − 1 in g per sample, float64."""
-    a = block.accel_g()
-    return np.sqrt(np.einsum("ij,ij->i", a, a)) - 1.0
+    """‖a‖ − 1 in g per sample, float64, column by column (several times faster than the (n, 3)
+    forms; the squares are added in the order numpy's ``einsum("ij,ij->i")`` adds three terms,
+    x + z then + y, so the numbers are those of the einsum form)."""
+    g = accel_g_columns(block)
+    x, y, z = g[:, 0], g[:, 1], g[:, 2]
+    out = x * x
+    out += z * z
+    out += y * y
+    np.sqrt(out, out=out)
+    out -= 1.0
+    return out
 
 
 @lru_cache(maxsize=8)
@@ -99,7 +108,8 @@ class GridResampler:
     def push(self, block: Block) -> Iterator[tuple[int, np.ndarray]]:
         if block.n == 0:
             return
-        t = (block.time_ns - self.t0_ns).astype(np.float64) * 1e-9
+        t = (block.time_ns - self.t0_ns).astype(np.float64)
+        t *= 1e-9
         v = magnitude_minus_one(block)
         yield from self.push_arrays(t, v, segment=block.segment)
 

@@ -1,6 +1,6 @@
-"""Calibration report figure (van Hees 2014 Fig. 1 style): the nonmovement window means before and
-after calibration in 3-D and in the three 2-D projections with the 1 g circle, plus the residual
-(||cal|| - 1) against temperature. matplotlib is an optional extra (``pip install
+"""Calibration report figure: the nonmovement windows' distance to the 1 g sphere (||a|| - 1, mg)
+before and after calibration against each axis, against temperature, and as a histogram, with the
+estimate's numbers. matplotlib is an optional extra (``pip install
 stillpoint[plot]``), imported only when a plot is requested.
 """
 
@@ -40,83 +40,98 @@ def _calibrated(windows: WindowFeatures, est: CalibrationEstimate) -> np.ndarray
 
 
 def plot_calibration(windows: WindowFeatures, estimate: CalibrationEstimate, path,
-                     title: str = "", max_points: int = 20000) -> Path:
-    """Write the figure to ``path`` (PNG, or any format matplotlib infers from the suffix)."""
+                     title: str = "", max_points: int = 20000, hist_range_mg: float = 30.0) -> Path:
+    """Write the figure to ``path`` (PNG, or any format matplotlib infers from the suffix).
+
+    The sphere is shown where the calibration acts, at mg scale: the residual ``||a|| - 1``
+    against each axis's mean value (one panel per axis; at g scale before and after look the
+    same), against temperature, and as a histogram whose end bins hold every window beyond
+    ``hist_range_mg`` (their number is in the legend: nothing is dropped)."""
+    import textwrap
+
+    from stillpoint.drivers.outputs import atomic_output, check_output_path
     plt = _pyplot()
-    path = Path(path)
+    path = check_output_path(path, what="plot")
     w = windows
-    if len(w) > max_points:  # a readable figure; thin deterministically
+    thinned = len(w) > max_points
+    if thinned:  # a readable figure; thin deterministically
         w = w.select(np.linspace(0, len(w) - 1, max_points).astype(np.int64))
     before = w.mean
+    applied = estimate.status in ("ok", "high_error")
     after = _calibrated(w, estimate) if len(w) else before
-    fig = plt.figure(figsize=(15, 9.5))
+    rb = (np.linalg.norm(before, axis=1) - 1) * 1000 if len(w) else np.zeros(0)
+    ra = (np.linalg.norm(after, axis=1) - 1) * 1000 if len(w) else np.zeros(0)
+    lab_a = "after" if applied else f"with the fit (not applied: {estimate.status})"
+    fig = plt.figure(figsize=(13, 8.5))
     head = title or (estimate.device_key or "calibration")
-    fig.suptitle(f"{head}: {estimate.status} - {estimate.reason}", fontsize=9, wrap=True)
-    kw_b = dict(s=4, c="0.6", alpha=0.5, label="before")
-    kw_a = dict(s=4, c="tab:blue", alpha=0.6, label="after")
-    # 3-D views
-    u, v = np.mgrid[0:2 * np.pi:40j, 0:np.pi:20j]
-    for i, (pts, name) in enumerate(((before, "before"), (after, "after"))):
-        ax = fig.add_subplot(2, 4, 1 + i, projection="3d")
-        ax.plot_wireframe(np.cos(u) * np.sin(v), np.sin(u) * np.sin(v), np.cos(v), color="0.85",
-                          linewidth=0.4)
-        if len(pts):
-            ax.scatter(pts[:, 0], pts[:, 1], pts[:, 2], s=2,
-                       c="0.4" if name == "before" else "tab:blue")
-        ax.set_title(f"{name} (3-D)", fontsize=9)
-        ax.set_xlabel("x (g)")
-        ax.set_ylabel("y (g)")
-        ax.set_zlabel("z (g)")
+    fig.suptitle("\n".join(textwrap.wrap(f"{head}: {estimate.status} - {estimate.reason}", 150)[:3]),
+                 fontsize=9)
+    kw_b = dict(s=5, c="0.55", alpha=0.5, lw=0, label="before")
+    kw_a = dict(s=5, c="tab:blue", alpha=0.6, lw=0, label=lab_a)
+    lim = max(15.0, float(np.percentile(np.abs(np.concatenate([rb, ra])), 99.5)) * 1.1) if len(w) else 30.0
+    for j, name in enumerate("xyz"):
+        ax = fig.add_subplot(2, 3, 1 + j)
+        if len(w):
+            ax.scatter(before[:, j], rb, **kw_b)
+            ax.scatter(after[:, j], ra, **kw_a)
+        ax.axhline(0, color="k", linewidth=0.6)
+        ax.set_xlim(-1.15, 1.15)
+        ax.set_ylim(-lim, lim)
+        ax.set_xlabel(f"mean {name} of the window (g)")
+        ax.set_ylabel("||a|| - 1 (mg)")
+        ax.set_title(f"distance to the 1 g sphere against {name}", fontsize=9)
+        if j == 0 and len(w):
+            ax.legend(fontsize=7.5, markerscale=2.5, loc="lower left")
     # residual vs temperature
-    ax = fig.add_subplot(2, 4, 3)
+    ax = fig.add_subplot(2, 3, 4)
     if len(w) and np.any(np.isfinite(w.temperature)):
-        ax.scatter(w.temperature, (np.linalg.norm(before, axis=1) - 1) * 1000, **kw_b)
-        ax.scatter(w.temperature, (np.linalg.norm(after, axis=1) - 1) * 1000, **kw_a)
+        ax.scatter(w.temperature, rb, **kw_b)
+        ax.scatter(w.temperature, ra, **kw_a)
         ax.set_xlabel("temperature (degC)")
+        ax.set_ylim(-lim, lim)
     else:
         ax.text(0.5, 0.5, "no temperature", ha="center", va="center", transform=ax.transAxes)
     ax.axhline(0, color="k", linewidth=0.6)
     ax.set_ylabel("||a|| - 1 (mg)")
-    ax.set_title("residual vs temperature", fontsize=9)
-    ax.legend(fontsize=8, markerscale=3)
+    ax.set_title("residual against temperature", fontsize=9)
+    # histogram: values beyond the range go to the end bins and are counted
+    ax = fig.add_subplot(2, 3, 5)
+    r = float(hist_range_mg)
+    bins = np.linspace(-r, r, 61)
+    for vals, color, lab in ((rb, "0.6", "before"), (ra, "tab:blue", lab_a)):
+        if not len(vals):
+            continue
+        off = int((np.abs(vals) > r).sum())
+        ax.hist(np.clip(vals, -r, r), bins=bins, color=color, alpha=0.6,
+                label=f"{lab}: RMS {np.sqrt(np.mean(vals ** 2)):.2f} mg"
+                      + (f"; {off} beyond +-{r:g} mg, in the end bins" if off else ""))
+    ax.set_xlabel("||a|| - 1 (mg)")
+    ax.set_ylabel("windows")
+    ax.set_ylim(top=ax.get_ylim()[1] * 1.3)  # room for the legend above the bars
+    ax.set_title(f"distance to the 1 g sphere ({len(w):,} windows"
+                 + (f", thinned from {len(windows):,}" if thinned else "") + ")", fontsize=9)
+    if len(w):
+        ax.legend(fontsize=7, loc="upper left")
     # numbers
-    ax = fig.add_subplot(2, 4, 4)
+    ax = fig.add_subplot(2, 3, 6)
     ax.axis("off")
-    lines = [f"status: {estimate.status}", f"method: {estimate.method}",
-             f"windows: {estimate.windows}",
+    lines = [f"status: {estimate.status} ({'applied' if applied else 'not applied'})",
+             f"method: {estimate.method}", f"windows: {estimate.windows}",
              f"error: {_fmt(estimate.error_before_mg)} -> {_fmt(estimate.error_after_mg)} mg"]
     for k, ax_name in enumerate("xyz"):
-        lines.append(f"{ax_name}: offset {estimate.offset[k] * 1000:+.2f} mg, "
-                     f"scale {estimate.scale[k]:.5f}, "
-                     f"T {estimate.tempoffset[k] * 1000:+.3f} mg/degC")
-    lines.append(f"T_ref {estimate.temperature_ref:.2f} degC")
-    ax.text(0, 1, "\n".join(lines), va="top", family="monospace", fontsize=8)
-    # 2-D projections with the 1 g circle
-    th = np.linspace(0, 2 * np.pi, 361)
-    for j, (a, b) in enumerate(((0, 1), (0, 2), (1, 2))):
-        ax = fig.add_subplot(2, 4, 5 + j)
-        ax.plot(np.cos(th), np.sin(th), color="k", linewidth=0.6)
-        ax.scatter(before[:, a], before[:, b], **kw_b)
-        ax.scatter(after[:, a], after[:, b], **kw_a)
-        ax.set_aspect("equal")
-        ax.set_xlim(-1.2, 1.2)
-        ax.set_ylim(-1.2, 1.2)
-        ax.set_xlabel(f"{'xyz'[a]} (g)")
-        ax.set_ylabel(f"{'xyz'[b]} (g)")
-        ax.set_title(f"{'xyz'[a]}-{'xyz'[b]} projection", fontsize=9)
-    ax = fig.add_subplot(2, 4, 8)
-    if len(w):
-        bins = np.linspace(-30, 30, 61)
-        ax.hist((np.linalg.norm(before, axis=1) - 1) * 1000, bins=bins, color="0.6", alpha=0.6,
-                label="before")
-        ax.hist((np.linalg.norm(after, axis=1) - 1) * 1000, bins=bins, color="tab:blue",
-                alpha=0.6, label="after")
-    ax.set_xlabel("||a|| - 1 (mg)")
-    ax.set_title("distance to the 1 g sphere", fontsize=9)
-    ax.legend(fontsize=8)
-    fig.tight_layout(rect=(0, 0, 1, 0.95))
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
+        line = f"{ax_name}: offset {estimate.offset[k] * 1000:+.2f} mg, scale {estimate.scale[k]:.5f}"
+        if estimate.uses_temperature:
+            line += f", {estimate.tempoffset[k] * 1000:+.3f} mg/degC"
+        lines.append(line)
+    if estimate.uses_temperature:
+        lines.append(f"T_ref {estimate.temperature_ref:.2f} degC")
+    else:
+        lines.append("no temperature term")
+    ax.text(0, 1, "\n".join(lines), va="top", family="monospace", fontsize=8.5)
+    fig.tight_layout(rect=(0, 0, 1, 0.94))
+    fmt = path.suffix.lstrip(".").lower() or "png"
+    with atomic_output(path) as f:
+        fig.savefig(f, dpi=110, format=fmt)
     plt.close(fig)
     return path
 

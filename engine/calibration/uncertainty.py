@@ -12,9 +12,12 @@ Its covariance is the sandwich ``H^-1 M H^-1`` with ``H = J' W J`` (Gauss-Newton
 the information, such as the few cool nonwear hours that span the temperature range, would
 otherwise hide its own residual), so residuals that share a cause within a block (the same posture's quantisation bias, a slow bias
 wander, one night's temperature) count once, not once per window. A block is a run of nonmovement
-windows with no gap longer than ``block_gap_s`` between them (default 10 min: a still bout with
-brief twitches is one block; on simulated recordings 1, 10 and 30 min gave the same errors once
-the leverage adjustment is in). ``G`` (the number of blocks)
+windows with no gap longer than ``block_gap_s`` between them (default 10 min) and no change of
+posture (a window mean more than ``posture_jump_g``, 50 mg, from the previous one: another
+orientation carries another quantisation error). Without the posture split a night is one block
+and the information of a coefficient can sit in 2-4 blocks, too few to estimate its variance: on
+simulated packed recordings the split raised the coverage of +-2 SE from 88 % to 93 %
+(tools/calibration_coverage.py; 20-100 mg thresholds gave the same on the seeds tried). ``G`` (the number of blocks)
 is the effective number of independent pieces of evidence and is reported.
 
 ``J`` (one row per window, columns per fitted parameter) follows from
@@ -36,6 +39,7 @@ from typing import Callable, Optional
 import numpy as np
 
 BLOCK_GAP_S = 600.0  # windows closer than this belong to one block (see the module docstring)
+POSTURE_JUMP_G = 0.05  # a window mean this far from the previous one starts a new block
 MIN_BLOCKS = 5  # fewer independent blocks: no standard errors (the block sums cannot estimate them)
 
 
@@ -62,14 +66,21 @@ class CoefficientUncertainty:
                 "temperature_ref": t if np.isfinite(t) else None}
 
 
-def window_blocks(start_ns: np.ndarray, block_gap_s: float = BLOCK_GAP_S) -> np.ndarray:
+def window_blocks(start_ns: np.ndarray, block_gap_s: float = BLOCK_GAP_S,
+                  mean: Optional[np.ndarray] = None,
+                  posture_jump_g: float = POSTURE_JUMP_G) -> np.ndarray:
     """(k,) block label of each window (windows in time order or not): a new block starts where
-    the gap to the previous window's start exceeds ``block_gap_s``."""
+    the gap to the previous window's start exceeds ``block_gap_s`` or, with ``mean``, where the
+    window mean moves by more than ``posture_jump_g`` from the previous window's (a new posture:
+    another orientation, another quantisation error)."""
     s = np.asarray(start_ns, np.int64).reshape(-1)
     if s.size == 0:
         return np.zeros(0, np.int64)
     order = np.argsort(s, kind="stable")
     gap = np.diff(s[order]) > int(round(block_gap_s * 1e9))
+    if mean is not None and posture_jump_g > 0:
+        m = np.asarray(mean, np.float64).reshape(-1, 3)[order]
+        gap |= np.sqrt(np.sum(np.diff(m, axis=0) ** 2, axis=1)) > posture_jump_g
     lab_sorted = np.r_[0, np.cumsum(gap)]
     out = np.empty_like(lab_sorted)
     out[order] = lab_sorted
@@ -101,7 +112,8 @@ def coefficient_uncertainty(mean: np.ndarray, temperature: Optional[np.ndarray],
                             tempoffset, temperature_ref: float, start_ns: np.ndarray, *,
                             fit_offset: bool = True, fit_scale: bool = True,
                             max_weight: float = 100.0,
-                            block_gap_s: float = BLOCK_GAP_S) -> CoefficientUncertainty:
+                            block_gap_s: float = BLOCK_GAP_S,
+                            posture_jump_g: float = POSTURE_JUMP_G) -> CoefficientUncertainty:
     """Block-robust sandwich standard errors of a converged fit (see the module docstring).
 
     ``temperature``: the windows' temperatures when the fit has a temperature term, else None.
@@ -115,7 +127,7 @@ def coefficient_uncertainty(mean: np.ndarray, temperature: Optional[np.ndarray],
     J, r, names = _jacobian(mean, tc, offset, scale, tempoffset, fit_offset, fit_scale)
     with np.errstate(divide="ignore"):
         w = np.minimum(1.0 / np.abs(r), max_weight)
-    blocks = window_blocks(start_ns, block_gap_s)
+    blocks = window_blocks(start_ns, block_gap_s, mean, posture_jump_g)
     g = int(blocks.max()) + 1 if n else 0
     p = J.shape[1]
     WJ = w[:, None] * J
@@ -153,7 +165,8 @@ def coefficient_uncertainty(mean: np.ndarray, temperature: Optional[np.ndarray],
 
 def block_bootstrap(mean: np.ndarray, temperature: Optional[np.ndarray], start_ns: np.ndarray,
                     fit: Callable, *, replicates: int = 200, seed: int = 0,
-                    block_gap_s: float = BLOCK_GAP_S) -> dict:
+                    block_gap_s: float = BLOCK_GAP_S,
+                    posture_jump_g: float = POSTURE_JUMP_G) -> dict:
     """Bootstrap standard errors: draw the blocks (as :func:`window_blocks` cuts them) with
     replacement, refit, and take the SD of each coefficient over the replicates.
 
@@ -162,7 +175,7 @@ def block_bootstrap(mean: np.ndarray, temperature: Optional[np.ndarray], start_n
     are re-referenced (offset + (T - T_ref_b) tempoffset / scale) before taking their SD.
     """
     mean = np.asarray(mean, np.float64).reshape(-1, 3)
-    blocks = window_blocks(start_ns, block_gap_s)
+    blocks = window_blocks(start_ns, block_gap_s, mean, posture_jump_g)
     g = int(blocks.max()) + 1
     members = [np.nonzero(blocks == b)[0] for b in range(g)]
     rng = np.random.default_rng(seed)

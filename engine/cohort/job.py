@@ -247,11 +247,16 @@ def run_job(entry: dict, outdir: str, settings: dict, code: str, attempt: int = 
             write_json(tmp / RUNNING, {"host": socket.gethostname(), "pid": os.getpid(),
                                        "started_utc": _utc(started), "attempt": attempt})
             scoped = _reset_peak_rss()
-            summary = process_file(path, tmp / MCAP_NAME, RunSettings.from_dict(settings))
+            from stillpoint.engine.tables import TablesSettings, table_paths
+            summary = process_file(path, tmp / MCAP_NAME, RunSettings.from_dict(settings),
+                                   tables=TablesSettings(*table_paths(tmp / MCAP_NAME)))
             t_engine = time.perf_counter() - t0
             rss = peak_rss_mb()
             summary = {k: v for k, v in summary.items() if k not in _VOLATILE}
             summary["outputs"] = {"mcap": MCAP_NAME}
+            if "tables" in summary:  # names inside the folder, not the temporary path
+                for k in ("epochs", "days"):
+                    summary["tables"][k] = summary["outputs"][k] = Path(summary["tables"][k]).name
             write_json(tmp / SUMMARY_NAME, summary)
             os.unlink(tmp / RUNNING)
             outputs = {}

@@ -10,7 +10,7 @@ from __future__ import annotations
 import hashlib
 from itertools import zip_longest
 
-from .reading import iter_messages
+from .stream import iter_messages  # streamed: one chunk in memory at a time
 
 
 def topic_digests(path, topics=None) -> dict:

@@ -68,7 +68,12 @@ _ESTIMATE_PROPS = {
     "device_key": _str("device the estimate belongs to"),
     "applied": {"type": "boolean", "description": "whether the corrected stream uses it"},
     "prior": {"type": "boolean", "description": "the estimate in force before the first refit"},
-    "extra": {"type": "object", "description": "fit diagnostics"},
+    "uncertainty": {"type": ["object", "null"],
+                    "description": "one standard error per coefficient, same units (null: not computed)",
+                    "properties": {"offset": _vec("SE of offset, g"), "scale": _vec("SE of scale"),
+                                   "tempoffset": _vec("SE of tempoffset, g/degC"),
+                                   "temperature_ref": _num("SE of temperature_ref, degC")}},
+    "extra": {"type": "object", "description": "fit diagnostics (warnings: extra.warnings)"},
 }
 
 CALIBRATION = _schema("stillpoint.CalibrationEstimate", "Calibration estimate", _ESTIMATE_PROPS,

@@ -175,34 +175,36 @@ class CdrType:
 
     # ------------------------------------------------------------------ decode
     def decode(self, data) -> dict:
+        plan = self.__dict__.get("_dplan") or self.__dict__.setdefault("_dplan", [
+            (f, None, 0) if t == "time" else (f, np.dtype(_PRIM[_parse(t)[0]]), _parse(t)[1])
+            for f, t in self.fields])
         buf = memoryview(data)
         if bytes(buf[:2]) != ENCAPSULATION[:2]:
             raise ValueError(f"{self.name}: not little-endian CDR (header {bytes(buf[:4])!r})")
         body = buf[4:]
         pos = 0
         out = {}
-        for f, t in self.fields:
-            if t == "time":
+        for f, dt, k in plan:
+            if dt is None:
                 pos += (-pos) % 4
-                sec, nsec = np.frombuffer(body, "<i4", 2, pos)
-                out[f] = int(sec) * 10**9 + int(np.uint32(nsec))
+                sec, nsec = _TIME_STRUCT.unpack_from(body, pos)
+                out[f] = sec * 10**9 + nsec
                 pos += 8
                 continue
-            base, k = _parse(t)
-            dt = np.dtype(_PRIM[base])
+            size = dt.itemsize
             if k == 0:
-                pos += (-pos) % dt.itemsize
+                pos += (-pos) % size
                 out[f] = np.frombuffer(body, dt, 1, pos)[0].item()
-                pos += dt.itemsize
+                pos += size
                 continue
             if k is None:
                 pos += (-pos) % 4
-                k = int(np.frombuffer(body, "<u4", 1, pos)[0])
+                k = _U32.unpack_from(body, pos)[0]
                 pos += 4
             if k:
-                pos += (-pos) % dt.itemsize
+                pos += (-pos) % size
             out[f] = np.frombuffer(body, dt, k, pos)
-            pos += k * dt.itemsize
+            pos += k * size
         return out
 
 

@@ -25,8 +25,9 @@ value ``json``), and at the end ``summary`` and ``calibration`` (the estimate ap
 Cells: data time is cut into cells of ``flush_every_s`` (default 10 s) on the UTC grid. Raw
 messages hold the whole sectors/pages that start in a cell; corrected messages hold the samples
 of one cell and segment (so replay reproduces the message layout exactly). The sink flushes the
-chunk in progress each time a new cell begins, so a killed process loses at most the cell in
-progress (plus the correction's one-unit lag). Every chunk is followed by its Message Index
+chunk in progress each time a new chunk span begins (``chunk_s``: one cell by default; the engine
+uses 60 s for batch runs), so a killed process loses at most that span (plus the correction's
+one-unit lag). Every chunk is followed by its Message Index
 records (the MCAP specification's layout, which indexed readers such as Foxglove's need).
 Corrected values are rounded to ``corrected_quantum_g`` (2^-16 g = 15 µg, 1/256 of the finest
 AX3 count) before float32: float noise below the sensor's resolution does not compress, and
@@ -58,8 +59,8 @@ import numpy as np
 
 from ..blocks import Block, DeviceInfo, PER_SAMPLE_BUTTON, PER_SAMPLE_LIGHT_RAW
 from ..calibration.estimate import CalibrationEstimate
-from .schemas import (ACCEL_BATCH, ACCEL_BATCH_RAW, ALL_TYPES, EPOCH_METRICS, GYRO_BATCH_RAW,
-                           TEMPERATURE, VIEW_SAMPLE, INT32_MAX, max_step_ok, time_deltas)
+from .schemas import (ACCEL_BATCH, ACCEL_BATCH_RAW, EPOCH_METRICS, GYRO_BATCH_RAW, TEMPERATURE,
+                      VIEW_SAMPLE, INT32_MAX, max_step_ok, time_deltas)
 from ..operators.correction import CorrectedBatch
 from ..operators.metrics import EpochMetrics
 
@@ -276,6 +277,7 @@ class _CorrectedRun:
 
     def __init__(self, batch: CorrectedBatch, quantum_g: float):
         self.batch = batch
+        self.view = None  # None: not framed yet; False: no view sample; else (records, indices)
         self.segment = batch.segment
         self.time_ns = batch.time_ns
         d = np.diff(batch.time_ns)
@@ -298,14 +300,15 @@ class McapSink(McapLog):
     ``<name>.part`` renamed when finished). Use as a context manager or call close().
 
     ``writer``: "inline" (default), "thread" or "process" (see the module docstring).
-    ``view_hz``: rate of the ``/view/accel`` topic (0: off).
+    ``view_hz``: rate of the ``/view/accel`` topic (0: off). ``chunk_s``: data time a chunk
+    spans (a multiple of ``flush_every_s``; default: one cell), i.e. the most a kill can lose.
     """
 
     def __init__(self, path, info: DeviceInfo, settings: dict, *, flush_every_s: float = 10.0,
                  fsync_every_wall_s: float = 1.0, compression: str = "zstd",
                  chunk_size: int = CHUNK_SIZE, corrected_quantum_g: float = 2.0 ** -16,
                  message_s: float = 60.0, writer: str = "inline", zstd_level: int = ZSTD_LEVEL,
-                 view_hz: float = 0.0):
+                 view_hz: float = 0.0, chunk_s: Optional[float] = None):
         super().__init__(path, compression=compression, chunk_size=chunk_size,
                          fsync_every_wall_s=fsync_every_wall_s, writer=writer,
                          zstd_level=zstd_level)
@@ -313,6 +316,8 @@ class McapSink(McapLog):
         self.quantum = corrected_quantum_g
         self._cell: Optional[int] = None  # data-time cell (flush_every_s) being written
         self.cell_ns = self.flush_every_ns or int(message_s * 1e9)
+        # chunks span a whole number of cells on the UTC grid (default: one cell)
+        self.cells_per_chunk = max(1, int(round(chunk_s * 1e9 / self.cell_ns))) if chunk_s else 1
         self._pending_corr: list[CorrectedBatch] = []
         self._corr_cell: Optional[int] = None
         self.flushes = 0
@@ -433,7 +438,8 @@ class McapSink(McapLog):
                 self._take_corrected(*pieces[j])
                 j += 1
             if self._cell is None or cell > self._cell:
-                if self._cell is not None and self.flush_every_ns is not None:
+                if (self._cell is not None and self.flush_every_ns is not None
+                        and cell // self.cells_per_chunk != self._cell // self.cells_per_chunk):
                     self._flush_cell(False)
                 self._cell = cell
             while k < len(raw_cells) and raw_cells[k] < cell:
@@ -459,20 +465,32 @@ class McapSink(McapLog):
         self._corr_cell = cell
         self._pending_corr.append((run, a, b))
 
-    def _write_view(self, run: "_CorrectedRun", a: int, b: int) -> None:
-        """The view samples among corrected samples [a, b) of ``run``: one message each."""
-        idx = self.view.pick(run.time_ns[a:b])
+    def _prepare_view(self, run: "_CorrectedRun") -> None:
+        """Frame the view messages of a whole corrected batch at once (``run.view``: the
+        prepared records and, per sample index, how many view samples precede it)."""
+        idx = self.view.pick(run.time_ns)
+        run.view = False
         if not idx.size:
             return
-        idx += a
         if run.ok:
             x, y, z = run.x[idx], run.y[idx], run.z[idx]
         else:
             x, y, z = quantize(run.batch.accel[idx], self.quantum).T
         t = run.time_ns[idx]
-        ch = self._chunk
         cid = self.channel(TOPIC_VIEW, "cdr", VIEW_SAMPLE)
-        if ch.add_fixed(cid, t, view_records(t, x, y, z)):
+        run.view = (self._chunk.prepare_fixed(cid, t, view_records(t, x, y, z)), idx)
+
+    def _write_view(self, run: "_CorrectedRun", a: int, b: int) -> None:
+        """The view messages among corrected samples [a, b) of ``run`` (framed once per batch,
+        when its first piece is written: batches are written in order, so sequence numbers
+        follow each other)."""
+        if run.view is None:
+            self._prepare_view(run)
+        if run.view is False:
+            return
+        fr, idx = run.view
+        lo, hi = np.searchsorted(idx, (a, b)).tolist()
+        if hi > lo and self._chunk.add_prepared(fr, lo, hi):
             self._end_chunk(False)
 
     def _emit_corrected(self) -> None:

@@ -36,7 +36,7 @@ def _medians(x: np.ndarray, k: int) -> np.ndarray:
 
 
 def anglez_deg(m: np.ndarray) -> np.ndarray:
-    return np.degrees(np.arctan(m[:, 2] / np.sqrt(m[:, 0] ** 2 + m[:, 1] ** 2)))
+    return np.degrees(np.arctan2(m[:, 2], np.sqrt(m[:, 0] ** 2 + m[:, 1] ** 2)))  # = atan(z / r), r >= 0
 
 
 class AnglezOperator:

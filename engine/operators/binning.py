@@ -82,10 +82,13 @@ class TimeBinner:
             out += self._emit_pending()
             self.segment = segment
             self.origin = int(time_ns[0]) if self.align == "segment" else 0
-        b = (time_ns - self.origin) // self.width_ns
+        # bin numbers only where needed: bins change at origin + k * width, so the rows where
+        # they change are found by searching those edges in the (sorted) times, not by dividing
+        # every sample's time
+        w, origin = self.width_ns, self.origin
         start = 0
         if self.pending_bin is not None:
-            k = int(np.searchsorted(b, self.pending_bin, side="right"))
+            k = int(np.searchsorted(time_ns, origin + (self.pending_bin + 1) * w, side="left"))
             if k == n:  # the pending bin is still open
                 self._ring.append(time=time_ns, **cols)
                 return out
@@ -97,12 +100,16 @@ class TimeBinner:
             self.pending_bin = None
             out.append(chunk)
             start = k
-        last = b[-1]
-        k2 = int(np.searchsorted(b, last, side="left"))
+        last = (int(time_ns[-1]) - origin) // w
+        k2 = int(np.searchsorted(time_ns, origin + last * w, side="left"))
         if k2 > start:
-            bb = b[start:k2]
-            st = _bin_starts(bb)
-            out.append(BinChunk(segment, self.origin, bb[st], st, time_ns[start:k2],
+            tt = time_ns[start:k2]
+            b0 = (int(tt[0]) - origin) // w
+            edges = origin + np.arange(b0 + 1, last, dtype=np.int64) * w
+            st = np.concatenate([[0], np.searchsorted(tt, edges, side="left")]).astype(np.int64)
+            st = st[st < tt.shape[0]]
+            st = st[np.concatenate([[True], st[1:] != st[:-1]])]  # bins without samples
+            out.append(BinChunk(segment, self.origin, (tt[st] - origin) // w, st, tt,
                                 {c: cols[c][start:k2] for c in self._names}))
         self._ring.append(time=time_ns[k2:], **{c: cols[c][k2:] for c in self._names})
         self.pending_bin = int(last)

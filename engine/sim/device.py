@@ -96,6 +96,31 @@ def _lerp(v: np.ndarray, gi: np.ndarray, fr: np.ndarray) -> np.ndarray:
     return a + fr * (v[gi + 1] - a)
 
 
+class _GridRuns:
+    """The grid cells of sorted times as runs, for several tracks interpolated at the same times:
+    ``lerp`` gives ``_lerp``'s numbers (the same two operations per sample) with the cell's
+    value and step repeated over its run instead of gathered per sample (~3x faster).
+    Unsorted cell indices fall back to the gathers."""
+
+    def __init__(self, gi: np.ndarray):
+        self.gi = gi
+        n = gi.shape[0]
+        self.sorted = bool(n and np.all(gi[1:] >= gi[:-1]))
+        if self.sorted:
+            self.lo, self.hi = int(gi[0]), int(gi[-1])
+            edges = np.searchsorted(gi, np.arange(self.lo, self.hi + 2), side="left")
+            self.counts = np.diff(edges)
+
+    def lerp(self, v: np.ndarray, fr: np.ndarray) -> np.ndarray:
+        if not self.sorted:
+            return _lerp(v, self.gi, fr)
+        seg = v[self.lo:self.hi + 2]
+        out = np.repeat(seg[1:] - seg[:-1], self.counts)  # v[gi + 1] - v[gi]
+        out *= fr
+        out += np.repeat(seg[:-1], self.counts)
+        return out
+
+
 # ----------------------------------------------------------------------------- one device
 class DeviceSim:
     """One simulated device on the body (see the module docstring)."""
@@ -159,13 +184,14 @@ class DeviceSim:
         t, f, w, restarts = rendered
         gi, fr = _grid_pos(t, self.t_grid.shape[0])
         fr32 = fr.astype(np.float32)
-        T = _lerp(self._T32, gi, fr32)
-        Ta = _lerp(self._Ta32, gi, fr32) if self.Ta_grid is not self.T_grid else T
+        runs = _GridRuns(gi)
+        T = runs.lerp(self._T32, fr32)
+        Ta = runs.lerp(self._Ta32, fr32) if self.Ta_grid is not self.T_grid else T
         bias = None
         if self.model.on("bias_instability"):
             bias = np.empty((t.shape[0], 3), np.float32)
             for j in range(3):  # 1-D gathers from contiguous per-axis tracks (2-D gathers are slow)
-                bias[:, j] = _lerp(self._bias_axes[j], gi, fr32)
+                bias[:, j] = runs.lerp(self._bias_axes[j], fr32)
         rng = np.random.default_rng(np.random.SeedSequence([self.seed, 3, self.dev_index, k]))
         meas, counts = measure(f, self.model, self.spec, temperature_c=T, time_s=t,
                                accel_temperature_c=Ta, bias_g=bias, rng=rng, rate_hz=self.hz)
@@ -173,7 +199,7 @@ class DeviceSim:
         if w is not None:
             w = w + self.gyro_bias + rng.standard_normal(w.shape) * (GYRO_NOISE_DPS_RTHZ * np.sqrt(self.hz / 2))
             gcounts = self.spec.gyro_to_counts(w)
-        d = t + _lerp(self.clock.offset_s, gi, fr)
+        d = t + runs.lerp(self.clock.offset_s, fr)
         time_ns = self.start_ns + np.round(d * 1e9).astype(np.int64)
         return SimChunk(k, t, time_ns, f, meas, counts, gcounts, T, restarts)
 

@@ -193,7 +193,12 @@ def measure(true_g: np.ndarray, model: SensorModel, spec: DeviceSpec, *, tempera
         a += bias_g
     sd = noise_sd_g(model, rate_hz)
     if rng is not None and np.any(sd > 0):
-        a += standard_normals(rng, a.shape) * sd.astype(np.float32)
+        z = standard_normals(rng, a.shape)
+        sd32 = sd.astype(np.float32)
+        for j in range(3):  # column by column: the (n, 3)-by-(3,) broadcast is several times slower
+            zj = z[:, j]
+            zj *= sd32[j]
+            a[:, j] += zj
     counts = None
     if quantise:  # a file can hold only the storable range: the counts are always clipped
         mode = model.get("quantisation", "mode", "nearest") if model.on("quantisation") else "nearest"

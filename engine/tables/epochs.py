@@ -165,8 +165,8 @@ class EpochAssembler:
         while self._qc_seen < len(events):
             e = events[self._qc_seen]
             self._qc_seen += 1
-            if e.reason not in QC_FLAGGED_REASONS:
-                continue
+            if e.reason not in QC_FLAGGED_REASONS or e.samples:
+                continue  # not a flag on kept data (or the unit's samples were dropped)
             m = _SECTORS.search(e.detail or "")
             lo, hi = (int(m.group(1)), int(m.group(2))) if m else (e.index, e.index)
             self._qc_units.append((lo, hi))

@@ -11,6 +11,7 @@ from typing import List, Optional
 
 import numpy as np
 
+from stillpoint.drivers.outputs import atomic_output
 from stillpoint.engine.sim import model as sim
 
 from .discrepancy import BIC_THRESHOLD, DiscrepancyResult
@@ -188,6 +189,19 @@ def write_windows(res: DiscrepancyResult, path) -> None:
     np.savetxt(path, np.column_stack(cols), delimiter=",", header=header, comments="", fmt="%.7g")
 
 
+def _covariate_label(name: str) -> str:
+    """Axis label with units for a locate covariate (``u_*``: components of the unit gravity
+    vector, unitless)."""
+    if "(" in name:
+        return name
+    u = name.split(" ")[0]
+    if "temperature" in name:
+        return f"{u} * (T - T_ref) (degC)"
+    if "time" in name:
+        return f"{u} * time (days)"
+    return f"{name} (unitless)"
+
+
 def draw(res: DiscrepancyResult, out: Path) -> List[str]:
     """PNG per step (residual vs the naming covariate, before and after) and one overview."""
     import matplotlib
@@ -202,7 +216,8 @@ def draw(res: DiscrepancyResult, out: Path) -> List[str]:
             ax.plot(pts["x"], pts["y"], ".", ms=1.5, alpha=0.3, color="0.5")
             if curve["y_mean"]:
                 ax.errorbar(curve["x_mid"], curve["y_mean"], yerr=np.array(curve["y_se"]) * 2,
-                            fmt="o-", color="C3", ms=4, label="bin mean +- 2 SE")
+                            fmt="o-", color="C3", ms=4, capsize=2,
+                            label="mean of 10 equal-count bins, +- 2 standard errors")
             ax.axhline(0, color="k", lw=0.8)
             ax.set_xlabel(pts["xlabel"])
             ax.set_title(f"{title}: held-out gap "
@@ -215,22 +230,33 @@ def draw(res: DiscrepancyResult, out: Path) -> List[str]:
         fig.suptitle(f"step {i}: {c.effect}" + ("" if c.component == "all" else f" [{c.component}]"))
         fig.tight_layout()
         name = f"step{i}_{c.effect}_{c.component}.png"
-        fig.savefig(out / name, dpi=90)
+        with atomic_output(out / name) as f:
+            fig.savefig(f, dpi=90, format="png")
         plt.close(fig)
         names.append(name)
     rows = [r for r in res.locate_initial if r["bins"]["y_mean"]][:9]
     if rows:
-        fig, axes = plt.subplots(3, 3, figsize=(11, 9), sharey=True)
+        fig, axes = plt.subplots(3, 3, figsize=(11, 9.5), sharey=True)
         for ax, r in zip(axes.ravel(), rows):
             b = r["bins"]
-            ax.errorbar(b["x_mid"], b["y_mean"], yerr=np.array(b["y_se"]) * 2, fmt="o-", ms=3)
+            ax.errorbar(b["x_mid"], b["y_mean"], yerr=np.array(b["y_se"]) * 2, fmt="o-", ms=3,
+                        capsize=2)
             ax.axhline(0, color="k", lw=0.8)
-            ax.set_title(f"{r['covariate']} (eta2 {r['eta2']:.2f})", fontsize=9)
+            ax.set_title(f"{r['covariate']}: eta2 {r['eta2']:.2f}", fontsize=9)
+            ax.set_xlabel(_covariate_label(r["covariate"]), fontsize=8)
+            ax.tick_params(labelsize=7)
         for ax in axes.ravel()[len(rows):]:
             ax.axis("off")
-        axes[1, 0].set_ylabel("residual ||a||-1 (mg), start model")
-        fig.tight_layout()
-        fig.savefig(out / "locate_initial.png", dpi=80)
+        for i in range(3):
+            axes[i, 0].set_ylabel("mean ||a|| - 1 (mg)", fontsize=8)
+        fig.suptitle("Where the start model misses: residual of the nonmovement windows (start model) "
+                     "against each covariate.\nPoints: mean residual in 10 equal-count bins of the "
+                     "covariate; bars: +- 2 standard errors of that mean; eta2: share of the residual's "
+                     "variance the bin means explain.\nu_x, u_y, u_z: components of the unit gravity vector.",
+                     fontsize=9)
+        fig.tight_layout(rect=(0, 0, 1, 0.91))
+        with atomic_output(out / "locate_initial.png") as f:
+            fig.savefig(f, dpi=80, format="png")
         plt.close(fig)
         names.append("locate_initial.png")
     return names

@@ -332,41 +332,63 @@ def effective_n(residual: np.ndarray, t_days: np.ndarray, scales_s=BATCH_SCALES_
     within still bouts, (1 + rho) / (1 - rho). Short batches underestimate a slow correlation, so
     the largest estimate over the scales with at least ``min_batches`` batches is used: a
     deliberately conservative count (it guards the null control against slow bias wander)."""
-    n = residual.shape[0]
+    return effective_n_many([residual], t_days, scales_s, min_batches, max_gap_s)[0]
+
+
+def effective_n_many(columns, t_days: np.ndarray, scales_s=BATCH_SCALES_S,
+                     min_batches: int = 6, max_gap_s: float = 60.0) -> list:
+    """:func:`effective_n` of several series on the same windows (the residual and each
+    parameter's score): the time order, the adjacency and the batch numbers and counts at every
+    scale and phase are computed once; each series costs its own sums only (the same operations
+    as one :func:`effective_n` call, so the same numbers)."""
+    columns = [np.asarray(c, np.float64) for c in columns]
+    n = columns[0].shape[0] if columns else 0
     if n < 3:
-        return float(max(n, 1))
+        return [float(max(n, 1))] * len(columns)
     dtt = np.diff(t_days)
     if np.any(dtt < 0):
         order = np.argsort(t_days, kind="stable")
-        residual, t_days = residual[order], t_days[order]
+        columns = [c[order] for c in columns]
+        t_days = t_days[order]
         dtt = np.diff(t_days)
-    r = residual - np.mean(residual)
-    var = _dot(r, r) / n
-    if var == 0:
-        return float(n)
-    tau = 1.0
     adj = dtt * 86400.0 <= max_gap_s
-    if adj.sum() >= 10:
-        a, b = r[:-1][adj], r[1:][adj]
-        den = np.sqrt(_dot(a, a) * _dot(b, b))
-        rho = min(max(_dot(a, b) / den if den > 0 else 0.0, 0.0), 0.99)
-        tau = max(tau, (1.0 + rho) / (1.0 - rho))
+    use_lag = adj.sum() >= 10
     ts = (t_days - t_days[0]) * 86400.0
+    batches = []  # per scale: [(k, cnt, used, nb) per phase] until too few batches
     for scale in scales_s:
-        est = []
+        phases = []
         for phase in (0.0, 0.5):
             k = np.floor(ts / scale + phase).astype(np.int64)
             cnt = np.bincount(k).astype(float)
-            sm = np.bincount(k, r)
             used = cnt > 0
             nb = int(used.sum())
             if nb < min_batches:
                 break
-            m = sm[used] / cnt[used]
-            est.append(float(np.sum(cnt[used] * m * m)) / ((nb - 1) * var))
-        if len(est) == 2:
-            tau = max(tau, 0.5 * (est[0] + est[1]))
-    return float(min(max(n / tau, min(n, 10)), n))
+            phases.append((k, cnt, used, nb))
+        batches.append(phases)
+    out = []
+    for residual in columns:
+        r = residual - np.mean(residual)
+        var = _dot(r, r) / n
+        if var == 0:
+            out.append(float(n))
+            continue
+        tau = 1.0
+        if use_lag:
+            a, b = r[:-1][adj], r[1:][adj]
+            den = np.sqrt(_dot(a, a) * _dot(b, b))
+            rho = min(max(_dot(a, b) / den if den > 0 else 0.0, 0.0), 0.99)
+            tau = max(tau, (1.0 + rho) / (1.0 - rho))
+        for phases in batches:
+            est = []
+            for k, cnt, used, nb in phases:
+                sm = np.bincount(k, r)
+                m = sm[used] / cnt[used]
+                est.append(float(np.sum(cnt[used] * m * m)) / ((nb - 1) * var))
+            if len(est) == 2:
+                tau = max(tau, 0.5 * (est[0] + est[1]))
+        out.append(float(min(max(n / tau, min(n, 10)), n)))
+    return out
 
 
 def _bounds(model: SensorModel):
@@ -450,13 +472,12 @@ def fit(model: SensorModel, data: WindowData, loss_scale: float = LOSS_SCALE_G,
     x, r, J, w, iters, ok = levenberg_marquardt(fun, jac, x0, lo, hi, loss_scale, max_iter)
     out = model.with_theta(x)
     n = r.shape[0]
-    n_eff = effective_n(r, data.t_days)
     # per parameter: the integrated autocorrelation of its score contributions J_p w r (a
     # slowly wandering bias projected on a changing orientation decorrelates the residual but
     # not its product with a slow covariate such as temperature)
-    tau_p = {}
-    for i, key in enumerate(out.active):
-        tau_p[key] = n / effective_n(J[:, i] * w * r, data.t_days)
+    effs = effective_n_many([r] + [J[:, i] * w * r for i in range(len(out.active))], data.t_days)
+    n_eff = effs[0]
+    tau_p = {key: n / e for key, e in zip(out.active, effs[1:])}
     stderr = {}
     try:
         A = np.einsum("ij,ik->jk", J, w[:, None] * J)

@@ -67,6 +67,6 @@ def tables_text(summary: dict) -> str:
             f"tables: {t['epoch_rows']:,} epochs ({t['clean_epochs']:,} clean; nonwear "
             f"{fl['nonwear']:,}, clipping {fl['clipping']:,}, gap {fl['gap']:,}, qc {fl['qc']:,}, "
             f"filter warm-up {fl['filter_warmup']:,}), {t['day_rows']} day(s), "
-            f"{f['valid_day']} valid; ENMO over valid days "
+            f"{f['valid_day']} valid; mean ENMO over clean epochs "
             f"{'n/a' if enmo is None else f'{enmo:.2f} mg'} (nonwear rule {t['nonwear_version']})")
     return "\n".join(lines)

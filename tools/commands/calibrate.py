@@ -64,7 +64,7 @@ def add_arguments(parser) -> None:
 
 
 def estimate_json(est) -> dict:
-    """The CLI's JSON object: the issue's keys first, then the rest of the estimate."""
+    """The CLI's JSON object: the documented keys first, then the rest of the estimate."""
     d = est.to_dict()
     out = {k: d[k] for k in JSON_KEYS}
     extra = d.pop("extra", {}) or {}
@@ -211,6 +211,12 @@ def run(args) -> int:
                 variant=args.variant, sd_threshold=args.sd_threshold_mg / 1000.0,
                 read_all=args.read_all)
     jobs = [(f, dict(base, plot=_plot_path(args, f, many), title=f)) for f in files]
+    seen_plots: set = set()
+    for _, o in jobs:  # a file given twice is plotted once (two writers of one output are refused)
+        if o["plot"] is not None:
+            if o["plot"] in seen_plots:
+                o["plot"] = None
+            seen_plots.add(o["plot"])
     store = None
     if args.store:
         from stillpoint.engine.calibration.store import CalibrationStore

@@ -55,6 +55,8 @@ def add_arguments(p) -> None:
     r.add_argument("--shard", metavar="K/N", help="process only shard K of N (0-based; for job "
                    "arrays: --shard $SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT); no collation")
     _exec_arguments(r)
+    from ._tableopts import add_timezone_argument
+    add_timezone_argument(r)
     add_setting_arguments(r)
     s = sub.add_parser("status", help="done / failed by class / pending")
     s.add_argument("outdir", type=Path)
@@ -137,7 +139,12 @@ def _run(args) -> int:
     from stillpoint.engine.run import RunSettings
     shard = _parse_shard(args.shard)
     outdir = _prepare_outdir(args.output)
-    settings = RunSettings.from_dict({}, **settings_overrides(args))
+    over = settings_overrides(args)
+    if getattr(args, "timezone", None) is not None:  # the participants' zone: a setting of the run
+        from ._tableopts import check_zone
+        check_zone(args.timezone)
+        over["timezone"] = args.timezone
+    settings = RunSettings.from_dict({}, **over)
     files = discover_inputs(args.inputs)
     if not files:
         raise OptionError("no recordings (.cwa, .cwa.gz, .bin, .bin.gz) found in "

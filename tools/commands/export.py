@@ -61,6 +61,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--compress", action="store_true", help="NPZ: deflate the columns")
     parser.add_argument("--topic", action="append", default=None,
                         help="MCAP input only: topic(s) to export (repeatable)")
+    from ._tableopts import add_table_arguments
+    add_table_arguments(parser, with_switch=False)
 
 
 # ---------------------------------------------------------------------------- per-sample columns
@@ -300,10 +302,14 @@ def export_mcap(path, out, topics):
 
 
 def export_recording(path, out, *, time_format: str = "iso", timezone=None, compress: bool = False,
-                     topics=None) -> dict:
+                     topics=None, table_options: Optional[dict] = None) -> dict:
     """Export a recording to CSV or NPZ (see the module docstring). Returns a small report."""
     out = Path(out)
     fmt = sniff_format(path)
+    if fmt == "mcap" and out.name.lower().endswith(".epochs.csv.gz"):
+        from stillpoint.engine.tables import tables_from_mcap
+        result = tables_from_mcap(path, out, timezone=timezone, **(table_options or {}))
+        return {"format": "mcap", "output": str(out), "tables": result}
     if fmt == "mcap":
         result = export_mcap(path, out, topics)
         return {"format": "mcap", "output": str(out), "result": result}
@@ -313,7 +319,7 @@ def export_recording(path, out, *, time_format: str = "iso", timezone=None, comp
     opts = {}
     if timezone is not None:
         from .inspect import timezone_option
-        opts["timezone"] = timezone_option(timezone, fmt)
+        opts["timezone"] = timezone_option(timezone, fmt, path)
     src = open_recording(path, **opts)
     partial = out.with_name(out.name + ".partial")
     sink = (CsvSink(partial, time_format, gz=out.name.lower().endswith(".gz")) if kind == "csv"
@@ -340,16 +346,29 @@ def export_recording(path, out, *, time_format: str = "iso", timezone=None, comp
                 pass
             if partial.exists():
                 partial.unlink()
-    return {"format": fmt, "output": str(out), "samples": sink.rows, "qc": src.qc.as_dict()}
+    from .inspect import zone_label
+    return {"format": fmt, "output": str(out), "samples": sink.rows, "qc": src.qc.as_dict(),
+            "timezone": zone_label(path, fmt, timezone)}
 
 
 def run(args) -> int:
+    from ._tableopts import table_settings
+    ts = table_settings(args, Path(args.output))
+    opts = {"nonwear_version": ts.nonwear_version, "valid_day_hours": ts.valid_day_hours,
+            "enmo_bands_mg": ts.enmo_bands_mg, "mvpa_bout_s": ts.mvpa_bout_s}
     rep = export_recording(args.file, args.output, time_format=args.time, timezone=args.timezone,
-                           compress=args.compress, topics=args.topic)
-    if rep.get("format") == "mcap":
+                           compress=args.compress, topics=args.topic, table_options=opts)
+    if rep.get("tables"):
+        t = rep["tables"]
+        print(f"wrote {t['epochs']} ({t['epoch_rows']:,} epochs) and {t['days']} "
+              f"({t['day_rows']} day(s)); times: {t['timezone']}")
+    elif rep.get("format") == "mcap":
         print(f"wrote {rep['output']} (from the MCAP log)")
     else:
         q = rep["qc"]
         print(f"wrote {rep['samples']} samples to {rep['output']} "
               f"({q['valid']} of {q['total']} {q['unit']}s valid, {len(q['events'])} QC event(s))")
+        tz = rep.get("timezone", "")
+        print(f"times: {tz}" + (" (the time column holds the device clock, not UTC)"
+                                if "unknown" in tz else " (the time column is UTC)"))
     return 0

@@ -35,8 +35,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--header-only", action="store_true",
                         help="read the header only (fast; no sample counts or QC)")
     parser.add_argument("--timezone", default=None,
-                        help="device clock time zone, e.g. +01:00 (GENEActiv: overrides the header's "
-                             "Time Zone; AX: the clock's offset from UTC, default +00:00)")
+                        help="the device clock's time zone: an IANA name (Europe/London; DST-aware) or "
+                             "an offset (+01:00). GENEActiv: overrides the header's Time Zone; AX: "
+                             "without it times are device local time, zone unknown")
 
 
 def iso_utc(t_ns: Optional[int]) -> Optional[str]:
@@ -49,29 +50,43 @@ def iso_utc(t_ns: Optional[int]) -> Optional[str]:
 def _open(path, fmt: str, timezone):
     opts = {}
     if timezone is not None:
-        opts["timezone"] = timezone_option(timezone, fmt)
+        opts["timezone"] = timezone_option(timezone, fmt, path)
     return open_recording(path, **opts)
 
 
-def timezone_option(timezone, fmt: str):
-    """The CLI's time zone string as the reader wants it (GENEActiv parses text; AX takes seconds)."""
-    if fmt == "geneactiv":
-        return timezone
-    from stillpoint.drivers.geneactiv_header import parse_timezone
+def timezone_option(timezone, fmt: str, path=None):
+    """The CLI's time zone (an IANA name or an offset) as the reader wants it: seconds of the
+    device clock's offset from UTC (engine.timezones.reader_timezone: one rule for every command)."""
+    from stillpoint.engine.timezones import parse_zone, reader_timezone
+    zone = parse_zone(timezone)  # a bad zone: one line, exit 2
+    if path is not None:
+        tz, _ = reader_timezone(path, fmt, timezone)
+        return tz
+    if zone.iana:
+        raise StillpointError(f"--timezone {timezone}: an IANA zone needs the recording's start time")
+    return zone.fixed_s
+
+
+def zone_label(path, fmt: str, timezone) -> str:
+    """Which zone the times are in, as the outputs state it."""
+    from stillpoint.engine.timezones import reader_timezone
     try:
-        return parse_timezone(timezone)
-    except ValueError as e:
-        raise StillpointError(f"--timezone: {e}") from None
+        return reader_timezone(path, fmt, timezone)[1].label
+    except StillpointError:
+        raise
+    except Exception:
+        return "unknown"
 
 
 def _header_info(path, fmt: str, timezone):
     if fmt == "geneactiv":
         from stillpoint.drivers.geneactiv import read_header
-        return read_header(path, **({"timezone": timezone} if timezone is not None else {}))
+        return read_header(path, **({"timezone": timezone_option(timezone, fmt, path)}
+                                    if timezone is not None else {}))
     if fmt == "cwa":
         from stillpoint.drivers.cwa import read_header
-        return read_header(path, **({"timezone": timezone_option(timezone, fmt)} if timezone is not None
-                                    else {}))
+        return read_header(path, **({"timezone": timezone_option(timezone, fmt, path)}
+                                    if timezone is not None else {}))
     src = _open(path, fmt, timezone)
     try:
         return src.info
@@ -140,10 +155,13 @@ class _Summary:
 def inspect_recording(path, *, header_only: bool = False, timezone=None) -> dict:
     """Summary of a recording as a plain dict (see the module docstring)."""
     fmt = sniff_format(path)
+    zone = zone_label(path, fmt, timezone) if fmt in ("cwa", "geneactiv") else None
     if header_only:
         info = _header_info(path, fmt, timezone)
         out = _info_dict(info, fmt)
         out["header"] = dict(info.header)
+        if zone:
+            out["timezone"] = zone
         return out
     src = _open(path, fmt, timezone)
     acc = _Summary()
@@ -172,6 +190,8 @@ def inspect_recording(path, *, header_only: bool = False, timezone=None) -> dict
         "temperature_range_c": [acc.tmin, acc.tmax] if acc.tmin <= acc.tmax else None,
         "battery_range_v": [acc.bmin, acc.bmax] if acc.bmin <= acc.bmax else None,
     })
+    if zone:
+        out["timezone"] = zone
     warnings = info.header.get("warnings") if isinstance(info.header, dict) else None
     if warnings:
         out["header_warnings"] = list(warnings)
@@ -195,7 +215,12 @@ def format_text(d: dict) -> str:
         + (f", {d['sample_rate_measured']:.6f} Hz measured" if d.get("sample_rate_measured") else "")
         + (f"   range {rng}" if rng else ""))
     tz = d.get("timezone_offset_s") or 0
-    add(f"  clock       UTC{'+' if tz >= 0 else '-'}{abs(tz) // 3600:02d}:{abs(tz) % 3600 // 60:02d}")
+    clock = f"UTC{'+' if tz >= 0 else '-'}{abs(tz) // 3600:02d}:{abs(tz) % 3600 // 60:02d}"
+    if d.get("timezone") and "unknown" in d["timezone"]:
+        clock = d["timezone"] + " (start/end below are the device clock, not UTC)"
+    elif d.get("timezone"):
+        clock += f" (zone {d['timezone']})"
+    add(f"  clock       {clock}")
     if "samples" in d:
         add(f"  samples     {d['samples']}  ({', '.join(d['channels'])})")
         add(f"  start       {d['start'] or '-'}")

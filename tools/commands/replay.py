@@ -33,8 +33,9 @@ def add_arguments(p) -> None:
 
 def run(args) -> int:
     src = McapRawSource(args.file)  # validates: a finished stillpoint MCAP
-    logged = src.settings or {}
+    logged = dict(src.settings or {})
     src.close()
+    logged.setdefault("view_hz", 0.0)  # a log from before the view topic had none
     out = args.output or default_output(args.file)
     if out.resolve() == args.file.resolve():
         raise OptionError(f"output {out} would overwrite the input")

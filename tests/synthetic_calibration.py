@@ -14,14 +14,14 @@ from typing import Optional
 
 import numpy as np
 
-from ..features import WindowFeatures
-from .estimate import CalibrationEstimate
+from stillpoint.engine.features import WindowFeatures
+from stillpoint.engine.calibration.estimate import CalibrationEstimate
 
 
 def random_truth(rng: np.random.Generator, *, offset_mg: float = 40.0, gain_pct: float = 2.0,
                  tempoffset_mg_per_c: float = 1.0, temperature_ref: float = 27.0
                  ) -> CalibrationEstimate:
-    """A device error of the issue's magnitude: offsets of tens of mg, gains within +/-2%,
+    """A typical device error: offsets of tens of mg, gains within +/-2%,
     temperature offsets up to 1 mg/degC."""
     return CalibrationEstimate(
         offset=rng.uniform(-offset_mg, offset_mg, 3) / 1000.0,
@@ -128,7 +128,7 @@ class SyntheticSource:
     def __init__(self, features: WindowFeatures, *, rate_hz: float = 20.0,
                  counts_per_g: float = 4096.0, windows_per_block: int = 60, seed: int = 0,
                  device_type: str = "AX3", device_id: str = "99999", window_s: float = 10.0):
-        from ..blocks import DeviceInfo, QCReport
+        from stillpoint.engine.blocks import DeviceInfo, QCReport
 
         self.features = features
         self.rate_hz = float(rate_hz)
@@ -143,7 +143,7 @@ class SyntheticSource:
         self.closed = False
 
     def __iter__(self):
-        from ..blocks import Block
+        from stillpoint.engine.blocks import Block
 
         rng = np.random.default_rng(self.seed)
         f = self.features

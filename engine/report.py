@@ -1,0 +1,368 @@
+"""One-page visual report of a processed recording: ``write_report(mcap) -> {report, report_html}``.
+
+A PNG page (and an HTML page embedding it with the day table) that a person looks at instead of
+reading tables:
+
+* **activity per local day**: ENMO per epoch (mg) against the local clock, one row per day, with
+  nonwear (grey), clipping (red), QC-flagged data (orange) and gaps (hatched) shaded, the day's
+  wear hours and valid-day mark at the right;
+* **temperature** over the recording (degC, local time);
+* **calibration**: the nonmovement windows' residuals ``|a| - 1`` (mg) before and after the
+  applied estimate as histograms (windows beyond the axis range are counted, never dropped
+  silently) and against each axis's mean value (the sphere seen from each axis, at mg scale);
+* **QC box**: sectors/pages read and skipped, reader QC events, hours of nonwear/clipping/QC, valid
+  days, calibration status and error, the time zone and nonwear rule.
+
+Inputs: the MCAP (device, settings, summary and calibration records, the raw stream for the
+window features) and the epoch/day tables beside it (made from the MCAP when missing, in a
+temporary folder). matplotlib is an optional extra: ``require_matplotlib()`` says how to install
+it before any work starts.
+"""
+
+from __future__ import annotations
+
+import base64
+import csv
+import gzip
+import html
+import json
+import tempfile
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+
+from stillpoint.drivers.errors import StillpointError
+from stillpoint.drivers.outputs import atomic_output, check_output_path
+
+DAYS_SHOWN = 14
+HIST_RANGE_MG = 60.0
+
+
+class ReportUnavailableError(StillpointError):
+    """matplotlib is not installed."""
+
+
+def require_matplotlib():
+    try:
+        import matplotlib
+    except ImportError:
+        raise ReportUnavailableError(
+            "the report needs matplotlib, an optional extra: pip install 'stillpoint[plot]' "
+            "(or pip install matplotlib)") from None
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+    return plt
+
+
+def report_paths(mcap) -> tuple[Path, Path]:
+    p = Path(mcap)
+    stem = p.name[:-5] if p.name.endswith(".mcap") else p.name
+    return p.with_name(stem + ".report.png"), p.with_name(stem + ".report.html")
+
+
+# ---------------------------------------------------------------------------- inputs
+def _read_epochs(path) -> dict:
+    with gzip.open(path, "rt") as f:
+        rows = list(csv.DictReader(f))
+    def num(k):
+        return np.array([float(r[k]) if r[k] else np.nan for r in rows])
+    local = [r["time_local"] for r in rows]
+    d = {k: num(k) for k in ("enmo_mg", "temperature_c", "anglez_deg")}
+    for k in ("nonwear", "clipping", "gap", "qc", "filter_warmup"):
+        d[k] = np.array([r[k] == "1" for r in rows])
+    d["date"] = np.array([s[:10] for s in local])
+    d["hour"] = np.array([int(s[11:13]) + int(s[14:16]) / 60 + float(s[17:19]) / 3600 for s in local])
+    d["local"] = np.array([np.datetime64(s[:19]) for s in local]) if local else np.zeros(0, "M8[s]")
+    return d
+
+
+def _read_days(path) -> list[dict]:
+    with open(path) as f:
+        return list(csv.DictReader(f))
+
+
+def _sphere(mcap, est_json: Optional[dict], settings: dict):
+    """Nonmovement window means (raw g), temperatures, and the estimate to apply."""
+    from stillpoint.drivers.mcap_replay import McapRawSource
+    from .calibration.estimate import CalibrationEstimate
+    from .features import WindowFeatures
+    from .operators.nonmovement import NonmovementOperator
+    from .operators.windows import WindowFeaturesOperator
+
+    src = McapRawSource(mcap)
+    try:
+        rate = float(src.info.sample_rate_nominal or 0) or 100.0
+        win = WindowFeaturesOperator(rate, settings.get("window_s", 10.0), settings.get("min_fill", 0.9))
+        kw = {}
+        if "sd_threshold_g" in settings:
+            kw["sd_threshold"] = settings["sd_threshold_g"]
+        nm = NonmovementOperator(**kw)
+        from .tables.from_mcap import _coalesced
+        for b in _coalesced(src):  # 10-min blocks instead of the log's 10-s messages
+            nm.push(win.push(b))
+        nm.push(win.flush())
+    finally:
+        src.close()
+    w = nm.selected
+    est = CalibrationEstimate.from_dict(est_json) if est_json else None
+    return w, est
+
+
+def _mcap_records(mcap) -> dict:
+    from stillpoint.drivers.mcap_replay import McapRawSource
+    src = McapRawSource(mcap)
+    meta = dict(src.metadata)
+    src.close()
+    out = {}
+    for name in ("summary", "calibration", "settings", "device"):
+        m = meta.get(name)
+        if not m:
+            continue
+        try:
+            out[name] = json.loads(m["json"]) if "json" in m else {k: _maybe_json(v) for k, v in m.items()}
+        except (ValueError, TypeError):
+            out[name] = dict(m)
+    return out
+
+
+def _maybe_json(v):
+    try:
+        return json.loads(v)
+    except (ValueError, TypeError):
+        return v
+
+
+# ---------------------------------------------------------------------------- drawing
+def _shade(ax, hour, mask, color, label, hatch=None, step_h=5 / 3600):
+    if not mask.any():
+        return
+    d = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
+    for s, e in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)):
+        ax.axvspan(hour[s], hour[e - 1] + step_h, color=color, alpha=0.35 if not hatch else 0.15,
+                   lw=0, hatch=hatch, label=label)
+        label = None
+
+
+def _draw(plt, ep: dict, days: list[dict], windows, est, rec: dict, title: str, epoch_s: float):
+    fig = plt.figure(figsize=(8.27, 11.69), dpi=110)
+    dates = [d for d in dict.fromkeys(ep["date"].tolist())]
+    shown = dates[:DAYS_SHOWN]
+    n_day = max(len(shown), 1)
+    day_h = 1.0 if n_day > 4 else 1.4
+    gs = fig.add_gridspec(n_day + 6, 4, height_ratios=[day_h] * n_day + [0.3, 1.3, 0.3, 1.8, 0.25, 1.2],
+                          hspace=0.25, wspace=0.45, left=0.08, right=0.88, top=0.91, bottom=0.03)
+    fig.suptitle(title, fontsize=9.5)
+    step_h = epoch_s / 3600
+    by_date = {d["date"]: d for d in days}
+    ymax = 300.0
+    short = len(dates) == 1 and len(ep["hour"]) and (ep["hour"][-1] - ep["hour"][0]) < 6
+    if short:
+        pad = max(0.02, 0.05 * (ep["hour"][-1] - ep["hour"][0]))
+        h0, h1 = ep["hour"][0] - pad, ep["hour"][-1] + step_h + pad
+    for i, date in enumerate(shown):
+        ax = fig.add_subplot(gs[i, :])
+        sel = ep["date"] == date
+        h, e = ep["hour"][sel], ep["enmo_mg"][sel]
+        _shade(ax, h, ep["nonwear"][sel], "0.55", "nonwear", step_h=step_h)
+        _shade(ax, h, ep["clipping"][sel], "tab:red", "clipping", step_h=step_h)
+        _shade(ax, h, ep["qc"][sel], "tab:orange", "QC-flagged", step_h=step_h)
+        _shade(ax, h, ep["gap"][sel], "tab:blue", "gap (no data)", hatch="///", step_h=step_h)
+        ax.plot(h, np.minimum(e, ymax), lw=0.5, color="k", label="ENMO")
+        over = e > ymax
+        if over.any():
+            ax.plot(h[over], np.full(over.sum(), ymax), "|", ms=3, color="tab:purple",
+                    label=f"ENMO > {ymax:.0f} mg")
+        ax.set_ylim(0, ymax * 1.05)
+        if short:  # a recording of a few hours: show its span, not the whole day
+            ax.set_xlim(h0, h1)
+        else:
+            ax.set_xlim(0, 24)
+            ax.set_xticks(range(0, 25, 3))
+        ax.tick_params(labelsize=6.5, length=2)
+        if i < len(shown) - 1:
+            ax.set_xticklabels([])
+        ax.set_ylabel(date[5:], fontsize=7, rotation=0, ha="right", va="center")
+        d = by_date.get(date)
+        if d:
+            mark = "valid" if d.get("valid_day") == "1" else "not valid"
+            if float(d.get("day_hours") or 24) != 24:
+                mark += f"\n({float(d['day_hours']):g}-h day)"
+            wh = float(d["wear_hours"])
+            ax.text(1.01, 0.5, (f"{wh:.1f} h" if wh >= 1 else f"{wh * 60:.1f} min") + f" wear\n{mark}", transform=ax.transAxes,
+                    fontsize=6.5, va="center")
+        if i == 0:
+            ax.set_title("ENMO per epoch (mg) against the local clock (h), one row per local day",
+                         fontsize=8, pad=14)
+    if len(dates) > DAYS_SHOWN:
+        fig.text(0.5, 0.945, f"first {DAYS_SHOWN} of {len(dates)} days shown", ha="center", fontsize=7)
+    if shown:
+        fig.axes[len(shown) - 1].set_xlabel("local time (h)", fontsize=7, labelpad=1)
+    # legend entries for every shading kind, present or not
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+    handles = [Line2D([], [], color="k", lw=0.8, label="ENMO"),
+               Line2D([], [], color="tab:purple", marker="|", ls="", label=f"ENMO > {ymax:.0f} mg (cut)"),
+               Patch(color="0.55", alpha=0.35, label="nonwear"),
+               Patch(color="tab:red", alpha=0.35, label="clipping"),
+               Patch(color="tab:orange", alpha=0.35, label="QC-flagged"),
+               Patch(facecolor="none", edgecolor="tab:blue", hatch="///", label="gap (no data)")]
+    if fig.axes:
+        fig.axes[0].legend(handles=handles, fontsize=6, ncol=6, loc="lower left", frameon=False,
+                           bbox_to_anchor=(0, 1.0), borderaxespad=0.1)
+    # temperature
+    ax = fig.add_subplot(gs[n_day + 1, :])
+    t = ep["temperature_c"]
+    ok = np.isfinite(t)
+    if ok.any():
+        ax.plot(ep["local"][ok], t[ok], lw=0.6, color="tab:red")
+    ax.set_ylabel("degC", fontsize=7)
+    ax.set_title("device temperature (local time)", fontsize=8)
+    ax.tick_params(labelsize=6.5)
+    import matplotlib.dates as mdates
+    loc = mdates.AutoDateLocator(maxticks=9)
+    ax.xaxis.set_major_locator(loc)
+    fmt = mdates.ConciseDateFormatter(loc)
+    fmt.offset_formats = [""] * 6  # the dates are on the ticks already
+    ax.xaxis.set_major_formatter(fmt)
+    # calibration
+    _calibration_panels(fig, gs[n_day + 3, :], windows, est)
+    # QC box
+    ax = fig.add_subplot(gs[n_day + 5, :])
+    ax.axis("off")
+    ax.text(0.0, 1.0, _qc_text(rec, days), fontsize=7, va="top", family="monospace",
+            transform=ax.transAxes)
+    return fig
+
+
+def _calibration_panels(fig, spec, windows, est):
+    sub = spec.subgridspec(1, 4, wspace=0.45)
+    ax = fig.add_subplot(sub[0, 0])
+    if windows is None or not len(windows):
+        ax.axis("off")
+        ax.text(0, 0.5, "calibration: no nonmovement windows", fontsize=7)
+        return
+    before = (np.linalg.norm(windows.mean, axis=1) - 1.0) * 1000.0
+    if est is not None and est.status in ("ok", "high_error"):
+        t = windows.temperature
+        if est.uses_temperature:
+            t = np.where(np.isfinite(t), t, est.temperature_ref)
+            cal = est.apply(windows.mean, t)
+        else:
+            cal = est.apply(windows.mean)
+        after = (np.linalg.norm(cal, axis=1) - 1.0) * 1000.0
+        after_label = "after"
+    else:
+        after, after_label = None, f"not applied ({est.status if est else 'no estimate'})"
+    r = HIST_RANGE_MG
+    bins = np.linspace(-r, r, 61)
+    for vals, color, lab in ((before, "0.5", "before"), (after, "tab:blue", after_label)):
+        if vals is None:
+            continue
+        off = int((np.abs(vals) > r).sum())
+        ax.hist(np.clip(vals, -r, r), bins=bins, color=color, alpha=0.6,
+                label=f"{lab} (RMS {np.sqrt(np.mean(vals ** 2)):.1f} mg)" +
+                      (f", {off} beyond +-{r:.0f} in end bins" if off else ""))
+    ax.set_xlabel("|a| - 1 (mg)", fontsize=7)
+    ax.set_ylabel("windows", fontsize=7)
+    ax.set_title(f"{len(before):,} nonmovement windows", fontsize=7.5)
+    ax.tick_params(labelsize=6.5)
+    ax.set_ylim(top=ax.get_ylim()[1] * 1.45)  # room for the legend above the bars
+    ax.legend(fontsize=5.5, loc="upper left", frameon=False)
+    lim = max(r, float(np.percentile(np.abs(before), 99)) * 1.1)
+    for j, name in enumerate("xyz"):
+        a = fig.add_subplot(sub[0, j + 1])
+        a.scatter(windows.mean[:, j], before, s=2, c="0.5", alpha=0.5, lw=0, label="before")
+        if after is not None:
+            a.scatter(windows.mean[:, j], after, s=2, c="tab:blue", alpha=0.6, lw=0, label="after")
+        a.axhline(0, color="k", lw=0.5)
+        a.set_ylim(-lim, lim)
+        a.set_xlim(-1.1, 1.1)
+        a.set_xlabel(f"mean {name} (g)", fontsize=7)
+        if j == 0:
+            a.set_ylabel("|a| - 1 (mg)", fontsize=7)
+        a.tick_params(labelsize=6.5)
+        a.set_title(f"residual against {name}", fontsize=7.5)
+
+
+def _qc_text(rec: dict, days: list[dict]) -> str:
+    s = rec.get("summary") or {}
+    cal = s.get("calibration") or rec.get("calibration") or {}
+    qc = s.get("qc") or {}
+    total = next((d for d in days if d["date"] == "all"), {})
+    dev = s.get("device") or {}
+    def f(x, fmt="{:.2f}"):
+        try:
+            return fmt.format(float(x))
+        except (TypeError, ValueError):
+            return "n/a"
+    unit = qc.get("unit", "sector")
+    reasons = ", ".join(f"{k} {v}" for k, v in (qc.get("reasons") or {}).items()) or "none"
+    lines = [
+        f"device {dev.get('type', '?')} {dev.get('id', '?')}, {f(dev.get('rate_hz'), '{:g}')} Hz, "
+        f"+-{f(dev.get('range_g'), '{:g}')} g     times: {total.get('timezone', '?')}",
+        f"{unit}s: {qc.get('total', '?')} read, {qc.get('skipped', '?')} skipped; "
+        f"segments {s.get('segments', '?')}; reader QC events: {reasons}",
+        f"hours: recorded {f(total.get('recorded_hours'))}, data {f(total.get('data_hours'))}, "
+        f"clean wear {f(total.get('wear_hours'))}, nonwear {f(total.get('nonwear_hours'))}, "
+        f"clipping {f(total.get('clipping_hours'))}, QC-flagged {f(total.get('qc_hours'))}",
+        f"valid days (>= 16 h clean wear by default): {total.get('valid_day', '?')} of "
+        f"{len([d for d in days if d['date'] != 'all'])}; mean ENMO over clean epochs "
+        f"{f(total.get('enmo_mean_mg'), '{:.2f}')} mg",
+        f"calibration: {cal.get('status', '?')} - error {f(cal.get('error_before_mg'), '{:.2f}')} -> "
+        f"{f(cal.get('error_after_mg'), '{:.2f}')} mg on {cal.get('windows', '?')} windows"
+        + (f", T_ref {cal['temperature_ref']:.2f} degC" if cal.get("status") in ("ok", "high_error")
+           and cal.get("temperature_ref") is not None and any(cal.get("tempoffset") or []) else ""),
+    ]
+    reason = str(cal.get("reason", ""))
+    if reason:
+        import textwrap
+        lines += ["  " + x for x in textwrap.wrap(reason, 100)[:3]]
+    return "\n".join(lines)
+
+
+# ---------------------------------------------------------------------------- the job
+def write_report(mcap, *, summary: Optional[dict] = None, out_png=None, out_html=None) -> dict:
+    """Write the PNG page and the HTML page for a processed recording's MCAP."""
+    plt = require_matplotlib()
+    mcap = Path(mcap)
+    png, page = report_paths(mcap)
+    png, page = Path(out_png or png), Path(out_html or page)
+    check_output_path(png, what="report")
+    check_output_path(page, what="report page")
+    from .tables import table_paths, tables_from_mcap
+    ep_path, days_path = table_paths(mcap)
+    rec = _mcap_records(mcap)
+    if summary:
+        rec["summary"] = summary
+    settings = rec.get("settings") or {}
+    with tempfile.TemporaryDirectory(prefix=".report-", dir=str(png.parent)) as tmp:
+        if not (ep_path.is_file() and days_path.is_file()):
+            ep_path = Path(tmp) / "t.epochs.csv.gz"
+            days_path = Path(tmp) / "t.days.csv"
+            tables_from_mcap(mcap, ep_path, days_path)
+        ep = _read_epochs(ep_path)
+        days = _read_days(days_path)
+    est_json = (rec.get("summary") or {}).get("calibration") or rec.get("calibration")
+    windows, est = _sphere(mcap, est_json, settings)
+    dev = (rec.get("summary") or {}).get("device") or {}
+    title = (f"{mcap.name}: {dev.get('type', '')} {dev.get('id', '')}, "
+             f"{ep['date'][0] if len(ep['date']) else '?'} to {ep['date'][-1] if len(ep['date']) else '?'}")
+    fig = _draw(plt, ep, days, windows, est, rec, title, float(settings.get("epoch_s", 5.0)))
+    with atomic_output(png) as f:
+        fig.savefig(f, format="png")
+    plt.close(fig)
+    data = base64.b64encode(png.read_bytes()).decode()
+    cols = list(days[0].keys()) if days else []
+    table = "".join("<tr>" + "".join(f"<td>{html.escape(str(d[c]))}</td>" for c in cols) + "</tr>"
+                    for d in days)
+    doc = (f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(mcap.name)}</title>"
+           "<style>body{font-family:sans-serif;font-size:13px}td,th{padding:2px 6px;"
+           "border-bottom:1px solid #ddd}</style></head><body>"
+           f"<h2>{html.escape(title)}</h2><img src='data:image/png;base64,{data}' "
+           "style='max-width:100%' alt='recording report'>"
+           "<h3>days</h3><table><tr>" + "".join(f"<th>{html.escape(str(c))}</th>" for c in cols) +
+           f"</tr>{table}</table></body></html>\n")
+    with atomic_output(page, binary=False) as f:
+        f.write(doc)
+    return {"report": str(png), "report_html": str(page)}

@@ -1,0 +1,146 @@
+"""Epoch and day tables from a stillpoint MCAP: ``tables_from_mcap(mcap, epochs_path, ...)``.
+
+A batch run applied one estimate from the first sample (logged as the ``calibration`` record): the
+logged raw stream is corrected with it and the epoch metrics and tables are computed directly,
+the raw messages gathered into blocks of up to 10 min of one segment first (every operator's
+output is independent of block cuts), so the tables equal those ``process`` wrote. An online run
+(estimates switched in over time) is re-run with its logged settings through ``process_file``
+(replay is bit-identical), its MCAP written to a temporary file beside the output and removed.
+The zone is the one the run used (its ``timezone`` setting; GENEActiv times were already
+converted with the header's zone).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from pathlib import Path
+from typing import Optional
+
+from stillpoint.drivers.errors import StillpointError
+from stillpoint.drivers.outputs import check_output_path
+
+
+class TablesError(StillpointError):
+    pass
+
+
+def days_path_for(epochs_path) -> Path:
+    p = Path(epochs_path)
+    name = p.name
+    for suffix in (".epochs.csv.gz", ".csv.gz", ".csv"):
+        if name.endswith(suffix):
+            return p.with_name(name[: -len(suffix)] + ".days.csv")
+    return p.with_name(name + ".days.csv")
+
+
+def tables_from_mcap(mcap, epochs_path, days_path=None, *, timezone: Optional[str] = None,
+                     nonwear_version: str = "2023", valid_day_hours: float = 16.0,
+                     enmo_bands_mg=(40.0, 100.0, 400.0), mvpa_bout_s: float = 60.0) -> dict:
+    from stillpoint.drivers.mcap_replay import McapRawSource
+    from ..run import RunSettings, process_file
+    from ..timezones import parse_zone
+    from .writer import TablesSettings
+
+    epochs_path = check_output_path(epochs_path, what="epoch table")
+    days_path = check_output_path(days_path or days_path_for(epochs_path), what="day table")
+    src = McapRawSource(mcap)
+    logged = dict(src.settings or {})
+    info = src.info
+    src.close()
+    zone_spec = logged.get("timezone")
+    if timezone is not None:
+        if zone_spec is None and info.device_type != "GENEActiv":
+            raise TablesError(f"{mcap}: this run had no time zone (device local time); run "
+                              f"`stillpoint process` on the recording with --timezone instead")
+        zone_spec = timezone
+    zone = parse_zone(zone_spec)
+    if not zone.known and info.device_type == "GENEActiv":
+        from ..timezones import fixed_zone
+        zone = fixed_zone(info.timezone_offset_s)
+    settings = RunSettings.from_dict(logged)
+    ts = TablesSettings(epochs_path, days_path, zone=zone, nonwear_version=nonwear_version,
+                        valid_day_hours=valid_day_hours, enmo_bands_mg=tuple(enmo_bands_mg),
+                        mvpa_bout_s=mvpa_bout_s)
+    if settings.mode == "batch":
+        return _batch_tables(mcap, settings, ts)
+    fd, tmp = tempfile.mkstemp(prefix=".tables-", suffix=".mcap", dir=str(epochs_path.parent))
+    os.close(fd)
+    try:
+        summary = process_file(mcap, tmp, settings, tables=ts)
+    finally:
+        for p in (tmp, tmp + ".part"):
+            try:
+                os.unlink(p)
+            except OSError:
+                pass
+    return summary["tables"]
+
+
+COALESCE_S = 600.0
+
+
+def _coalesced(src, max_s: float = COALESCE_S):
+    """The source's Blocks joined into runs of one segment and scale, up to ``max_s`` of data."""
+    import numpy as np
+    from ..blocks import Block
+    run, t0 = [], None
+    for b in src:
+        if b.n == 0:
+            continue
+        if run:
+            r0 = run[0]
+            same = (b.segment == r0.segment and np.array_equal(b.accel_counts_per_g, r0.accel_counts_per_g)
+                    and np.array_equal(b.accel_zero, r0.accel_zero)
+                    and (b.gyro is None) == (r0.gyro is None)
+                    and set(b.per_sample) == set(r0.per_sample))
+            if not same or (int(b.time_ns[-1]) - t0) > max_s * 1e9:
+                yield Block.concat(run) if len(run) > 1 else run[0]
+                run = []
+        if not run:
+            t0 = int(b.time_ns[0])
+        run.append(b)
+    if run:
+        yield Block.concat(run) if len(run) > 1 else run[0]
+
+
+def _batch_tables(mcap, settings, ts) -> dict:
+    """Correct the logged raw stream with the run's one estimate and write the tables."""
+    from stillpoint.drivers.mcap_replay import McapRawSource
+    from ..calibration.estimate import CalibrationEstimate
+    from ..operators.correction import CorrectionOperator
+    from ..operators.filters import band_used
+    from ..operators.metrics import EpochMetrics, MetricsOperator
+    from ..run import APPLIED_STATUSES
+    from .writer import TablesTap
+
+    src = McapRawSource(mcap)
+    try:
+        cal = src.metadata.get("calibration") or {}
+        est = (CalibrationEstimate.from_dict(json.loads(cal["json"])) if "json" in cal
+               else CalibrationEstimate.identity("no calibration record"))
+        applied = est.status in APPLIED_STATUSES and settings.calibrate
+        initial = est if applied else CalibrationEstimate.identity(est.reason)
+        initial.effective_from_ns = None
+        rate = float(src.info.sample_rate_nominal or 0) or 100.0
+        band = band_used(rate, settings.bfen_band_hz)
+        correction = CorrectionOperator(initial, rate_hz=rate)
+        metrics = MetricsOperator(rate, settings.epoch_s, settings.bfen_band_hz)
+        tap = TablesTap(ts, rate, settings.epoch_s, band, src, src.info)
+        try:
+            def step(block, batches):
+                ms = [metrics.push(b) for b in batches]
+                m = EpochMetrics.concat(ms) if len(ms) != 1 else ms[0]
+                tap.push(block, batches, m)
+
+            for block in _coalesced(src):
+                step(block, correction.push(block))
+            step(None, correction.flush())
+            tap.flush(metrics.flush())
+            return tap.close(est.status)
+        except BaseException:
+            tap.abort()
+            raise
+    finally:
+        src.close()

@@ -184,3 +184,16 @@ def test_filters():
     assert np.abs(lowpass(fast, fs)[100:-100]).max() < 0.05
     with pytest.raises(ValueError, match="sampling rate above 16"):
         apply_filter(slow, "lowpass8", 15)
+
+
+def test_strict_gyro_gate_only_removes():
+    sim = make_infant(minutes=10, seed=23)
+    t, meas, _, gyro = sim.arrays()
+    sig = signals_from_arrays(t, meas, gyro, 25)
+    ref = detect_signals(sig)
+    strict = detect_signals(sig, strict_gyro=True)
+    assert strict["movements"].shape[0] <= ref["movements"].shape[0]
+    rows = {tuple(r) for r in ref["movements"].tolist()}
+    assert all(tuple(r) in rows for r in strict["movements"].tolist())
+    w = strict["w"]
+    assert all((w[s:e + 1] > 0).all() for s, _, e in strict["movements"])

@@ -176,7 +176,66 @@ def test_process_applies_static_calibration(capsys, files, tmp_path):
     assert msgs[0]["extra"]["static"]["faces"]["+x"]["samples"] > 0
     code, text, _ = cli(capsys, "replay", out, "-o", tmp_path / "r.mcap", "--check", "-q")
     assert code == 0 and "DIFFERENT" not in text
+    code, _, err = cli(capsys, "process", files["left"], "-o", tmp_path / "n.mcap", "--static", cal,
+                       "--no-calibrate", "-q")
+    assert code == 2 and "--no-calibrate" in err and not (tmp_path / "n.mcap").exists()
     # the right leg's device is not the calibration's
     code, _, err = cli(capsys, "process", files["right"], "-o", tmp_path / "r2.mcap", "--static", cal,
                        "-q")
     assert code == 2 and "AX6-601" in err and not (tmp_path / "r2.mcap").exists()
+
+
+def test_station_download_applies_the_stored_static_calibration(tmp_path, monkeypatch):
+    from stillpoint.drivers.ax.emulator import EmulatedDevice
+    from stillpoint.engine.calibration import CalibrationStore
+    from stillpoint.engine.calibration.static import static_calibration, with_static_calibration
+    from stillpoint.engine.station.download import DownloadJob, run_download
+    monkeypatch.setenv("STILLPOINT_RUNTIME_DIR", str(tmp_path / "runtime"))
+    d = EmulatedDevice(tmp_path / "dev", 12346, "AX6", slot="emu-1", days=0.003, remount_s=0.05,
+                       replug_s=0.3)
+    d.plug()
+    try:
+        s = simulate_sixface(fs=25, errors=LEFT, seed=46)
+        cal = static_calibration(s.accel_g, 25, mode="robust", time_ns=s.time_ns,
+                                 device_key="AX6-12346")
+        CalibrationStore(tmp_path / "store").add(cal.to_estimate(), source="cal.cwa")
+        assert with_static_calibration({}, tmp_path / "store", "AX6-99999") == {}
+        settings = with_static_calibration({}, tmp_path / "store", "AX6-12346")
+        out = tmp_path / "out"
+        out.mkdir()
+        r = run_download(DownloadJob(d.device_id, d.session_id, str(d.data_file), str(out), d.kind,
+                                     tuple(sorted(d.faults)), str(d.control), settings=settings))
+        assert r.ok, r.reason
+        assert r.summary["calibration"]["method"] == "static-6"
+        np.testing.assert_allclose(r.summary["calibration"]["offset"], -np.asarray(cal.offset_g))
+    finally:
+        d.shutdown()
+
+
+def test_mcap_logs_read_back_with_the_mcap_package(capsys, files, tmp_path):
+    from mcap.reader import make_reader
+
+    def read(p):
+        with open(p, "rb") as fh:
+            return [(ch.topic, sch.name if sch else None, json.loads(m.data))
+                    for sch, ch, m in make_reader(fh).iter_messages()]
+
+    cal = tmp_path / "cal.json"
+    code, _, _ = cli(capsys, "static-calibrate", files["cal_left"], "--mode", "robust", "-o", cal,
+                     "--mcap", tmp_path / "cal.mcap")
+    assert code == 0
+    (topic, schema, est), = read(tmp_path / "cal.mcap")
+    assert topic == "/static_calibration" and schema == "stillpoint.StaticCalibrationEstimate"
+    assert est["method"] == "static-6" and est["positions"] == 6
+    assert est["extra"]["static"]["offset_g"] == json.loads(cal.read_text())["offset_g"]
+    code, out, _ = cli(capsys, "movements", files["left"], "--calibration", cal, "--json",
+                       "--mcap", tmp_path / "mv.mcap")
+    assert code == 0
+    msgs = read(tmp_path / "mv.mcap")
+    events = [m for t, _, m in msgs if t == "/movements/left/events"]
+    assert len(events) == json.loads(out)["left"]["count"]
+    (summary,) = [m for t, _, m in msgs if t == "/movements/left/summary"]
+    (params,) = [m for t, _, m in msgs if t == "/movements/left/parameters"]
+    assert summary["count"] == len(events) and params["variant"] == "v2"
+    assert params["calibration"]["applied"] and any(t == "/static_calibration" for t, _, _ in msgs)
+    assert [e["start_ns"] for e in events] == sorted(e["start_ns"] for e in events)

@@ -344,3 +344,15 @@ def load_static_calibration(path) -> StaticCalibration:
         raise StaticCalibrationError(f"{path}: malformed static calibration ({e})") from None
     raise StaticCalibrationError(f"{path}: not a six-orientation static calibration "
                                  f"(method {d.get('method')!r})")
+
+
+def with_static_calibration(settings: dict, store_root, device_key: str) -> dict:
+    """Run settings (a ``RunSettings`` override dict) with the store's latest static calibration
+    of ``device_key`` applied instead of the autocalibration; unchanged when the store has none
+    (the autocalibration then runs, as without a static calibration). ``store_root``: the store
+    folder ("" or None: the default location)."""
+    from .store import CalibrationStore
+    est = CalibrationStore(store_root or None).latest_static(device_key)
+    if est is None:
+        return dict(settings)
+    return dict(settings, static_calibration=est.to_dict())

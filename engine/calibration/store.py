@@ -231,9 +231,10 @@ class CalibrationStore:
         """The device's latest usable six-orientation static calibration (method ``static-6``)
         as a CalibrationEstimate (the static result in ``extra["static"]``), or None."""
         from .static import STATIC_METHOD
-        for r in reversed(self.records(device_key)):
-            if r.get("method") == STATIC_METHOD and r.get("status") in USABLE_STATUSES:
-                return CalibrationEstimate.from_dict(r["estimate"])
+        recs = self.records(device_key)
+        for i in range(len(recs) - 1, -1, -1):
+            if recs[i].get("method") == STATIC_METHOD and recs[i].get("status") in USABLE_STATUSES:
+                return self._estimate(device_key, i, recs[i])
         return None
 
     def prior_for(self, device_key: str) -> Optional[CalibrationEstimate]:

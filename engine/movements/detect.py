@@ -59,7 +59,8 @@ def thresholds(a: np.ndarray, variant: str = "v2") -> Thresholds:
     if variant == "v2":
         loc, pr = find_peaks(a, height=PEAK_MIN_MS2)
         hp = a[loc[pr["peak_heights"] < PEAK_REJECT_MS2]]
-        rect = np.abs(np.minimum(a, 0.0))
+        rect = np.minimum(a, 0.0)
+        np.negative(rect, out=rect)  # the rectified negative part, without a second temporary
         locn, prn = find_peaks(rect, height=PEAK_MIN_MS2)
         hn = rect[locn[prn["peak_heights"] < PEAK_REJECT_MS2]]
     elif variant == "v1":
@@ -74,8 +75,11 @@ def thresholds(a: np.ndarray, variant: str = "v2") -> Thresholds:
 
 def labels(a: np.ndarray, w, th: Thresholds):
     """(count, th_crossed) int8 arrays; ``w=None`` opens the gyro gate (accel-only)."""
-    s = np.sign(a).astype(np.int8)
-    count = s if w is None else np.where(np.asarray(w) > 0, s, 0).astype(np.int8)
+    s = (a > 0).astype(np.int8)
+    s -= (a < 0)  # sign(a) as int8 without a float temporary
+    if w is not None:
+        s *= np.asarray(w) > 0
+    count = s
     with np.errstate(invalid="ignore"):
         crossed = ((a > th.positive).astype(np.int8) - (a < th.negative).astype(np.int8))
     return count, crossed

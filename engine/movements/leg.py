@@ -94,7 +94,8 @@ def _median(x):
 
 
 def detect_signals(sig: LegSignals, *, variant: str = "v2", filter: str = "none",
-                   accel_only: bool = False, timing: str = "real", where: str = "") -> dict:
+                   accel_only: bool = False, timing: str = "real", where: str = "",
+                   strict_gyro: bool = False) -> dict:
     """Detector + post-processing on LegSignals (pure; ``count_leg`` wraps it with file I/O)."""
     if filter not in FILTERS:
         raise ValueError(f"filter must be one of {FILTERS}")
@@ -105,16 +106,28 @@ def detect_signals(sig: LegSignals, *, variant: str = "v2", filter: str = "none"
         raise MovementInputError(f"{where}: the recording holds no usable samples ({n})")
     if sig.fs <= 0:
         raise MovementInputError(f"{where}: the header gives no sample rate")
-    a = apply_filter(detrend(sig.acc_norm), filter, sig.fs)
+    try:
+        a = apply_filter(detrend(sig.acc_norm), filter, sig.fs)
+    except ValueError as e:
+        raise MovementInputError(f"{where}: --filter {filter}: {e}") from None
     w = None
     if not accel_only:
-        w = detrend(sig.gyro_norm) * DEG_TO_RAD
+        w = detrend(sig.gyro_norm)
+        w *= DEG_TO_RAD
     mv, th = D.detect_movements(a, w, sig.fs, variant)
     if not th.usable:
         raise MovementInputError(
             f"{where}: no acceleration peaks between {D.PEAK_MIN_MS2} and {D.PEAK_REJECT_MS2} m/s^2 "
             f"({th.peaks_positive} positive, {th.peaks_negative} negative): no movement to set the "
             "thresholds from (an empty, still or sleep-only recording?)")
+    gated = 0
+    if strict_gyro and w is not None and mv.shape[0]:
+        # the paper's wording: rotation (w > 0) on every sample of the movement, not only at the
+        # samples the reference checks
+        c = np.concatenate(([0], np.cumsum(w <= 0)))
+        ok = (c[mv[:, 2] + 1] - c[mv[:, 0]]) == 0
+        gated = int((~ok).sum())
+        mv = mv[ok]
     kept, dropped = P.cycle_filter(mv, sig.fs)
     sleep = P.sleep_samples(kept, n, sig.fs)
     span_s = (int(sig.time_ns[-1]) - int(sig.time_ns[0])) / 1e9
@@ -127,13 +140,14 @@ def detect_signals(sig: LegSignals, *, variant: str = "v2", filter: str = "none"
     tsec = None if timing == "nominal" else (sig.time_ns - sig.time_ns[0]) / 1e9
     dur, avg, peak = P.kinematics(a, kept, tsec, fs_time)
     return {"a": a, "w": w, "thresholds": th, "movements": kept, "candidates": int(mv.shape[0]),
-            "removed": int(dropped.sum()), "sleep": sleep, "rate": rate, "duration": dur,
+            "removed": int(dropped.sum()), "removed_by_strict_gyro": gated, "sleep": sleep, "rate": rate, "duration": dur,
             "average": avg, "peak": peak, "effective_rate_hz": eff}
 
 
 def count_leg(path, calibration=None, *, variant: str = "v2", filter: str = "none",
               resample_hz=None, accel_only: bool = False, timing: str = "real",
-              full_matrix: Optional[bool] = None, keep_signals: bool = False):
+              full_matrix: Optional[bool] = None, keep_signals: bool = False,
+              strict_gyro: bool = False):
     """Count movements in one leg's recording (module docstring). ``calibration``: a
     ``StaticCalibration`` (or None: raw readings, flagged). Returns LegResult (and the signals
     when ``keep_signals``)."""
@@ -151,8 +165,6 @@ def count_leg(path, calibration=None, *, variant: str = "v2", filter: str = "non
             "angular-velocity gate (AX6). Use the accel-only variant (not validated) to run anyway")
     if accel_only:
         flags.append("accel-only variant: gyro gate always open; NOT VALIDATED")
-    if timing == "nominal" and resample_hz:
-        pass
     cal_info: dict = {"applied": False}
     if calibration is not None:
         if calibration.device_key and calibration.device_key != info.device_key:
@@ -175,7 +187,10 @@ def count_leg(path, calibration=None, *, variant: str = "v2", filter: str = "non
         gap_h = (int(sig.time_ns[0]) - int(calibration.calibration_time_ns)) / 3.6e12
         cal_info["gap_hours"] = gap_h
     res = detect_signals(sig, variant=variant, filter=filter, accel_only=accel_only,
-                         timing=timing, where=where)
+                         timing=timing, where=where, strict_gyro=strict_gyro)
+    if strict_gyro:
+        flags.append(f"strict gyro gate (w > 0 on every sample of a movement): "
+                     f"{res['removed_by_strict_gyro']} candidate(s) removed")
     mv = res["movements"]
     th = res["thresholds"]
     out = LegResult(

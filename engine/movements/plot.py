@@ -5,8 +5,6 @@ thresholds and the detected movements shaded (a window of the recording, default
 
 from __future__ import annotations
 
-import numpy as np
-
 
 def plot_movements(legs, path, *, seconds: float = 60.0) -> None:
     """``legs``: [(label, LegResult, LegSignals, detector output dict)]; PNG to ``path``."""

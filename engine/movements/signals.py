@@ -130,10 +130,16 @@ def read_signals(path, correct: Callable[[np.ndarray], np.ndarray], *, resample_
                 progress(int(t[-1] - t0))
     finally:
         src.close()
-    cat = (lambda xs, dt: np.concatenate(xs) if xs else np.zeros(0, dt))
+    def cat(xs, dt):  # one channel at a time, its blocks freed as soon as it is joined
+        out = np.concatenate(xs) if xs else np.zeros(0, dt)
+        xs.clear()
+        return out
+
     fs = int(resample_hz) if resample_hz else fs_nom
-    return LegSignals(cat(times, np.int64), cat(accs, np.float64),
-                      cat(gyrs, np.float64) if use_gyro else None, fs)
+    t_all = cat(times, np.int64)
+    a_all = cat(accs, np.float64)
+    g_all = cat(gyrs, np.float64) if use_gyro else None
+    return LegSignals(t_all, a_all, g_all, fs)
 
 
 def signals_from_arrays(time_ns, acc_g, gyro_dps, fs, correct=None) -> LegSignals:

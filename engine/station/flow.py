@@ -42,6 +42,7 @@ class StationOptions:
     inline: bool = False  # downloads on threads instead of worker processes (tests)
     throttle_bps: Optional[float] = None
     run_settings: dict = field(default_factory=dict)
+    static_from_store: Optional[str] = None  # apply the store's static calibration ("" = default store)
     remount_s: float = C.AX_COMMIT_REMOUNT_S
     volume_wait_s: float = C.AX_BOOTLOADER_S
     pipeline: bool = True
@@ -196,8 +197,13 @@ class DeviceFlow:
                             "device_serial": att.serial,
                             "dock_slot": att.slot, "battery_pct": str(battery),
                             "attached_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}}
+        settings = dict(opts.run_settings)
+        if opts.static_from_store is not None:
+            from stillpoint.engine.calibration.static import with_static_calibration
+            settings = with_static_calibration(settings, opts.static_from_store,
+                                               f"{att.device_type}-{att.device_id}")
         job = DownloadJob(att.device_id, session, str(data_file), str(out), att.device_type,
-                          tuple(att.faults), att.control, meta, dict(opts.run_settings),
+                          tuple(att.faults), att.control, meta, settings,
                           opts.throttle_bps or att.read_bps, pipeline=opts.pipeline)
         self._set("downloading")
         self.worker = w = DownloadWorker(job, stall_s=opts.stall_s, inline=opts.inline).start()

@@ -38,6 +38,9 @@ def add_arguments(p) -> None:
                    help="resample onto a uniform grid first (the HBCD release also reports 20 Hz)")
     p.add_argument("--accel-only", action="store_true",
                    help="AX3/GENEActiv: run without the gyro gate (NOT VALIDATED)")
+    p.add_argument("--strict-gyro", action="store_true",
+                   help="require rotation on every sample of a movement (the paper's wording) "
+                        "instead of at the samples the reference code checks")
     p.add_argument("--nominal-time", action="store_true",
                    help="reference arithmetic: samples / nominal rate for durations and rates "
                         "(default: the recording's timestamps)")
@@ -45,6 +48,8 @@ def add_arguments(p) -> None:
     p.add_argument("-o", "--output", type=Path, help="CSV, one row per movement")
     p.add_argument("--plot", type=Path, metavar="PNG", help="figure: detrended norm, thresholds, "
                                                             "movements")
+    p.add_argument("--mcap", type=Path, metavar="OUT.mcap",
+                   help="log calibrations, detection parameters, every movement and the summaries")
 
 
 def _calibrations(args, files):
@@ -99,7 +104,7 @@ def run(args) -> int:
     from ._runopts import OptionError
     files = [args.file] + ([args.right_file] if args.right_file else [])
     labels = ["left", "right"] if len(files) == 2 else ["left"]
-    for p in (args.output, args.plot):
+    for p in (args.output, args.plot, args.mcap):
         if p is not None:
             check_output_path(p)
     if args.resample is not None and args.resample <= 0:
@@ -113,7 +118,7 @@ def run(args) -> int:
                                  resample_hz=args.resample, accel_only=args.accel_only,
                                  timing="nominal" if args.nominal_time else "real",
                                  full_matrix=True if args.full_matrix else None,
-                                 keep_signals=bool(args.plot)))
+                                 keep_signals=bool(args.plot), strict_gyro=args.strict_gyro))
     legs = [r[0] if isinstance(r, tuple) else r for r in results]
     outputs = {}
     if args.output:
@@ -128,6 +133,10 @@ def run(args) -> int:
         from stillpoint.engine.movements.plot import plot_movements
         plot_movements([(lab, *r) for lab, r in zip(labels, results)], args.plot)
         outputs["plot"] = str(args.plot)
+    if args.mcap:
+        from stillpoint.engine.movements.mcap_out import write_movements_mcap
+        write_movements_mcap(args.mcap, list(zip(labels, legs, cals)))
+        outputs["mcap"] = str(args.mcap)
     summaries = {lab: leg.summary() for lab, leg in zip(labels, legs)}
     if args.json:
         print(json.dumps(dict(json.loads(dumps(summaries)), outputs=outputs), indent=1, sort_keys=True))

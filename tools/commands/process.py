@@ -72,6 +72,9 @@ def build_settings(args, base: dict | None = None) -> RunSettings:
     if getattr(args, "timezone", None) is not None:
         check_zone(args.timezone)
         over["timezone"] = args.timezone
+    if (getattr(args, "static", None) or getattr(args, "static_from_store", None) is not None) \
+            and over.get("calibrate") is False:
+        raise OptionError("--static/--static-from-store apply a calibration: not with --no-calibrate")
     if getattr(args, "static", None):
         from stillpoint.engine.calibration.static import load_static_calibration
         over["static_calibration"] = load_static_calibration(args.static).to_estimate().to_dict()

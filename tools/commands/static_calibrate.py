@@ -28,6 +28,8 @@ def add_arguments(p) -> None:
     p.add_argument("--plot", type=Path, metavar="PNG", help="figure: windows and per-face readings")
     p.add_argument("--store", nargs="?", const="", default=None, metavar="DIR",
                    help="add the estimate to the calibration store (default location, or DIR)")
+    p.add_argument("--mcap", type=Path, metavar="OUT.mcap",
+                   help="log the estimate (topic /static_calibration) to an MCAP file")
 
 
 def _fmt(v, f="{:+.4f}"):
@@ -70,7 +72,7 @@ def run(args) -> int:
     from ._runopts import OptionError
     if args.allow_nan and args.mode != "reference":
         raise OptionError("--allow-nan reproduces the reference code: only with --mode reference")
-    for p in (args.output, args.plot):
+    for p in (args.output, args.plot, args.mcap):
         if p is not None:
             check_output_path(p)
     cal = static_calibration_file(args.file, mode=args.mode, full_matrix=args.full_matrix,
@@ -86,6 +88,10 @@ def run(args) -> int:
         t, acc, _ = read_calibration_recording(args.file)
         plot_static_calibration(t, acc, cal, args.plot)
         outputs["plot"] = str(args.plot)
+    if args.mcap:
+        from stillpoint.engine.movements.mcap_out import write_static_mcap
+        write_static_mcap(args.mcap, cal)
+        outputs["mcap"] = str(args.mcap)
     if args.store is not None:
         if cal.status != "ok":
             raise OptionError(f"{args.file}: an incomplete calibration ({cal.status}) is not stored")

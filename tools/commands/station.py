@@ -24,6 +24,9 @@ def add_arguments(p) -> None:
     p.add_argument("--stall-s", type=float, default=30.0,
                    help="stop a download that makes no progress for this long (hung read)")
     p.add_argument("--plain", action="store_true", help="plain lines even on a terminal")
+    p.add_argument("--static-from-store", nargs="?", const="", default=None, metavar="DIR",
+                   help="apply each device's latest six-orientation static calibration from the "
+                        "store (default location, or DIR) instead of the autocalibration")
 
 
 def run(args) -> int:
@@ -36,7 +39,8 @@ def run(args) -> int:
     if configure and prof is None:
         raise ProfileError("--configure-after needs --profile study.toml (what to configure)")
     opts = StationOptions(str(args.outdir), profile=prof, clear_after_verify=clear,
-                          configure_after=configure, stall_s=args.stall_s)
+                          configure_after=configure, stall_s=args.stall_s,
+                          static_from_store=args.static_from_store)
     inbox = None
     if args.inbox:
         from stillpoint.engine.station.inbox import Inbox

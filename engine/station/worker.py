@@ -17,24 +17,10 @@ import time
 
 from typing import Optional
 
+from ..mcap.writer import peak_rss_mb as _peak_rss_mb  # VmHWM: starts afresh at exec
 from .download import DownloadJob, DownloadResult, run_download
 
 _CTX = mp.get_context("spawn")  # a fresh interpreter: no inherited threads or emulator state
-
-
-def _peak_rss_mb() -> float:
-    """Peak RSS of this process. Linux: VmHWM, which starts afresh at exec (``ru_maxrss`` keeps
-    the high-water mark of the forked parent's pages, so a worker spawned from a large process
-    would report the parent's size)."""
-    try:
-        with open("/proc/self/status") as f:
-            for line in f:
-                if line.startswith("VmHWM:"):
-                    return int(line.split()[1]) / 1024.0
-    except OSError:
-        pass
-    import resource
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
 def _main(job: DownloadJob, q) -> None:

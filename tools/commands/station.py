@@ -38,6 +38,11 @@ def run(args) -> int:
     configure = args.configure_after if args.configure_after is not None else bool(prof and prof.configure_after)
     if configure and prof is None:
         raise ProfileError("--configure-after needs --profile study.toml (what to configure)")
+    if not args.outdir.exists() and args.outdir.parent.is_dir():
+        try:  # the station's own folder: made on first use (its parent must exist)
+            args.outdir.mkdir()
+        except OSError:
+            pass  # the station's own check below names what is wrong
     opts = StationOptions(str(args.outdir), profile=prof, clear_after_verify=clear,
                           configure_after=configure, stall_s=args.stall_s,
                           static_from_store=args.static_from_store)

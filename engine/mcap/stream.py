@@ -15,6 +15,7 @@ Errors are ``McapFormatError`` (a ``ValueError``) naming what was wrong and wher
 
 from __future__ import annotations
 
+import os
 import struct
 import zlib
 from typing import BinaryIO, Iterable, Iterator, NamedTuple, Optional
@@ -58,7 +59,22 @@ def _str(buf, p: int) -> tuple[str, int]:
     return bytes(buf[p + 4:p + 4 + n]).decode("utf-8"), p + 4 + n
 
 
+# The largest uncompressed chunk accepted for a given compressed size: any chunk up to
+# MAX_CHUNK_FLOOR, beyond that at most MAX_EXPANSION times its compressed size. A declared size
+# above both is damage, not data, and must not decide how much memory is allocated.
+MAX_EXPANSION = 1024
+MAX_CHUNK_FLOOR = 256 << 20
+
+
 def _read_exact(f: BinaryIO, n: int, what: str) -> bytes:
+    """Read ``n`` bytes; a length that runs past the end of the file is refused before any
+    allocation (a damaged length field must not allocate gigabytes)."""
+    try:
+        left = os.fstat(f.fileno()).st_size - f.tell()
+    except (OSError, AttributeError, ValueError):
+        left = None
+    if n < 0 or (left is not None and n > left):
+        raise McapFormatError(f"file ends inside {what} (its length field says {n} bytes)")
     b = f.read(n)
     if len(b) != n:
         raise McapFormatError(f"file ends inside {what}")
@@ -207,6 +223,9 @@ def iter_topic_messages(f: BinaryIO, topics: Optional[Iterable[str]], *,
             start, end, usize, crc = _CHUNK_HEAD.unpack_from(body, 0)
             comp, p = _str(body, 28)
             clen, = struct.unpack_from("<Q", body, p)
+            if usize > max(MAX_EXPANSION * clen, MAX_CHUNK_FLOOR):
+                raise McapFormatError(f"a chunk declares {usize} uncompressed bytes for {clen} "
+                                      "compressed: not a real chunk")
             pending = (body[p + 8:p + 8 + clen], comp, usize, crc)
         elif op == rec.OP_CHANNEL:
             channel_record(_read_exact(f, ln, "a channel"), 0)

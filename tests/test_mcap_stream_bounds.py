@@ -27,3 +27,16 @@ def test_chunk_declaring_an_absurd_uncompressed_size_is_refused(tmp_path):
     p = _file(tmp_path, struct.pack("<BQ", rec.OP_CHUNK, len(chunk)) + chunk)
     with open(p, "rb") as f, pytest.raises(McapFormatError, match="not a real chunk"):
         list(iter_topic_messages(f, None))
+
+
+def test_message_index_pointing_past_its_chunk_is_a_typed_error(tmp_path):
+    """A fuzzed log whose message index holds an offset beyond any chunk: every read path ends
+    in one typed line, never an OverflowError."""
+    from pathlib import Path
+
+    from stillpoint.engine.mcap.reading import McapReadError
+    from stillpoint.engine.mcap.stream import iter_messages
+    path = Path(__file__).parent / "data" / "fuzz" / "message_index_offset_huge.mcap"
+    with pytest.raises(McapReadError):
+        for _ in iter_messages(path):
+            pass

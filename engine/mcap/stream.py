@@ -105,7 +105,7 @@ def iter_messages(path, topics: Optional[Iterable[str]] = None) -> Iterator[tupl
                 counts[topic] = i + 1
                 last = topic
                 yield topic, i, StreamedMessage(log_time, data)
-        except (ValueError, struct.error, EOFError, OSError) as e:  # McapFormatError included
+        except (ValueError, struct.error, EOFError, OSError, OverflowError) as e:  # McapFormatError too
             after = (f"after message {counts[last] - 1} of {last}" if last
                      else "before the first message")
             where = locate_damage(path)
@@ -196,6 +196,8 @@ def iter_topic_messages(f: BinaryIO, topics: Optional[Iterable[str]], *,
         offs.sort()
         mv = memoryview(data)
         for off in offs:
+            if off + 9 > usize:
+                raise McapFormatError("a message index points past the end of its chunk")
             op, ln = _REC.unpack_from(data, off)
             if op != rec.OP_MESSAGE or off + 9 + ln > usize:
                 raise McapFormatError("a message index points at no message")

@@ -28,13 +28,18 @@ def test_windows_match_the_simulators_own_recording(tmp_path, packed, method):
     assert np.array_equal(f.start_ns - f.start_ns[0], sw.features.start_ns)
     s = sw.still
     assert s.sum() > 100
-    assert np.all(f.sd[s] < 0.013)  # the truly still windows pass the still criterion on the file
+    # the truly still windows pass the still criterion on the file (but for a few whose worn
+    # micro-motion is strong) and the window-level SDs see the same micro-motion
+    passed = np.all(f.sd[s] < 0.013, axis=1)
+    assert passed.mean() > 0.75
+    assert np.mean(passed == np.all(sw.features.sd[s] < 0.013, axis=1)) > 0.95
     d = (f.mean[s] - sw.features.mean[s]) * 1000.0  # mg
-    # the same deterministic reading, bias and quantisation: only two independent noise draws
-    # differ (per-window SD sqrt(2) * noise / sqrt(1000) ~ 0.13-0.18 mg unpacked)
+    # the same deterministic reading, bias, micro-motion mean and quantisation: only two
+    # independent noise draws differ (per-window SD sqrt(2) * noise / sqrt(1000) ~ 0.13-0.18 mg
+    # unpacked; packed adds the rounding error the micro-motion leaves in each window mean)
     se = d.std(axis=0) / np.sqrt(d.shape[0])
     assert np.all(np.abs(d.mean(axis=0)) < 5 * se + 0.01)
-    assert np.all(d.std(axis=0) < (0.3 if packed else 0.25))
+    assert np.all(d.std(axis=0) < (0.4 if packed else 0.25))
     assert np.allclose(f.sd[s].mean(axis=0), sw.features.sd[s].mean(axis=0), rtol=0.02)
     assert np.max(np.abs(f.temperature - sw.features.temperature)) < 0.05
 

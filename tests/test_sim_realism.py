@@ -1,5 +1,5 @@
 """Realism checks on a CI-sized simulated day (adult wrist, AX3 unpacked, 25 Hz): still windows
-at the noise floor, a plausible share of low-SD windows (mostly at night), ENMO before/after a
+at the noise floor plus the worn micro-motion, a plausible share of low-SD windows (mostly at night), ENMO before/after a
 true calibration moving as in van Hees 2014 Table 4, the walking step frequency, temperature."""
 
 import numpy as np
@@ -23,10 +23,13 @@ def test_still_windows_sit_at_the_noise_floor(day):
     sim, sd, lab = day["sim"], day["sd"], day["labels"]
     still = lab["still"] == 1
     q = sim.spec.lsb_g  # quantisation adds q^2 / 12 to the variance
-    floor = np.sqrt(noise_sd_g(sim.model, HZ) ** 2 + q ** 2 / 12 + (0.3e-3) ** 2)
-    med = np.median(sd[still], axis=0)
-    assert np.all(np.abs(med / floor - 1) < 0.2), (med, floor)
-    assert np.all(np.percentile(sd[still], 99, axis=0) < 0.013)  # every still window passes 13 mg
+    sw = sim.still_windows()  # the closed-form micro-motion RMS of each still window
+    assert set(sw["window"]) <= set(np.nonzero(still)[0])
+    floor = np.sqrt(noise_sd_g(sim.model, HZ) ** 2 + q ** 2 / 12 + (0.3e-3) ** 2 + sw["micro_sd"] ** 2)
+    ratio = np.median(sd[sw["window"]] / floor, axis=0)
+    assert np.all(np.abs(ratio - 1) < 0.2), ratio
+    # the worn micro-motion leaves most still windows under the 13 mg criterion
+    assert np.mean(np.all(sd[still] < 0.013, axis=1)) > 0.75
 
 
 def test_low_sd_share_is_plausible_and_mostly_at_night(day):

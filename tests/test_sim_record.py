@@ -94,9 +94,10 @@ def test_truth_json_and_labels(tmp_path):
     assert lab["window"].shape[0] == int(np.ceil(0.08 * 86400 / 10))
     still = lab["still"] == 1
     assert still.any() and (~still).any()
-    assert np.nanmax(lab["true_sd_x"][still]) < 1e-6  # no movement at all in a still window
+    # a still window holds no movement but the worn micro-motion (a few mg, zero mean)
+    assert np.nanmax(lab["true_sd_x"][still]) < 0.05
     norm = np.sqrt(lab["true_mean_x"] ** 2 + lab["true_mean_y"] ** 2 + lab["true_mean_z"] ** 2)
-    assert np.allclose(norm[still], 1.0, atol=1e-6)
+    assert np.allclose(norm[still], 1.0, atol=5e-3)
     # the clock table maps true time to the file's device times
     first_block_t0 = blocks[0].time_ns[0]
     assert abs(int(truth_device_time(d, [0.0])[0]) - first_block_t0) < 1_000_000
@@ -234,7 +235,10 @@ def test_still_windows_without_rendering_match_the_labels(tmp_path):
     still = np.nonzero(lab["still"] == 1)[0]
     assert set(sw["window"]) <= set(still) and len(sw["window"]) >= len(still) - 40
     m = np.stack([lab["true_mean_x"], lab["true_mean_y"], lab["true_mean_z"]], 1)[sw["window"]]
-    assert np.allclose(sw["gravity"], m, atol=1e-6)
+    s = np.stack([lab["true_sd_x"], lab["true_sd_y"], lab["true_sd_z"]], 1)[sw["window"]]
+    assert np.allclose(sw["gravity"] + sw["micro_mean"], m, atol=3e-4)
+    rel = np.abs(sw["micro_sd"] - s) / np.maximum(s, 1e-3)  # closed form vs 25 Hz samples
+    assert np.median(rel) < 0.05 and np.mean(rel < 0.25) > 0.9
     assert np.allclose(sw["temperature_c"], lab["temperature_c"][sw["window"]])
 
 

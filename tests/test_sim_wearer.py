@@ -52,7 +52,9 @@ def test_render_is_chunk_invariant_and_physical(week, site):
     seg = week.segment_at(t)
     still = week.motion[seg] == 0
     after = t - week.start[seg] > week.trans_s[seg]
-    assert np.allclose(np.linalg.norm(f[still & after], axis=1), 1.0, atol=1e-6)
+    # at rest the device reads gravity plus the worn micro-motion (mg, zero mean, no rotation)
+    norm = np.linalg.norm(f[still & after], axis=1)
+    assert np.allclose(norm, 1.0, atol=0.15) and abs(norm.mean() - 1.0) < 2e-3
     assert np.all(w[still & after] == 0)
     assert np.abs(f).max() < 8.5  # within a plausible range at every site
     gait = week.motion[seg] == 2
@@ -114,3 +116,37 @@ def test_still_windows_of_a_week_cover_the_sphere_on_every_axis():
         assert (g[:, k] < -0.3).sum() > 100 and (g[:, k] > 0.3).sum() > 100
     # and the device temperature spans a useful range for the temperature term
     assert np.ptp(sw["temperature_c"]) > 5
+
+
+def test_worn_micromotion_at_rest():
+    """Still segments of a worn device carry the micro-motion (breathing, pulse, tremor): a few
+    mg per axis, zero mean, no rotation; nonwear segments and a body without it are exactly
+    still; the closed-form window moments (for window-level simulation) match rendered samples."""
+    sch = make_schedule(WearerParams(), 2 * 86400.0, seed=3)
+    flat = make_schedule(WearerParams(still_micromotion_mg=0.0), 2 * 86400.0, seed=3)
+    on, off = SiteModel(sch, "wrist", seed=3), SiteModel(flat, "wrist", seed=3)
+    still = np.nonzero(sch.motion == MOTIONS.index("still"))[0]
+    worn = [i for i in still if ACTIVITIES[sch.activity[i]] in ("sleep", "sitting", "standing")
+            and sch.end[i] - sch.start[i] > 60]
+    table = [i for i in still if ACTIVITIES[sch.activity[i]] == "nonwear_table"]
+    assert len(worn) > 20 and table
+    hz = 100.0
+    rms = []
+    for i in worn[:20]:
+        t0 = sch.start[i] + sch.trans_s[i] + 1.0
+        t = t0 + np.arange(int(10 * hz)) / hz
+        f, w = on.render(t, gyro=True)
+        f0, _ = off.render(t)
+        assert np.allclose(np.linalg.norm(f0, axis=1), 1.0, atol=1e-6)  # off: exactly gravity
+        np.testing.assert_allclose(f0, np.broadcast_to(on.params(i).R_base[2, :], f0.shape), atol=1e-6)
+        assert np.all(w == 0)
+        mean, sd = on.micromotion_window_moments(i, np.array([t0]), 10.0)
+        np.testing.assert_allclose(f.mean(axis=0) - f0[0], mean[0], atol=2e-4)
+        np.testing.assert_allclose(f.std(axis=0), sd[0], rtol=0.1, atol=3e-4)
+        rms.append(np.sqrt(np.mean(sd[0] ** 2)))
+    assert 2e-3 < np.median(rms) < 12e-3  # a few mg per axis
+    i = table[0]
+    t = sch.start[i] + sch.trans_s[i] + 1.0 + np.arange(1000) / hz
+    f, _ = on.render(t)
+    assert np.allclose(np.linalg.norm(f, axis=1), 1.0, atol=1e-6)  # off the body: still
+    assert on.micromotion(i) is None

@@ -300,8 +300,9 @@ class DeviceSim:
     def still_windows(self) -> dict:
         """The truly still 10 s windows without rendering any sample (fast: for window-level
         studies such as the discrepancy workflow's): true start (s), device-clock start (ns),
-        the gravity vector in the device frame (k, 3) g, temperature and accelerometer
-        temperature (degC). Same windows and vectors as ``labels`` gives for a full run
+        the gravity vector in the device frame (k, 3) g, the worn micro-motion's window mean and
+        RMS about it (``micro_mean``, ``micro_sd``, (k, 3) g; zero off the body), temperature and
+        accelerometer temperature (degC). Same windows and vectors as ``labels`` gives for a full run
         (windows cut by a halt or restart excepted)."""
         sch = self.schedule
         nw = int(np.ceil(self.duration_s / WINDOW_S))
@@ -314,10 +315,16 @@ class DeviceSim:
             w0 = idx * WINDOW_S
         seg = sch.segment_at(w0 + 0.5 * WINDOW_S)
         grav = np.empty((idx.shape[0], 3))
+        micro_mean = np.empty((idx.shape[0], 3))
+        micro_sd = np.empty((idx.shape[0], 3))
         for i in np.unique(seg):
-            grav[seg == i] = self.site_model.params(int(i)).R_base[2, :]
+            sel = seg == i
+            grav[sel] = self.site_model.params(int(i)).R_base[2, :]
+            micro_mean[sel], micro_sd[sel] = self.site_model.micromotion_window_moments(
+                int(i), w0[sel], WINDOW_S)
         return {"window": idx, "true_start_s": w0, "device_start_ns": lab["device_start_ns"][idx],
-                "gravity": grav, "temperature_c": lab["temperature_c"][idx],
+                "gravity": grav, "micro_mean": micro_mean, "micro_sd": micro_sd,
+                "temperature_c": lab["temperature_c"][idx],
                 "accel_temperature_c": lab["accel_temperature_c"][idx]}
 
     def clock_truth(self) -> dict:

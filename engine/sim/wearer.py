@@ -20,7 +20,10 @@ columns of R are the device axes in world coordinates. Each segment's orientatio
 R(t) = Rot(axis, angle(t)) @ R_ref: during the segment's opening transition R_ref is the previous
 segment's final orientation and the rotation carries it to the segment's base orientation;
 afterwards R_ref is the base orientation and angle(t) is the segment's oscillation (fidgeting,
-arm swing, leg swing, pelvic rotation).
+arm swing, leg swing, pelvic rotation). A worn device at rest is never perfectly still: its
+"still" segments carry a micro-motion (``micromotion``: breathing, pulse and tremor sinusoids of
+linear acceleration along random directions, zero mean), which also dithers the stored counts'
+quantisation as on a real wrist; nonwear segments are still.
 """
 
 from __future__ import annotations
@@ -72,6 +75,11 @@ class WearerParams:
     shower_per_day: float = 1.0  # device off on a table, 15-30 min (morning)
     drawer_per_day: float = 0.15  # device off in a drawer, 1-4 h
     first_hour_nonwear: bool = False  # start with the device on a table for 1 h (set-up)
+    # RMS (mg) of the micro-motion of a worn device at rest (breathing, pulse, physiological
+    # tremor), drawn per still segment (lognormal around it); 0 = a perfectly still body. 6 mg
+    # gives worn still-window SDs (median 6-8 mg on packed +-8 g AX3 at 100 Hz) like those of
+    # the real wrist recordings in shared/data/real (tools/still_window_sd.py).
+    still_micromotion_mg: float = 6.0
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -353,6 +361,12 @@ _GAIT = {
     "thigh": dict(body=1.0, heel=1.1, swing=(20.0, 35.0), radius=0.25),
     "ankle": dict(body=1.1, heel=3.0, swing=(25.0, 45.0), radius=0.42),
 }
+# Micro-motion of a worn device at rest: (frequency range Hz, share of the variance, harmonics)
+# per physiological source; the per-axis RMS of the sum is WearerParams.still_micromotion_mg.
+_MICRO = (((0.2, 0.33), 0.35, 1),   # breathing
+          ((0.9, 1.4), 0.40, 2),    # pulse (ballistocardiographic), fundamental + 2nd harmonic
+          ((8.0, 12.0), 0.25, 2))   # physiological tremor: two components in the band
+_WORN_AT_REST = (A["sleep"], A["lying"], A["sitting"], A["standing"])
 # Fidget amplitude (deg) and linear acceleration (g) per site
 _FIDGET = {"wrist": (6.0, 0.03), "hip": (1.2, 0.012), "thigh": (2.5, 0.02), "ankle": (3.0, 0.02)}
 
@@ -470,6 +484,59 @@ class SiteModel:
         self._cache[i] = sp
         return sp
 
+    def micromotion(self, i: int):
+        """The micro-motion of still segment i of a worn device: (directions (m, 3) unit vectors,
+        world; amplitudes (m,) g; frequencies (m,) Hz; phases (m,) rad), or None (nonwear,
+        moving segments, or ``still_micromotion_mg`` 0). Drawn from a stream of its own, so
+        switching it off leaves every other draw unchanged."""
+        sch = self.schedule
+        rms_mg = float(getattr(sch.params, "still_micromotion_mg", 0.0))
+        if (rms_mg <= 0 or MOTIONS[sch.motion[i]] != "still"
+                or int(sch.activity[i]) not in _WORN_AT_REST):
+            return None
+        r = np.random.default_rng(np.random.SeedSequence([self.seed, 13, _SITE_CODE[self.site], int(i)]))
+        # per-axis RMS (g) of this segment; a component along a random direction puts a third
+        # of its variance on each axis on average
+        rms = rms_mg / 1000.0 * r.lognormal(0.0, 0.5) * np.sqrt(3.0)
+        amp, freq = [], []
+        for (lo, hi), share, parts in _MICRO:
+            if parts == 1:
+                freq += [r.uniform(lo, hi)]
+                var = [share]
+            elif lo < 2.0:  # a fundamental and its harmonic
+                f0 = r.uniform(lo, hi)
+                freq += [f0, 2.0 * f0]
+                var = [0.7 * share, 0.3 * share]
+            else:  # components spread over the band
+                freq += list(r.uniform(lo, hi, parts))
+                var = [share / parts] * parts
+            amp += [np.sqrt(2.0 * v) * rms for v in var]
+        m = len(freq)
+        phase = r.uniform(0.0, 2 * np.pi, m)
+        d = r.normal(size=(m, 3))
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        return d, np.asarray(amp), np.asarray(freq), phase
+
+    def micromotion_window_moments(self, i: int, start_s: np.ndarray, width_s: float):
+        """Mean (k, 3) and RMS about that mean (k, 3), g in the device frame, of segment i's
+        micro-motion over windows [start_s, start_s + width_s) (closed form over continuous time;
+        zeros when the segment has none). For window-level simulation without samples."""
+        a = np.asarray(start_s, np.float64).reshape(-1)
+        mm = self.micromotion(i)
+        if mm is None:
+            z = np.zeros((a.shape[0], 3))
+            return z, z.copy()
+        d, amp, freq, phase = mm
+        c = amp[:, None] * (d @ self.params(i).R_base)  # (m, 3) per component and axis
+        w = 2 * np.pi * freq
+        ph0 = w[None, :] * a[:, None] + phase[None, :]
+        ph1 = ph0 + w[None, :] * width_s
+        mean_k = (np.cos(ph0) - np.cos(ph1)) / (w[None, :] * width_s)  # window mean of each sine
+        sq_k = 0.5 - (np.sin(2 * ph1) - np.sin(2 * ph0)) / (4 * w[None, :] * width_s)
+        mean = mean_k @ c
+        var = np.maximum(sq_k @ (c * c) - mean_k ** 2 @ (c * c), 0.0)  # cross terms average out
+        return mean, np.sqrt(var)
+
     def _angle(self, i: int, sp: _SegParams, t: np.ndarray):
         """Oscillation angle (rad) and its first and second derivatives at times t."""
         mot = MOTIONS[self.schedule.motion[i]]
@@ -569,9 +636,20 @@ class SiteModel:
         tm = t[nt:]
         mot = MOTIONS[sch.motion[i]]
         if mot == "still":
-            f[nt:] = sp.R_base[2, :]  # R^T (0, 0, 1): the third row of R
+            mm = self.micromotion(i)
+            if mm is None:
+                f[nt:] = sp.R_base[2, :]  # R^T (0, 0, 1): the third row of R
+                if w is not None:
+                    w[nt:] = 0.0
+                return
+            d, amp, freq, phase = mm
+            wf = 2 * np.pi * freq
+            arg = (tm - s0)[:, None] * wf + (phase + wf * s0)
+            # R^T (e_z + L): gravity plus the micro-acceleration, into the device frame
+            f[nt:] = _sin(arg) @ (amp[:, None] * (d @ sp.R_base)).astype(np.float32)
+            f[nt:] += sp.R_base[2, :]
             if w is not None:
-                w[nt:] = 0.0
+                w[nt:] = 0.0  # linear: no rotation
             return
         env = self._envelope(i, tm)
         if mot == "fidget":

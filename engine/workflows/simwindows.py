@@ -5,10 +5,10 @@ table).
 Everything comes from engine.sim: one device on the wrist (``make_devices``) gives the body's
 schedule, the device temperature track (every 10 s), the accelerometer temperature through the
 truth's thermal lag over that whole track, the bias-instability track, and the truly still 10 s
-windows with their gravity vector in the device frame (``DeviceSim.still_windows``). For each still
-window:
+windows with their gravity vector in the device frame and the worn micro-motion's window mean and
+RMS (``DeviceSim.still_windows``). For each still window:
 
-* deterministic sensor model: ``apply_deterministic(gravity, truth, temperature_c=T,
+* deterministic sensor model: ``apply_deterministic(gravity + micro-motion mean, truth, temperature_c=T,
   time_s=t_mid, accel_temperature_c=T_a)`` plus the bias track at the window's middle;
 * white noise and quantisation (the simulator's ``DeviceSpec``: AX3 at +-8 g, unpacked 1/256 g by
   default, packed 4/256 g on request), two ways that give the same window statistics:
@@ -78,28 +78,39 @@ def _level_moments(x: np.ndarray, s: np.ndarray, step: float, span: float = 7.0)
 
 
 def window_statistics(x: np.ndarray, noise_sd: np.ndarray, spec: DeviceSpec, quantise: bool, n: int,
-                      rng: np.random.Generator, method: str = "moments"):
+                      rng: np.random.Generator, method: str = "moments", dither_sd=None):
     """(mean, sample SD), each (k, 3) g, of windows of ``n`` samples that read ``x`` (k, 3) plus
     white noise of SD ``noise_sd`` (3,), quantised to the device's counts when ``quantise``.
-    ``method``: "samples" (draw them) or "moments" (exact mean/variance, Gaussian shape)."""
+    ``dither_sd`` (k, 3): a zero-mean movement within each window (the worn micro-motion) of that
+    RMS, which adds to the samples' spread and dithers the quantisation but, being a smooth
+    oscillation already averaged into ``x``, adds no scatter to the window mean.
+    ``method``: "samples" (draw them; the movement as a 1.1 Hz sine of random phase) or
+    "moments" (exact mean/variance, Gaussian shape)."""
     if method not in ("moments", "samples"):
         raise ValueError(f"method must be 'moments' or 'samples', got {method!r}")
     nsd = np.asarray(noise_sd, np.float64)
+    dit = np.zeros_like(x) if dither_sd is None else np.asarray(dither_sd, np.float64)
     if method == "moments":
+        s = np.sqrt(nsd ** 2 + dit ** 2)
         if quantise:
-            m, v = _level_moments(x, np.broadcast_to(nsd, x.shape), float(spec.lsb_g[0]))
+            m, v = _level_moments(x, s, float(spec.lsb_g[0]))
         else:
-            m, v = x, np.broadcast_to(nsd ** 2, x.shape).copy()
-        mean = m + np.sqrt(v / n) * rng.standard_normal(x.shape)
+            m, v = x, s ** 2
+        mean = m + np.sqrt(np.maximum(v - dit ** 2, 0.0) / n) * rng.standard_normal(x.shape)
         sd = np.sqrt(v * rng.chisquare(n - 1, size=x.shape) / (n - 1))
         return mean, sd
     mean = np.empty_like(x)
     sd = np.empty_like(x)
     cpg = spec.counts_per_g.astype(np.float64)
+    wave = np.sqrt(2.0) * np.sin(2 * np.pi * 1.1 * WINDOW_S * np.arange(n) / n)  # 11 cycles
     for b in range(0, x.shape[0], BLOCK):
         xb = x[b:b + BLOCK]
         a = standard_normals(rng, (xb.shape[0], n, 3)) * nsd.astype(np.float32)
         a += xb[:, None, :].astype(np.float32)
+        if dither_sd is not None:
+            shift = rng.integers(0, n, (xb.shape[0], 3))
+            a += (np.take(wave, (np.arange(n)[None, :, None] + shift[:, None, :]) % n)
+                  * dit[b:b + BLOCK, None, :]).astype(np.float32)
         g = spec.to_counts(a.reshape(-1, 3)).reshape(a.shape) / cpg if quantise else a.astype(np.float64)
         mean[b:b + BLOCK] = g.mean(axis=1)
         sd[b:b + BLOCK] = g.std(axis=1, ddof=1)
@@ -132,14 +143,15 @@ def simulate_windows(truth: sim.SensorModel, days: float = 7.0, seed: int = 0, *
     sw = dev.still_windows()
     idx = sw["window"]
     t_mid = sw["true_start_s"] + 0.5 * WINDOW_S
-    x = sim.apply_deterministic(sw["gravity"], model, temperature_c=sw["temperature_c"],
-                                time_s=t_mid, accel_temperature_c=sw["accel_temperature_c"])
+    x = sim.apply_deterministic(sw["gravity"] + sw["micro_mean"], model,
+                                temperature_c=sw["temperature_c"], time_s=t_mid,
+                                accel_temperature_c=sw["accel_temperature_c"])
     if model.on("bias_instability"):
         x = x + np.column_stack([np.interp(t_mid, dev.t_grid, dev.bias_grid[:, j]) for j in range(3)])
     n = int(round(WINDOW_S * RATE_HZ))
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 41]))
     mean, sd = window_statistics(x, noise_sd_g(model, RATE_HZ), dev.spec, model.on("quantisation"),
-                                 n, rng, method)
+                                 n, rng, method, dither_sd=sw["micro_sd"])
 
     nw = int(np.ceil(dev.duration_s / WINDOW_S))
     w0_all = np.arange(nw) * WINDOW_S

@@ -15,12 +15,14 @@ from stillpoint.engine.calibration import (CalibrationStore, fit_calibration,
                                            select_calibration_windows)
 from stillpoint.engine.calibration.fit import icp_sphere_fit
 from stillpoint.engine.calibration.recording import calibrate_source
-from stillpoint.engine.calibration.trust import (TEMPOFFSET_SE_LIMIT_MG_C, assess,
-                                                 quantisation_bias_bound_mg)
+from stillpoint.engine.calibration.trust import (TEMPERATURE_WALD_CRIT, TEMPOFFSET_SE_LIMIT_MG_C,
+                                                 assess, quantisation_bias_bound_mg,
+                                                 temperature_wald)
 from stillpoint.engine.calibration.uncertainty import (block_bootstrap, coefficient_uncertainty,
                                                        window_blocks)
 from stillpoint.engine.features import WindowFeatures
 from stillpoint.engine.sim import SimSource, TemperatureParams, ggir_equivalent
+from stillpoint.engine.sim.device import build_model
 from stillpoint.engine.sim.record import simulate_recording
 from stillpoint.tools.calibration_coverage import KINDS, run_recording
 from stillpoint.tools.cli import main
@@ -41,10 +43,15 @@ def test_standard_errors_cover_the_truth(coverage_rows):
     assert z.size == 54 and np.all(np.isfinite(z))
     assert np.mean(np.abs(z) <= 2.0) >= 0.85
     assert np.max(np.abs(z)) < 6.0
-    # every default recording is packed and warns about it, and its temperature term is dropped
+    # every default recording is packed, but the worn wrist's micro-motion dithers the step (no
+    # quantisation warning); its temperature term is over the SE limit in 36 h: kept where it is
+    # clearly not zero (temperature_imprecise), dropped where it cannot be told from zero
+    kept = [r["auto_kept_temperature"] for r in coverage_rows]
+    assert any(kept) and not all(kept)
     for r in coverage_rows:
-        assert "quantisation" in r["warnings"] and not r["auto_kept_temperature"]
-        assert "temperature_undetermined" in r["warnings"]
+        assert "quantisation" not in r["warnings"]
+        assert ("temperature_imprecise" in r["warnings"]) == r["auto_kept_temperature"]
+        assert ("temperature_undetermined" in r["warnings"]) != r["auto_kept_temperature"]
     # the fallback's own coefficients (C1, at the windows' mean temperature) are covered too
     z1 = np.concatenate([r["auto"][k] for r in coverage_rows for k in ("offset", "scale")])
     assert np.mean(np.abs(z1) <= 2.0) >= 0.85
@@ -87,20 +94,51 @@ def _narrow() -> TemperatureParams:
                              skin_sleep_c={"wrist": 32.0}, fluct_sd_c=0.1, initial_c=31.0)
 
 
+def _flat() -> TemperatureParams:
+    """Skin and room nearly equal: worn window temperatures within ~0.2 degC."""
+    return TemperatureParams(ambient_c=31.8, ambient_daily_amp_c=0.05, skin_day_c={"wrist": 31.9},
+                             skin_sleep_c={"wrist": 32.0}, fluct_sd_c=0.02, initial_c=31.9)
+
+
+def test_imprecise_but_real_temperature_term_is_kept():
+    """The same narrow temperature range with a large real temperature term (3 mg/degC on z): the
+    SE is over the limit, but the term is many SE from zero, so it is kept (dropping it would
+    push its effect into the offsets) with ``temperature_imprecise``; the dropped-term model
+    would fit the data worse."""
+    src = SimSource(days=1.5, hz=25, seed=3, packed=False, temperature=_narrow(),
+                    effects=build_model(GGIR_EFFECTS, overrides=[("temperature_offset", {
+                        "x_mg_per_c": 0.0, "y_mg_per_c": 0.0, "z_mg_per_c": 3.0})]))
+    est = calibrate_source(src).estimate
+    assert est.status == "ok" and est.method == "autocal-c2"
+    assert "temperature_imprecise" in est.extra["flags"]
+    assert "temperature_undetermined" not in est.extra["flags"]
+    se = np.asarray(est.uncertainty["tempoffset"]) * 1000
+    assert np.max(se) > TEMPOFFSET_SE_LIMIT_MG_C
+    g = ggir_equivalent(src.sim.model, est.temperature_ref)
+    err = np.abs(est.tempoffset - np.asarray(g["tempoffset"])) * 1000
+    assert np.all(err <= 3 * se)
+    wald = temperature_wald(est.tempoffset, np.diag(np.square(se / 1000)),
+                            [f"tempoffset_{a}" for a in "xyz"])
+    assert wald >= TEMPERATURE_WALD_CRIT and abs(est.tempoffset[2]) * 1000 > 2.0
+
+
 def test_narrow_temperature_falls_back_with_its_warning():
     """Same device and wearer (unpacked, no bias wander: the temperature term is determined with
-    the usual temperature range), once with a narrow temperature range: the term's SE exceeds
-    the limit, the fit says so and falls back to offset + scale (C1)."""
-    wide = calibrate_source(SimSource(days=1.5, hz=25, seed=3, packed=False,
-                                      effects=GGIR_EFFECTS)).estimate
+    the usual temperature range), once with a flat temperature and no real temperature
+    term: the term's SE exceeds the limit and it cannot be told from zero, so the fit says so and
+    falls back to offset + scale (C1)."""
+    wide_src = SimSource(days=1.5, hz=25, seed=3, packed=False, effects=GGIR_EFFECTS)
+    wide = calibrate_source(wide_src).estimate
     assert wide.method == "autocal-c2" and "temperature_undetermined" not in wide.extra["flags"]
     se = np.asarray(wide.uncertainty["tempoffset"]) * 1000
     assert np.all(se <= TEMPOFFSET_SE_LIMIT_MG_C)
-    src = SimSource(days=1.5, hz=25, seed=3, packed=False, effects=GGIR_EFFECTS,
-                    temperature=_narrow())
-    g = ggir_equivalent(src.sim.model, wide.temperature_ref)
+    g = ggir_equivalent(wide_src.sim.model, wide.temperature_ref)
     err = np.abs(wide.tempoffset - np.asarray(g["tempoffset"])) * 1000
     assert np.all(err <= 0.1) and np.all(err <= 3 * se)
+    no_term = build_model(GGIR_EFFECTS, overrides=[("temperature_offset", {
+        "x_mg_per_c": 0.0, "y_mg_per_c": 0.0, "z_mg_per_c": 0.0})])
+    src = SimSource(days=1.5, hz=25, seed=3, packed=False, effects=no_term,
+                    temperature=_flat())
     narrow = calibrate_source(src).estimate
     assert narrow.status == "ok" and narrow.method == "autocal-c1"
     assert not narrow.uses_temperature and narrow.uncertainty["tempoffset"] == [None] * 3
@@ -110,8 +148,8 @@ def test_narrow_temperature_falls_back_with_its_warning():
     dropped = narrow.extra["temperature_dropped"]
     assert max(dropped["uncertainty"]["tempoffset"]) * 1000 > TEMPOFFSET_SE_LIMIT_MG_C
     # asking for C2 keeps the term, still with the warning
-    kept = calibrate_source(SimSource(days=1.5, hz=25, seed=3, packed=False, effects=GGIR_EFFECTS,
-                                      temperature=_narrow()), variant="c2").estimate
+    kept = calibrate_source(SimSource(days=1.5, hz=25, seed=3, packed=False, effects=no_term,
+                                      temperature=_flat()), variant="c2").estimate
     assert kept.method == "autocal-c2" and "kept (variant c2 requested)" in kept.reason
 
 
@@ -153,10 +191,11 @@ def test_uncertainty_in_cli_process_mcap_and_store(tmp_path, capsys):
     u = d["uncertainty"]
     assert set(u) == {"offset", "scale", "tempoffset", "temperature_ref"}
     assert all(len(u[k]) == 3 for k in KINDS) and all(v > 0 for v in u["offset"] + u["scale"])
-    assert [w["code"] for w in d["warnings"]][:1] == ["temperature_undetermined"]
+    assert [w["code"] for w in d["warnings"]][:1] == ["temperature_imprecise"]
     assert main(["calibration", "--store-dir", str(home), "show", d["device_key"]]) == 0
     out = capsys.readouterr().out
-    assert "+- offset" in out and "warning: temperature term not determined" in out
+    assert "+- offset" in out and "+- tempoff" in out
+    assert "warning: temperature term imprecise" in out
     rec = CalibrationStore(home).estimates(d["device_key"])[-1]
     assert rec.uncertainty == u
     # process: summary and the MCAP /calibration record

@@ -153,13 +153,16 @@ def summary(rows: list, args) -> str:
     lines.append(f"  all        {100 * np.mean(np.abs(z) <= 2):5.1f} % of {z.size}")
     kept = [r for r in rows if r["auto_kept_temperature"]]
     lines.append(f"default (auto): temperature term kept in {len(kept)} of {len(rows)} "
-                 "(dropped where its SE > 0.05 mg/degC)")
+                 "(dropped where its SE > 0.05 mg/degC and it cannot be told from zero)")
     for k in ("offset", "scale") + (("tempoffset",) if kept else ()):
         c, n, _ = coverage(rows, "auto", k)
         lines.append(f"  {k:10s} {100 * c:5.1f} % of {n} within +-2 SE")
     if kept:
         e = np.concatenate([np.abs(r["auto"]["tempoffset_error"]) for r in kept]) * 1000
-        lines.append(f"  where kept: temperature coefficient error max {e.max():.3f} mg/degC")
+        se = np.concatenate([r["c2_se"]["tempoffset"] for r in kept]) * 1000
+        lines.append(f"  where kept: temperature coefficient error max {e.max():.3f} mg/degC, "
+                     f"median {np.median(e):.3f}; {np.mean(e <= 0.1) * 100:.1f} % within 0.1; "
+                     f"{np.mean(se <= 0.05) * 100:.1f} % of their SEs within 0.05 mg/degC")
     se_t = np.concatenate([r["c2_se"]["tempoffset"] for r in rows]) * 1000
     lines.append(f"C2 temperature coefficient SE: median {np.median(se_t):.3f}, range "
                  f"{se_t.min():.3f}-{se_t.max():.3f} mg/degC")

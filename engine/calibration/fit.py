@@ -305,9 +305,10 @@ def fit_calibration(features: WindowFeatures, *, temperature: bool = True,
     An applied fit carries one standard error per coefficient (``uncertainty``, block-robust:
     engine/calibration/uncertainty.py) and the warnings of engine/calibration/trust.py in
     ``extra["warnings"]``, ``extra["flags"]`` and the reason. With ``variant="auto"`` and
-    ``temperature_fallback`` a temperature term whose standard error is above the limit is
-    dropped and the model refitted without it (C1); the dropped fit is kept in
-    ``extra["temperature_dropped"]``. ``quantisation_step_g``: the stored values' step (g), for
+    ``temperature_fallback`` a temperature term whose standard error is above the limit and
+    that cannot be told from zero (trust.py: ``temperature_undetermined``) is dropped and the
+    model refitted without it (C1); the dropped fit is kept in ``extra["temperature_dropped"]``.
+    A term over the limit but clearly not zero is kept with ``temperature_imprecise``. ``quantisation_step_g``: the stored values' step (g), for
     the quantisation warning.
     """
     call = dict(locals())
@@ -443,7 +444,7 @@ def _judge(est: CalibrationEstimate, feats: WindowFeatures, t_used: bool,
            call: dict) -> CalibrationEstimate:
     """Standard errors and warnings for an applied fit; the C1 fallback when the temperature
     term is not determined (see :func:`fit_calibration`)."""
-    from .trust import FitWarning, add_warnings, assess, temperature_warning
+    from .trust import FitWarning, add_warnings, assess, temperature_wald, temperature_warning
     from .uncertainty import BLOCK_GAP_S, MIN_BLOCKS, coefficient_uncertainty
 
     variant = call["variant"]
@@ -458,10 +459,12 @@ def _judge(est: CalibrationEstimate, feats: WindowFeatures, t_used: bool,
             f"standard errors not computable: the {len(feats)} windows form only {u.blocks} "
             f"independent block(s) (< {MIN_BLOCKS}; windows more than {BLOCK_GAP_S / 60:g} min "
             "apart start a new block)")))
-    tw = temperature_warning(est.tempoffset, u.tempoffset, feats.temperature,
-                             u.blocks) \
+    tw = temperature_warning(est.tempoffset, u.tempoffset, feats.temperature, u.blocks,
+                             temperature_wald(est.tempoffset, u.covariance, u.names)) \
         if t_used and u.blocks >= MIN_BLOCKS else None
-    if tw is not None:
+    if tw is not None and tw.code == "temperature_imprecise":
+        warnings.append(tw)
+    elif tw is not None:
         if variant == "auto" and call["temperature_fallback"] and not call["ggir_compatible"]:
             c1 = fit_calibration(**dict(call, variant="c1", start=None))
             c1.extra["variant"] = variant

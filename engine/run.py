@@ -132,7 +132,7 @@ class FeatureStage:
         self.keep_all = on_features is None  # batch: keep every window for the fit (~60k rows/week)
         self._all: list[WindowFeatures] = []
         self.last_block_ns: Optional[int] = None
-        self.count_step = CountStep()  # quantisation step of the counts (calibration warning)
+        self.count_step = CountStep()  # quantisation step of the counts (calibration)
 
     @property
     def all_windows(self) -> WindowFeatures:
@@ -427,6 +427,7 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
                     outst.correction.add_estimate(e)
 
         feat = FeatureStage(s, rate, on_features=lambda f: publish(cal.add(f)))
+        cal.count_step = feat.count_step
 
         def gate():
             nb = cal.next_boundary_ns

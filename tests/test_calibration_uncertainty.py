@@ -14,6 +14,7 @@ import pytest
 from stillpoint.engine.calibration import (CalibrationStore, fit_calibration,
                                            select_calibration_windows)
 from stillpoint.engine.calibration.fit import icp_sphere_fit
+from stillpoint.engine.calibration.quantisation import dequantised
 from stillpoint.engine.calibration.recording import calibrate_source
 from stillpoint.engine.calibration.trust import (TEMPERATURE_WALD_CRIT, TEMPOFFSET_SE_LIMIT_MG_C,
                                                  assess, quantisation_bias_bound_mg,
@@ -62,7 +63,7 @@ def test_windows_are_not_independent(coverage_rows):
     blocked errors are >= 3x the per-window ones on the temperature term of a default recording."""
     src = SimSource(days=1.5, hz=25, seed=2)
     res = calibrate_source(src, variant="c2")
-    w, est = res.windows, res.estimate
+    w, est = dequantised(res.windows, src.sim.spec.lsb_g), res.estimate  # the means it fitted
     blocked = coefficient_uncertainty(w.mean, w.temperature, est.offset, est.scale,
                                       est.tempoffset, est.temperature_ref, w.start_ns)
     naive = coefficient_uncertainty(w.mean, w.temperature, est.offset, est.scale, est.tempoffset,
@@ -76,7 +77,7 @@ def test_block_bootstrap_agrees_with_the_sandwich():
     src = SimSource(days=1.5, hz=25, seed=4)
     res = calibrate_source(src, variant="c2")
     w, est = res.windows, res.estimate
-    sel = select_calibration_windows(w).features
+    sel = dequantised(select_calibration_windows(w).features, src.sim.spec.lsb_g)
 
     def fit(mean, temp):
         tr = float(np.mean(temp))

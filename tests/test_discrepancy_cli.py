@@ -130,8 +130,10 @@ def test_mcap_log_gives_the_same_windows_and_report_as_its_recording(tmp_path):
     from stillpoint.engine.sim.record import simulate_recording
     from stillpoint.engine.workflows.api import analyse
     rec = tmp_path / "short.cwa"
+    from stillpoint.engine.sim.wearer import WearerParams
+    # a perfectly still body: repeated identical windows occur, so their collapsing is compared too
     simulate_recording(rec, device="ax3", days=0.3, hz=12.5, seed=8, truth_path=False,
-                       labels_path=False,
+                       labels_path=False, wearer=WearerParams(still_micromotion_mg=0.0),
                        effects=sim.SensorModel({"offset": {}, "gain": {}, "noise": {},
                                                 "quantisation": {}}))
     log = tmp_path / "short.mcap"

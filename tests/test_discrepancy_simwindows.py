@@ -69,10 +69,10 @@ def test_moment_shortcut_matches_drawn_samples(packed):
 def test_quantisation_bias_bound_is_the_largest_bias_of_a_window_mean(noise_mg):
     """The report's bound (first harmonic) against the exact mean of rounded noisy samples."""
     from stillpoint.engine.workflows.locate import quantisation_bias_bound_mg
-    from stillpoint.engine.workflows.simwindows import _level_moments
+    from stillpoint.engine.calibration.quantisation import level_moments
     step = 15.625
     x = np.linspace(0.0, step, 2001)
-    m, _ = _level_moments(x, np.full_like(x, noise_mg), step)
+    m, _ = level_moments(x, np.full_like(x, noise_mg), step)
     exact = np.max(np.abs(m - x))
     bound = float(quantisation_bias_bound_mg(step, noise_mg))
     assert bound == pytest.approx(exact, rel=0.12, abs=1e-3)

@@ -111,7 +111,7 @@ def score_file(path) -> dict:
                       if k in ("offset", "gain", "temperature_offset")})
     res = calibrate_recording(path)
     auto = res.estimate
-    c2 = fit_calibration(res.windows, select=False, variant="c2")
+    c2 = calibrate_recording(path, variant="c2").estimate
     t_mean = float(np.mean(res.windows.temperature))
     return {"file": str(path), "auto": auto, "c2": c2,
             "z_auto": zscores(auto, tm, auto.temperature_ref if auto.uses_temperature else t_mean),

@@ -31,6 +31,7 @@ import numpy as np
 
 from ..features import WindowFeatures
 from .estimate import CalibrationEstimate
+from .quantisation import dequantised
 from .select import MAX_ABS_MEAN_G, SD_THRESHOLD_G, select_calibration_windows
 
 WINDOW_S = 10.0  # window length of the calibration features (van Hees 2014)
@@ -285,6 +286,7 @@ def fit_calibration(features: WindowFeatures, *, temperature: bool = True,
                     window_s: float = WINDOW_S,
                     windows_offered: Optional[int] = None,
                     start: Optional[CalibrationEstimate] = None, quantisation_step_g=None,
+                    means_dequantised: bool = False,
                     temperature_fallback: bool = True) -> CalibrationEstimate:
     """Fit the calibration on a table of window features and judge the result.
 
@@ -308,7 +310,11 @@ def fit_calibration(features: WindowFeatures, *, temperature: bool = True,
     ``temperature_fallback`` a temperature term whose standard error is above the limit and
     that cannot be told from zero (trust.py: ``temperature_undetermined``) is dropped and the
     model refitted without it (C1); the dropped fit is kept in ``extra["temperature_dropped"]``.
-    A term over the limit but clearly not zero is kept with ``temperature_imprecise``. ``quantisation_step_g``: the stored values' step (g), for
+    A term over the limit but clearly not zero is kept with ``temperature_imprecise``.
+
+    ``quantisation_step_g``: the stored values' step (g). The window means are de-biased for it
+    (engine/calibration/quantisation.py; not in GGIR-compatible mode) unless the caller did so
+    already (``means_dequantised``, e.g. once per window as windows accumulate); it also feeds
     the quantisation warning.
     """
     call = dict(locals())
@@ -339,6 +345,12 @@ def fit_calibration(features: WindowFeatures, *, temperature: bool = True,
         extra["windows_unusable"] = int((~usable).sum())
         feats = feats.select(usable)
         mean = feats.mean
+    step = quantisation_step_g
+    if step is not None and not ggir_compatible and len(feats):
+        if not means_dequantised:
+            feats = dequantised(feats, step)
+            mean = feats.mean
+        extra["means_dequantised"] = True
     n = len(feats)
     if n == 0:
         return CalibrationEstimate(
@@ -488,7 +500,8 @@ def _judge(est: CalibrationEstimate, feats: WindowFeatures, t_used: bool,
         tw.message = tw.message.split(": fitted without it")[0] + f": kept ({why})"
         warnings.append(tw)
     warnings += assess(est.uncertainty, feats.mean, feats.sd,
-                       quantisation_step_g=call["quantisation_step_g"])
+                       quantisation_step_g=call["quantisation_step_g"],
+                       dequantised=bool(est.extra.get("means_dequantised")))
     add_warnings(est, warnings)
     return est
 

@@ -24,6 +24,7 @@ import numpy as np
 from ..features import WindowFeatures
 from .estimate import CalibrationEstimate
 from .fit import MIN_WINDOWS, WINDOW_S, estimate_error_mg, fit_calibration
+from .quantisation import dequantised
 from .refit import extrapolated_start
 from .schedule import CHUNK_HOURS
 from .select import MAX_ABS_MEAN_G, SD_THRESHOLD_G, select_calibration_windows
@@ -38,13 +39,16 @@ class OnlineCalibrator:
     ``prior``: the estimate in force before the first accepted fit (identity when None).
     ``start_ns``: data time the boundaries count from (default: the first window's start).
     Other keyword arguments go to :func:`fit_calibration` (``temperature``, ``variant``, ...).
+    ``count_step``: the stream's quantisation step (an ``engine.calibration.trust.CountStep``, or
+    set the attribute later): windows are de-biased for it once, as they arrive, and the fits
+    warn about it.
     """
 
     def __init__(self, prior: Optional[CalibrationEstimate] = None,
                  chunk_hours: float = CHUNK_HOURS, *, start_ns: Optional[int] = None,
                  device_key: Optional[str] = None, sd_threshold: float = SD_THRESHOLD_G,
                  max_abs_mean: float = MAX_ABS_MEAN_G, window_s: float = WINDOW_S,
-                 warm_start: bool = True, **fit_options):
+                 warm_start: bool = True, count_step=None, **fit_options):
         if chunk_hours <= 0:
             raise ValueError("chunk_hours must be positive")
         if fit_options.get("ggir_compatible"):
@@ -58,6 +62,8 @@ class OnlineCalibrator:
         self.max_abs_mean = max_abs_mean
         self.window_s = window_s
         self.fit_options = fit_options
+        self.count_step = count_step
+        self._step = None  # the step the accumulated windows were de-biased for
         self.warm_start = bool(warm_start)
         self._last_fit: Optional[CalibrationEstimate] = None  # the previous refit (warm start)
         if prior is None:
@@ -97,8 +103,12 @@ class OnlineCalibrator:
         self._last_mean = feats.mean[-1].copy()
         self._last_end = int(feats.start_ns[-1]) + int(round(self.window_s * 1e9))
         if len(sel.features):
-            self._parts.append(sel.features)
-            self._n += len(sel.features)
+            step = self.count_step.step_g if self.count_step is not None else None
+            if step is not None:
+                self._step = step
+            wins = sel.features if self._step is None else dequantised(sel.features, self._step)
+            self._parts.append(wins)
+            self._n += len(wins)
 
     # ------------------------------------------------------------------ API
     def add(self, features: WindowFeatures) -> list[CalibrationEstimate]:
@@ -149,7 +159,8 @@ class OnlineCalibrator:
                               data_end_ns=fit_end_ns, device_key=self.device_key,
                               window_s=self.window_s, sd_threshold=self.sd_threshold,
                               max_abs_mean=self.max_abs_mean, windows_offered=self._offered,
-                              start=start, **self.fit_options)
+                              start=start, quantisation_step_g=self._step,
+                              means_dequantised=self._step is not None, **self.fit_options)
         if est.status in APPLICABLE:
             self._last_fit = est
         est.effective_from_ns = int(effective_ns)

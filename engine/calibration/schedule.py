@@ -20,6 +20,7 @@ import numpy as np
 from ..features import WindowFeatures
 from .estimate import CalibrationEstimate
 from .fit import TARGET_ERROR_MG, WINDOW_S, fit_calibration
+from .quantisation import dequantised
 from .select import MAX_ABS_MEAN_G, SD_THRESHOLD_G, select_calibration_windows
 
 FIRST_HOURS = 72.0  # van Hees 2014 (GGIR >= 3.0: 168)
@@ -78,7 +79,12 @@ class BatchSchedule:
         return self._parts[0] if self._parts else WindowFeatures.empty()
 
     def _append(self, w: WindowFeatures) -> None:
+        """Keep selected windows, their means de-biased for the counts' step once, here."""
         if len(w):
+            step = self.fit_kw.get("quantisation_step_g")
+            if step is not None and not self.fit_kw.get("ggir_compatible"):
+                w = dequantised(w, step)
+                self.fit_kw["means_dequantised"] = True
             self._parts.append(w)
             self._n += len(w)
 

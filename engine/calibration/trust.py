@@ -127,7 +127,7 @@ def face_counts(mean: np.ndarray) -> np.ndarray:
 
 
 def assess(uncertainty: Optional[dict], mean: np.ndarray, sd: Optional[np.ndarray], *,
-           quantisation_step_g=None) -> list:
+           quantisation_step_g=None, dequantised: bool = False) -> list:
     """Warnings about an applied fit (the temperature fallback is decided by the fit itself)."""
     out: list[FitWarning] = []
     if uncertainty is not None:
@@ -149,8 +149,9 @@ def assess(uncertainty: Optional[dict], mean: np.ndarray, sd: Optional[np.ndarra
             out.append(FitWarning("quantisation", (
                 f"quantisation dominates the noise: step {step.max():.1f} mg against a median "
                 f"still-window SD of {'/'.join(f'{v:.1f}' for v in med)} mg, so window means can "
-                f"be biased by up to {bound.max():.1f} mg by orientation (coefficients and their "
-                "SEs include it)")))
+                f"be biased by up to {bound.max():.1f} mg by orientation ("
+                + ("the means were de-biased for it; what remains is in the SEs)" if dequantised
+                   else "coefficients and their SEs include it)"))))
     counts = face_counts(mean)
     n = max(int(counts.sum()), 1)
     thin = [f for f, c in zip(FACES, counts) if c < FACE_MIN_SHARE * n]

@@ -37,8 +37,8 @@ from dataclasses import dataclass
 from typing import Optional
 
 import numpy as np
-from scipy.special import ndtr
 
+from stillpoint.engine.calibration.quantisation import level_moments
 from stillpoint.engine.sim import model as sim
 from stillpoint.engine.sim.device import DeviceSim, make_devices
 from stillpoint.engine.sim.wearer import WearerParams
@@ -62,21 +62,6 @@ class SimWindows:
     device: DeviceSim
 
 
-def _level_moments(x: np.ndarray, s: np.ndarray, step: float, span: float = 7.0):
-    """Exact mean and variance of Q(x + s z) (rounding to multiples of ``step``), per element."""
-    s = np.maximum(s, 1e-12)
-    k_lo = np.floor((x - span * s) / step)
-    k_n = int(np.max(np.ceil((x + span * s) / step) - k_lo)) + 1
-    m = np.zeros_like(x)
-    m2 = np.zeros_like(x)
-    for j in range(k_n):
-        lev = (k_lo + j) * step
-        p = ndtr((lev + 0.5 * step - x) / s) - ndtr((lev - 0.5 * step - x) / s)
-        m += p * lev
-        m2 += p * lev * lev
-    return m, np.maximum(m2 - m * m, 0.0)
-
-
 def window_statistics(x: np.ndarray, noise_sd: np.ndarray, spec: DeviceSpec, quantise: bool, n: int,
                       rng: np.random.Generator, method: str = "moments", dither_sd=None):
     """(mean, sample SD), each (k, 3) g, of windows of ``n`` samples that read ``x`` (k, 3) plus
@@ -93,7 +78,7 @@ def window_statistics(x: np.ndarray, noise_sd: np.ndarray, spec: DeviceSpec, qua
     if method == "moments":
         s = np.sqrt(nsd ** 2 + dit ** 2)
         if quantise:
-            m, v = _level_moments(x, s, float(spec.lsb_g[0]))
+            m, v = level_moments(x, s, float(spec.lsb_g[0]))
         else:
             m, v = x, s ** 2
         mean = m + np.sqrt(np.maximum(v - dit ** 2, 0.0) / n) * rng.standard_normal(x.shape)

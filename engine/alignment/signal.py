@@ -23,14 +23,14 @@ Sensors 21:4777, 2021; see /work/shared/specs/alignment.md); they are not device
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
 from typing import Iterator, Optional
 
 import numpy as np
-from scipy import signal as _sig
 
 from stillpoint.engine.blocks import Block
 from stillpoint.engine.operators.base import accel_g_columns
+
+from . import filtering
 
 # ---------------------------------------------------------------- Brønd 2021 method constants
 COMMON_RATE_HZ = 30.0  # both recordings resampled to 30 Hz before anything else
@@ -63,9 +63,9 @@ def magnitude_minus_one(block: Block) -> np.ndarray:
     return out
 
 
-@lru_cache(maxsize=8)
 def band_pass_sos(rate: float, order: int = BUTTER_ORDER, band: tuple = BAND_HZ) -> np.ndarray:
-    return _sig.butter(order, band, btype="bandpass", fs=rate, output="sos")
+    """``scipy.signal.butter(order, band, btype="bandpass", fs=rate, output="sos")``."""
+    return filtering.band_pass_sos(rate, order, band)
 
 
 def brond_filter(x: np.ndarray, rate: float, dead_band: float = DEAD_BAND_G) -> np.ndarray:
@@ -74,7 +74,7 @@ def brond_filter(x: np.ndarray, rate: float, dead_band: float = DEAD_BAND_G) -> 
     y[np.abs(y) < dead_band] = 0.0
     sos = band_pass_sos(float(rate))
     if y.size > 3 * (2 * sos.shape[0] + 1):
-        y = _sig.sosfiltfilt(sos, y)
+        y = filtering.sosfiltfilt(sos, y)  # scipy.signal.sosfiltfilt's numbers
     else:  # too short to filter: no usable signal
         y[:] = 0.0
     return np.abs(y)

@@ -41,3 +41,53 @@ def test_correlate_valid_bit_identical(n, m):
     a, v = rng.normal(size=n), rng.normal(size=m)
     assert np.array_equal(filtering.correlate_valid(a, v),
                           signal.correlate(a, v, mode="valid", method="fft"))
+
+
+@pytest.mark.parametrize("dtype,cpg", [(np.int16, 256.0), (np.int16, 4096.0), (np.int8, 64.0),
+                                       (np.int16, 100.0), (np.int32, 256.0)])
+def test_magnitude_from_counts_is_the_g_form(dtype, cpg):
+    from stillpoint.engine.alignment.signal import magnitude_minus_one
+    from stillpoint.engine.blocks import Block
+    from stillpoint.engine.operators.base import accel_g_columns
+
+    info = np.iinfo(dtype)
+    lo, hi = max(info.min, -2**20), min(info.max, 2**20)
+    a = np.random.default_rng(3).integers(lo, hi, (5000, 3), endpoint=True).astype(dtype)
+    a[:4], a[4:8] = lo, hi  # the largest squares
+    b = Block(time_ns=np.arange(5000, dtype=np.int64), accel=a,
+              accel_counts_per_g=np.full(3, cpg), accel_zero=np.zeros(3))
+    g = accel_g_columns(b)
+    x, y, z = g[:, 0], g[:, 1], g[:, 2]
+    ref = x * x
+    ref += z * z
+    ref += y * y
+    assert np.array_equal(magnitude_minus_one(b), np.sqrt(ref) - 1.0)
+
+
+def test_grid_push_with_reused_buffers_equals_push_arrays():
+    """push() (times and values in buffers reused across blocks, carried sample in slot 0) gives
+    the pieces push_arrays() gives from freshly computed arrays, including repeated times, a
+    segment break and blocks of growing size."""
+    from stillpoint.engine.alignment.signal import GridResampler, magnitude_minus_one
+    from stillpoint.engine.blocks import Block
+
+    rng = np.random.default_rng(5)
+    t0 = 1_700_000_000_123_456_789
+    blocks, start = [], t0
+    for i, n in enumerate([50, 400, 3, 1, 2000, 700]):
+        step = np.full(n, 10_000_000, np.int64) + rng.integers(-30_000, 30_000, n)
+        if i == 3:
+            step[:] = 0  # a repeated time: dropped
+        tn = start + np.cumsum(step)
+        start = int(tn[-1]) + (5_000_000_000 if i == 4 else 0)
+        blocks.append(Block(time_ns=tn, accel=rng.integers(-600, 600, (n, 3)).astype(np.int16),
+                            accel_counts_per_g=np.full(3, 256.0), accel_zero=np.zeros(3),
+                            segment=1 if i >= 5 else 0))
+    a, b = GridResampler(t0, 30.0, 100.0), GridResampler(t0, 30.0, 100.0)
+    got = [(k, v.copy()) for blk in blocks for k, v in a.push(blk)]
+    want = [(k, v) for blk in blocks for k, v in b.push_arrays(
+        (blk.time_ns - t0).astype(np.float64) * 1e-9, magnitude_minus_one(blk), blk.segment)]
+    assert len(got) == len(want) and got
+    for (k1, v1), (k2, v2) in zip(got, want):
+        assert k1 == k2 and np.array_equal(v1, v2, equal_nan=True)
+    assert (a.samples_dropped, a.gaps, a.last_time_s) == (b.samples_dropped, b.gaps, b.last_time_s)

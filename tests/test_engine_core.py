@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import assume, given, settings, strategies as st
 
 from stillpoint.engine.blocks import Block
 from stillpoint.engine.features import WindowFeatures
@@ -183,6 +183,24 @@ def test_window_features_independent_of_block_cuts(seed):
     for how in ("unit", "random"):
         f = WindowFeatures.concat(run_op(WindowFeaturesOperator(RATE), recut(blocks, how, seed)))
         assert_features_equal(f, ref)
+
+
+@settings(max_examples=15, deadline=None)
+@given(st.integers(0, 10_000))
+def test_window_norm_for_a_subset_is_the_full_norm(seed):
+    """norm_for: the mean norm of the wanted windows is that of the full computation (bit for
+    bit), NaN elsewhere; every other column is unchanged; independent of block cuts."""
+    blocks = synth_segments(seed=seed % 7)
+    ref = WindowFeatures.concat(run_op(WindowFeaturesOperator(RATE), recut(blocks, "whole")))
+    for how in ("whole", "unit", "random"):
+        f = WindowFeatures.concat(run_op(WindowFeaturesOperator(RATE, norm_for=lambda m, s: (
+            (m[:, 0].view(np.int64) + seed) % 3 != 0)), recut(blocks, how, seed)))
+        want = (ref.mean[:, 0].view(np.int64) + seed) % 3 != 0  # a pattern of the mean's bits
+        assume(want.any() and not want.all())
+        assert np.array_equal(f.norm_mean[want], ref.norm_mean[want])
+        assert np.all(np.isnan(f.norm_mean[~want]))
+        for name in ("start_ns", "n", "mean", "sd", "temperature", "segment"):
+            assert np.array_equal(getattr(f, name), getattr(ref, name), equal_nan=True), name
 
 
 def test_window_features_non_integer_rate():

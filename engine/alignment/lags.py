@@ -14,8 +14,8 @@ from dataclasses import dataclass, field
 from typing import Optional
 
 import numpy as np
-from scipy import signal as _sig
 
+from .filtering import correlate_valid
 from .signal import (ACTIVITY_MIN_G, BLOCK_S, COMMON_RATE_HZ, FILTER_PAD_S, MAX_LAG_SAMPLES,
                      brond_filter)
 
@@ -41,7 +41,7 @@ def normalized_xcorr(ref: np.ndarray, other_ext: np.ndarray, max_lag: int,
         # (not np.dot: a multithreaded BLAS dot is ~100x slower on a loaded machine)
         num = np.array([(other_ext[j:j + n] * r).sum() for j in range(L)])
     else:
-        num = _sig.correlate(other_ext, r, mode="valid", method="fft")
+        num = correlate_valid(other_ext, r)  # scipy.signal.correlate(..., "valid", method="fft")
     c2 = np.concatenate([[0.0], np.cumsum(other_ext * other_ext)])
     ss = c2[n:n + L] - c2[:L]
     if centred:

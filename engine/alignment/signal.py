@@ -23,14 +23,14 @@ Sensors 21:4777, 2021; see /work/shared/specs/alignment.md); they are not device
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
 from typing import Iterator, Optional
 
 import numpy as np
-from scipy import signal as _sig
 
 from stillpoint.engine.blocks import Block
 from stillpoint.engine.operators.base import accel_g_columns
+
+from . import filtering
 
 # ---------------------------------------------------------------- Brønd 2021 method constants
 COMMON_RATE_HZ = 30.0  # both recordings resampled to 30 Hz before anything else
@@ -49,13 +49,37 @@ MAX_PIECE = 1 << 16  # grid samples per yielded piece (bounded memory across lon
 TEMP_BIN_S = 60.0  # temperature track resolution
 
 
-def magnitude_minus_one(block: Block) -> np.ndarray:
+def magnitude_minus_one(block: Block, out: Optional[np.ndarray] = None) -> np.ndarray:
     """‖a‖ − 1 in g per sample, float64, column by column (several times faster than the (n, 3)
     forms; the squares are added in the order numpy's ``einsum("ij,ij->i")`` adds three terms,
-    x + z then + y, so the numbers are those of the einsum form)."""
+    x + z then + y, so the numbers are those of the einsum form).
+
+    Signed counts of at most 16 bits with no zero offset and one power-of-two scale (every AX file):
+    the sum of the squared counts is an exact integer (< 2**32, summed in uint32) and
+    ``sqrt(sum) / counts_per_g`` is bit for bit ``sqrt(sum of (counts / counts_per_g)**2)``
+    (every step is exact or a correctly rounded operation scaled by a power of two), at a
+    third of the memory traffic. ``out``: an (n,) float64 array to write into."""
+    acc = block.accel
+    cpg = np.asarray(block.accel_counts_per_g, np.float64)
+    if (acc.dtype.kind == "i" and acc.dtype.itemsize <= 2 and acc.ndim == 2
+            and not np.any(block.accel_zero) and np.all(cpg == cpg[0])
+            and cpg[0] > 0 and np.frexp(cpg[0])[0] == 0.5):
+        n = acc.shape[0]
+        s = np.empty(n, np.uint32)
+        t = np.empty(n, np.uint32)
+        s[...] = acc[:, 0]  # negative counts wrap modulo 2**32: their squares are still exact
+        np.multiply(s, s, out=s)
+        for j in (2, 1):
+            t[...] = acc[:, j]
+            np.multiply(t, t, out=t)
+            np.add(s, t, out=s)
+        out = np.sqrt(s, out=out, dtype=np.float64)
+        out *= 1.0 / cpg[0]
+        out -= 1.0
+        return out
     g = accel_g_columns(block)
     x, y, z = g[:, 0], g[:, 1], g[:, 2]
-    out = x * x
+    out = np.multiply(x, x, out=out)
     out += z * z
     out += y * y
     np.sqrt(out, out=out)
@@ -63,9 +87,9 @@ def magnitude_minus_one(block: Block) -> np.ndarray:
     return out
 
 
-@lru_cache(maxsize=8)
 def band_pass_sos(rate: float, order: int = BUTTER_ORDER, band: tuple = BAND_HZ) -> np.ndarray:
-    return _sig.butter(order, band, btype="bandpass", fs=rate, output="sos")
+    """``scipy.signal.butter(order, band, btype="bandpass", fs=rate, output="sos")``."""
+    return filtering.band_pass_sos(rate, order, band)
 
 
 def brond_filter(x: np.ndarray, rate: float, dead_band: float = DEAD_BAND_G) -> np.ndarray:
@@ -74,7 +98,7 @@ def brond_filter(x: np.ndarray, rate: float, dead_band: float = DEAD_BAND_G) -> 
     y[np.abs(y) < dead_band] = 0.0
     sos = band_pass_sos(float(rate))
     if y.size > 3 * (2 * sos.shape[0] + 1):
-        y = _sig.sosfiltfilt(sos, y)
+        y = filtering.sosfiltfilt(sos, y)  # scipy.signal.sosfiltfilt's numbers
     else:  # too short to filter: no usable signal
         y[:] = 0.0
     return np.abs(y)
@@ -104,49 +128,70 @@ class GridResampler:
         self.last_time_s: Optional[float] = None
         self.gaps: list[tuple[float, float]] = []  # (last sample before, first after), s
         self.min_gap_report_s = max(1.0, self.gap_s)
+        self._buf_t = self._buf_v = self._buf_d = np.empty(0)
+
+    def _buffers(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Times, values and differences of n + 1 samples in arrays reused across blocks (fresh
+        ~2 MB temporaries every block cost more in page faults than the arithmetic on them)."""
+        if self._buf_t.shape[0] < n + 1:
+            size = max(n + 1, 2 * self._buf_t.shape[0])
+            self._buf_t, self._buf_v, self._buf_d = np.empty(size), np.empty(size), np.empty(size)
+        return self._buf_t[:n + 1], self._buf_v[:n + 1], self._buf_d[:n]
 
     def push(self, block: Block) -> Iterator[tuple[int, np.ndarray]]:
         if block.n == 0:
             return
-        t = (block.time_ns - self.t0_ns).astype(np.float64)
+        bt, bv, _ = self._buffers(block.n)
+        # slot 0 stays free for the sample carried from the previous block
+        t = np.subtract(block.time_ns, self.t0_ns, out=bt[1:], casting="unsafe")  # exact ints
         t *= 1e-9
-        v = magnitude_minus_one(block)
-        yield from self.push_arrays(t, v, segment=block.segment)
+        v = magnitude_minus_one(block, out=bv[1:])
+        yield from self._push(t, v, block.segment, front=True)
 
     def push_arrays(self, t: np.ndarray, v: np.ndarray, segment: int = 0
                     ) -> Iterator[tuple[int, np.ndarray]]:
         """Same as ``push`` from times (s since t0, increasing) and values."""
-        t = np.asarray(t, np.float64)
-        v = np.asarray(v, np.float64)
+        yield from self._push(np.asarray(t, np.float64), np.asarray(v, np.float64), segment)
+
+    def _push(self, t: np.ndarray, v: np.ndarray, segment: int, front: bool = False
+              ) -> Iterator[tuple[int, np.ndarray]]:
+        """``front``: t and v are views of ``_buf_t[1:]`` / ``_buf_v[1:]`` (slot 0 is free)."""
         self.samples_in += t.size
         # drop samples that do not advance the clock (they cannot be placed on the grid)
         if t.size > 1:
-            ok = np.empty(t.size, bool)
-            ok[0] = True
-            ok[1:] = np.diff(t) > 0
-            if not ok.all():
+            if not np.all(t[1:] > t[:-1]):  # np.diff(t) > 0, without the differences
                 run_max = np.maximum.accumulate(t)
                 ok = np.concatenate([[True], t[1:] > run_max[:-1]])
                 self.samples_dropped += int((~ok).sum())
-                t, v = t[ok], v[ok]
+                t, v, front = t[ok], v[ok], False
         break_before = self._last_segment is not None and segment != self._last_segment
         if self._last_t is not None:
             if t[0] <= self._last_t:
                 keep = t > self._last_t
                 self.samples_dropped += int((~keep).sum())
-                t, v = t[keep], v[keep]
+                t, v, front = t[keep], v[keep], False
                 if t.size == 0:
                     return
             if not break_before:
-                t = np.concatenate([[self._last_t], t])
-                v = np.concatenate([[self._last_v], v])
+                if front:  # the carried sample goes into the free slot
+                    n = t.size
+                    t, v = self._buf_t[:n + 1], self._buf_v[:n + 1]
+                    t[0], v[0] = self._last_t, self._last_v
+                else:
+                    t = np.concatenate([[self._last_t], t])
+                    v = np.concatenate([[self._last_v], v])
+        dt = None
+        if t.size > 1:
+            dt = self._buf_d[:t.size - 1] if front and self._buf_d.shape[0] >= t.size - 1 \
+                else np.empty(t.size - 1)
+            np.subtract(t[1:], t[:-1], out=dt)  # np.diff(t)
         if self.first_time_s is None:
             self.first_time_s = float(t[0])
         # record interruptions of sampling (halts, restarts) for the report
         if break_before and self._last_t is not None and t[0] - self._last_t >= 0:
             self.gaps.append((self._last_t, float(t[0])))
         if t.size > 1:
-            big = np.nonzero(np.diff(t) >= self.min_gap_report_s)[0]
+            big = np.nonzero(dt >= self.min_gap_report_s)[0]
             for i in big[:1000]:
                 if not (i == 0 and self._last_t is not None and t[0] == self._last_t
                         and self.gaps and self.gaps[-1][1] == float(t[1])):
@@ -164,7 +209,7 @@ class GridResampler:
         self._last_t, self._last_v = float(t[-1]), float(v[-1])
         if k_last < self.k_next:
             return
-        big_gap = np.diff(t) > self.gap_s
+        big_gap = dt > self.gap_s if dt is not None else np.zeros(0, bool)
         for k0 in range(self.k_next, k_last + 1, MAX_PIECE):
             k1 = min(k_last + 1, k0 + MAX_PIECE)
             tk = np.arange(k0, k1, dtype=np.float64) / self.rate

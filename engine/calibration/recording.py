@@ -10,6 +10,7 @@ the reader's block plus the selected windows (~60k rows a week): flat in file le
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Callable, Optional
 
 from .explain import explain_no_nonmovement
@@ -20,7 +21,7 @@ from ..operators.windows import WindowFeaturesOperator
 from .estimate import CalibrationEstimate
 from .fit import TARGET_ERROR_MG, WINDOW_S
 from .schedule import CHUNK_HOURS, FIRST_HOURS, BatchSchedule
-from .select import MAX_ABS_MEAN_G, SD_THRESHOLD_G
+from .select import MAX_ABS_MEAN_G, SD_THRESHOLD_G, nonmovement_mask
 from .trust import CountStep
 
 
@@ -47,7 +48,9 @@ def calibrate_source(source, *, first_hours: float = FIRST_HOURS, chunk_hours: f
     """Run the schedule over a Source (any driver); see the module docstring."""
     info: DeviceInfo = source.info
     rate = float(info.sample_rate_nominal or 0.0)
-    wop = WindowFeaturesOperator(rate_hz=rate, window_s=WINDOW_S)
+    # the mean norm is kept only with the nonmovement windows: computed for those alone
+    wop = WindowFeaturesOperator(rate_hz=rate, window_s=WINDOW_S, norm_for=partial(
+        nonmovement_mask, sd_threshold=sd_threshold, max_abs_mean=max_abs_mean))
     nm = NonmovementOperator(sd_threshold=sd_threshold, max_abs_mean=max_abs_mean, keep=True)
     fit_kw = dict(temperature=temperature, ggir_compatible=ggir_compatible, variant=variant,
                   target_error_mg=target_error_mg, sd_threshold=sd_threshold,

@@ -27,13 +27,18 @@ from .binning import BinChunk, TimeBinner
 WINDOW_S = 10.0  # van Hees 2014 / GGIR: 10 s windows for the calibration features
 
 
-def chunk_features(chunk: BinChunk, width_ns: int, zero=None, counts_per_g=None) -> WindowFeatures:
-    """Features of the whole windows in one chunk (pure function).
+def chunk_features(chunk: BinChunk, width_ns: int, zero=None, counts_per_g=None, *,
+                   overwrite: bool = False, norm_for=None) -> WindowFeatures:
+    """Features of the whole windows in one chunk (pure function unless ``overwrite``).
 
     With ``counts_per_g`` the chunk's ``accel`` column holds counts (integers stored in float64)
     and the per-window sums are exact: sum and sum of squares of integers below 2**53, the
     variance from ``n * S2 - S1**2`` (exact too), converted to g once per window. Without it,
     ``accel`` is in g and the statistics are computed in two passes (mean, then deviations).
+    ``overwrite``: the counts may be squared in place (a scratch the caller no longer needs):
+    the same numbers without a temporary per axis. ``norm_for(mean, sd) -> (k,) bool``: the mean
+    norm is computed only for those windows (NaN for the others), from their samples alone, so
+    the numbers are those of the full computation.
     """
     a = chunk.cols["accel"]
     st = chunk.starts
@@ -41,6 +46,7 @@ def chunk_features(chunk: BinChunk, width_ns: int, zero=None, counts_per_g=None)
     k = len(cnt)
     mean = np.empty((k, 3))
     sd = np.empty((k, 3))
+    norm_scaled = False  # norm holds |counts| (one scale per window at the end)
     if counts_per_g is None:
         for j in range(3):  # column by column: the (n, 3) broadcast forms are ~6x slower
             c = a[:, j]
@@ -54,36 +60,58 @@ def chunk_features(chunk: BinChunk, width_ns: int, zero=None, counts_per_g=None)
     else:
         zero = np.asarray(zero, np.float64)
         cpg = np.asarray(counts_per_g, np.float64)
+        shifted = bool(np.any(zero))
+        uniform = bool(np.all(cpg == cpg[0]))
+        in_place = overwrite and not shifted and uniform
         sq_sum = None
         var_n = np.empty((k, 3))
         for j in range(3):
             c = a[:, j]
             s1 = np.add.reduceat(c, st)
-            sq = c * c
+            sq = np.multiply(c, c, out=c if in_place else None)
             s2 = np.add.reduceat(sq, st)
-            if sq_sum is None:
+            if in_place:
+                pass  # the squares stay in a's columns (summed per wanted window below)
+            elif sq_sum is None:
                 sq_sum = sq
             else:
-                sq_sum += sq
+                sq_sum += sq  # exact integers: any order gives the same sum
             mean[:, j] = s1 / cnt
             var_n[:, j] = cnt * s2 - s1 * s1  # n^2 * population variance, exact
-        shifted = bool(np.any(zero))
         if shifted:
             mean -= zero
         mean /= cpg
         with np.errstate(invalid="ignore", divide="ignore"):
             nn1 = (cnt * (cnt - 1.0))[:, None]
             sd = np.sqrt(var_n / nn1) / cpg
-        if shifted or not np.all(cpg == cpg[0]):
+        if shifted or not uniform:
             g = (a - zero) / cpg
             norm = np.sqrt(np.einsum("ij,ij->i", g, g))
         else:  # |c| / cpg: the squares already summed exactly, one sqrt, one scale per window
-            norm = np.sqrt(sq_sum)
+            norm_scaled = True
     sd[cnt < 2] = np.nan
     temp = np.add.reduceat(chunk.cols["temperature"], st) / cnt
-    norm_mean = np.add.reduceat(norm, st) / cnt
-    if counts_per_g is not None and not (np.any(zero) or not np.all(cpg == cpg[0])):
+    if norm_scaled and in_place:  # the squares are in a's columns: sum, root, mean per window
+        want = np.ones(k, bool) if norm_for is None else np.asarray(norm_for(mean, sd), bool)
+        norm_mean = np.full(k, np.nan)
+        ends = np.append(st[1:], a.shape[0])
+        edges = np.flatnonzero(np.diff(np.concatenate([[False], want, [False]]).view(np.int8)))
+        for w0, w1 in zip(edges[0::2].tolist(), edges[1::2].tolist()):  # runs of wanted windows
+            r0, r1 = int(st[w0]), int(ends[w1 - 1])
+            q = a[r0:r1, 0]
+            q += a[r0:r1, 1]  # exact integers: any order gives the same sum
+            q += a[r0:r1, 2]
+            np.sqrt(q, out=q)
+            norm_mean[w0:w1] = np.add.reduceat(q, st[w0:w1] - r0) / cnt[w0:w1]
         norm_mean /= cpg[0]
+    else:
+        if norm_scaled:
+            norm = np.sqrt(sq_sum, out=sq_sum)
+        norm_mean = np.add.reduceat(norm, st) / cnt
+        if norm_scaled:
+            norm_mean /= cpg[0]
+        if norm_for is not None:
+            norm_mean[~np.asarray(norm_for(mean, sd), bool)] = np.nan
     return WindowFeatures(start_ns=chunk.bin_start_ns(width_ns), n=cnt.astype(np.int64), mean=mean,
                           sd=sd, temperature=temp, norm_mean=norm_mean,
                           segment=np.full(len(cnt), chunk.segment, np.int64))
@@ -92,7 +120,11 @@ def chunk_features(chunk: BinChunk, width_ns: int, zero=None, counts_per_g=None)
 class WindowFeaturesOperator:
     """push(Block) -> WindowFeatures of the windows completed by it; flush() -> the rest."""
 
-    def __init__(self, rate_hz: float, window_s: float = WINDOW_S, min_fill: float = 0.9):
+    def __init__(self, rate_hz: float, window_s: float = WINDOW_S, min_fill: float = 0.9,
+                 norm_for=None):
+        """``norm_for(mean, sd) -> (k,) bool``: compute the mean norm of those windows only
+        (NaN for the others; e.g. the calibration, which keeps only nonmovement windows)."""
+        self.norm_for = norm_for
         self.rate_hz = float(rate_hz)
         self.window_s = float(window_s)
         self.min_fill = float(min_fill)
@@ -108,7 +140,9 @@ class WindowFeaturesOperator:
         if not chunks:
             return WindowFeatures.empty()
         w = self._binner.width_ns
-        f = WindowFeatures.concat([chunk_features(c, w, *self._scales.get(c.segment, (None, None)))
+        # the counts in the chunks are the operator's scratch or copies: squared in place
+        f = WindowFeatures.concat([chunk_features(c, w, *self._scales.get(c.segment, (None, None)),
+                                                  overwrite=True, norm_for=self.norm_for)
                                    for c in chunks])
         self.windows_total += len(f)
         if self.min_fill > 0 and self.rate_hz > 0:

@@ -22,6 +22,7 @@ import os
 import sys
 import tempfile
 import time
+from types import SimpleNamespace
 from pathlib import Path
 
 import numpy as np
@@ -94,17 +95,20 @@ def score(est, truth_at, sel) -> dict:
             "hours": est.hours_used, "iterations": est.iterations, "windows": est.windows}
 
 
-def run_seed(feats: WindowFeatures, truth_at) -> dict:
+def run_seed(feats: WindowFeatures, truth_at, step=None) -> dict:
+    """``step``: the stored counts' quantisation step (g), which the default fits de-bias the
+    window means for (None: features without one)."""
     sel = select_calibration_windows(feats).features
     rows = {}
-    rows["stillpoint (C2, converged)"] = fit_batch_schedule(feats, variant="c2")
+    rows["stillpoint (C2, converged)"] = fit_batch_schedule(feats, variant="c2",
+                                                            quantisation_step_g=step)
     rows["GGIR-compatible stop rule"] = fit_batch_schedule(feats, ggir_compatible=True)
     rows["C1 (no temperature)"] = fit_batch_schedule(feats, temperature=False)
     rows["offset only"] = fit_batch_schedule(feats, variant="offset")
     rows["scale only"] = fit_batch_schedule(feats, variant="scale")
     day1 = feats.select(feats.start_ns < feats.start_ns[0] + 24 * 3600 * 10**9)
-    rows["first 24 h only (short)"] = fit_batch_schedule(day1)
-    online = OnlineCalibrator()
+    rows["first 24 h only (short)"] = fit_batch_schedule(day1, quantisation_step_g=step)
+    online = OnlineCalibrator(count_step=SimpleNamespace(step_g=step))
     pub = online.add(feats)
     at24 = [e for e in pub if abs(e.hours_used - 24.0) < 1e-6]
     out = {k: score(v, truth_at, sel) for k, v in rows.items()}
@@ -137,7 +141,10 @@ def main(argv=None) -> int:
             feats, truth_at = simulated_windows(seed, args.days, args.hz, args.packed, wd)
         else:
             feats, truth_at = feature_windows(seed, args.days)
-        res = run_seed(feats, truth_at)
+        step = None
+        if args.source == "sim":  # AX3 at +-8 g: packed keeps 4/256 g, unpacked 1/256 g
+            step = (4.0 if args.packed else 1.0) / 256.0
+        res = run_seed(feats, truth_at, step)
         per_seed.append(res)
         main_row = res["stillpoint (C2, converged)"]
         print(f"seed {seed}: {len(feats)} windows, stillpoint offset "

@@ -35,6 +35,7 @@ import numpy as np
 
 from stillpoint.engine.calibration import fit_calibration, select_calibration_windows
 from stillpoint.engine.calibration.fit import icp_sphere_fit
+from stillpoint.engine.calibration.quantisation import dequantised
 from stillpoint.engine.calibration.recording import calibrate_source
 from stillpoint.engine.calibration.uncertainty import block_bootstrap
 from stillpoint.engine.sim import SensorModel, SimSource, ggir_equivalent
@@ -83,7 +84,7 @@ def run_recording(seed: int, *, days: float = 3.0, hz: float = 100.0, packed: bo
            "c2_se": {k: _se(c2.uncertainty, k) for k in KINDS},
            "warnings": [w["code"] for w in auto.extra.get("warnings", [])]}
     if replicates:
-        sel = select_calibration_windows(windows).features
+        sel = dequantised(select_calibration_windows(windows).features, src.sim.spec.lsb_g)
 
         def fit(mean, temp):
             tr = float(np.mean(temp))

@@ -129,9 +129,14 @@ class _FileSink:
         counts = np.zeros(k, np.int64)
         sums, sq = np.zeros((k, 3)), np.zeros((k, 3))
         counts[wins] = np.diff(np.append(starts, c.n))
-        g = c.true_g.astype(np.float64)
-        sums[wins] = np.add.reduceat(g, starts, axis=0)
-        sq[wins] = np.add.reduceat(g * g, starts, axis=0)
+        # per axis on a contiguous float64 copy: the same sums as reducing the (n, 3) array
+        # along its rows (the same additions in the same order), several times faster
+        g = np.empty(c.n)
+        for j in range(3):
+            g[:] = c.true_g[:, j]
+            sums[wins, j] = np.add.reduceat(g, starts)
+            g *= g
+            sq[wins, j] = np.add.reduceat(g, starts)
         self._emit_until(w1 + 1, sums, sq, counts)
         cuts = [0] + list(c.restarts) + [c.n]
         for p, (a, b) in enumerate(zip(cuts[:-1], cuts[1:])):

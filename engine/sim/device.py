@@ -174,7 +174,8 @@ class DeviceSim:
             if t.size and t[0] <= b <= t[-1] + 1.0 / rate:
                 pos = int(np.searchsorted(t, b, side="left"))
                 restarts.append(int(np.count_nonzero(keep[:pos])))
-        t = t[keep]
+        if not keep.all():
+            t = t[keep]
         gyro = self.spec.kind == "ax6" and self.spec.gyro_range_dps is not None
         f, w = self.site_model.render(t, gyro=gyro, dtype=np.float32)
         return t, f, w, sorted(set(restarts))
@@ -199,8 +200,11 @@ class DeviceSim:
         if w is not None:
             w = w + self.gyro_bias + rng.standard_normal(w.shape) * (GYRO_NOISE_DPS_RTHZ * np.sqrt(self.hz / 2))
             gcounts = self.spec.gyro_to_counts(w)
-        d = t + runs.lerp(self.clock.offset_s, fr)
-        time_ns = self.start_ns + np.round(d * 1e9).astype(np.int64)
+        d = runs.lerp(self.clock.offset_s, fr)  # t + offset, in place
+        d += t
+        d *= 1e9
+        time_ns = np.round(d, out=d).astype(np.int64)
+        time_ns += self.start_ns
         return SimChunk(k, t, time_ns, f, meas, counts, gcounts, T, restarts)
 
     def chunk(self, k: int) -> Optional[SimChunk]:

@@ -412,6 +412,14 @@ def per_axis(op, a: np.ndarray, v: np.ndarray) -> None:
             op(c, v[j], out=c)
 
 
+def _minus(T: np.ndarray, ref: float, dt) -> np.ndarray:
+    """``(T.astype(float64) - ref).astype(dt)`` in one pass (computed in float64, rounded once
+    to dt: the same numbers)."""
+    out = np.empty(T.shape, dt)
+    np.subtract(T, ref, out=out, dtype=np.float64, casting="unsafe")
+    return out
+
+
 def apply_deterministic(accel_g, model: SensorModel, *, temperature_c=None, time_s=None,
                         accel_temperature_c=None) -> np.ndarray:
     """What the sensor reads (g, before noise/clipping/quantisation) for true specific force.
@@ -438,7 +446,7 @@ def apply_deterministic(accel_g, model: SensorModel, *, temperature_c=None, time
     Ta = None
     if needs_T:
         if accel_temperature_c is not None:
-            Ta = np.asarray(accel_temperature_c, np.float64).reshape(-1)
+            Ta = np.asarray(accel_temperature_c).reshape(-1)  # float64 where used (_minus)
         else:
             if temperature_c is None:
                 raise ValueError("a temperature effect is on: temperature_c is required")
@@ -459,7 +467,7 @@ def apply_deterministic(accel_g, model: SensorModel, *, temperature_c=None, time
     if "temperature_gain" in eff:
         ref = float(eff["temperature_gain"].get("reference_c", DEFAULT_REFERENCE_C))
         v = (model.axis_vector("temperature_gain", "pct_per_c") / 100.0).astype(dt)
-        dT = (Ta - ref).astype(dt)
+        dT = _minus(Ta, ref, dt)
         for j, c in enumerate(cols):
             c *= 1.0 + dT * v[j]
     if "offset" in eff:
@@ -468,7 +476,7 @@ def apply_deterministic(accel_g, model: SensorModel, *, temperature_c=None, time
     if "temperature_offset" in eff:
         ref = float(eff["temperature_offset"].get("reference_c", DEFAULT_REFERENCE_C))
         v = (model.axis_vector("temperature_offset", "mg_per_c") / 1000.0).astype(dt)
-        dT = (Ta - ref).astype(dt)
+        dT = _minus(Ta, ref, dt)
         for j, c in enumerate(cols):
             c += dT * v[j]
     if "nonlinearity" in eff:

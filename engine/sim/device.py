@@ -18,7 +18,7 @@ import numpy as np
 
 from .clock import ClockModel, make_clock
 from .model import DEFAULT_EFFECTS, ModelError, SensorModel, first_order_lag, load_model, resolve_model
-from .sensor import DeviceSpec, bias_track, measure
+from .sensor import DeviceSpec, bias_track, measure, noise_sd_g, standard_normals
 from .temperature import TRACK_STEP_S, TemperatureParams, temperature_track
 from .truth import WINDOW_S
 from .wearer import SITES, Schedule, SiteModel, WearerParams, make_schedule
@@ -158,10 +158,12 @@ class DeviceSim:
         self.n_slots = int(np.ceil(duration_s * self.clock.rate_true_hz))
         self.light_grid = self.light_raw(self.t_grid)
         self.n_chunks = int(np.ceil(duration_s / CHUNK_S))
+        self._accel_noise = bool(np.any(noise_sd_g(self.model, self.hz) > 0))
 
     # --------------------------------------------------------------- chunks
     def _render(self, k: int):
-        """Stage 1 of chunk k (pure, thread-safe): sample times and the true motion."""
+        """Stage 1 of chunk k (pure, thread-safe): sample times, the true motion and the white
+        noise draws (chunk k's own generator, handed on to stage 2)."""
         rate = self.clock.rate_true_hz
         i0 = int(np.ceil(k * CHUNK_S * rate))
         i1 = min(self.n_slots, int(np.ceil((k + 1) * CHUNK_S * rate)))
@@ -178,11 +180,14 @@ class DeviceSim:
             t = t[keep]
         gyro = self.spec.kind == "ax6" and self.spec.gyro_range_dps is not None
         f, w = self.site_model.render(t, gyro=gyro, dtype=np.float32)
-        return t, f, w, sorted(set(restarts))
+        rng = np.random.default_rng(np.random.SeedSequence([self.seed, 3, self.dev_index, k]))
+        # the accelerometer's normals are drawn first (as ``measure`` would), the gyro's after
+        z = standard_normals(rng, (t.shape[0], 3)) if self._accel_noise else None
+        return t, f, w, sorted(set(restarts)), rng, z
 
     def _measure(self, k: int, rendered) -> SimChunk:
         """Stage 2 of chunk k: the sensor (noise from chunk k's own seed) and the device clock."""
-        t, f, w, restarts = rendered
+        t, f, w, restarts, rng, z = rendered
         gi, fr = _grid_pos(t, self.t_grid.shape[0])
         fr32 = fr.astype(np.float32)
         runs = _GridRuns(gi)
@@ -193,9 +198,9 @@ class DeviceSim:
             bias = np.empty((t.shape[0], 3), np.float32)
             for j in range(3):  # 1-D gathers from contiguous per-axis tracks (2-D gathers are slow)
                 bias[:, j] = runs.lerp(self._bias_axes[j], fr32)
-        rng = np.random.default_rng(np.random.SeedSequence([self.seed, 3, self.dev_index, k]))
         meas, counts = measure(f, self.model, self.spec, temperature_c=T, time_s=t,
-                               accel_temperature_c=Ta, bias_g=bias, rng=rng, rate_hz=self.hz)
+                               accel_temperature_c=Ta, bias_g=bias, rng=rng, rate_hz=self.hz,
+                               noise=z)
         gcounts = None
         if w is not None:
             w = w + self.gyro_bias + rng.standard_normal(w.shape) * (GYRO_NOISE_DPS_RTHZ * np.sqrt(self.hz / 2))

@@ -193,18 +193,19 @@ def standard_normals(rng: np.random.Generator, shape) -> np.ndarray:
 
 def measure(true_g: np.ndarray, model: SensorModel, spec: DeviceSpec, *, temperature_c, time_s,
             accel_temperature_c, bias_g, rng: Optional[np.random.Generator], rate_hz: float,
-            quantise: bool = True) -> tuple[np.ndarray, np.ndarray]:
+            quantise: bool = True, noise: Optional[np.ndarray] = None) -> tuple[np.ndarray, np.ndarray]:
     """Apply the whole sensor model to one chunk: returns (measured g, stored counts). With
     ``quantise`` the counts are clipped and quantised and the measured g is the value before
     both; without it the measured g is clipped (if ``clipping`` is on) and counts is None. ``bias_g`` (n, 3) from ``bias_track`` interpolated to the samples;
-    ``rng`` draws the white noise (None: no noise)."""
+    ``rng`` draws the white noise (None: no noise); ``noise``: the standard normals already drawn
+    from it (``standard_normals(rng, (n, 3))``, float32, scaled in place) instead."""
     a = apply_deterministic(true_g, model, temperature_c=temperature_c, time_s=time_s,
                             accel_temperature_c=accel_temperature_c)
     if model.on("bias_instability") and bias_g is not None:
         a += bias_g
     sd = noise_sd_g(model, rate_hz)
-    if rng is not None and np.any(sd > 0):
-        z = standard_normals(rng, a.shape)
+    if (rng is not None or noise is not None) and np.any(sd > 0):
+        z = standard_normals(rng, a.shape) if noise is None else noise
         per_axis(np.multiply, z, sd.astype(np.float32))  # z[:, j] * sd[j], then added
         if a.dtype == np.float32:
             a += z

@@ -121,6 +121,33 @@ class _GridRuns:
         return out
 
 
+_MALLOC_TUNED = False
+
+
+def _tune_malloc() -> None:
+    """Once per process (glibc only; not when MALLOC_MMAP_THRESHOLD_ or MALLOC_TRIM_THRESHOLD_
+    is set): mmap above 32 MiB, trim above 64 MiB (glibc's dynamic thresholds at their upper
+    values). Every chunk allocates and frees arrays of a few MB in two threads; with the
+    default thresholds they are unmapped or trimmed and faulted in afresh each chunk (a 1-day
+    100 Hz recording: 57 k page faults and 0.19 s of system CPU, against 25 k and 0.09 s)."""
+    global _MALLOC_TUNED
+    if _MALLOC_TUNED:
+        return
+    _MALLOC_TUNED = True
+    import os
+    import sys
+    if (not sys.platform.startswith("linux") or "MALLOC_MMAP_THRESHOLD_" in os.environ
+            or "MALLOC_TRIM_THRESHOLD_" in os.environ):
+        return
+    try:
+        import ctypes
+        libc = ctypes.CDLL("libc.so.6")
+        libc.mallopt(-3, 32 << 20)  # M_MMAP_THRESHOLD (malloc.h)
+        libc.mallopt(-1, 64 << 20)  # M_TRIM_THRESHOLD
+    except (OSError, AttributeError):
+        pass
+
+
 # ----------------------------------------------------------------------------- one device
 class DeviceSim:
     """One simulated device on the body (see the module docstring)."""
@@ -221,6 +248,7 @@ class DeviceSim:
         """All chunks in order. With ``prefetch`` the motion of chunk k+1 is rendered in a
         worker thread while chunk k is measured and consumed (numpy releases the GIL; the
         output is identical either way)."""
+        _tune_malloc()
         if not prefetch or self.n_chunks < 2:
             for k in range(self.n_chunks):
                 c = self.chunk(k)

@@ -111,6 +111,25 @@ class _GridRuns:
             edges = np.searchsorted(gi, np.arange(self.lo, self.hi + 2), side="left")
             self.counts = np.diff(edges)
 
+    @classmethod
+    def at(cls, t: np.ndarray, n_grid: int):
+        """(runs, fr) for times t: ``_GridRuns(gi)`` and fr of ``_grid_pos(t, n_grid)``; for
+        increasing t the runs come from the cell boundaries (no per-sample cell index) and
+        fr = x - cell with the cell repeated over its run (the same numbers)."""
+        x = t * (1.0 / TRACK_STEP_S)
+        n = x.shape[0]
+        if n == 0 or not bool(np.all(x[1:] >= x[:-1])):
+            gi = np.minimum(x.astype(np.int64), n_grid - 2)
+            return cls(gi), x - gi
+        self = cls.__new__(cls)
+        self.gi = None
+        self.sorted = True
+        self.lo, self.hi = min(int(x[0]), n_grid - 2), min(int(x[-1]), n_grid - 2)
+        edges = np.searchsorted(x, np.arange(self.lo + 1, self.hi + 1), side="left")
+        self.counts = np.diff(np.concatenate([[0], edges, [n]]))  # samples in cells lo..hi
+        fr = x - np.repeat(np.arange(self.lo, self.hi + 1, dtype=np.float64), self.counts)
+        return self, fr
+
     def lerp(self, v: np.ndarray, fr: np.ndarray) -> np.ndarray:
         if not self.sorted:
             return _lerp(v, self.gi, fr)
@@ -215,9 +234,8 @@ class DeviceSim:
     def _measure(self, k: int, rendered) -> SimChunk:
         """Stage 2 of chunk k: the sensor (noise from chunk k's own seed) and the device clock."""
         t, f, w, restarts, rng, z = rendered
-        gi, fr = _grid_pos(t, self.t_grid.shape[0])
+        runs, fr = _GridRuns.at(t, self.t_grid.shape[0])
         fr32 = fr.astype(np.float32)
-        runs = _GridRuns(gi)
         T = runs.lerp(self._T32, fr32)
         Ta = runs.lerp(self._Ta32, fr32) if self.Ta_grid is not self.T_grid else T
         bias = None

@@ -382,6 +382,44 @@ def accelerometer_temperature(model: SensorModel, temperature_c, time_s,
     return first_order_lag(T, time_s, float(model.get("thermal_lag", "tau_s", 600.0)), initial)
 
 
+_TILES: dict = {}
+
+
+def axis_tile(v: np.ndarray, n: int) -> np.ndarray:
+    """(3 n,) the per-axis values v (3,) repeated n times: a per-axis operation on a C-contiguous
+    (n, 3) array becomes one contiguous loop over its flat view (the (n, 3)-by-(3,) broadcast
+    and the strided column loops are several times slower); element for element the same
+    operation, so the same numbers. Cached per value (read-only)."""
+    key = (v.dtype.str, v.tobytes())
+    t = _TILES.get(key)
+    if t is None or t.shape[0] < 3 * n:
+        if len(_TILES) > 16:
+            _TILES.clear()
+        t = np.tile(v, n)
+        t.flags.writeable = False
+        _TILES[key] = t
+    return t[:3 * n]
+
+
+def per_axis(op, a: np.ndarray, v: np.ndarray) -> None:
+    """``op(a[:, j], v[j], out=a[:, j])`` for the three axes of a (n, 3) array, in place."""
+    if a.flags.c_contiguous:
+        flat = a.reshape(-1)
+        op(flat, axis_tile(v, a.shape[0]), out=flat)
+    else:
+        for j in range(3):
+            c = a[:, j]
+            op(c, v[j], out=c)
+
+
+def _minus(T: np.ndarray, ref: float, dt) -> np.ndarray:
+    """``(T.astype(float64) - ref).astype(dt)`` in one pass (computed in float64, rounded once
+    to dt: the same numbers)."""
+    out = np.empty(T.shape, dt)
+    np.subtract(T, ref, out=out, dtype=np.float64, casting="unsafe")
+    return out
+
+
 def apply_deterministic(accel_g, model: SensorModel, *, temperature_c=None, time_s=None,
                         accel_temperature_c=None) -> np.ndarray:
     """What the sensor reads (g, before noise/clipping/quantisation) for true specific force.
@@ -408,7 +446,7 @@ def apply_deterministic(accel_g, model: SensorModel, *, temperature_c=None, time
     Ta = None
     if needs_T:
         if accel_temperature_c is not None:
-            Ta = np.asarray(accel_temperature_c, np.float64).reshape(-1)
+            Ta = np.asarray(accel_temperature_c).reshape(-1)  # float64 where used (_minus)
         else:
             if temperature_c is None:
                 raise ValueError("a temperature effect is on: temperature_c is required")
@@ -425,22 +463,20 @@ def apply_deterministic(accel_g, model: SensorModel, *, temperature_c=None, time
     cols = [a[:, j] for j in range(3)]
     if "gain" in eff:
         v = (1.0 + model.axis_vector("gain", "pct") / 100.0).astype(dt)
-        for j, c in enumerate(cols):
-            c *= v[j]
+        per_axis(np.multiply, a, v)  # c *= v[j] for each column c
     if "temperature_gain" in eff:
         ref = float(eff["temperature_gain"].get("reference_c", DEFAULT_REFERENCE_C))
         v = (model.axis_vector("temperature_gain", "pct_per_c") / 100.0).astype(dt)
-        dT = (Ta - ref).astype(dt)
+        dT = _minus(Ta, ref, dt)
         for j, c in enumerate(cols):
             c *= 1.0 + dT * v[j]
     if "offset" in eff:
         v = (model.axis_vector("offset", "mg") / 1000.0).astype(dt)
-        for j, c in enumerate(cols):
-            c += v[j]
+        per_axis(np.add, a, v)  # c += v[j] for each column c
     if "temperature_offset" in eff:
         ref = float(eff["temperature_offset"].get("reference_c", DEFAULT_REFERENCE_C))
         v = (model.axis_vector("temperature_offset", "mg_per_c") / 1000.0).astype(dt)
-        dT = (Ta - ref).astype(dt)
+        dT = _minus(Ta, ref, dt)
         for j, c in enumerate(cols):
             c += dT * v[j]
     if "nonlinearity" in eff:

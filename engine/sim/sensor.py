@@ -19,7 +19,7 @@ from typing import Optional
 
 import numpy as np
 
-from .model import SensorModel, apply_deterministic
+from .model import SensorModel, apply_deterministic, per_axis
 
 AX3_PACKED_EXPONENT = {2: 0, 4: 1, 8: 2, 16: 3}  # cwa-format.md §6.1 (also in drivers/cwa_writer.py)
 
@@ -98,10 +98,16 @@ class DeviceSpec:
         step = self.step_counts
         dt = a_g.dtype if a_g.dtype in (np.float32, np.float64) else np.float64
         if self.kind == "geneactiv":
-            x = a_g * (np.asarray(self.gains, np.float64) / 100.0).astype(dt)
-            x += (np.asarray(self.offsets, np.float64) / 100.0).astype(dt)
+            x = np.array(a_g, dt)  # a_g * gain[j] + offset[j] on each axis
+            per_axis(np.multiply, x, (np.asarray(self.gains, np.float64) / 100.0).astype(dt))
+            per_axis(np.add, x, (np.asarray(self.offsets, np.float64) / 100.0).astype(dt))
         else:
-            x = a_g * (self.counts_per_g / step).astype(dt)
+            v = (self.counts_per_g / step).astype(dt)  # a_g * v[j] on each axis
+            if np.all(v == v[0]):
+                x = np.multiply(a_g, v[0])
+            else:
+                x = np.array(a_g, dt)
+                per_axis(np.multiply, x, v)
         q = np.floor(x, out=x) if mode == "floor" else np.rint(x, out=x)
         lo, hi = self.count_limits()
         lo_s, hi_s = int(lo[0]) // step, int(hi[0]) // step  # the same on every axis
@@ -172,33 +178,40 @@ def standard_normals(rng: np.random.Generator, shape) -> np.ndarray:
     h = (n + 1) // 2
     u1 = rng.random(h, dtype=np.float32)
     u2 = rng.random(h, dtype=np.float32)
-    r = np.sqrt(np.float32(-2.0) * np.log1p(-u1))  # 1 - u1 in (0, 1]: finite
+    r = np.negative(u1, out=u1)  # r = sqrt(-2 log1p(-u1)), in place
+    np.log1p(r, out=r)  # 1 - u1 in (0, 1]: finite
+    r *= np.float32(-2.0)
+    np.sqrt(r, out=r)
     u2 *= np.float32(2.0 * np.pi)
     out = np.empty(2 * h, np.float32)
-    out[:h] = r * np.cos(u2)
-    out[h:] = r * np.sin(u2)
+    np.cos(u2, out=out[:h])
+    out[:h] *= r
+    np.sin(u2, out=out[h:])
+    out[h:] *= r
     return out[:n].reshape(shape)
 
 
 def measure(true_g: np.ndarray, model: SensorModel, spec: DeviceSpec, *, temperature_c, time_s,
             accel_temperature_c, bias_g, rng: Optional[np.random.Generator], rate_hz: float,
-            quantise: bool = True) -> tuple[np.ndarray, np.ndarray]:
+            quantise: bool = True, noise: Optional[np.ndarray] = None) -> tuple[np.ndarray, np.ndarray]:
     """Apply the whole sensor model to one chunk: returns (measured g, stored counts). With
     ``quantise`` the counts are clipped and quantised and the measured g is the value before
     both; without it the measured g is clipped (if ``clipping`` is on) and counts is None. ``bias_g`` (n, 3) from ``bias_track`` interpolated to the samples;
-    ``rng`` draws the white noise (None: no noise)."""
+    ``rng`` draws the white noise (None: no noise); ``noise``: the standard normals already drawn
+    from it (``standard_normals(rng, (n, 3))``, float32, scaled in place) instead."""
     a = apply_deterministic(true_g, model, temperature_c=temperature_c, time_s=time_s,
                             accel_temperature_c=accel_temperature_c)
     if model.on("bias_instability") and bias_g is not None:
         a += bias_g
     sd = noise_sd_g(model, rate_hz)
-    if rng is not None and np.any(sd > 0):
-        z = standard_normals(rng, a.shape)
-        sd32 = sd.astype(np.float32)
-        for j in range(3):  # column by column: the (n, 3)-by-(3,) broadcast is several times slower
-            zj = z[:, j]
-            zj *= sd32[j]
-            a[:, j] += zj
+    if (rng is not None or noise is not None) and np.any(sd > 0):
+        z = standard_normals(rng, a.shape) if noise is None else noise
+        per_axis(np.multiply, z, sd.astype(np.float32))  # z[:, j] * sd[j], then added
+        if a.dtype == np.float32:
+            a += z
+        else:
+            for j in range(3):
+                a[:, j] += z[:, j]
     counts = None
     if quantise:  # a file can hold only the storable range: the counts are always clipped
         mode = model.get("quantisation", "mode", "nearest") if model.on("quantisation") else "nearest"

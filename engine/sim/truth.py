@@ -129,9 +129,11 @@ def write_labels(path, labels: dict) -> None:
 def _write_label_rows(f, labels: dict, rows_per_block: int = 4096) -> None:
     cols = list(LABEL_COLUMNS)
     ints = {"window", "device_start_ns", "samples", "still", "activity", "posture", "motion"}
+    # one %-format per row: "%d" of a Python int is its str(), "%.6f" of a float is what
+    # np.char.mod("%.6f") gives (nan -> "nan")
+    row_fmt = ",".join("%d" if c in ints else "%.6f" for c in cols) + "\n"
     n = labels[cols[0]].shape[0]
     for a in range(0, n, rows_per_block):
         b = min(n, a + rows_per_block)
-        texts = [labels[c][a:b].astype(np.int64).astype(str) if c in ints
-                 else np.char.mod("%.6f", labels[c][a:b].astype(np.float64)) for c in cols]
-        f.write("".join(",".join(row) + "\n" for row in zip(*texts)))
+        values = [labels[c][a:b].astype(np.int64 if c in ints else np.float64).tolist() for c in cols]
+        f.write("".join([row_fmt % row for row in zip(*values)]))

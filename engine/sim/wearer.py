@@ -269,6 +269,12 @@ def _awake_day(bouts, rng, p: WearerParams, t: float, sleep: float, wake: float)
     return max(t, sleep)
 
 
+def _generator(entropy: list) -> np.random.Generator:
+    """``np.random.default_rng(np.random.SeedSequence(entropy))`` (the same stream: default_rng
+    wraps PCG64), built directly: half the cost, which counts at two generators per segment."""
+    return np.random.Generator(np.random.PCG64(np.random.SeedSequence(entropy)))
+
+
 # ----------------------------------------------------------------------------- fast trig
 _TWO_PI = 2.0 * np.pi
 
@@ -285,6 +291,38 @@ def _cos(x: np.ndarray) -> np.ndarray:
     x = np.asarray(x, np.float64)
     r = x - np.rint(x * (1.0 / _TWO_PI)) * _TWO_PI
     return np.cos(r.astype(np.float32))
+
+
+def _sincos(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(_sin(x), _cos(x)) with one range reduction."""
+    x = np.asarray(x, np.float64)
+    r = (x - np.rint(x * (1.0 / _TWO_PI)) * _TWO_PI).astype(np.float32)
+    return np.sin(r), np.cos(r)
+
+
+def _sincos_cols(t: np.ndarray, w: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(_sin(arg), _cos(arg)) of arg = t[:, None] * w + p (float64 (n,), (3,), (3,)) as (n, 3),
+    one column at a time (contiguous; the same operations per element as the broadcast form)
+    with one range reduction for both. The float32 values are returned as float64: the
+    matrix products that follow take float64 (a float32 operand would be cast inside the
+    product, several times slower than a cast here)."""
+    n = t.shape[0]
+    S = np.empty((n, 3))
+    C = np.empty((n, 3))
+    a = np.empty(n)
+    r = np.empty(n)
+    r32 = np.empty(n, np.float32)
+    for j in range(3):
+        np.multiply(t, w[j], out=a)
+        a += p[j]
+        np.multiply(a, 1.0 / _TWO_PI, out=r)
+        np.rint(r, out=r)
+        r *= _TWO_PI
+        np.subtract(a, r, out=r)
+        r32[:] = r
+        S[:, j] = np.sin(r32)
+        C[:, j] = np.cos(r32)
+    return S, C
 
 
 def _cross3(a, b) -> np.ndarray:
@@ -403,7 +441,7 @@ class SiteModel:
 
     # --------------------------------------------------------------- per-segment parameters
     def _rng(self, i: int) -> np.random.Generator:
-        return np.random.default_rng(np.random.SeedSequence([self.seed, 11, _SITE_CODE[self.site], int(i)]))
+        return _generator([self.seed, 11, _SITE_CODE[self.site], int(i)])
 
     def params(self, i: int) -> _SegParams:
         sp = self._cache.get(i)
@@ -412,8 +450,7 @@ class SiteModel:
         if len(self._cache) > 64:
             self._cache.clear()
         sch = self.schedule
-        r = np.random.default_rng(np.random.SeedSequence(
-            [self.seed, 12, _SITE_CODE[self.site], int(sch.group[i])]))  # orientation
+        r = _generator([self.seed, 12, _SITE_CODE[self.site], int(sch.group[i])])  # orientation
         act = ACTIVITIES[sch.activity[i]]
         post = POSTURES[sch.posture[i]]
         mot = MOTIONS[sch.motion[i]]
@@ -585,11 +622,17 @@ class SiteModel:
     def _envelope(self, i: int, t: np.ndarray) -> np.ndarray:
         """Oscillation fades in over 1 s after the transition and out over 1 s before the end
         (float32; all ones in the middle of a segment)."""
+        if self._envelope_flat(i, t):
+            return np.ones(t.shape[0], np.float32)
         s0 = self.schedule.start[i] + self.schedule.trans_s[i]
         s1 = self.schedule.end[i]
-        if t.shape[0] and t[0] - s0 >= 1.0 and s1 - t[-1] >= 1.0:
-            return np.ones(t.shape[0], np.float32)
         return np.clip(np.minimum(t - s0, s1 - t), 0.0, 1.0).astype(np.float32)
+
+    def _envelope_flat(self, i: int, t: np.ndarray) -> bool:
+        """True when ``_envelope(i, t)`` is all ones (t inside the segment's middle)."""
+        s0 = self.schedule.start[i] + self.schedule.trans_s[i]
+        s1 = self.schedule.end[i]
+        return bool(t.shape[0] and t[0] - s0 >= 1.0 and s1 - t[-1] >= 1.0)
 
     # --------------------------------------------------------------- rendering
     BLOCK = 16384  # samples per inner block (keeps temporaries in cache)
@@ -628,7 +671,7 @@ class SiteModel:
             u = np.clip((t[:nt] - s0) / tr, 0.0, 1.0)
             ang = phi * (u * u * (3 - 2 * u))
             push = _outer(_sin(np.pi * u) * (0.15 * min(phi, 1.0)), ax)  # a small push/pull
-            f[:nt] = _device_force(ang, ax, R_prev, push)
+            _device_force(ang, ax, R_prev, push, out=f[:nt])
             if w is not None:
                 w[:nt] = _outer(phi * 6 * u * (1 - u) / tr, R_prev.T @ ax) * (180 / np.pi)
         if nt == t.shape[0]:
@@ -652,15 +695,18 @@ class SiteModel:
                 w[nt:] = 0.0  # linear: no rotation
             return
         env = self._envelope(i, tm)
+        flat = self._envelope_flat(i, tm)  # env is all ones: x * 1 = x, the products are skipped
         if mot == "fidget":
             wf = 2 * np.pi * sp.freq
-            arg = (tm - s0)[:, None] * wf + (sp.phase + wf * s0)
-            S, Cc = _sin(arg), _cos(arg)
-            ang = (S @ sp.amp) * env
+            S, Cc = _sincos_cols(tm - s0, wf, sp.phase + wf * s0)
+            ang = S @ sp.amp
             c1, s1 = np.cos(1.0), np.sin(1.0)  # scalars
             L = (S @ ((sp.lin_amp * c1)[:, None] * sp.lin_dir)
-                 + Cc @ ((sp.lin_amp * s1)[:, None] * sp.lin_dir)) * env[:, None]
-            f[nt:] = _device_force(ang, sp.axis, sp.R_base, L)
+                 + Cc @ ((sp.lin_amp * s1)[:, None] * sp.lin_dir))
+            if not flat:
+                ang *= env
+                L *= env[:, None]
+            _device_force(ang, sp.axis, sp.R_base, L, out=f[nt:])
             if w is not None:
                 w[nt:] = _outer((Cc @ (sp.amp * wf)) * env, sp.R_base.T @ sp.axis) * (180 / np.pi)
             return
@@ -682,45 +728,65 @@ class SiteModel:
         L[:, 0] = ga[1] * _sin(two + 0.3)
         L[:, 1] = ga[2] * _sin(0.5 * two)
         L[:, 2] = ga[0] * _cos(two) + sp.heel * heel
-        L *= env[:, None]
         arg = 0.5 * two + sp.phase[0]
         wv = np.pi / iv
         amp = sp.amp[0]
-        sa, ca = _sin(arg), _cos(arg)
-        ang = amp * sa * env
-        dang = amp * wv * ca * env
+        sa, ca = _sincos(arg)
+        ang = amp * sa
+        dang = amp * wv * ca
+        if not flat:
+            L *= env[:, None]
+            ang *= env
+            dang *= env
         if sp.radius > 0:  # pendulum: device at radius r below the pivot, rotating about axis
             ddang = -ang * wv * wv
             u0 = np.array([0.0, 0.0, -sp.radius])  # perpendicular to the swing axis
             u1 = _cross3(sp.axis, u0)
-            c, s = _cos(ang), _sin(ang)
+            s, c = _sincos(ang)
             alpha = -ddang * s - dang * dang * c
             beta = ddang * c - dang * dang * s
-            L += (_outer(alpha, u0) + _outer(beta, u1)) / G
-        f[nt:] = _device_force(ang, sp.axis, sp.R_base, L)
+            for j in range(3):  # L += (_outer(alpha, u0) + _outer(beta, u1)) / G, by column
+                L[:, j] += (alpha * u0[j] + beta * u1[j]) / G
+            _device_force(ang, sp.axis, sp.R_base, L, out=f[nt:], sc=(s, c))
+        else:
+            _device_force(ang, sp.axis, sp.R_base, L, out=f[nt:])
         if w is not None:
             w[nt:] = _outer(dang, sp.R_base.T @ sp.axis) * (180 / np.pi)
 
 
 def _device_force(ang: np.ndarray, axis: np.ndarray, R_ref: np.ndarray,
-                  L: Optional[np.ndarray] = None) -> np.ndarray:
+                  L: Optional[np.ndarray] = None, out: Optional[np.ndarray] = None,
+                  sc: Optional[tuple] = None) -> np.ndarray:
     """Device-frame specific force R_ref^T Rot(axis, -ang) (e_z + L), L the world dynamic
-    acceleration (n, 3) in g (Rodrigues' formula, expanded with constant vectors); float32."""
+    acceleration (n, 3) in g (Rodrigues' formula, expanded with constant vectors); float32.
+    Written into ``out`` (n, 3) when given; ``sc``: ``_sincos(ang)`` if already known. Computed one device axis at a time on contiguous
+    vectors (the (n, 1)-by-(3,) broadcasts are several times slower), each element with the
+    same float32 operations in the same order as the broadcast form: the same numbers."""
     f32 = np.float32
-    c = _cos(ang)
-    s = _sin(ang)
+    s, c = sc if sc is not None else _sincos(ang)
     oc = f32(1.0) - c
     kR = (axis @ R_ref).astype(f32)
     g0 = R_ref[2, :].astype(f32)
     g1 = (np.array([axis[1], -axis[0], 0.0]) @ R_ref).astype(f32)  # axis x e_z
     g2 = (axis[2] * kR).astype(f32)
-    out = _outer(c, g0)
-    out -= _outer(s, g1)
-    out += _outer(oc, g2)
+    n = c.shape[0]
+    if out is None:
+        out = np.empty((n, 3), f32)
     if L is not None:
         L = L.astype(f32, copy=False)
         Kx = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-        out += c[:, None] * (L @ R_ref.astype(f32))
-        out -= s[:, None] * (L @ (Kx.T @ R_ref).astype(f32))
-        out += _outer(oc * (L @ axis.astype(f32)), kR)
+        LR = (L @ R_ref.astype(f32)).T.copy()  # rows: device axes
+        LK = (L @ (Kx.T @ R_ref).astype(f32)).T.copy()
+        ocLa = oc * (L @ axis.astype(f32))
+    o = np.empty(n, f32)
+    tmp = np.empty(n, f32)
+    for j in range(3):
+        np.multiply(c, g0[j], out=o)
+        o -= np.multiply(s, g1[j], out=tmp)
+        o += np.multiply(oc, g2[j], out=tmp)
+        if L is not None:
+            o += np.multiply(c, LR[j], out=tmp)
+            o -= np.multiply(s, LK[j], out=tmp)
+            o += np.multiply(ocLa, kR[j], out=tmp)
+        out[:, j] = o
     return out

@@ -325,6 +325,25 @@ def _sincos_cols(t: np.ndarray, w: np.ndarray, p: np.ndarray) -> tuple[np.ndarra
     return S, C
 
 
+def _sin_cols(t: np.ndarray, w: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """_sin(t[:, None] * w + p) as (n, m) float32, one column at a time in reused buffers."""
+    n = t.shape[0]
+    S = np.empty((n, w.shape[0]), np.float32)
+    a = np.empty(n)
+    r = np.empty(n)
+    r32 = np.empty(n, np.float32)
+    for j in range(w.shape[0]):
+        np.multiply(t, w[j], out=a)
+        a += p[j]
+        np.multiply(a, 1.0 / _TWO_PI, out=r)
+        np.rint(r, out=r)
+        r *= _TWO_PI
+        np.subtract(a, r, out=r)
+        r32[:] = r
+        np.sin(r32, out=S[:, j])
+    return S
+
+
 def _cross3(a, b) -> np.ndarray:
     """Cross product of two 3-vectors (np.cross has a large per-call overhead)."""
     return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
@@ -687,9 +706,9 @@ class SiteModel:
                 return
             d, amp, freq, phase = mm
             wf = 2 * np.pi * freq
-            arg = (tm - s0)[:, None] * wf + (phase + wf * s0)
             # R^T (e_z + L): gravity plus the micro-acceleration, into the device frame
-            f[nt:] = _sin(arg) @ (amp[:, None] * (d @ sp.R_base)).astype(np.float32)
+            S = _sin_cols(tm - s0, wf, phase + wf * s0)
+            f[nt:] = S @ (amp[:, None] * (d @ sp.R_base)).astype(np.float32)
             f[nt:] += sp.R_base[2, :]
             if w is not None:
                 w[nt:] = 0.0  # linear: no rotation

@@ -49,6 +49,7 @@ from typing import Optional
 from stillpoint.drivers.errors import StillpointError
 from stillpoint.drivers.outputs import atomic_output, fsync_folder
 
+from ..malloc import set_block_thresholds
 from .plan import code_version, fingerprint, make_key, canonical_settings
 
 try:
@@ -163,13 +164,7 @@ def _undo_malloc_trim_threshold() -> None:
     if _MALLOC_TUNED or "MALLOC_TRIM_THRESHOLD_" not in os.environ:
         return
     _MALLOC_TUNED = True
-    try:
-        import ctypes
-        libc = ctypes.CDLL("libc.so.6")
-        libc.mallopt(-3, 32 << 20)  # M_MMAP_THRESHOLD (malloc.h)
-        libc.mallopt(-1, 64 << 20)  # M_TRIM_THRESHOLD
-    except (OSError, AttributeError):
-        pass
+    set_block_thresholds()
 
 
 def _reset_peak_rss() -> bool:

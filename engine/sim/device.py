@@ -154,17 +154,10 @@ def _tune_malloc() -> None:
         return
     _MALLOC_TUNED = True
     import os
-    import sys
-    if (not sys.platform.startswith("linux") or "MALLOC_MMAP_THRESHOLD_" in os.environ
-            or "MALLOC_TRIM_THRESHOLD_" in os.environ):
+    if "MALLOC_MMAP_THRESHOLD_" in os.environ or "MALLOC_TRIM_THRESHOLD_" in os.environ:
         return
-    try:
-        import ctypes
-        libc = ctypes.CDLL("libc.so.6")
-        libc.mallopt(-3, 32 << 20)  # M_MMAP_THRESHOLD (malloc.h)
-        libc.mallopt(-1, 64 << 20)  # M_TRIM_THRESHOLD
-    except (OSError, AttributeError):
-        pass
+    from stillpoint.engine.malloc import set_block_thresholds
+    set_block_thresholds()
 
 
 # ----------------------------------------------------------------------------- one device

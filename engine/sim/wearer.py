@@ -300,35 +300,10 @@ def _sincos(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.sin(r), np.cos(r)
 
 
-def _sincos_cols(t: np.ndarray, w: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(_sin(arg), _cos(arg)) of arg = t[:, None] * w + p (float64 (n,), (3,), (3,)) as (n, 3),
-    one column at a time (contiguous; the same operations per element as the broadcast form)
-    with one range reduction for both. The float32 values are returned as float64: the
-    matrix products that follow take float64 (a float32 operand would be cast inside the
-    product, several times slower than a cast here)."""
+def _phase_cols(t: np.ndarray, w: np.ndarray, p: np.ndarray):
+    """For each column j, arg = t * w[j] + p[j] range-reduced to [-pi, pi] in float32 (the
+    same float64 operations as _sin's), yielded as (j, reduced) in one reused buffer."""
     n = t.shape[0]
-    S = np.empty((n, 3))
-    C = np.empty((n, 3))
-    a = np.empty(n)
-    r = np.empty(n)
-    r32 = np.empty(n, np.float32)
-    for j in range(3):
-        np.multiply(t, w[j], out=a)
-        a += p[j]
-        np.multiply(a, 1.0 / _TWO_PI, out=r)
-        np.rint(r, out=r)
-        r *= _TWO_PI
-        np.subtract(a, r, out=r)
-        r32[:] = r
-        S[:, j] = np.sin(r32)
-        C[:, j] = np.cos(r32)
-    return S, C
-
-
-def _sin_cols(t: np.ndarray, w: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """_sin(t[:, None] * w + p) as (n, m) float32, one column at a time in reused buffers."""
-    n = t.shape[0]
-    S = np.empty((n, w.shape[0]), np.float32)
     a = np.empty(n)
     r = np.empty(n)
     r32 = np.empty(n, np.float32)
@@ -340,6 +315,27 @@ def _sin_cols(t: np.ndarray, w: np.ndarray, p: np.ndarray) -> np.ndarray:
         r *= _TWO_PI
         np.subtract(a, r, out=r)
         r32[:] = r
+        yield j, r32
+
+
+def _sincos_cols(t: np.ndarray, w: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(_sin(arg), _cos(arg)) of arg = t[:, None] * w + p (float64 (n,), (3,), (3,)) as (n, 3),
+    one column at a time (contiguous; the same operations per element as the broadcast form)
+    with one range reduction for both. The float32 values are returned as float64: the
+    matrix products that follow take float64 (a float32 operand would be cast inside the
+    product, several times slower than a cast here)."""
+    S = np.empty((t.shape[0], w.shape[0]))
+    C = np.empty((t.shape[0], w.shape[0]))
+    for j, r32 in _phase_cols(t, w, p):
+        S[:, j] = np.sin(r32)
+        C[:, j] = np.cos(r32)
+    return S, C
+
+
+def _sin_cols(t: np.ndarray, w: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """_sin(t[:, None] * w + p) as (n, m) float32, one column at a time."""
+    S = np.empty((t.shape[0], w.shape[0]), np.float32)
+    for j, r32 in _phase_cols(t, w, p):
         np.sin(r32, out=S[:, j])
     return S
 

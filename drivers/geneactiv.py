@@ -73,6 +73,14 @@ _MARKER_CR = _MARKER + b"\r"
 _MARKER_RE = re.compile(rb"(?:^|\n)Recorded Data[ \t\r\x00]*(?:\n|$)")
 _VALUE_STRIP = b" \t\r\x00"
 
+
+def _data_chars(line: bytes) -> bytes:
+    """A page's data line without its line ending (one CR before the LF). Nothing else is stripped:
+    a space, tab, NUL or any other byte after the hex characters is part of the line (damage that
+    makes its length wrong), never padding. The general parser and the fast path both use this."""
+    return line[:-1] if line.endswith(b"\r") else line
+
+
 # Two hex characters (read as one little-endian uint16: first character in the low byte) -> the
 # byte they spell; 0x100 marks a pair holding a character that is not a hex digit. 128 KB table:
 # one gather per 2 characters.
@@ -637,7 +645,7 @@ class GeneactivReader:
                 index += 1
                 i = k
                 continue
-            hexline = lines[k].rstrip(_VALUE_STRIP)
+            hexline = _data_chars(lines[k])
             nchar = len(hexline)
             if nchar < PAGE_HEX_CHARS and k == L - 1 and not eof:
                 break  # a short data line may be the last page: decide once the next bytes (or EOF) come
@@ -683,7 +691,10 @@ class GeneactivReader:
         end = i + 10 * P
         rep = itertools.repeat
         ok = np.fromiter(map(marker.__eq__, lines[i:end:10]), bool, P)
+        # the data line: exactly PAGE_HEX_CHARS characters once _data_chars has taken its line ending
+        # off, i.e. ending in CR exactly when the marker line does (any other last byte is damage)
         ok &= np.fromiter(map(len, lines[i + 9:end:10]), np.int64, P) == PAGE_HEX_CHARS + cr
+        ok &= np.fromiter(map(bytes.endswith, lines[i + 9:end:10], rep(b"\r")), bool, P) == cr
         for off, key in _FAST_KEYS:
             ok &= np.fromiter(map(bytes.startswith, lines[i + off:end:10], rep(key)), bool, P)
         # the serial line must name the header's device (else the general parser logs it)

@@ -322,7 +322,8 @@ def _blocks_and_qc(path, slow: bool, **kw):
     return blocks, r.qc.as_dict()
 
 
-@pytest.mark.parametrize("damage", ["none", "bad_hex", "bad_time", "comma", "desync", "lf"])
+@pytest.mark.parametrize("damage", ["none", "bad_hex", "bad_time", "comma", "desync", "lf", "data_eol",
+                                    "data_eol_tab"])
 def test_fast_path_equals_general_parser(tmp_path, damage):
     p = tmp_path / "r.bin"
     write(p, pages=9, eol="\n" if damage == "lf" else "\r\n")
@@ -338,6 +339,10 @@ def test_fast_path_equals_general_parser(tmp_path, damage):
         data = data.replace(b"Temperature:20.5", b"Temperature:20,5")
     elif damage == "desync":
         data = data[:pos[5]] + b"noise\r\n" + data[pos[5]:]
+    elif damage.startswith("data_eol"):  # the CR ending page 4's data line -> 0x0F or a tab (one
+        i = pos[5] - 2                    # bit each): a 3601-character line, not padding
+        assert data[i:i + 2] == b"\r\n"
+        data = data[:i] + (b"\t" if damage == "data_eol_tab" else b"\x0f") + data[i + 1:]
     p.write_bytes(data)
     for bp in (2, 3, 256):
         fast_blocks, fast_qc = _blocks_and_qc(p, False, batch_pages=bp)
@@ -351,7 +356,9 @@ def test_fast_path_equals_general_parser(tmp_path, damage):
             assert a.segment == b.segment and a.first_sample == b.first_sample
             for k in a.per_sample:
                 np.testing.assert_array_equal(a.per_sample[k], b.per_sample[k])
-    if damage in ("bad_hex", "bad_time", "desync"):
+    if damage.startswith("data_eol"):
+        assert [(e["index"], e["reason"]) for e in fast_qc["events"]] == [(4, "bad_page_length")]
+    if damage in ("bad_hex", "bad_time", "desync", "data_eol", "data_eol_tab"):
         assert fast_qc["events"]
     else:
         assert fast_qc["events"] == [] and 20.5 in np.concatenate([b.temperature_c for b in fast_blocks])

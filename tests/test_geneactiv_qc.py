@@ -323,7 +323,7 @@ def _blocks_and_qc(path, slow: bool, **kw):
 
 
 @pytest.mark.parametrize("damage", ["none", "bad_hex", "bad_time", "comma", "desync", "lf", "data_eol",
-                                    "data_eol_tab"])
+                                    "data_eol_tab", "time_ms_space"])
 def test_fast_path_equals_general_parser(tmp_path, damage):
     p = tmp_path / "r.bin"
     write(p, pages=9, eol="\n" if damage == "lf" else "\r\n")
@@ -343,6 +343,10 @@ def test_fast_path_equals_general_parser(tmp_path, damage):
         i = pos[5] - 2                    # bit each): a 3601-character line, not padding
         assert data[i:i + 2] == b"\r\n"
         data = data[:i] + (b"\t" if damage == "data_eol_tab" else b"\x0f") + data[i + 1:]
+    elif damage == "time_ms_space":  # page 6's last millisecond digit -> a space: ":000" -> ":00 "
+        i = data.find(b"Page Time:", pos[6]) + 32
+        assert data[i:i + 1] == b"0"
+        data = data[:i] + b" " + data[i + 1:]
     p.write_bytes(data)
     for bp in (2, 3, 256):
         fast_blocks, fast_qc = _blocks_and_qc(p, False, batch_pages=bp)
@@ -358,7 +362,9 @@ def test_fast_path_equals_general_parser(tmp_path, damage):
                 np.testing.assert_array_equal(a.per_sample[k], b.per_sample[k])
     if damage.startswith("data_eol"):
         assert [(e["index"], e["reason"]) for e in fast_qc["events"]] == [(4, "bad_page_length")]
-    if damage in ("bad_hex", "bad_time", "desync", "data_eol", "data_eol_tab"):
+    if damage == "time_ms_space":
+        assert [(e["index"], e["reason"]) for e in fast_qc["events"]] == [(6, "bad_page_time")]
+    if damage in ("bad_hex", "bad_time", "desync", "data_eol", "data_eol_tab", "time_ms_space"):
         assert fast_qc["events"]
     else:
         assert fast_qc["events"] == [] and 20.5 in np.concatenate([b.temperature_c for b in fast_blocks])

@@ -387,6 +387,42 @@ def test_qc_log_is_capped(tmp_path, monkeypatch):
     assert (r.qc.total, r.qc.valid, r.qc.skipped) == (11, 6, 5) and b.n == 1800
 
 
+def test_capped_qc_log_is_the_same_at_every_batch_size(tmp_path, monkeypatch):
+    """Pages are parsed a batch at a time before their segment checks run, so events are not
+    logged in file order; the capped list must still be the first events in file order."""
+    import stillpoint.drivers.geneactiv as g
+    monkeypatch.setattr(g, "MAX_QC_EVENTS", 3)
+    p = tmp_path / "r.bin"
+    write(p, pages=12)
+    data = p.read_bytes()
+    for k in (2, 5, 8):  # sequence gaps (segment checks) at pages 2, 5, 8 ...
+        data = data.replace(b"Sequence Number:%d\r" % k, b"Sequence Number:%d\r" % (k + 100))
+    for k in (3, 6, 9):  # ... and bad hex (found while parsing) at pages 3, 6, 9
+        i = data.find(b"Frequency:50.0", pages_of(data)[k]) + 20
+        data = data[:i] + b"x" + data[i + 1:]
+    p.write_bytes(data)
+    want = [(2, "sequence_gap"), (3, "bad_hex"), (4, "sequence_gap"), (5, "qc_log_truncated")]
+    for bp in (1, 2, 3, 5, 256):
+        r, _, b = read(p, batch_pages=bp)
+        assert events(r) == want, bp
+        assert (r.qc.total, r.qc.valid, r.qc.skipped) == (12, 9, 3) and b.n == 2700
+
+
+def test_long_desync_after_a_segment_check_is_one_event(tmp_path):
+    """Text that is not a page, longer than a read, after a page with a sequence gap: one desync
+    event however many reads it takes."""
+    p = tmp_path / "r.bin"
+    write(p, pages=6)
+    data = p.read_bytes().replace(b"Sequence Number:1\r", b"Sequence Number:7\r")
+    pos = pages_of(data)
+    junk = b"".join(b"junk line %d\r\n" % k for k in range(3000))  # 46,890 bytes
+    p.write_bytes(data[:pos[2]] + junk + data[pos[2]:])
+    for bp in (1, 2, 3, 256):
+        r, _, b = read(p, batch_pages=bp)
+        assert events(r) == [(1, "sequence_gap"), (2, "desync")], bp
+        assert "3000 line(s), 46890 bytes" in r.qc.events[1].detail and b.n == 1800
+
+
 # ---------------------------------------------------------------------------- random damage
 
 

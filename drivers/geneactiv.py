@@ -726,6 +726,9 @@ class GeneactivReader:
         ok &= np.fromiter(map(bytes.endswith, lines[i + 9:end:10], rep(b"\r")), bool, P) == cr
         for off, key in _FAST_KEYS:
             ok &= np.fromiter(map(bytes.startswith, lines[i + off:end:10], rep(key)), bool, P)
+            # as in the general parser, a line longer than MAX_FIELD_LINE_BYTES is never a
+            # key:value line (it ends the page's text lines as its data line)
+            ok &= np.fromiter(map(len, lines[i + off:end:10]), np.int64, P) <= MAX_FIELD_LINE_BYTES
         # the serial line must name the header's device (else the general parser logs it)
         serial = self._serial_line_cr if cr else self._serial_line
         ok &= np.fromiter(map(serial.__eq__, lines[i + 1:end:10]), bool, P)

@@ -7,7 +7,7 @@ import os
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from stillpoint.drivers.errors import (CorruptRecordingError, RecordingError, StillpointError,
@@ -323,7 +323,8 @@ def _blocks_and_qc(path, slow: bool, **kw):
 
 
 @pytest.mark.parametrize("damage", ["none", "bad_hex", "bad_time", "comma", "desync", "lf", "data_eol",
-                                    "data_eol_tab", "time_ms_space"])
+                                    "data_eol_tab", "time_ms_space",
+                                    "long_key_line"])
 def test_fast_path_equals_general_parser(tmp_path, damage):
     p = tmp_path / "r.bin"
     write(p, pages=9, eol="\n" if damage == "lf" else "\r\n")
@@ -343,6 +344,9 @@ def test_fast_path_equals_general_parser(tmp_path, damage):
         i = pos[5] - 2                    # bit each): a 3601-character line, not padding
         assert data[i:i + 2] == b"\r\n"
         data = data[:i] + (b"\t" if damage == "data_eol_tab" else b"\x0f") + data[i + 1:]
+    elif damage == "long_key_line":  # page 4's Device Status line padded to 513 bytes: not a key line
+        i = data.find(b"Device Status:", pos[4]) + 14
+        data = data[:i] + b"\x00" * 489 + data[i:]
     elif damage == "time_ms_space":  # page 6's last millisecond digit -> a space: ":000" -> ":00 "
         i = data.find(b"Page Time:", pos[6]) + 32
         assert data[i:i + 1] == b"0"
@@ -364,7 +368,11 @@ def test_fast_path_equals_general_parser(tmp_path, damage):
         assert [(e["index"], e["reason"]) for e in fast_qc["events"]] == [(4, "bad_page_length")]
     if damage == "time_ms_space":
         assert [(e["index"], e["reason"]) for e in fast_qc["events"]] == [(6, "bad_page_time")]
-    if damage in ("bad_hex", "bad_time", "desync", "data_eol", "data_eol_tab", "time_ms_space"):
+    if damage == "long_key_line":
+        assert [(e["index"], e["reason"]) for e in fast_qc["events"]] == [(4, "bad_page_length"),
+                                                                            (5, "desync")]
+    if damage in ("bad_hex", "bad_time", "desync", "data_eol", "data_eol_tab", "time_ms_space",
+                  "long_key_line"):
         assert fast_qc["events"]
     else:
         assert fast_qc["events"] == [] and 20.5 in np.concatenate([b.temperature_c for b in fast_blocks])
@@ -445,6 +453,7 @@ def _read_or_error(path, **kw):
 @settings(max_examples=int(os.environ.get("STILLPOINT_FUZZ_EXAMPLES", "60")), deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(pos=st.integers(0, 23_000), kind=st.sampled_from(["flip", "delete", "insert", "cut"]),
        length=st.integers(1, 5000), byte=st.integers(0, 255))
+@example(pos=1297, kind="insert", length=489, byte=0)  # page 0's Device Status line -> 513 bytes
 def test_random_damage_never_crashes_and_keeps_what_precedes_it(tmp_path, clean_file, pos, kind, length,
                                                                  byte):
     data, t, a = clean_file

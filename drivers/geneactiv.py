@@ -73,6 +73,14 @@ _MARKER_CR = _MARKER + b"\r"
 _MARKER_RE = re.compile(rb"(?:^|\n)Recorded Data[ \t\r\x00]*(?:\n|$)")
 _VALUE_STRIP = b" \t\r\x00"
 
+
+def _data_chars(line: bytes) -> bytes:
+    """A page's data line without its line ending (one CR before the LF). Nothing else is stripped:
+    a space, tab, NUL or any other byte after the hex characters is part of the line (damage that
+    makes its length wrong), never padding. The general parser and the fast path both use this."""
+    return line[:-1] if line.endswith(b"\r") else line
+
+
 # Two hex characters (read as one little-endian uint16: first character in the low byte) -> the
 # byte they spell; 0x100 marks a pair holding a character that is not a hex digit. 128 KB table:
 # one gather per 2 characters.
@@ -240,7 +248,8 @@ class GeneactivReader:
         self._iterated = False
         self._samples = 0
         self._desync_open = None  # (lines, bytes) of a desync stretch still being skipped
-        self._n_events = 0
+        self._n_events = 0  # events listed or counted past the cap
+        self._unlisted: list = []  # (event, always) logged but not yet listed (see _event)
         try:  # the header text was decoded as UTF-8, or as Latin-1 when it is not UTF-8
             self._serial = self.info.device_id.encode("latin-1")
         except UnicodeEncodeError:
@@ -271,21 +280,42 @@ class GeneactivReader:
         try:
             yield from self._blocks()
         finally:
+            self._list_events()  # a read stopped early still lists what it logged
             self.close()
 
     # ------------------------------------------------------------------ internals
     def _event(self, index: int, reason: str, detail: str = "", time_ns=None, samples: int = 0,
                always: bool = False):
-        """Log a QC event. The list is capped at MAX_QC_EVENTS (memory stays bounded on a file that
-        is damaged throughout); later events are still counted in total/skipped/segments."""
-        self._n_events += 1
-        if self._n_events <= MAX_QC_EVENTS or always:
-            self.qc.add(QCEvent(index=index, reason=reason, detail=detail, time_ns=time_ns,
-                                samples=samples))
-        elif self._n_events == MAX_QC_EVENTS + 1:
-            self.qc.add(QCEvent(index=index, reason="qc_log_truncated",
-                                detail=f"more than {MAX_QC_EVENTS} QC events; later ones are counted "
-                                       "in total/skipped but not listed"))
+        """Log a QC event. Events are not logged in file order (all pages of a batch are parsed
+        before the segment checks of its pages run), so they wait here until _list_events puts
+        them on the list in file order; the list, and which events the cap leaves out, is then
+        the same at every batch size."""
+        self._unlisted.append((QCEvent(index=index, reason=reason, detail=detail, time_ns=time_ns,
+                                       samples=samples), always))
+
+    def _list_events(self, upto: Optional[int] = None) -> None:
+        """List the logged events of pages <= ``upto`` (all when None) in file order (stable: the
+        events of one page keep the order they were logged in). The list is capped at
+        MAX_QC_EVENTS (memory stays bounded on a file that is damaged throughout; at most a batch
+        of events waits); later events are still counted in total/skipped/segments."""
+        if not self._unlisted:
+            return
+        if upto is None:
+            ready, self._unlisted = self._unlisted, []
+        else:
+            ready = [x for x in self._unlisted if x[0].index <= upto]
+            if not ready:
+                return
+            self._unlisted = [x for x in self._unlisted if x[0].index > upto]
+        ready.sort(key=lambda x: x[0].index)
+        for event, always in ready:
+            self._n_events += 1
+            if self._n_events <= MAX_QC_EVENTS or always:
+                self.qc.add(event)
+            elif self._n_events == MAX_QC_EVENTS + 1:
+                self.qc.add(QCEvent(index=event.index, reason="qc_log_truncated",
+                                    detail=f"more than {MAX_QC_EVENTS} QC events; later ones are "
+                                           "counted in total/skipped but not listed"))
 
     def _sanitise(self, run: _Run) -> Optional[_Run]:
         """Page fields that no device writes: a Page Time outside the int64-ns range (the page is
@@ -371,11 +401,15 @@ class GeneactivReader:
             if isinstance(item, _Skip):
                 if item.desync:
                     desynced = True
+                    self._list_events(item.index - 1)  # page item.index is still to come
                 else:
                     skipped += 1
+                    self._list_events(item.index)
                 continue
+            upto = int(item.index[-1])  # every event of pages <= upto is logged once this item is done
             run = self._sanitise(item)
             if run is None:
+                self._list_events(upto)
                 continue
             if not freq_warned and nominal_rate:
                 bad = np.flatnonzero(np.isfinite(run.freq)
@@ -431,19 +465,21 @@ class GeneactivReader:
             held_prev_step = int(step[-1]) if (q > 1 and not brk[-1]) else None
             segment = int(segs[-1])
             skipped, desynced = 0, False
+            self._list_events(upto)
             while self._pending_pages >= self.batch_pages:
                 yield from self._emit(self.batch_pages, tz_ns)
+        self._list_events()
         if held is not None:
             step = held_prev_step if held_prev_step is not None else int(self._nominal_steps(held.freq)[0])
             self._queue(held, 0, 1, np.array([step], np.int64), np.array([segment], np.int64))
         while self._pending_pages:
             yield from self._emit(self.batch_pages, tz_ns)
         self.qc.segments = segment + 1 if (held is not None) else 0
-        self.qc.events.sort(key=lambda e: e.index)  # stable: batch-size independent order
         n_hdr = self.info.header.get("number_of_pages")
         if n_hdr is not None and n_hdr != self.qc.total:
             self._event(self.qc.total, "page_count_mismatch",
                         f"header Number of Pages is {n_hdr}, the file holds {self.qc.total}", always=True)
+            self._list_events()
         if self.qc.valid == 0 and self.qc.events and any(
                 e.reason != "page_count_mismatch" for e in self.qc.events):
             counts: dict[str, int] = {}
@@ -591,14 +627,15 @@ class GeneactivReader:
                 nbytes = sum(len(x) + 1 for x in lines[i:j])
                 if any(x.strip(_VALUE_STRIP) for x in lines[i:j]):
                     nlines = j - i
-                    last = self.qc.events[-1] if self.qc.events else None
-                    if last is not None and last.reason == "desync" and last.index == index \
-                            and self._desync_open:
-                        # the same stretch of non-page text, seen over several reads: one event
-                        self.qc.events.pop()
-                        self._n_events -= 1
-                        nlines += self._desync_open[0]
-                        nbytes += self._desync_open[1]
+                    if self._desync_open:
+                        # the same stretch of non-page text, seen over several reads: one event (it
+                        # waits unlisted until page `index` is done; see _blocks)
+                        open_at = [k for k, (e, _) in enumerate(self._unlisted)
+                                   if e.reason == "desync" and e.index == index]
+                        if open_at:
+                            del self._unlisted[open_at[-1]]
+                            nlines += self._desync_open[0]
+                            nbytes += self._desync_open[1]
                     self._desync_open = (nlines, nbytes)
                     where = "at the end of the file" if (j == L and eof) else f"before page {index}"
                     self._event(index, "desync",
@@ -637,7 +674,7 @@ class GeneactivReader:
                 index += 1
                 i = k
                 continue
-            hexline = lines[k].rstrip(_VALUE_STRIP)
+            hexline = _data_chars(lines[k])
             nchar = len(hexline)
             if nchar < PAGE_HEX_CHARS and k == L - 1 and not eof:
                 break  # a short data line may be the last page: decide once the next bytes (or EOF) come
@@ -683,9 +720,15 @@ class GeneactivReader:
         end = i + 10 * P
         rep = itertools.repeat
         ok = np.fromiter(map(marker.__eq__, lines[i:end:10]), bool, P)
+        # the data line: exactly PAGE_HEX_CHARS characters once _data_chars has taken its line ending
+        # off, i.e. ending in CR exactly when the marker line does (any other last byte is damage)
         ok &= np.fromiter(map(len, lines[i + 9:end:10]), np.int64, P) == PAGE_HEX_CHARS + cr
+        ok &= np.fromiter(map(bytes.endswith, lines[i + 9:end:10], rep(b"\r")), bool, P) == cr
         for off, key in _FAST_KEYS:
             ok &= np.fromiter(map(bytes.startswith, lines[i + off:end:10], rep(key)), bool, P)
+            # as in the general parser, a line longer than MAX_FIELD_LINE_BYTES is never a
+            # key:value line (it ends the page's text lines as its data line)
+            ok &= np.fromiter(map(len, lines[i + off:end:10]), np.int64, P) <= MAX_FIELD_LINE_BYTES
         # the serial line must name the header's device (else the general parser logs it)
         serial = self._serial_line_cr if cr else self._serial_line
         ok &= np.fromiter(map(serial.__eq__, lines[i + 1:end:10]), bool, P)

@@ -150,7 +150,7 @@ def days_from_civil(y, m, d):
 
 
 def parse_time_ms(text: str) -> Optional[int]:
-    """"YYYY-MM-DD HH:MM:SS:mmm" (4th field = milliseconds; date fields may lack zero padding)
+    """"YYYY-MM-DD HH:MM:SS:mmm" (4th field = 3-digit milliseconds; date fields may lack zero padding)
     -> milliseconds since 1970 on the device clock, or None when it is not a valid time (e.g. the
     "0000-00-00 00:00:00:000" an unset Start Time holds). [GNA] §4
     """
@@ -158,6 +158,11 @@ def parse_time_ms(text: str) -> Optional[int]:
     if not m:
         return None
     y, mo, d, hh, mi, ss = (int(g) for g in m.groups()[:6])
+    if m.group(7) == ":" and len(m.group(8)) != 3:
+        # ":mmm" is milliseconds, always 3 digits: "22:5" would be 5 ms to one reader and 500 ms
+        # to another (decimal seconds), and a last digit damaged into a space must not pass as
+        # a shorter value ("22:50 " -> "22:50")
+        return None
     frac = m.group(8) or "0"
     ms = int(frac.ljust(3, "0")) if m.group(7) == "." else int(frac)  # ":mmm" is milliseconds
     if not (1 <= mo <= 12 and 1 <= d <= 31 and hh < 24 and mi < 60 and ss < 61 and y >= 1):

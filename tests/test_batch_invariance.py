@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from stillpoint.drivers.cwa import CwaReader
@@ -109,6 +109,8 @@ def _bin(path, pages=8, rate=50.0):
 
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(seed=st.integers(0, 10_000), batch=st.integers(1, 5), flips=st.integers(0, 8))
+@example(seed=239, batch=1, flips=2)  # page 1's data-line CR -> 0x0F: accepted only by the fast path
+@example(seed=132, batch=2, flips=7)  # page 7's Page Time ":000" -> ":00 ": read as 0 ms by the general parser
 def test_geneactiv_damaged_property(tmp_path, seed, batch, flips):
     p = tmp_path / f"g_{seed}_{batch}_{flips}.bin"
     _bin(p)

@@ -7,7 +7,7 @@ import os
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from stillpoint.drivers.errors import (CorruptRecordingError, RecordingError, StillpointError,
@@ -322,7 +322,9 @@ def _blocks_and_qc(path, slow: bool, **kw):
     return blocks, r.qc.as_dict()
 
 
-@pytest.mark.parametrize("damage", ["none", "bad_hex", "bad_time", "comma", "desync", "lf"])
+@pytest.mark.parametrize("damage", ["none", "bad_hex", "bad_time", "comma", "desync", "lf", "data_eol",
+                                    "data_eol_tab", "time_ms_space",
+                                    "long_key_line"])
 def test_fast_path_equals_general_parser(tmp_path, damage):
     p = tmp_path / "r.bin"
     write(p, pages=9, eol="\n" if damage == "lf" else "\r\n")
@@ -338,6 +340,17 @@ def test_fast_path_equals_general_parser(tmp_path, damage):
         data = data.replace(b"Temperature:20.5", b"Temperature:20,5")
     elif damage == "desync":
         data = data[:pos[5]] + b"noise\r\n" + data[pos[5]:]
+    elif damage.startswith("data_eol"):  # the CR ending page 4's data line -> 0x0F or a tab (one
+        i = pos[5] - 2                    # bit each): a 3601-character line, not padding
+        assert data[i:i + 2] == b"\r\n"
+        data = data[:i] + (b"\t" if damage == "data_eol_tab" else b"\x0f") + data[i + 1:]
+    elif damage == "long_key_line":  # page 4's Device Status line padded to 513 bytes: not a key line
+        i = data.find(b"Device Status:", pos[4]) + 14
+        data = data[:i] + b"\x00" * 489 + data[i:]
+    elif damage == "time_ms_space":  # page 6's last millisecond digit -> a space: ":000" -> ":00 "
+        i = data.find(b"Page Time:", pos[6]) + 32
+        assert data[i:i + 1] == b"0"
+        data = data[:i] + b" " + data[i + 1:]
     p.write_bytes(data)
     for bp in (2, 3, 256):
         fast_blocks, fast_qc = _blocks_and_qc(p, False, batch_pages=bp)
@@ -351,7 +364,15 @@ def test_fast_path_equals_general_parser(tmp_path, damage):
             assert a.segment == b.segment and a.first_sample == b.first_sample
             for k in a.per_sample:
                 np.testing.assert_array_equal(a.per_sample[k], b.per_sample[k])
-    if damage in ("bad_hex", "bad_time", "desync"):
+    if damage.startswith("data_eol"):
+        assert [(e["index"], e["reason"]) for e in fast_qc["events"]] == [(4, "bad_page_length")]
+    if damage == "time_ms_space":
+        assert [(e["index"], e["reason"]) for e in fast_qc["events"]] == [(6, "bad_page_time")]
+    if damage == "long_key_line":
+        assert [(e["index"], e["reason"]) for e in fast_qc["events"]] == [(4, "bad_page_length"),
+                                                                            (5, "desync")]
+    if damage in ("bad_hex", "bad_time", "desync", "data_eol", "data_eol_tab", "time_ms_space",
+                  "long_key_line"):
         assert fast_qc["events"]
     else:
         assert fast_qc["events"] == [] and 20.5 in np.concatenate([b.temperature_c for b in fast_blocks])
@@ -372,6 +393,42 @@ def test_qc_log_is_capped(tmp_path, monkeypatch):
     reasons = [e.reason for e in r.qc.events]
     assert reasons == ["bad_hex"] * 3 + ["qc_log_truncated", "page_count_mismatch"]
     assert (r.qc.total, r.qc.valid, r.qc.skipped) == (11, 6, 5) and b.n == 1800
+
+
+def test_capped_qc_log_is_the_same_at_every_batch_size(tmp_path, monkeypatch):
+    """Pages are parsed a batch at a time before their segment checks run, so events are not
+    logged in file order; the capped list must still be the first events in file order."""
+    import stillpoint.drivers.geneactiv as g
+    monkeypatch.setattr(g, "MAX_QC_EVENTS", 3)
+    p = tmp_path / "r.bin"
+    write(p, pages=12)
+    data = p.read_bytes()
+    for k in (2, 5, 8):  # sequence gaps (segment checks) at pages 2, 5, 8 ...
+        data = data.replace(b"Sequence Number:%d\r" % k, b"Sequence Number:%d\r" % (k + 100))
+    for k in (3, 6, 9):  # ... and bad hex (found while parsing) at pages 3, 6, 9
+        i = data.find(b"Frequency:50.0", pages_of(data)[k]) + 20
+        data = data[:i] + b"x" + data[i + 1:]
+    p.write_bytes(data)
+    want = [(2, "sequence_gap"), (3, "bad_hex"), (4, "sequence_gap"), (5, "qc_log_truncated")]
+    for bp in (1, 2, 3, 5, 256):
+        r, _, b = read(p, batch_pages=bp)
+        assert events(r) == want, bp
+        assert (r.qc.total, r.qc.valid, r.qc.skipped) == (12, 9, 3) and b.n == 2700
+
+
+def test_long_desync_after_a_segment_check_is_one_event(tmp_path):
+    """Text that is not a page, longer than a read, after a page with a sequence gap: one desync
+    event however many reads it takes."""
+    p = tmp_path / "r.bin"
+    write(p, pages=6)
+    data = p.read_bytes().replace(b"Sequence Number:1\r", b"Sequence Number:7\r")
+    pos = pages_of(data)
+    junk = b"".join(b"junk line %d\r\n" % k for k in range(3000))  # 46,890 bytes
+    p.write_bytes(data[:pos[2]] + junk + data[pos[2]:])
+    for bp in (1, 2, 3, 256):
+        r, _, b = read(p, batch_pages=bp)
+        assert events(r) == [(1, "sequence_gap"), (2, "desync")], bp
+        assert "3000 line(s), 46890 bytes" in r.qc.events[1].detail and b.n == 1800
 
 
 # ---------------------------------------------------------------------------- random damage
@@ -396,6 +453,7 @@ def _read_or_error(path, **kw):
 @settings(max_examples=int(os.environ.get("STILLPOINT_FUZZ_EXAMPLES", "60")), deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(pos=st.integers(0, 23_000), kind=st.sampled_from(["flip", "delete", "insert", "cut"]),
        length=st.integers(1, 5000), byte=st.integers(0, 255))
+@example(pos=1297, kind="insert", length=489, byte=0)  # page 0's Device Status line -> 513 bytes
 def test_random_damage_never_crashes_and_keeps_what_precedes_it(tmp_path, clean_file, pos, kind, length,
                                                                  byte):
     data, t, a = clean_file

@@ -163,6 +163,39 @@ class ChunkBuilder:
         k = int(log_times.shape[0])
         return self.add_prepared(self.prepare_fixed(cid, log_times, payloads), 0, k) if k else False
 
+    def sequence(self, cid: int) -> int:
+        """The sequence number the channel's next message gets."""
+        return self._seq[cid]
+
+    def add_framed(self, parts: list, nbytes: int, cids: np.ndarray, times: np.ndarray,
+                   offsets: np.ndarray) -> None:
+        """Append Message records framed elsewhere (engine/mcap/blockframe.py) with the
+        sequence numbers ``sequence`` gave: ``parts`` (bytes-like, ``nbytes`` in all) hold them
+        back to back; ``cids``, ``times`` (clamped at 0) and ``offsets`` (from the start of the
+        first part) describe each. The caller ends the chunk when ``size`` reaches
+        ``chunk_size``."""
+        k = int(cids.shape[0])
+        if not k:
+            return
+        at = offsets + self._size
+        for cid in np.unique(cids).tolist():
+            sel = cids == cid
+            n = int(np.count_nonzero(sel))
+            ix = self._index.get(cid)
+            if ix is None:
+                ix = self._index[cid] = []
+            ix.append((times[sel], at[sel]))
+            self._seq[cid] += n
+            self.counts[cid] += n
+        self.message_count += k
+        self._parts.extend(parts)
+        self._size += nbytes
+        self._times(int(times.min()), int(times.max()))
+
+    @property
+    def size(self) -> int:
+        return self._size
+
     # ------------------------------------------------------------------ chunks
     @property
     def pending(self) -> bool:

@@ -122,6 +122,18 @@ class CdrLayout:
             buf[d:d + n * w] = s[a * w:(a + n) * w]
 
 
+def put_rows(buf: np.ndarray, at: np.ndarray, stride: np.ndarray, rows: np.ndarray, starts,
+             counts) -> None:
+    """Consecutive sequence fields of one element type (e.g. x, y, z: int16[] each), message i
+    holding ``rows[:, starts[i]:starts[i] + counts[i]]``: each field's data starts ``stride[i]``
+    bytes after the previous one's (its count and padding between), so one 2-D copy per
+    message writes them all (``at``: offsets of the first field's data)."""
+    w = rows.dtype.itemsize
+    k = rows.shape[0]
+    for d, st, a, n in zip(at.tolist(), stride.tolist(), starts, counts):
+        buf[d:d + k * st].reshape(k, st)[:, :n * w] = rows[:, a:a + n].view(np.uint8)
+
+
 def record_headers(cids: np.ndarray, seqs: np.ndarray, times: np.ndarray,
                    payload_sizes: np.ndarray) -> np.ndarray:
     """Message record framings (op, length, channel, sequence, log time, publish time) as
@@ -158,12 +170,13 @@ class VariableRecords:
     zeroed buffer: framing written here, payload fields by the caller (``base``: payload
     offsets; ``off``: record offsets, k + 1 of them)."""
 
-    def __init__(self, layout: CdrLayout, cid: int, seq0: int, times: np.ndarray):
+    def __init__(self, layout: CdrLayout, cid: int, seq0: int, times: np.ndarray, slack: int = 0):
+        """``slack``: zero bytes after the last record (room for ``put_rows`` regions)."""
         k = layout.k
         self.layout = layout
         self.off = np.zeros(k + 1, np.int64)
         np.cumsum(layout.size + HEAD, out=self.off[1:])
-        self.buf = np.zeros(int(self.off[-1]), np.uint8)
+        self.buf = np.zeros(int(self.off[-1]) + slack, np.uint8)
         scatter(self.buf, self.off[:-1],
                 record_headers(np.full(k, cid, np.int64), np.arange(seq0, seq0 + k, dtype=np.int64),
                                times, layout.size))

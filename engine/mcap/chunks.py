@@ -52,6 +52,7 @@ class ChunkBuilder:
         self._cstart: Optional[int] = None  # over the open chunk
         self._cend: Optional[int] = None
         self._index: dict[int, list] = {}  # cid -> [(log_time, offset) | (times, offsets) arrays]
+        self._framed: list = []  # (cids, times, offsets) arrays of add_framed
 
     # ------------------------------------------------------------------ registry
     def define(self, name: str, encoding: str, data: bytes) -> None:
@@ -177,14 +178,9 @@ class ChunkBuilder:
         k = int(cids.shape[0])
         if not k:
             return
-        at = offsets + self._size
-        for cid in np.unique(cids).tolist():
-            sel = cids == cid
-            n = int(np.count_nonzero(sel))
-            ix = self._index.get(cid)
-            if ix is None:
-                ix = self._index[cid] = []
-            ix.append((times[sel], at[sel]))
+        self._framed.append((cids, times, offsets + self._size))
+        ids, counts = np.unique(cids, return_counts=True)
+        for cid, n in zip(ids.tolist(), counts.tolist()):
             self._seq[cid] += n
             self.counts[cid] += n
         self.message_count += k
@@ -204,6 +200,8 @@ class ChunkBuilder:
     def _message_indexes(self) -> list[tuple[int, bytes]]:
         """(channel id, Message Index record) for every channel in the open chunk, by id.
         Entries sorted by log time (then file order), as the specification asks."""
+        if self._framed:
+            return self._message_indexes_arrays()
         out = []
         for cid in sorted(self._index):
             items = self._index[cid]
@@ -236,6 +234,31 @@ class ChunkBuilder:
             out.append((cid, rec.message_index(cid, e.tobytes())))
         return out
 
+    def _message_indexes_arrays(self) -> list[tuple[int, bytes]]:
+        """``_message_indexes`` of a chunk holding framed records: every entry of the chunk in
+        three arrays, one sort by (channel, log time, offset), one record per channel."""
+        cs, ts, os_ = [], [], []
+        for c, t, o in self._framed:
+            cs.append(c)
+            ts.append(t)
+            os_.append(o)
+        for cid, items in self._index.items():
+            for it in items:
+                t = np.atleast_1d(np.asarray(it[0], np.int64))
+                cs.append(np.full(t.shape[0], cid, np.int64))
+                ts.append(t)
+                os_.append(np.atleast_1d(np.asarray(it[1], np.int64)))
+        c, t, o = np.concatenate(cs), np.concatenate(ts), np.concatenate(os_)
+        order = np.lexsort((o, t, c))
+        e = np.empty((order.shape[0], 2), "<u8")
+        e[:, 0] = t[order]
+        e[:, 1] = o[order]
+        c = c[order]
+        ids = np.flatnonzero(np.concatenate([[True], c[1:] != c[:-1]]))
+        bounds = np.append(ids, c.shape[0]).tolist()
+        return [(cid, rec.message_index(cid, e[a:b].tobytes()))
+                for cid, a, b in zip(c[ids].tolist(), bounds[:-1], bounds[1:])]
+
     def take(self) -> Optional[tuple[bytes, int, int, list]]:
         """The open chunk's records, time range and Message Index records (None if it holds no
         message); starts a new one. Schema/Channel records registered while no message followed
@@ -246,6 +269,7 @@ class ChunkBuilder:
         lo, hi = self._cstart, self._cend
         indexes = self._message_indexes()
         self._index = {}
+        self._framed = []
         self._parts, self._size, self._cstart, self._cend = [], 0, None, None
         self.start = lo if self.start is None else min(self.start, lo)
         self.end = hi if self.end is None else max(self.end, hi)

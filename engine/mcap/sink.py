@@ -273,9 +273,11 @@ class _RawCells:
 
 
 class _CorrectedRun:
-    """A CorrectedBatch quantised to float32 and transposed once; messages slice it."""
+    """A CorrectedBatch quantised to float32 once; messages slice it. ``words``: (4, n) 4-byte
+    rows dt_ns, x, y, z (the layout of a corrected message's arrays, so one copy frames them);
+    ``dt``, ``x``, ``y``, ``z`` are its rows."""
 
-    def __init__(self, batch: CorrectedBatch, quantum_g: float):
+    def __init__(self, batch: CorrectedBatch, quantum_g: float, scratch=None):
         self.batch = batch
         self.view = None  # None: not framed yet; False: no view sample; else (records, indices)
         self.segment = batch.segment
@@ -285,9 +287,19 @@ class _CorrectedRun:
         self.ok = not d.size or (int(d.max()) <= INT32_MAX and dmin >= -INT32_MAX)
         self.sorted = dmin >= 0
         if self.ok:
-            q = quantize(batch.accel, quantum_g)
-            self.x, self.y, self.z = np.ascontiguousarray(q.T)
-            self.dt = np.empty(batch.n, "<i4")
+            n = batch.n
+            self.words = np.empty((4, n), "<u4")
+            self.dt = self.words[0].view("<i4")
+            q = self.words[1:].view("<f4")
+            a = batch.accel.T
+            if quantum_g:  # quantize(), into the rows (float64 scratch reused across blocks)
+                t = scratch(n) if scratch is not None else np.empty((3, n))
+                np.multiply(a, 1.0 / quantum_g, out=t)
+                np.round(t, out=t)
+                np.multiply(t, quantum_g, out=q, casting="same_kind")
+            else:
+                np.copyto(q, a, casting="same_kind")
+            self.x, self.y, self.z = q
             self.dt[0] = 0
             self.dt[1:] = d
 
@@ -332,6 +344,13 @@ class McapSink(McapLog):
             raise
 
     block_framing = True  # False: always the cell-by-cell path (same bytes; for tests)
+    _scratch = None
+
+    def _tmp(self, n: int) -> np.ndarray:
+        """A (3, n) float64 scratch array, reused from block to block."""
+        if self._scratch is None or self._scratch.shape[1] < n:
+            self._scratch = np.empty((3, max(n, 1)))
+        return self._scratch[:, :n]
 
     def _msg(self, topic, encoding, schema, log_time, data):
         ch = self._chunk
@@ -428,7 +447,7 @@ class McapSink(McapLog):
         for c in corrected:
             if c.n == 0:
                 continue
-            run = _CorrectedRun(c, self.quantum)
+            run = _CorrectedRun(c, self.quantum, self._tmp)
             cc = c.time_ns // w
             edges = np.concatenate([[0], np.flatnonzero(cc[1:] != cc[:-1]) + 1, [c.n]]).tolist()
             ccl = cc[edges[:-1]].tolist()
@@ -570,7 +589,7 @@ def _frame_block(sink: "McapSink", block: Optional[Block], corrected: list,
         raw = _RawCells(block, w)
         if not raw.ok or (raw.cell.shape[0] > 1 and bool(np.any(raw.cell[1:] <= raw.cell[:-1]))):
             return False
-    runs = [_CorrectedRun(c, sink.quantum) for c in corrected if c.n]
+    runs = [_CorrectedRun(c, sink.quantum, sink._tmp) for c in corrected if c.n]
     pend = [p for p in sink._pending_corr if p[2] > p[1]]
     if not all(r.ok and r.sorted for r in runs) or not all(r.ok for r, _a, _b in pend):
         return False
@@ -682,7 +701,7 @@ def _frame_block(sink: "McapSink", block: Optional[Block], corrected: list,
         lens["button"] = n_s if raw.button is not None else z
         lay = bf.CdrLayout(ACCEL_BATCH_RAW, kk, lens)
         cid = ids[TOPIC_RAW]
-        vr = bf.VariableRecords(lay, cid, ch.sequence(cid), tc)
+        vr = bf.VariableRecords(lay, cid, ch.sequence(cid), tc, slack=8)
         buf, base = vr.buf, vr.base
         lay.put_time(buf, base, "stamp", t0)
         lay.put_fixed(buf, base, "t0_ns", t0)
@@ -691,11 +710,13 @@ def _frame_block(sink: "McapSink", block: Optional[Block], corrected: list,
         lay.put_fixed(buf, base, "counts_per_g", np.tile(raw.head[2], (kk, 1)))
         lay.put_fixed(buf, base, "zero_counts", np.tile(raw.head[3], (kk, 1)))
         sl, nl = s0.tolist(), n_s.tolist()
-        for f, src in (("dt_ns", raw.dt), ("x", raw.xyz[0]), ("y", raw.xyz[1]), ("z", raw.xyz[2]),
+        for f, src in (("dt_ns", raw.dt), ("x", None), ("y", None), ("z", None),
                        ("light_raw", raw.light_raw), ("button", raw.button)):
             lay.put_counts(buf, base, f, lens[f])
             if src is not None:
                 lay.put_seq_slices(buf, base, f, src, sl, nl)
+        bf.put_rows(buf, base + lay.field["x"][2], lay.field["y"][2] - lay.field["x"][2],
+                    raw.xyz, sl, nl)
         u0, u1 = int(ua[rk][0]), int(ub[rk][-1])
         for f, arr in zip(("unit_index", "unit_sequence", "unit_start", "temperature_c",
                            "temperature_raw", "light", "battery_v", "events"), raw.units):
@@ -705,13 +726,15 @@ def _frame_block(sink: "McapSink", block: Optional[Block], corrected: list,
         if raw.gyro is not None:
             glay = bf.CdrLayout(GYRO_BATCH_RAW, kk, {f: n_s for f in ("dt_ns", "x", "y", "z")})
             cid = ids[TOPIC_GYRO]
-            gr = bf.VariableRecords(glay, cid, ch.sequence(cid), tc)
+            gr = bf.VariableRecords(glay, cid, ch.sequence(cid), tc, slack=8)
             glay.put_time(gr.buf, gr.base, "stamp", t0)
             glay.put_fixed(gr.buf, gr.base, "t0_ns", t0)
             glay.put_fixed(gr.buf, gr.base, "dps_per_count", np.full(kk, float(block.gyro_dps_per_count)))
-            for f, src in (("dt_ns", raw.dt), ("x", raw.gyro[0]), ("y", raw.gyro[1]), ("z", raw.gyro[2])):
+            for f in ("dt_ns", "x", "y", "z"):
                 glay.put_counts(gr.buf, gr.base, f, n_s)
-                glay.put_seq_slices(gr.buf, gr.base, f, src, sl, nl)
+            glay.put_seq_slices(gr.buf, gr.base, "dt_ns", raw.dt, sl, nl)
+            bf.put_rows(gr.buf, gr.base + glay.field["x"][2], glay.field["y"][2] - glay.field["x"][2],
+                        raw.gyro, sl, nl)
             add(_TYPE_GYRO, gr.buf, gr.off, tc, rit, 2, 0, 1)
         if temp_cells.shape[0]:
             tt = block.time_ns[a_[temp_cells]]
@@ -730,27 +753,26 @@ def _frame_block(sink: "McapSink", block: Optional[Block], corrected: list,
         tc = np.maximum(t0, 0)
         clay = bf.CdrLayout(ACCEL_BATCH, m, {f: n_m for f in ("dt_ns", "x", "y", "z")})
         cid = ids[TOPIC_CORRECTED]
-        cr = bf.VariableRecords(clay, cid, ch.sequence(cid), tc)
+        cr = bf.VariableRecords(clay, cid, ch.sequence(cid), tc, slack=8)
         buf, base = cr.buf, cr.base
         clay.put_time(buf, base, "stamp", t0)
         clay.put_fixed(buf, base, "t0_ns", t0)
         clay.put_fixed(buf, base, "segment", np.full(m, msgs[0][1][0][0].segment, np.int64))
-        fo = {f: (base + clay.field[f][2]).tolist() for f in ("dt_ns", "x", "y", "z")}
         for f in ("dt_ns", "x", "y", "z"):
             clay.put_counts(buf, base, f, n_m)
+        # dt_ns, x, y, z: 4-byte rows, each after its count: one (4, n) copy per piece
+        fo = (base + clay.field["dt_ns"][2]).tolist()
         for i, (_j, p) in enumerate(msgs):
+            stride = 4 * int(n_m[i]) + 4
+            region = buf[fo[i]:fo[i] + 4 * stride].reshape(4, stride)
             at = 0
             prev_t = None
             for r, a, b in p:
-                n = b - a
-                for f, src in (("dt_ns", r.dt), ("x", r.x), ("y", r.y), ("z", r.z)):
-                    d = fo[f][i] + 4 * at
-                    buf[d:d + 4 * n] = src[a:b].view(np.uint8)
+                region[:, 4 * at:4 * (at + b - a)] = r.words[:, a:b].view(np.uint8)
                 if prev_t is not None:  # a join inside the message: its own step, not 0
-                    d = fo["dt_ns"][i] + 4 * at
-                    buf[d:d + 4] = np.array([int(r.time_ns[a]) - prev_t], "<i4").view(np.uint8)
+                    region[0, 4 * at:4 * at + 4] = np.array([int(r.time_ns[a]) - prev_t], "<i4").view(np.uint8)
                 prev_t = int(r.time_ns[b - 1])
-                at += n
+                at += b - a
         add(_TYPE_CORR, buf, cr.off, tc, pit[mj], 0, mj, 1)
     if sink.view is not None and runs:
         vidx = [sink.view.pick_sorted(r.time_ns) for r in runs]

@@ -169,18 +169,17 @@ class ChunkBuilder:
         return self._seq[cid]
 
     def add_framed(self, parts: list, nbytes: int, cids: np.ndarray, times: np.ndarray,
-                   offsets: np.ndarray) -> None:
+                   offsets: np.ndarray, counts: dict) -> None:
         """Append Message records framed elsewhere (engine/mcap/blockframe.py) with the
         sequence numbers ``sequence`` gave: ``parts`` (bytes-like, ``nbytes`` in all) hold them
         back to back; ``cids``, ``times`` (clamped at 0) and ``offsets`` (from the start of the
-        first part) describe each. The caller ends the chunk when ``size`` reaches
-        ``chunk_size``."""
+        first part) describe each; ``counts``: channel id -> messages. The caller ends the
+        chunk when ``size`` reaches ``chunk_size``."""
         k = int(cids.shape[0])
         if not k:
             return
         self._framed.append((cids, times, offsets + self._size))
-        ids, counts = np.unique(cids, return_counts=True)
-        for cid, n in zip(ids.tolist(), counts.tolist()):
+        for cid, n in counts.items():
             self._seq[cid] += n
             self.counts[cid] += n
         self.message_count += k

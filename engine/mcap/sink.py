@@ -51,6 +51,7 @@ calls, so the file is deterministic.
 
 from __future__ import annotations
 
+import bisect
 import json
 from dataclasses import asdict, is_dataclass
 from typing import Optional
@@ -829,27 +830,46 @@ def _frame_block(sink: "McapSink", block: Optional[Block], corrected: list,
     roff = np.zeros(R + 1, np.int64)
     np.cumsum(size, out=roff[1:])
     views = [memoryview(t[1]) for t in topics]
-    offs = [t[2] for t in topics]
+    offl = [t[2].tolist() for t in topics]
+    topic_cids = [ids[topic_of[t[0]]] for t in topics]
+    # runs of consecutive records of one topic: each is one slice of that topic's buffer
+    rs = np.flatnonzero(np.concatenate([[True], (typ[1:] != typ[:-1]) | (idx[1:] != idx[:-1] + 1)])) \
+        if R else np.zeros(0, np.int64)
+    rs_l, rt_l, ri_l = rs.tolist() + [R], typ[rs].tolist(), idx[rs].tolist()
+    # messages per topic before each record (for the channel counts of each piece appended)
+    cum = np.zeros((R + 1, len(topics)), np.int64)
+    if R:
+        np.cumsum(typ[:, None] == np.arange(len(topics)), axis=0, out=cum[1:])
+    roff_l = roff.tolist()
 
-    def parts(lo, hi):
-        """The records [lo, hi) as slices of the topic buffers (one per run of one topic)."""
-        brk = np.flatnonzero((typ[lo + 1:hi] != typ[lo:hi - 1]) | (idx[lo + 1:hi] != idx[lo:hi - 1] + 1)) + lo + 1
-        st = [lo] + brk.tolist()
-        en = brk.tolist() + [hi]
-        ty, i0 = typ[st].tolist(), idx[st].tolist()
-        return [views[t][offs[t][a]:offs[t][a + (e - s)]] for t, a, s, e in zip(ty, i0, st, en)]
+    def append(lo, hi):
+        """Hand the records [lo, hi) to the chunk builder (slices of the topic buffers)."""
+        k = bisect.bisect_right(rs_l, lo) - 1
+        parts = []
+        while rs_l[k] < hi:
+            s0, e0 = max(rs_l[k], lo), min(rs_l[k + 1], hi)
+            t = rt_l[k]
+            a = ri_l[k] + s0 - rs_l[k]
+            parts.append(views[t][offl[t][a]:offl[t][a + e0 - s0]])
+            k += 1
+        n = (cum[hi] - cum[lo]).tolist()
+        ch.add_framed(parts, roff_l[hi] - roff_l[lo], cids[lo:hi], times[lo:hi],
+                      roff[lo:hi] - roff_l[lo],
+                      {c: k for c, k in zip(topic_cids, n) if k})
 
     # records before the flush at iteration f: earlier iterations, and f's phase 0 (pieces)
-    cut_at = [int(np.count_nonzero((it < f) | ((it == f) & (ph == 0)))) for f in np.flatnonzero(flush).tolist()]
+    key = it * 2 + (ph > 0)
+    cut_at = np.searchsorted(key, np.flatnonzero(flush) * 2 + 1, side="left").tolist()
     lo = 0
     for c, flush_after in [(c, True) for c in cut_at] + [(R, False)]:
         while lo < c:  # records [lo, c); the chunk ends where it reaches chunk_size
             room = ch.chunk_size - ch.size
-            over = np.flatnonzero(ends[lo:c] & (roff[lo + 1:c + 1] - roff[lo] >= room))
-            hi = lo + int(over[0]) + 1 if over.shape[0] else c
-            ch.add_framed(parts(lo, hi), int(roff[hi] - roff[lo]), cids[lo:hi], times[lo:hi],
-                          roff[lo:hi] - roff[lo])
-            if over.shape[0]:
+            hi = c
+            if roff_l[c] - roff_l[lo] >= room:
+                over = np.flatnonzero(ends[lo:c] & (roff[lo + 1:c + 1] - roff_l[lo] >= room))
+                hi = lo + int(over[0]) + 1 if over.shape[0] else c
+            append(lo, hi)
+            if hi < c or (hi == c and roff_l[hi] - roff_l[lo] >= room and ends[hi - 1]):
                 sink._end_chunk(False)
             lo = hi
         if flush_after:

@@ -37,8 +37,10 @@ only loses what Python had not handed to the OS; fsync protects against power lo
 ``recover`` salvages every complete chunk of a file that was never finished.
 
 The sink is an ``McapLog`` (engine/mcap/log.py, the one writer path: ``<name>.part`` renamed
-when finished) and builds each chunk's records itself (engine/mcap/chunks.py: one ``struct.pack`` per
-message, one numpy pass for a cell's epochs); the writer (engine/mcap/writer.py) compresses and
+when finished) and builds each chunk's records itself: all the messages of a pipeline step at once
+(``_frame_block``, engine/mcap/blockframe.py: each topic's records back to back in one buffer,
+handed to engine/mcap/chunks.py as one slice per run of records; the cell-by-cell path, one
+``struct.pack`` per message, handles the rare rest with the same bytes); the writer (engine/mcap/writer.py) compresses and
 writes chunks and the summary. By default that happens inline (``writer="inline"``): each chunk
 is compressed and handed to the OS as its cell ends, so a killed run loses only the cell in
 progress. ``writer="process"`` runs the writer in a child process (compression on another core;

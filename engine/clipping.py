@@ -31,6 +31,9 @@ class ClippingMonitor:
         if not n or self.range_g is None or block.accel.shape[1] != 3:
             return
         self.samples += n
+        if not self._may_clip(block):
+            self._run = 0
+            return
         a = block.accel_g(np.float32)
         clip = (np.abs(a) >= LIMIT_FRACTION * self.range_g).any(axis=1)
         k = int(clip.sum())
@@ -46,6 +49,24 @@ class ClippingMonitor:
             lengths[0] += self._run
         self.longest = max(self.longest, int(lengths.max()))
         self._run = int(lengths[-1]) if ends[-1] == n else 0
+
+    def _may_clip(self, block) -> bool:
+        """False when no sample of the block can reach the limit: the extreme counts (two
+        passes over the int16 counts) are more than 0.1 % below it in g, far beyond any float32
+        rounding of the exact test; otherwise the exact per-sample test decides."""
+        acc = block.accel
+        zero = getattr(block, "accel_zero", None)
+        cpg = getattr(block, "accel_counts_per_g", None)
+        if acc.dtype.kind not in "iu" or zero is None or cpg is None:
+            return True
+        flat = acc.reshape(-1)
+        lo, hi = float(flat.min()), float(flat.max())
+        zero = np.asarray(zero, np.float64)
+        cpg = np.abs(np.asarray(cpg, np.float64))
+        if not (np.all(np.isfinite(zero)) and np.all(cpg > 0)):
+            return True
+        worst = float(np.max(np.maximum(np.abs(hi - zero), np.abs(lo - zero)) / cpg))
+        return worst >= LIMIT_FRACTION * self.range_g * (1.0 - 1e-3)
 
     @property
     def clipped_s(self) -> float:

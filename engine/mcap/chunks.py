@@ -52,6 +52,7 @@ class ChunkBuilder:
         self._cstart: Optional[int] = None  # over the open chunk
         self._cend: Optional[int] = None
         self._index: dict[int, list] = {}  # cid -> [(log_time, offset) | (times, offsets) arrays]
+        self._framed: list = []  # (cids, times, offsets) arrays of add_framed
 
     # ------------------------------------------------------------------ registry
     def define(self, name: str, encoding: str, data: bytes) -> None:
@@ -163,6 +164,33 @@ class ChunkBuilder:
         k = int(log_times.shape[0])
         return self.add_prepared(self.prepare_fixed(cid, log_times, payloads), 0, k) if k else False
 
+    def sequence(self, cid: int) -> int:
+        """The sequence number the channel's next message gets."""
+        return self._seq[cid]
+
+    def add_framed(self, parts: list, nbytes: int, cids: np.ndarray, times: np.ndarray,
+                   offsets: np.ndarray, counts: dict) -> None:
+        """Append Message records framed elsewhere (engine/mcap/blockframe.py) with the
+        sequence numbers ``sequence`` gave: ``parts`` (bytes-like, ``nbytes`` in all) hold them
+        back to back; ``cids``, ``times`` (clamped at 0) and ``offsets`` (from the start of the
+        first part) describe each; ``counts``: channel id -> messages. The caller ends the
+        chunk when ``size`` reaches ``chunk_size``."""
+        k = int(cids.shape[0])
+        if not k:
+            return
+        self._framed.append((cids, times, offsets + self._size))
+        for cid, n in counts.items():
+            self._seq[cid] += n
+            self.counts[cid] += n
+        self.message_count += k
+        self._parts.extend(parts)
+        self._size += nbytes
+        self._times(int(times.min()), int(times.max()))
+
+    @property
+    def size(self) -> int:
+        return self._size
+
     # ------------------------------------------------------------------ chunks
     @property
     def pending(self) -> bool:
@@ -171,6 +199,8 @@ class ChunkBuilder:
     def _message_indexes(self) -> list[tuple[int, bytes]]:
         """(channel id, Message Index record) for every channel in the open chunk, by id.
         Entries sorted by log time (then file order), as the specification asks."""
+        if self._framed:
+            return self._message_indexes_arrays()
         out = []
         for cid in sorted(self._index):
             items = self._index[cid]
@@ -203,6 +233,31 @@ class ChunkBuilder:
             out.append((cid, rec.message_index(cid, e.tobytes())))
         return out
 
+    def _message_indexes_arrays(self) -> list[tuple[int, bytes]]:
+        """``_message_indexes`` of a chunk holding framed records: every entry of the chunk in
+        three arrays, one sort by (channel, log time, offset), one record per channel."""
+        cs, ts, os_ = [], [], []
+        for c, t, o in self._framed:
+            cs.append(c)
+            ts.append(t)
+            os_.append(o)
+        for cid, items in self._index.items():
+            for it in items:
+                t = np.atleast_1d(np.asarray(it[0], np.int64))
+                cs.append(np.full(t.shape[0], cid, np.int64))
+                ts.append(t)
+                os_.append(np.atleast_1d(np.asarray(it[1], np.int64)))
+        c, t, o = np.concatenate(cs), np.concatenate(ts), np.concatenate(os_)
+        order = np.lexsort((o, t, c))
+        e = np.empty((order.shape[0], 2), "<u8")
+        e[:, 0] = t[order]
+        e[:, 1] = o[order]
+        c = c[order]
+        ids = np.flatnonzero(np.concatenate([[True], c[1:] != c[:-1]]))
+        bounds = np.append(ids, c.shape[0]).tolist()
+        return [(cid, rec.message_index(cid, e[a:b].tobytes()))
+                for cid, a, b in zip(c[ids].tolist(), bounds[:-1], bounds[1:])]
+
     def take(self) -> Optional[tuple[bytes, int, int, list]]:
         """The open chunk's records, time range and Message Index records (None if it holds no
         message); starts a new one. Schema/Channel records registered while no message followed
@@ -213,6 +268,7 @@ class ChunkBuilder:
         lo, hi = self._cstart, self._cend
         indexes = self._message_indexes()
         self._index = {}
+        self._framed = []
         self._parts, self._size, self._cstart, self._cend = [], 0, None, None
         self.start = lo if self.start is None else min(self.start, lo)
         self.end = hi if self.end is None else max(self.end, hi)

@@ -6,12 +6,18 @@ Schema, Channel, Message (header part), Chunk, MessageIndex, ChunkIndex, Metadat
 MetadataIndex, Statistics, DataEnd (with the data-section CRC), SummaryOffset, Footer. Strings are ``u32 length +
 UTF-8``, maps ``u32 byte length + entries``, all integers little-endian.
 
-No dependency but the standard library, so the writer process stays small.
+No dependency but the standard library (and ISA-L's CRC-32 when installed), so the writer
+process stays small.
 """
 
 from __future__ import annotations
 
 import struct
+
+try:  # ISA-L's CRC-32 (same polynomial and values as zlib's, ~7x faster: SIMD carry-less multiply)
+    from isal.isal_zlib import crc32
+except ImportError:  # pragma: no cover - the standard library's
+    from zlib import crc32
 
 MAGIC = b"\x89MCAP0\r\n"
 

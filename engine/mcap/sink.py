@@ -37,8 +37,10 @@ only loses what Python had not handed to the OS; fsync protects against power lo
 ``recover`` salvages every complete chunk of a file that was never finished.
 
 The sink is an ``McapLog`` (engine/mcap/log.py, the one writer path: ``<name>.part`` renamed
-when finished) and builds each chunk's records itself (engine/mcap/chunks.py: one ``struct.pack`` per
-message, one numpy pass for a cell's epochs); the writer (engine/mcap/writer.py) compresses and
+when finished) and builds each chunk's records itself: all the messages of a pipeline step at once
+(``_frame_block``, engine/mcap/blockframe.py: each topic's records back to back in one buffer,
+handed to engine/mcap/chunks.py as one slice per run of records; the cell-by-cell path, one
+``struct.pack`` per message, handles the rare rest with the same bytes); the writer (engine/mcap/writer.py) compresses and
 writes chunks and the summary. By default that happens inline (``writer="inline"``): each chunk
 is compressed and handed to the OS as its cell ends, so a killed run loses only the cell in
 progress. ``writer="process"`` runs the writer in a child process (compression on another core;
@@ -51,6 +53,7 @@ calls, so the file is deterministic.
 
 from __future__ import annotations
 
+import bisect
 import json
 from dataclasses import asdict, is_dataclass
 from typing import Optional
@@ -273,19 +276,33 @@ class _RawCells:
 
 
 class _CorrectedRun:
-    """A CorrectedBatch quantised to float32 and transposed once; messages slice it."""
+    """A CorrectedBatch quantised to float32 once; messages slice it. ``words``: (4, n) 4-byte
+    rows dt_ns, x, y, z (the layout of a corrected message's arrays, so one copy frames them);
+    ``dt``, ``x``, ``y``, ``z`` are its rows."""
 
-    def __init__(self, batch: CorrectedBatch, quantum_g: float):
+    def __init__(self, batch: CorrectedBatch, quantum_g: float, scratch=None):
         self.batch = batch
         self.view = None  # None: not framed yet; False: no view sample; else (records, indices)
         self.segment = batch.segment
         self.time_ns = batch.time_ns
         d = np.diff(batch.time_ns)
-        self.ok = not d.size or (int(d.max()) <= INT32_MAX and int(d.min()) >= -INT32_MAX)
+        dmin = int(d.min()) if d.size else 0
+        self.ok = not d.size or (int(d.max()) <= INT32_MAX and dmin >= -INT32_MAX)
+        self.sorted = dmin >= 0
         if self.ok:
-            q = quantize(batch.accel, quantum_g)
-            self.x, self.y, self.z = np.ascontiguousarray(q.T)
-            self.dt = np.empty(batch.n, "<i4")
+            n = batch.n
+            self.words = np.empty((4, n), "<u4")
+            self.dt = self.words[0].view("<i4")
+            q = self.words[1:].view("<f4")
+            a = batch.accel.T
+            if quantum_g:  # quantize(), into the rows (float64 scratch reused across blocks)
+                t = scratch(n) if scratch is not None else np.empty((3, n))
+                np.multiply(a, 1.0 / quantum_g, out=t)
+                np.round(t, out=t)
+                np.multiply(t, quantum_g, out=q, casting="same_kind")
+            else:
+                np.copyto(q, a, casting="same_kind")
+            self.x, self.y, self.z = q
             self.dt[0] = 0
             self.dt[1:] = d
 
@@ -328,6 +345,15 @@ class McapSink(McapLog):
         except BaseException:
             self.abort()
             raise
+
+    block_framing = True  # False: always the cell-by-cell path (same bytes; for tests)
+    _scratch = None
+
+    def _tmp(self, n: int) -> np.ndarray:
+        """A (3, n) float64 scratch array, reused from block to block."""
+        if self._scratch is None or self._scratch.shape[1] < n:
+            self._scratch = np.empty((3, max(n, 1)))
+        return self._scratch[:, :n]
 
     def _msg(self, topic, encoding, schema, log_time, data):
         ch = self._chunk
@@ -406,7 +432,11 @@ class McapSink(McapLog):
         gathered per cell (and segment) into one message, driven by the corrected stream's own
         time, so the message layout does not depend on how the pipeline was cut (replay
         reproduces it exactly). Arrays are converted to their CDR types once per call
-        (``_RawCells``, ``_CorrectedRun``); a message is then a few slices of them."""
+        (``_RawCells``, ``_CorrectedRun``); a message is then a few slices of them. Normally
+        every message of the call is framed at once (``_frame_block``); this cell-by-cell
+        loop handles the rest, with the same records in the same order."""
+        if self.block_framing and _frame_block(self, block, corrected, epochs):
+            return
         w = self.cell_ns
         cells = []
         raw = None
@@ -420,7 +450,7 @@ class McapSink(McapLog):
         for c in corrected:
             if c.n == 0:
                 continue
-            run = _CorrectedRun(c, self.quantum)
+            run = _CorrectedRun(c, self.quantum, self._tmp)
             cc = c.time_ns // w
             edges = np.concatenate([[0], np.flatnonzero(cc[1:] != cc[:-1]) + 1, [c.n]]).tolist()
             ccl = cc[edges[:-1]].tolist()
@@ -518,3 +548,332 @@ class McapSink(McapLog):
         """Finish the file (summary, index, footer), wait for the writer, rename it."""
         self._emit_corrected()
         return super().close()
+
+
+
+# ---------------------------------------------------------------------------- per-block framing
+_TYPE_RAW, _TYPE_GYRO, _TYPE_TEMP, _TYPE_CORR, _TYPE_VIEW, _TYPE_EPOCH = range(6)
+_TEMP_PAYLOAD = np.dtype([("hdr", "V4"), ("sec", "<i4"), ("nsec", "<u4"), ("celsius", "<f8")])
+assert _TEMP_PAYLOAD.itemsize == 20, TEMPERATURE.name
+
+
+def _cell_runs(t: np.ndarray, w: int) -> tuple[np.ndarray, np.ndarray]:
+    """Start index and cell of each run of one cell in the nondecreasing times ``t`` (cell
+    edges found by binary search, not a division per sample)."""
+    c0, c1 = int(t[0]) // w, int(t[-1]) // w
+    if c1 == c0:
+        return np.zeros(1, np.int64), np.array([c0], np.int64)
+    e = np.searchsorted(t, np.arange(c0 + 1, c1 + 1, dtype=np.int64) * w, side="left")
+    e = np.unique(np.concatenate([np.zeros(1, np.int64), e]))
+    return e, t[e] // w
+
+
+def _frame_block(sink: "McapSink", block: Optional[Block], corrected: list,
+                 epochs: EpochMetrics) -> bool:
+    """``McapSink.write_slices`` for one pipeline step with every message of the step framed
+    at once: the records of each topic are built back to back in one buffer
+    (engine/mcap/blockframe.py: fixed-size ones as one structured array, raw and corrected ones
+    from their layouts, per-sample arrays copied one slice per message), then handed to the
+    chunk builder as slices of those buffers in the cell-by-cell path's order (so the file is
+    byte for byte the same). The cell-by-cell path still handles what this does not: a time
+    step that does not fit int32 ns or goes backwards, a step spanning segments, flushing off,
+    or a topic's first message (its Schema and Channel records go into the chunk before it).
+    Returns False (nothing written, no state changed) in those cases."""
+    from . import blockframe as bf
+
+    if sink.flush_every_ns is None:
+        return False
+    w = sink.cell_ns
+    ch = sink._chunk
+    ids = ch.channel_ids
+    # ------------------------------------------------------------ what the step holds
+    raw = None
+    if block is not None and block.n:
+        raw = _RawCells(block, w)
+        if not raw.ok or (raw.cell.shape[0] > 1 and bool(np.any(raw.cell[1:] <= raw.cell[:-1]))):
+            return False
+    runs = [_CorrectedRun(c, sink.quantum, sink._tmp) for c in corrected if c.n]
+    pend = [p for p in sink._pending_corr if p[2] > p[1]]
+    if not all(r.ok and r.sorted for r in runs) or not all(r.ok for r, _a, _b in pend):
+        return False
+    if len({r.segment for r in runs} | {r.segment for r, _a, _b in pend}) > 1:
+        return False
+    ne = len(epochs)
+    if ne > 1 and bool(np.any(epochs.start_ns[1:] < epochs.start_ns[:-1])):
+        return False
+    last_t = int(pend[-1][0].time_ns[pend[-1][2] - 1]) if pend else None
+    for r in runs:  # joins between batches: nondecreasing, int32 steps
+        if last_t is not None and not 0 <= int(r.time_ns[0]) - last_t <= INT32_MAX:
+            return False
+        last_t = int(r.time_ns[-1])
+    # pieces of this step: one cell of one batch each
+    pa, pc, pr, first_piece, edges = [], [], [], [], []
+    for ri, r in enumerate(runs):
+        e, c = _cell_runs(r.time_ns, w)
+        first_piece.append(sum(len(x) for x in pa))
+        edges.append(e)
+        pa.append(e)
+        pc.append(c)
+        pr.append(np.full(e.shape[0], ri, np.int64))
+    pa = np.concatenate(pa) if pa else np.zeros(0, np.int64)
+    pc = np.concatenate(pc) if pc else np.zeros(0, np.int64)
+    pr = np.concatenate(pr) if pr else np.zeros(0, np.int64)
+    pb = np.empty_like(pa)  # piece ends
+    if pa.shape[0]:
+        pb[:-1] = pa[1:]
+        last_of_run = np.append(pr[1:] != pr[:-1], True)
+        pb[last_of_run] = [r.batch.n for r in runs]
+    if pend and pc.shape[0] and int(pc[0]) < sink._corr_cell:
+        return False
+    # groups (one corrected message each): a piece opens one when its cell differs from the
+    # previous piece's (the first piece: from the pending samples' cell)
+    newg = np.empty(pc.shape[0], bool)
+    if pc.shape[0]:
+        newg[0] = not pend or int(pc[0]) != sink._corr_cell
+        np.not_equal(pc[1:], pc[:-1], out=newg[1:])
+    gj = np.flatnonzero(newg)  # pieces opening a group
+    msgs = []  # emitted messages: (piece that emits it, [(run, a, b), ...])
+    prev = list(pend) + [(runs[int(pr[j])], int(pa[j]), int(pb[j])) for j in range(int(gj[0]) if gj.shape[0] else pa.shape[0])]
+    bounds = gj.tolist() + [pa.shape[0]]
+    for q in range(gj.shape[0]):
+        if prev:
+            msgs.append((bounds[q], prev))
+        prev = [(runs[int(pr[j])], int(pa[j]), int(pb[j])) for j in range(bounds[q], bounds[q + 1])]
+    new_pending = prev
+    # ------------------------------------------------------------ channels in use
+    need = []
+    if raw is not None:
+        need.append(TOPIC_RAW)
+        if raw.gyro is not None:
+            need.append(TOPIC_GYRO)
+    if ne:
+        need.append(TOPIC_METRICS)
+    if msgs:
+        need.append(TOPIC_CORRECTED)
+    if sink.view is not None and runs:
+        need.append(TOPIC_VIEW)
+    if raw is not None:
+        ua, ub = np.asarray(raw.ua, np.int64), np.asarray(raw.ub, np.int64)
+        a_, b_ = np.asarray(raw.a, np.int64), np.asarray(raw.b, np.int64)
+        rk = np.flatnonzero(b_ > a_)
+        temp_cells = np.flatnonzero((b_ > a_) & (ub > ua) & np.asarray(raw.temp_ok, bool))
+        if temp_cells.shape[0]:
+            need.append(TOPIC_TEMPERATURE)
+    if any(t not in ids for t in need):
+        return False
+    # ------------------------------------------------------------ from here on: writing
+    cells = []
+    if raw is not None:
+        cells.append(raw.cell)
+    if ne:
+        cells.append(epochs.start_ns // w)
+    todo = np.unique(np.concatenate(cells)) if cells else np.zeros(0, np.int64)
+    T = todo.shape[0]
+    for r, e in zip(runs, edges):
+        r.cut(e)
+    pit = np.searchsorted(todo, pc, side="right")  # the loop iteration that takes each piece
+    # per topic: its records (buffer, record offsets) and their order keys
+    topics = []  # (type, buffer (uint8), offsets (k+1), times, key: iteration, phase, piece, sub)
+
+    def add(typ, buf, off, times, it, phase, piece, sub):
+        k = times.shape[0]
+        topics.append((typ, buf, off, times, np.asarray(it, np.int64), np.full(k, phase, np.int64),
+                       np.asarray(piece, np.int64) if np.ndim(piece) else np.full(k, piece, np.int64),
+                       np.full(k, sub, np.int64)))
+
+    def fixed(typ, payload, times, it, phase, piece, sub):
+        cid = ids[topic_of[typ]]
+        a = bf.fixed_records(payload, cid, ch.sequence(cid), times)
+        add(typ, a.view(np.uint8).reshape(-1), np.arange(times.shape[0] + 1, dtype=np.int64)
+            * a.dtype.itemsize, times, it, phase, piece, sub)
+
+    topic_of = {_TYPE_RAW: TOPIC_RAW, _TYPE_GYRO: TOPIC_GYRO, _TYPE_TEMP: TOPIC_TEMPERATURE,
+                _TYPE_CORR: TOPIC_CORRECTED, _TYPE_VIEW: TOPIC_VIEW, _TYPE_EPOCH: TOPIC_METRICS}
+    if raw is not None and rk.shape[0]:
+        kk = rk.shape[0]
+        rit = np.searchsorted(todo, raw.cell[rk])
+        s0 = a_[rk]
+        t0 = block.time_ns[s0]
+        tc = np.maximum(t0, 0)
+        n_s, n_u = b_[rk] - s0, ub[rk] - ua[rk]
+        z = np.zeros_like(n_s)
+        lens = {f: n_s for f in ("dt_ns", "x", "y", "z")}
+        lens.update({f: n_u for f in ("unit_index", "unit_sequence", "unit_start", "temperature_c",
+                                      "temperature_raw", "light", "battery_v", "events")})
+        lens["light_raw"] = n_s if raw.light_raw is not None else z
+        lens["button"] = n_s if raw.button is not None else z
+        lay = bf.CdrLayout(ACCEL_BATCH_RAW, kk, lens)
+        cid = ids[TOPIC_RAW]
+        vr = bf.VariableRecords(lay, cid, ch.sequence(cid), tc, slack=8)
+        buf, base = vr.buf, vr.base
+        lay.put_time(buf, base, "stamp", t0)
+        lay.put_fixed(buf, base, "t0_ns", t0)
+        lay.put_fixed(buf, base, "segment", np.full(kk, raw.head[0], np.int64))
+        lay.put_fixed(buf, base, "first_sample", block.first_sample + s0)
+        lay.put_fixed(buf, base, "counts_per_g", np.tile(raw.head[2], (kk, 1)))
+        lay.put_fixed(buf, base, "zero_counts", np.tile(raw.head[3], (kk, 1)))
+        sl, nl = s0.tolist(), n_s.tolist()
+        for f, src in (("dt_ns", raw.dt), ("x", None), ("y", None), ("z", None),
+                       ("light_raw", raw.light_raw), ("button", raw.button)):
+            lay.put_counts(buf, base, f, lens[f])
+            if src is not None:
+                lay.put_seq_slices(buf, base, f, src, sl, nl)
+        bf.put_rows(buf, base + lay.field["x"][2], lay.field["y"][2] - lay.field["x"][2],
+                    raw.xyz, sl, nl)
+        u0, u1 = int(ua[rk][0]), int(ub[rk][-1])
+        for f, arr in zip(("unit_index", "unit_sequence", "unit_start", "temperature_c",
+                           "temperature_raw", "light", "battery_v", "events"), raw.units):
+            lay.put_counts(buf, base, f, n_u)
+            lay.put_seq_runs(buf, base, f, arr[u0:u1], n_u)
+        add(_TYPE_RAW, buf, vr.off, tc, rit, 2, 0, 0)
+        if raw.gyro is not None:
+            glay = bf.CdrLayout(GYRO_BATCH_RAW, kk, {f: n_s for f in ("dt_ns", "x", "y", "z")})
+            cid = ids[TOPIC_GYRO]
+            gr = bf.VariableRecords(glay, cid, ch.sequence(cid), tc, slack=8)
+            glay.put_time(gr.buf, gr.base, "stamp", t0)
+            glay.put_fixed(gr.buf, gr.base, "t0_ns", t0)
+            glay.put_fixed(gr.buf, gr.base, "dps_per_count", np.full(kk, float(block.gyro_dps_per_count)))
+            for f in ("dt_ns", "x", "y", "z"):
+                glay.put_counts(gr.buf, gr.base, f, n_s)
+            glay.put_seq_slices(gr.buf, gr.base, "dt_ns", raw.dt, sl, nl)
+            bf.put_rows(gr.buf, gr.base + glay.field["x"][2], glay.field["y"][2] - glay.field["x"][2],
+                        raw.gyro, sl, nl)
+            add(_TYPE_GYRO, gr.buf, gr.off, tc, rit, 2, 0, 1)
+        if temp_cells.shape[0]:
+            tt = block.time_ns[a_[temp_cells]]
+            tp = np.zeros(tt.shape[0], _TEMP_PAYLOAD)
+            tp["hdr"] = np.void(b"\x00\x01\x00\x00")
+            tb = bf.time_bytes(tt).view(np.dtype([("sec", "<i4"), ("nsec", "<u4")])).reshape(-1)
+            tp["sec"], tp["nsec"] = tb["sec"], tb["nsec"]
+            tp["celsius"] = np.asarray(raw.temp, np.float64)[temp_cells]
+            fixed(_TYPE_TEMP, tp, np.maximum(tt, 0), np.searchsorted(todo, raw.cell[temp_cells]),
+                  2, 0, 2)
+    if msgs:
+        m = len(msgs)
+        mj = np.array([j for j, _p in msgs], np.int64)
+        n_m = np.array([sum(b - a for _r, a, b in p) for _j, p in msgs], np.int64)
+        t0 = np.array([int(p[0][0].time_ns[p[0][1]]) for _j, p in msgs], np.int64)
+        tc = np.maximum(t0, 0)
+        clay = bf.CdrLayout(ACCEL_BATCH, m, {f: n_m for f in ("dt_ns", "x", "y", "z")})
+        cid = ids[TOPIC_CORRECTED]
+        cr = bf.VariableRecords(clay, cid, ch.sequence(cid), tc, slack=8)
+        buf, base = cr.buf, cr.base
+        clay.put_time(buf, base, "stamp", t0)
+        clay.put_fixed(buf, base, "t0_ns", t0)
+        clay.put_fixed(buf, base, "segment", np.full(m, msgs[0][1][0][0].segment, np.int64))
+        for f in ("dt_ns", "x", "y", "z"):
+            clay.put_counts(buf, base, f, n_m)
+        # dt_ns, x, y, z: 4-byte rows, each after its count: one (4, n) copy per piece
+        fo = (base + clay.field["dt_ns"][2]).tolist()
+        for i, (_j, p) in enumerate(msgs):
+            stride = 4 * int(n_m[i]) + 4
+            region = buf[fo[i]:fo[i] + 4 * stride].reshape(4, stride)
+            at = 0
+            prev_t = None
+            for r, a, b in p:
+                region[:, 4 * at:4 * (at + b - a)] = r.words[:, a:b].view(np.uint8)
+                if prev_t is not None:  # a join inside the message: its own step, not 0
+                    region[0, 4 * at:4 * at + 4] = np.array([int(r.time_ns[a]) - prev_t], "<i4").view(np.uint8)
+                prev_t = int(r.time_ns[b - 1])
+                at += b - a
+        add(_TYPE_CORR, buf, cr.off, tc, pit[mj], 0, mj, 1)
+    if sink.view is not None and runs:
+        vidx = [sink.view.pick_sorted(r.time_ns) for r in runs]
+        for r in runs:
+            r.view = False  # framed here
+        vt = np.concatenate([r.time_ns[i] for r, i in zip(runs, vidx)])
+        if vt.shape[0]:
+            vj = np.concatenate([fp + np.searchsorted(e, i, side="right") - 1
+                                 for fp, e, i in zip(first_piece, edges, vidx)])
+            vp = view_records(vt, *(np.concatenate([getattr(r, c)[i] for r, i in zip(runs, vidx)])
+                                    for c in "xyz"))
+            fixed(_TYPE_VIEW, vp, np.maximum(vt, 0), pit[vj], 0, vj, 0)
+    if ne:
+        fixed(_TYPE_EPOCH, epoch_records(epochs), np.maximum(epochs.start_ns, 0),
+              np.searchsorted(todo, epochs.start_ns // w), 3, 0, 0)
+    # ------------------------------------------------------------ flushes (new chunk spans)
+    flush = np.zeros(T, bool)
+    if T:
+        prevc = np.empty(T, np.int64)
+        prevc[1:] = todo[:-1] if sink._cell is None else np.maximum(todo[:-1], sink._cell)
+        prevc[0] = todo[0] if sink._cell is None else sink._cell
+        cpc = sink.cells_per_chunk
+        flush = (todo > prevc) & (todo // cpc != prevc // cpc)
+        if sink._cell is None:
+            flush[0] = False
+        sink._cell = int(todo[-1]) if sink._cell is None else max(sink._cell, int(todo[-1]))
+    # ------------------------------------------------------------ pending corrected samples
+    if runs:
+        sink._pending_corr = new_pending
+        sink._corr_cell = int(pc[-1])
+    # ------------------------------------------------------------ records in file order
+    if topics:
+        typ = np.concatenate([np.full(t[3].shape[0], i, np.int64) for i, t in enumerate(topics)])
+        idx = np.concatenate([np.arange(t[3].shape[0], dtype=np.int64) for t in topics])
+        it = np.concatenate([t[4] for t in topics])
+        ph = np.concatenate([t[5] for t in topics])
+        order = np.lexsort((idx, np.concatenate([t[7] for t in topics]),
+                            np.concatenate([t[6] for t in topics]), ph, it))
+        typ, idx, it, ph = typ[order], idx[order], it[order], ph[order]
+        size = np.concatenate([np.diff(t[2]) for t in topics])[order]
+        times = np.concatenate([t[3] for t in topics])[order]
+        cids = np.array([ids[topic_of[t[0]]] for t in topics], np.int64)[typ]
+        # the cell-by-cell path checks the chunk size after each message, but after all the
+        # view messages of a piece, or all the epochs of a cell, at once: where may it end?
+        kind = np.array([t[0] for t in topics], np.int64)[typ]
+        grp = np.where(kind == _TYPE_VIEW, np.concatenate([t[6] for t in topics])[order], it)
+        runs_of = (kind == _TYPE_VIEW) | (kind == _TYPE_EPOCH)
+        ends = np.ones(typ.shape[0], bool)
+        ends[:-1] = ~(runs_of[:-1] & (kind[1:] == kind[:-1]) & (grp[1:] == grp[:-1]))
+    else:
+        typ = idx = it = ph = size = times = cids = np.zeros(0, np.int64)
+        ends = np.zeros(0, bool)
+    R = typ.shape[0]
+    roff = np.zeros(R + 1, np.int64)
+    np.cumsum(size, out=roff[1:])
+    views = [memoryview(t[1]) for t in topics]
+    offl = [t[2].tolist() for t in topics]
+    topic_cids = [ids[topic_of[t[0]]] for t in topics]
+    # runs of consecutive records of one topic: each is one slice of that topic's buffer
+    rs = np.flatnonzero(np.concatenate([[True], (typ[1:] != typ[:-1]) | (idx[1:] != idx[:-1] + 1)])) \
+        if R else np.zeros(0, np.int64)
+    rs_l, rt_l, ri_l = rs.tolist() + [R], typ[rs].tolist(), idx[rs].tolist()
+    # messages per topic before each record (for the channel counts of each piece appended)
+    cum = np.zeros((R + 1, len(topics)), np.int64)
+    if R:
+        np.cumsum(typ[:, None] == np.arange(len(topics)), axis=0, out=cum[1:])
+    roff_l = roff.tolist()
+
+    def append(lo, hi):
+        """Hand the records [lo, hi) to the chunk builder (slices of the topic buffers)."""
+        k = bisect.bisect_right(rs_l, lo) - 1
+        parts = []
+        while rs_l[k] < hi:
+            s0, e0 = max(rs_l[k], lo), min(rs_l[k + 1], hi)
+            t = rt_l[k]
+            a = ri_l[k] + s0 - rs_l[k]
+            parts.append(views[t][offl[t][a]:offl[t][a + e0 - s0]])
+            k += 1
+        n = (cum[hi] - cum[lo]).tolist()
+        ch.add_framed(parts, roff_l[hi] - roff_l[lo], cids[lo:hi], times[lo:hi],
+                      roff[lo:hi] - roff_l[lo],
+                      {c: k for c, k in zip(topic_cids, n) if k})
+
+    # records before the flush at iteration f: earlier iterations, and f's phase 0 (pieces)
+    key = it * 2 + (ph > 0)
+    cut_at = np.searchsorted(key, np.flatnonzero(flush) * 2 + 1, side="left").tolist()
+    lo = 0
+    for c, flush_after in [(c, True) for c in cut_at] + [(R, False)]:
+        while lo < c:  # records [lo, c); the chunk ends where it reaches chunk_size
+            room = ch.chunk_size - ch.size
+            hi = c
+            if roff_l[c] - roff_l[lo] >= room:
+                over = np.flatnonzero(ends[lo:c] & (roff[lo + 1:c + 1] - roff_l[lo] >= room))
+                hi = lo + int(over[0]) + 1 if over.shape[0] else c
+            append(lo, hi)
+            if hi < c or (hi == c and roff_l[hi] - roff_l[lo] >= room and ends[hi - 1]):
+                sink._end_chunk(False)
+            lo = hi
+        if flush_after:
+            sink._flush_cell(False)
+    return True

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import os
 import struct
-import zlib
 from typing import BinaryIO, Iterable, Iterator, NamedTuple, Optional
 
 from . import records as rec
@@ -185,7 +184,7 @@ def iter_topic_messages(f: BinaryIO, topics: Optional[Iterable[str]], *,
             raise McapFormatError(f"a chunk does not decompress ({type(e).__name__}: {e})") from None
         if len(data) != usize:
             raise McapFormatError("a chunk decompresses to the wrong size")
-        if validate_crcs and crc and zlib.crc32(data) != crc:
+        if validate_crcs and crc and rec.crc32(data) != crc:
             raise McapFormatError("a chunk's CRC does not match its records")
         if not guided:  # unindexed, or it registers channels: read every record
             yield from walk(data)

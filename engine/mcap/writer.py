@@ -17,7 +17,6 @@ from __future__ import annotations
 import os
 import struct
 import time
-import zlib
 from typing import Optional
 
 
@@ -127,7 +126,7 @@ class _WriterCore:
         crc = self._crc
         for p in parts:
             want += len(p)
-            crc = zlib.crc32(p, crc)
+            crc = rec.crc32(p, crc)
         self._crc = crc
         done = os.writev(self._fd, parts)
         if done != want:  # a short write (signal, full pipe/disk): finish it piece by piece
@@ -147,7 +146,7 @@ class _WriterCore:
         if op == "chunk":
             data, start, end, indexes, fsync = args
             comp = self._compress(data) if self._compress else data
-            parts = rec.chunk(start, end, len(data), zlib.crc32(data), self.compression, comp)
+            parts = rec.chunk(start, end, len(data), rec.crc32(data), self.compression, comp)
             offset = self._pos
             length = len(parts[0]) + len(parts[1])
             offsets = {}
@@ -192,17 +191,17 @@ class _WriterCore:
             offsets.append(rec.summary_offset(op, self._pos, length))
             start_group = self._pos
             for piece in pieces:
-                crc = zlib.crc32(piece, crc)
+                crc = rec.crc32(piece, crc)
                 self._write(piece)
             if self._pos - start_group != length:
                 raise AssertionError("summary group length mismatch")
         self._chunks.close()
         offset_start = self._pos
         so = b"".join(offsets)
-        crc = zlib.crc32(so, crc)
+        crc = rec.crc32(so, crc)
         self._write(so)
         foot = rec.footer_body_prefix(start, offset_start)
-        crc = zlib.crc32(foot, crc)
+        crc = rec.crc32(foot, crc)
         self._write(foot, struct.pack("<I", crc), rec.MAGIC)
         os.fsync(self._fd)
         self.closed = True

@@ -122,7 +122,11 @@ class TemperatureInterpolator:
         if len(self._ring):
             held = self._ring.view()
             tt = np.concatenate([held["time"], t[:cut]])
-            gg = np.concatenate([held["accel"], g[:cut]])
+            h = held["time"].shape[0]
+            gc = np.empty((3, h + cut))  # column by column, like g: (n, 3) view of (3, n)
+            gc[:, :h] = held["accel"].T
+            gc[:, h:] = g[:cut].T
+            gg = gc.T
             self._ring.clear()
         else:
             tt, gg = t[:cut], g[:cut]

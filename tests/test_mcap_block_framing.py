@@ -70,3 +70,20 @@ def test_block_framing_real_files(real_data_dir, tmp_path, name, monkeypatch):
                      RunSettings(mode="online", flush_every_s=3.0, chunk_s=7.0, max_block_s=37.0)):
         cell, block, framed = _both(src, tmp_path / "o.mcap", settings, monkeypatch)
         assert framed > 0 and cell == block
+
+
+def test_isal_crc32_equals_zlibs():
+    """The MCAP CRC-32 comes from ISA-L when the optional `fast` extra is installed (the test
+    extra installs it), else from zlib: both give the same values."""
+    import zlib
+
+    import numpy as np
+    from stillpoint.engine.mcap import records
+    isal_zlib = pytest.importorskip("isal.isal_zlib", reason="the optional `fast` extra (isal) "
+                                    "is not installed: only zlib's CRC is in use")
+    assert records.crc32 is isal_zlib.crc32
+    rng = np.random.default_rng(0)
+    for n in (0, 1, 7, 4096, 1 << 20):
+        data = rng.integers(0, 256, n, dtype=np.uint8).tobytes()
+        assert isal_zlib.crc32(data) == zlib.crc32(data)
+        assert isal_zlib.crc32(data, 12345) == zlib.crc32(data, 12345)

@@ -19,6 +19,7 @@ spread already dithers the step come back practically unchanged.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from functools import lru_cache
 
 import numpy as np
@@ -50,7 +51,6 @@ def level_moments(x: np.ndarray, s: np.ndarray, step: float, span: float = SPAN)
 
 def dequantised(features, step):
     """``features`` (WindowFeatures) with their window means de-biased for ``step`` (g)."""
-    from dataclasses import replace
     return replace(features, mean=dequantise_means(features.mean, features.sd, step))
 
 

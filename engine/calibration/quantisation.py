@@ -31,6 +31,7 @@ SPAN = 7.0  # levels within +-SPAN sigma of x carry the mass
 SIGMA = np.exp(np.linspace(np.log(0.12), np.log(1.5), 121))
 GRID_X = 1024  # positions within a step for the tables
 MU = np.linspace(0.0, 1.0, 513)  # fractional means for the tables
+CHUNK = 2048  # windows solved at a time
 
 
 def level_moments(x: np.ndarray, s: np.ndarray, step: float, span: float = SPAN):
@@ -63,7 +64,8 @@ def dequantise_means(mean: np.ndarray, sd: np.ndarray, step) -> np.ndarray:
     out = m.copy()
     for k in range(3):
         if q[k] > 0:
-            out[:, k] = _solve(m[:, k], v_obs[:, k], float(q[k]))
+            for a in range(0, m.shape[0], CHUNK):  # (chunk, sigma grid) temporaries stay small
+                out[a:a + CHUNK, k] = _solve(m[a:a + CHUNK, k], v_obs[a:a + CHUNK, k], float(q[k]))
     return out
 
 

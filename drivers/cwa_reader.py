@@ -279,14 +279,13 @@ class CwaReader:
         try:
             for sec, first_index, final in self._batches():
                 yield from self._process(sec, first_index, final)
-                self._list_events(self._settled(first_index + sec.shape[0] - 1))
             if self._seg is not None:
                 yield from self._close_segment()
             self._finish_swap_run()
         finally:
-            self._list_events()
             self.close()
         self.qc.segments = self._n_segments
+        self.qc.events.sort(key=lambda e: e.index)  # stable: batch-size independent order
         self._time_events()
         if self.qc.total and not self.qc.valid:
             counts: dict[str, int] = {}
@@ -321,10 +320,17 @@ class CwaReader:
         """Time the events logged before ``block`` whose sector it reaches, exactly: a sector in
         the block -> its first sample's time; a sector skipped before it -> the last sample
         emitted before that sector. Independent of how the file was cut into batches."""
+        if not self._untimed:
+            self._last_t = int(block.time_ns[-1])
+            return
         ui = block.unit_index
         first_t = block.time_ns[block.unit_start]
-
-        def timed(e: QCEvent) -> QCEvent:
+        keep = []
+        for pos in self._untimed:
+            e = self.qc.events[pos]
+            if e.index > ui[-1]:
+                keep.append(pos)
+                continue
             j = int(np.searchsorted(ui, e.index))
             if ui[j] == e.index:
                 t = int(first_t[j])
@@ -332,24 +338,13 @@ class CwaReader:
                 t = self._last_t if self._last_t is not None else int(block.time_ns[0])
             else:
                 t = int(block.time_ns[block.unit_start[j] - 1])
-            return replace(e, time_ns=t)
-
-        keep = []
-        for pos in self._untimed:  # listed events
-            e = self.qc.events[pos]
-            if e.index > ui[-1]:
-                keep.append(pos)
-            else:
-                self.qc.events[pos] = timed(e)
+            self.qc.events[pos] = replace(e, time_ns=t)
         self._untimed = keep
-        self._unlisted = [timed(e) if e.time_ns is None and e.index <= ui[-1] else e
-                          for e in self._unlisted]  # events logged, not listed yet
         self._last_t = int(block.time_ns[-1])
 
     def _init_state(self) -> None:
         self._bounds: list = []  # per emitted Block: first sector, its time, last sector, last time
         self._untimed: list = []  # positions in qc.events of events still without a time
-        self._unlisted: list = []  # events logged but not listed yet (see _event)
         self._last_t: Optional[int] = None  # time of the last sample emitted
         self._seg: Optional[_Segment] = None
         self._prev: Optional[_Prev] = None
@@ -362,50 +357,16 @@ class CwaReader:
                             and self._header["firmware_revision"] < C.CWA_AX6_AXIS_SWAP_FIXED_FIRMWARE)
 
     def _event(self, index: int, reason: str, detail: str = "", time_ns=None, samples: int = 0):
-        """Log a QC event. Events are not logged in file order (a batch is checked stage by stage;
-        an erased run, an axis-swap run or a segment without a timestamp is logged when it ends),
-        so they wait here until _list_events puts them on the list in file order; the list, and
-        which events the cap leaves out, is then the same at every batch size."""
-        self._unlisted.append(QCEvent(int(index), reason, detail,
-                                      None if time_ns is None else int(time_ns), int(samples)))
-
-    def _list_events(self, upto: Optional[int] = None) -> None:
-        """List the logged events of sectors <= ``upto`` (all when None) in file order (stable:
-        the events of one sector keep the order they were logged in), capped at MAX_QC_EVENTS."""
-        if not self._unlisted:
-            return
-        if upto is None:
-            ready, self._unlisted = self._unlisted, []
-        else:
-            ready = [e for e in self._unlisted if e.index <= upto]
-            if not ready:
-                return
-            self._unlisted = [e for e in self._unlisted if e.index > upto]
-        ready.sort(key=lambda e: e.index)
-        for e in ready:
-            self._n_events += 1
-            if self._n_events <= MAX_QC_EVENTS:
-                if e.time_ns is None:
-                    self._untimed.append(len(self.qc.events))
-                self.qc.add(e)
-            elif self._n_events == MAX_QC_EVENTS + 1:
-                self.qc.add(QCEvent(e.index, "qc_log_truncated",
-                                    f"more than {MAX_QC_EVENTS} QC events; later ones are counted in "
-                                    "total/skipped but not listed"))
-
-    def _settled(self, last: int, segments=()) -> int:
-        """The last sector whose events are all logged, given that sectors up to ``last`` were
-        checked: an event still to come for an open erased run, axis-swap run or segment without
-        a timestamp (``segments``: more that may close) is logged at the run's first sector."""
-        upto = int(last)
-        if self._erased_run is not None:
-            upto = min(upto, self._erased_run[0] - 1)
-        if self._swap_run is not None:
-            upto = min(upto, self._swap_run[0] - 1)
-        for seg in (self._seg, *segments):
-            if seg is not None and seg.n_anchors == 0 and seg.chunks:
-                upto = min(upto, int(seg.chunks[0]["index"][0]) - 1)
-        return upto
+        self._n_events += 1
+        if self._n_events <= MAX_QC_EVENTS:
+            if time_ns is None:
+                self._untimed.append(len(self.qc.events))
+            self.qc.add(QCEvent(int(index), reason, detail, None if time_ns is None else int(time_ns),
+                                int(samples)))
+        elif self._n_events == MAX_QC_EVENTS + 1:
+            self.qc.add(QCEvent(int(index), "qc_log_truncated",
+                                f"more than {MAX_QC_EVENTS} QC events; later ones are counted in "
+                                "total/skipped but not listed"))
 
     # ------------------------------------------------------------------ bytes -> sector batches
     def _batches(self):
@@ -558,10 +519,6 @@ class CwaReader:
             plan = self._slow_plan(rec)
         last_raw = sec[m - 1:m].tobytes()
         self._prev = _Prev(int(seq[-1]), int(session[-1]), int(key[-1]), last_raw)
-
-        # every event of this batch's sectors is logged now, but those of runs/segments still open
-        self._list_events(self._settled(first_index + k - 1,
-                                         [x[2] for x in plan if x[2] is not None and x[2].n_anchors == 0]))
 
         # --- attach sectors to segments and emit what is ready
         for a, b, new_seg, s0 in plan:

@@ -46,3 +46,25 @@ def test_level_moments_match_drawn_samples():
     draw = np.rint((x[:, None] + rng.normal(0, 0.004, (200, 20000))) / STEP) * STEP
     np.testing.assert_allclose(mu, draw.mean(axis=1), atol=2.5e-4)  # 5 SE of 20,000 draws
     np.testing.assert_allclose(v, draw.var(axis=1), rtol=0.05)
+
+
+def test_online_calibrator_takes_the_step_either_way():
+    """The step as a fit option (as fit_calibration takes it) or as the stream's CountStep: the
+    same de-biased windows and the same estimate."""
+    from types import SimpleNamespace
+
+    from stillpoint.engine.calibration import OnlineCalibrator
+    from stillpoint.engine.sim import SimSource
+    from stillpoint.engine.calibration.recording import calibrate_source
+
+    src = SimSource(days=1.2, hz=25, seed=4)
+    feats = calibrate_source(src, read_all=True).windows
+    a = OnlineCalibrator(quantisation_step_g=STEP)
+    b = OnlineCalibrator(count_step=SimpleNamespace(step_g=STEP))
+    raw = OnlineCalibrator()
+    ea, eb = a.add(feats) + a.finish(), b.add(feats) + b.finish()
+    raw.add(feats)
+    assert np.array_equal(a.windows.mean, b.windows.mean)
+    assert a.windows.mean.shape == raw.windows.mean.shape
+    assert np.max(np.abs(a.windows.mean - raw.windows.mean)) > 1e-4  # de-biased (> 0.1 mg)
+    assert ea[-1].extra["means_dequantised"] and np.array_equal(ea[-1].offset, eb[-1].offset)

@@ -61,9 +61,11 @@ class OnlineCalibrator:
         self.sd_threshold = sd_threshold
         self.max_abs_mean = max_abs_mean
         self.window_s = window_s
+        # a fixed step may also come as the fit option (as for fit_calibration); the stream's
+        # CountStep, when given, wins
+        self._step = fit_options.pop("quantisation_step_g", None)
         self.fit_options = fit_options
         self.count_step = count_step
-        self._step = None  # the step the accumulated windows were de-biased for
         self.warm_start = bool(warm_start)
         self._last_fit: Optional[CalibrationEstimate] = None  # the previous refit (warm start)
         if prior is None:
@@ -88,7 +90,7 @@ class OnlineCalibrator:
 
     @property
     def windows(self) -> WindowFeatures:
-        """The nonmovement windows accumulated so far."""
+        """The nonmovement windows accumulated so far (means de-biased for the counts' step)."""
         if len(self._parts) > 1:
             self._parts = [WindowFeatures.concat(self._parts)]
         return self._parts[0] if self._parts else WindowFeatures.empty()

@@ -63,7 +63,27 @@ def test_written_file_reads_back_with_valid_crcs_and_summary(tmp_path, compressi
         summ = r.get_summary()
         got = [(ch.topic, m.log_time, m.data) for _s, ch, m in r.iter_messages(log_time_order=False)]
         meta = {m.name: m.metadata for m in r.iter_metadata()}
-    assert got[:len(want)] == want
+    # messages of each topic in the order written; inside a chunk the CDR topics are grouped
+    # between the JSON (/qc) messages and Channel records, which keep their places
+    assert len(got) == len(want) + 5
+    for topic in ("/raw", "/other", "/qc"):
+        assert [m for m in got[:len(want)] if m[0] == topic] == [m for m in want if m[0] == topic]
+    ids = list(dict.fromkeys(m[0] for m in want))  # channel ids: order of first use
+    seen, at = set(), 0
+    for cell in plan:
+        segs = [[]]
+        for topic, _s, t, data in cell:
+            m = (topic, t, data)
+            if topic == "/qc" or topic not in seen:  # a JSON message or a new Channel record
+                segs.append([])
+            seen.add(topic)
+            segs[-1].append(m)
+        for seg in segs:
+            lead = [m for m in seg[:1] if m[0] == "/qc"]
+            grouped = lead + [m for i in ids for m in seg[len(lead):] if m[0] == i]
+            assert got[at:at + len(seg)] == grouped
+            at += len(seg)
+    assert got[:len(want)] != want  # the plan does interleave topics inside a chunk
     fixed = got[len(want):]
     assert [t for _tp, t, _d in fixed] == [k * 10**9 for k in range(10, 15)]
     assert [d for _tp, _t, d in fixed] == [bytes(range(8 * i, 8 * i + 8)) for i in range(5)]

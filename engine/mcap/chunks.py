@@ -9,6 +9,16 @@ time, as the MCAP specification asks); compressing and writing them is the write
 go into the chunk where the topic first appears (so a salvaged prefix of the file is
 self-describing), and are repeated in the summary. Message counts per channel and the time range
 feed the summary's Statistics record.
+
+Inside a chunk the records of each CDR channel (the numeric streams) are grouped: at ``take()``
+the chunk's records are reordered so that, between two records of any other kind (JSON
+messages such as QC events and estimates, Schema and Channel records: these keep their places),
+each CDR channel's messages follow one another, channels in id order, each in the order added.
+One compressor then sees long runs of alike data (int16 counts, float32 g, fixed-size view and
+epoch records) instead of a cell's mix: on a 7-day simulated log, 12-15 % fewer bytes at the same
+zstd level. The specification asks no order of messages inside a chunk; indexed readers order
+by the Message Indexes, and streaming readers see each topic in order and the JSON events at
+their places among the streams.
 """
 
 from __future__ import annotations
@@ -48,6 +58,8 @@ class ChunkBuilder:
         self.end: Optional[int] = None
         self.chunks = 0
         self._parts: list[bytes] = []
+        self._lanes: list[int] = []  # per part: channel id of a grouped (CDR) message, else 0
+        self._grouped: set[int] = set()  # ids of the CDR channels
         self._size = 0
         self._cstart: Optional[int] = None  # over the open chunk
         self._cend: Optional[int] = None
@@ -79,6 +91,8 @@ class ChunkBuilder:
         cid = len(self.channel_ids) + 1
         self.channel_ids[topic] = cid
         r = rec.channel(cid, sid, topic, encoding)
+        if encoding == "cdr":
+            self._grouped.add(cid)
         self.channel_records.append(r)
         self._append(r)
         self._seq[cid] = 0
@@ -86,8 +100,9 @@ class ChunkBuilder:
         return cid
 
     # ------------------------------------------------------------------ messages
-    def _append(self, b: bytes) -> None:
+    def _append(self, b: bytes, lane: int = 0) -> None:
         self._parts.append(b)
+        self._lanes.append(lane)
         self._size += len(b)
 
     def _times(self, lo: int, hi: int) -> None:
@@ -112,10 +127,13 @@ class ChunkBuilder:
         if ix is None:
             ix = self._index[cid] = []
         ix.append((t, self._size))
+        lane = cid if cid in self._grouped else 0
         self._parts.append(_MSG_HEAD.pack(rec.OP_MESSAGE, rec.MESSAGE_OVERHEAD + len(data), cid,
                                           seq & 0xFFFFFFFF, t,
                                           t if publish_time is None else max(0, int(publish_time))))
         self._parts.append(data)
+        self._lanes.append(lane)
+        self._lanes.append(lane)
         self._size += _MSG_HEAD.size + len(data)
         self._times(t, t)
         return self._size >= self.chunk_size
@@ -155,7 +173,8 @@ class ChunkBuilder:
         if ix is None:
             ix = self._index[fr.cid] = []
         ix.append((tt, self._size + fr.width * np.arange(k, dtype=np.int64)))
-        self._append(fr.data[lo * fr.width:hi * fr.width])
+        self._append(fr.data[lo * fr.width:hi * fr.width],
+                     fr.cid if fr.cid in self._grouped else 0)
         self._times(int(tt.min()), int(tt.max()))
         return self._size >= self.chunk_size
 
@@ -169,12 +188,13 @@ class ChunkBuilder:
         return self._seq[cid]
 
     def add_framed(self, parts: list, nbytes: int, cids: np.ndarray, times: np.ndarray,
-                   offsets: np.ndarray, counts: dict) -> None:
+                   offsets: np.ndarray, counts: dict, part_cids: list) -> None:
         """Append Message records framed elsewhere (engine/mcap/blockframe.py) with the
         sequence numbers ``sequence`` gave: ``parts`` (bytes-like, ``nbytes`` in all) hold them
         back to back; ``cids``, ``times`` (clamped at 0) and ``offsets`` (from the start of the
-        first part) describe each; ``counts``: channel id -> messages. The caller ends the
-        chunk when ``size`` reaches ``chunk_size``."""
+        first part) describe each; ``counts``: channel id -> messages; ``part_cids``: the
+        channel of each part's records (one channel per part). The caller ends the chunk when
+        ``size`` reaches ``chunk_size``."""
         k = int(cids.shape[0])
         if not k:
             return
@@ -184,6 +204,7 @@ class ChunkBuilder:
             self.counts[cid] += n
         self.message_count += k
         self._parts.extend(parts)
+        self._lanes.extend(c if c in self._grouped else 0 for c in part_cids)
         self._size += nbytes
         self._times(int(times.min()), int(times.max()))
 
@@ -233,9 +254,10 @@ class ChunkBuilder:
             out.append((cid, rec.message_index(cid, e.tobytes())))
         return out
 
-    def _message_indexes_arrays(self) -> list[tuple[int, bytes]]:
-        """``_message_indexes`` of a chunk holding framed records: every entry of the chunk in
-        three arrays, one sort by (channel, log time, offset), one record per channel."""
+    def _message_indexes_arrays(self, shift=None) -> list[tuple[int, bytes]]:
+        """``_message_indexes`` of a chunk holding framed or regrouped records: every entry of
+        the chunk in three arrays, one sort by (channel, log time, offset), one record per
+        channel. ``shift``: (old part starts, their moves) of ``_regroup``."""
         cs, ts, os_ = [], [], []
         for c, t, o in self._framed:
             cs.append(c)
@@ -248,6 +270,9 @@ class ChunkBuilder:
                 ts.append(t)
                 os_.append(np.atleast_1d(np.asarray(it[1], np.int64)))
         c, t, o = np.concatenate(cs), np.concatenate(ts), np.concatenate(os_)
+        if shift is not None:
+            old, delta = shift
+            o = o + delta[np.searchsorted(old, o, side="right") - 1]
         order = np.lexsort((o, t, c))
         e = np.empty((order.shape[0], 2), "<u8")
         e[:, 0] = t[order]
@@ -258,18 +283,38 @@ class ChunkBuilder:
         return [(cid, rec.message_index(cid, e[a:b].tobytes()))
                 for cid, a, b in zip(c[ids].tolist(), bounds[:-1], bounds[1:])]
 
+    def _regroup(self):
+        """The open chunk's parts in grouped order (see the module docstring) and the shift of
+        every old offset (None: the order is unchanged)."""
+        lanes = np.array(self._lanes, np.int64)
+        if not lanes.any():
+            return self._parts, None
+        seg = np.cumsum(lanes == 0)  # each ungrouped record part opens a segment
+        order = np.lexsort((lanes, seg))  # stable: parts of a lane keep their order
+        if bool(np.all(order[1:] > order[:-1])):
+            return self._parts, None
+        lens = np.fromiter((len(p) for p in self._parts), np.int64, len(self._parts))
+        old = np.cumsum(lens) - lens
+        new = np.empty_like(old)
+        lo = lens[order]
+        new[order] = np.cumsum(lo) - lo
+        delta = new - old
+        parts = self._parts
+        return [parts[i] for i in order.tolist()], (old, delta)
+
     def take(self) -> Optional[tuple[bytes, int, int, list]]:
         """The open chunk's records, time range and Message Index records (None if it holds no
         message); starts a new one. Schema/Channel records registered while no message followed
         stay for the next chunk."""
         if self._cstart is None:
             return None
-        data = b"".join(self._parts)
+        parts, shift = self._regroup()
+        data = b"".join(parts)
         lo, hi = self._cstart, self._cend
-        indexes = self._message_indexes()
+        indexes = self._message_indexes() if shift is None else self._message_indexes_arrays(shift)
         self._index = {}
         self._framed = []
-        self._parts, self._size, self._cstart, self._cend = [], 0, None, None
+        self._parts, self._lanes, self._size, self._cstart, self._cend = [], [], 0, None, None
         self.start = lo if self.start is None else min(self.start, lo)
         self.end = hi if self.end is None else max(self.end, hi)
         self.chunks += 1

@@ -847,17 +847,18 @@ def _frame_block(sink: "McapSink", block: Optional[Block], corrected: list,
     def append(lo, hi):
         """Hand the records [lo, hi) to the chunk builder (slices of the topic buffers)."""
         k = bisect.bisect_right(rs_l, lo) - 1
-        parts = []
+        parts, part_cids = [], []
         while rs_l[k] < hi:
             s0, e0 = max(rs_l[k], lo), min(rs_l[k + 1], hi)
             t = rt_l[k]
             a = ri_l[k] + s0 - rs_l[k]
             parts.append(views[t][offl[t][a]:offl[t][a + e0 - s0]])
+            part_cids.append(topic_cids[t])
             k += 1
         n = (cum[hi] - cum[lo]).tolist()
         ch.add_framed(parts, roff_l[hi] - roff_l[lo], cids[lo:hi], times[lo:hi],
                       roff[lo:hi] - roff_l[lo],
-                      {c: k for c, k in zip(topic_cids, n) if k})
+                      {c: k for c, k in zip(topic_cids, n) if k}, part_cids)
 
     # records before the flush at iteration f: earlier iterations, and f's phase 0 (pieces)
     key = it * 2 + (ph > 0)

@@ -68,7 +68,6 @@ def test_written_file_reads_back_with_valid_crcs_and_summary(tmp_path, compressi
     assert len(got) == len(want) + 5
     for topic in ("/raw", "/other", "/qc"):
         assert [m for m in got[:len(want)] if m[0] == topic] == [m for m in want if m[0] == topic]
-    ids = list(dict.fromkeys(m[0] for m in want))  # channel ids: order of first use
     seen, at = set(), 0
     for cell in plan:
         segs = [[]]
@@ -80,7 +79,8 @@ def test_written_file_reads_back_with_valid_crcs_and_summary(tmp_path, compressi
             segs[-1].append(m)
         for seg in segs:
             lead = [m for m in seg[:1] if m[0] == "/qc"]
-            grouped = lead + [m for i in ids for m in seg[len(lead):] if m[0] == i]
+            rest = seg[len(lead):]
+            grouped = lead + [m for i in dict.fromkeys(m[0] for m in rest) for m in rest if m[0] == i]
             assert got[at:at + len(seg)] == grouped
             at += len(seg)
     assert got[:len(want)] != want  # the plan does interleave topics inside a chunk

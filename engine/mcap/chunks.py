@@ -13,7 +13,8 @@ feed the summary's Statistics record.
 Inside a chunk the records of each CDR channel (the numeric streams) are grouped: at ``take()``
 the chunk's records are reordered so that, between two records of any other kind (JSON
 messages such as QC events and estimates, Schema and Channel records: these keep their places),
-each CDR channel's messages follow one another, channels in id order, each in the order added.
+each CDR channel's messages follow one another, channels in order of first appearance there,
+each in the order added (a chunk of one cell is already in that order and is left as it is).
 One compressor then sees long runs of alike data (int16 counts, float32 g, fixed-size view and
 epoch records) instead of a cell's mix: on a 7-day simulated log, 12-15 % fewer bytes at the same
 zstd level. The specification asks no order of messages inside a chunk; indexed readers order
@@ -284,23 +285,34 @@ class ChunkBuilder:
                 for cid, a, b in zip(c[ids].tolist(), bounds[:-1], bounds[1:])]
 
     def _regroup(self):
-        """The open chunk's parts in grouped order (see the module docstring) and the shift of
-        every old offset (None: the order is unchanged)."""
-        lanes = np.array(self._lanes, np.int64)
-        if not lanes.any():
-            return self._parts, None
-        seg = np.cumsum(lanes == 0)  # each ungrouped record part opens a segment
-        order = np.lexsort((lanes, seg))  # stable: parts of a lane keep their order
-        if bool(np.all(order[1:] > order[:-1])):
-            return self._parts, None
-        lens = np.fromiter((len(p) for p in self._parts), np.int64, len(self._parts))
+        """The open chunk's parts in grouped order (see the module docstring) and, if that
+        moves any, (old start of every part, its move) for the Message Index offsets."""
+        lanes, parts = self._lanes, self._parts
+        order: list[int] = []
+        groups: dict[int, list[int]] = {}  # lane -> its parts since the last ungrouped record
+        for i, lane in enumerate(lanes):
+            if lane:
+                g = groups.get(lane)
+                if g is None:
+                    groups[lane] = [i]
+                else:
+                    g.append(i)
+            else:
+                for g in groups.values():  # in order of first appearance
+                    order.extend(g)
+                groups.clear()
+                order.append(i)
+        for g in groups.values():
+            order.extend(g)
+        if all(i == k for i, k in enumerate(order)):
+            return parts, None
+        lens = np.fromiter((len(p) for p in parts), np.int64, len(parts))
         old = np.cumsum(lens) - lens
+        o = np.array(order, np.int64)
         new = np.empty_like(old)
-        lo = lens[order]
-        new[order] = np.cumsum(lo) - lo
-        delta = new - old
-        parts = self._parts
-        return [parts[i] for i in order.tolist()], (old, delta)
+        lo = lens[o]
+        new[o] = np.cumsum(lo) - lo
+        return [parts[i] for i in order], (old, new - old)
 
     def take(self) -> Optional[tuple[bytes, int, int, list]]:
         """The open chunk's records, time range and Message Index records (None if it holds no

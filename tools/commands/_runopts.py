@@ -43,7 +43,7 @@ def add_setting_arguments(p, *, defaults_from_input: bool = False) -> None:
     g.add_argument("--compression", choices=("zstd", "lz4", "none"), default=None,
                    help="MCAP chunk compression (default zstd)")
     g.add_argument("--view-hz", type=float, default=None,
-                   help="samples per second on the plottable /view/accel topic (default 2; 0 = off)")
+                   help="samples per second on the plottable /view/accel topic (default 1; 0 = off)")
 
 
 def settings_overrides(args) -> dict:

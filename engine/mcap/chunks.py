@@ -24,6 +24,7 @@ their places among the streams.
 
 from __future__ import annotations
 
+import bisect
 import struct
 from typing import Optional
 
@@ -32,6 +33,7 @@ import numpy as np
 from . import records as rec
 
 _MSG_HEAD = rec.MESSAGE_HEADER
+_FEW_ENTRIES = 64  # up to this many Message Index entries a chunk, plain Python is faster
 
 
 class FixedRecords:
@@ -255,10 +257,45 @@ class ChunkBuilder:
             out.append((cid, rec.message_index(cid, e.tobytes())))
         return out
 
+    def _message_indexes_few(self, shift=None) -> list[tuple[int, bytes]]:
+        """``_message_indexes_arrays`` of a chunk with few entries (one cell of an online run),
+        in plain Python: the same records, without a dozen numpy calls per chunk."""
+        per: dict[int, list] = {}
+        for c, t, o in self._framed:
+            for ci, ti, oi in zip(c.tolist(), t.tolist(), o.tolist()):
+                g = per.get(ci)
+                if g is None:
+                    per[ci] = [(ti, oi)]
+                else:
+                    g.append((ti, oi))
+        for cid, items in self._index.items():
+            g = per.setdefault(cid, [])
+            for it in items:
+                if isinstance(it[0], np.ndarray):
+                    g.extend(zip(it[0].tolist(), it[1].tolist()))
+                else:
+                    g.append(it)
+        out = []
+        old = delta = None
+        if shift is not None:
+            old, delta = shift[0].tolist(), shift[1].tolist()
+        for cid in sorted(per):
+            items = per[cid]
+            if old is not None:
+                items = [(t, o + delta[bisect.bisect_right(old, o) - 1]) for t, o in items]
+            items.sort()
+            flat = [v for it in items for v in it]
+            out.append((cid, rec.message_index(cid, struct.pack(f"<{len(flat)}Q", *flat))))
+        return out
+
     def _message_indexes_arrays(self, shift=None) -> list[tuple[int, bytes]]:
         """``_message_indexes`` of a chunk holding framed or regrouped records: every entry of
         the chunk in three arrays, one sort by (channel, log time, offset), one record per
         channel. ``shift``: (old part starts, their moves) of ``_regroup``."""
+        if sum(c.shape[0] for c, _t, _o in self._framed) + sum(
+                it[0].shape[0] if isinstance(it[0], np.ndarray) else 1
+                for v in self._index.values() for it in v) <= _FEW_ENTRIES:
+            return self._message_indexes_few(shift)
         cs, ts, os_ = [], [], []
         for c, t, o in self._framed:
             cs.append(c)

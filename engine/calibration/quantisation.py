@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 from functools import lru_cache
+from typing import Optional
 
 import numpy as np
 from scipy.special import ndtr
@@ -34,12 +35,22 @@ MU = np.linspace(0.0, 1.0, 513)  # fractional means for the tables
 CHUNK = 2048  # windows solved at a time
 
 
-def level_moments(x: np.ndarray, s: np.ndarray, step: float, span: float = SPAN):
-    """Exact mean and variance of Q(x + s z) (rounding to multiples of ``step``), per element."""
+def level_count(x: np.ndarray, s: np.ndarray, step: float, span: float = SPAN) -> int:
+    """How many levels ``level_moments`` sums over for these elements (the widest one's)."""
+    s = np.maximum(np.asarray(s, np.float64), 1e-12)
+    return int(np.max(np.ceil((x + span * s) / step) - np.floor((x - span * s) / step))) + 1 \
+        if np.size(x) else 0
+
+
+def level_moments(x: np.ndarray, s: np.ndarray, step: float, span: float = SPAN,
+                  levels: Optional[int] = None):
+    """Exact mean and variance of Q(x + s z) (rounding to multiples of ``step``), per element;
+    ``levels``: how many levels to sum over from each element's lowest (default
+    ``level_count``: a larger count adds only far levels of ~zero mass)."""
     x = np.asarray(x, np.float64)
     s = np.maximum(np.asarray(s, np.float64), 1e-12)
     k_lo = np.floor((x - span * s) / step)
-    k_n = int(np.max(np.ceil((x + span * s) / step) - k_lo)) + 1 if x.size else 0
+    k_n = level_count(x, s, step, span) if levels is None else int(levels)
     m = np.zeros_like(x)
     m2 = np.zeros_like(x)
     for j in range(k_n):
@@ -75,14 +86,16 @@ def _tables():
     grid ``SIGMA`` and each fractional mean on ``MU`` (one period), the position x in the period
     that gives that mean (``X``) and the variance of the readings there (``V``)."""
     phi = np.linspace(0.0, 1.0, GRID_X + 1)
-    mu, v = level_moments(np.repeat(phi[:, None], SIGMA.size, 1),
-                          np.repeat(SIGMA[None, :], phi.size, 0), 1.0)
-    mu[0], mu[-1] = 0.0, 1.0  # the period's ends sit on levels (exact by symmetry)
     X = np.empty((MU.size, SIGMA.size))
     V = np.empty((MU.size, SIGMA.size))
-    for j in range(SIGMA.size):  # the mean is increasing in x: invert by interpolation
-        X[:, j] = np.interp(MU, mu[:, j], phi)
-        V[:, j] = np.interp(MU, mu[:, j], v[:, j])
+    # one SD at a time (temporaries of one column, not of the grid), each summed over the
+    # levels of the widest column (the largest SD), as the whole grid at once was (same bits)
+    n = level_count(phi, np.full(phi.size, SIGMA.max()), 1.0)
+    for j in range(SIGMA.size):
+        mu, v = level_moments(phi, np.full(phi.size, SIGMA[j]), 1.0, levels=n)
+        mu[0], mu[-1] = 0.0, 1.0  # the period's ends sit on levels (exact by symmetry)
+        X[:, j] = np.interp(MU, mu, phi)  # the mean is increasing in x: invert by interpolation
+        V[:, j] = np.interp(MU, mu, v)
     return X, V
 
 

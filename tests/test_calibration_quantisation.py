@@ -68,3 +68,36 @@ def test_online_calibrator_takes_the_step_either_way():
     assert a.windows.mean.shape == raw.windows.mean.shape
     assert np.max(np.abs(a.windows.mean - raw.windows.mean)) > 1e-4  # de-biased (> 0.1 mg)
     assert ea[-1].extra["means_dequantised"] and np.array_equal(ea[-1].offset, eb[-1].offset)
+
+
+def test_online_calibrator_debiases_pieces_as_the_whole():
+    """Windows handed over in many small pieces (a block's worth each), their step known only
+    from the third piece on: de-biased as each piece on its own would be (the calibrator
+    defers the work to its next fit and does each run of one step at once)."""
+    from types import SimpleNamespace
+
+    from stillpoint.engine.calibration import OnlineCalibrator
+    from stillpoint.engine.calibration.select import select_calibration_windows
+    from stillpoint.engine.sim import SimSource
+    from stillpoint.engine.calibration.recording import calibrate_source
+    from stillpoint.engine.calibration.quantisation import dequantised
+
+    feats = calibrate_source(SimSource(days=1.0, hz=25, seed=6), read_all=True).windows
+    step = SimpleNamespace(step_g=None)
+    cal = OnlineCalibrator(count_step=step, chunk_hours=6)
+    want, last = [], None
+    for i, a in enumerate(range(0, len(feats), 37)):
+        if i == 2:
+            step.step_g = STEP
+        piece = feats.select(slice(a, a + 37))
+        cal.add(piece)
+        sel = select_calibration_windows(piece, previous_mean=last).features
+        last = piece.mean[-1].copy()
+        if len(sel):
+            want.append(sel.mean if step.step_g is None else dequantised(sel, STEP).mean)
+        if i == 1:
+            before = sum(len(w) for w in want)
+    assert before > 0  # windows taken before the step was known stay as they were
+    want = np.concatenate(want)
+    got = cal.windows.mean
+    assert got.shape == want.shape and np.array_equal(got, want)

@@ -75,6 +75,7 @@ class OnlineCalibrator:
             self.current = prior
         self.estimates: list[CalibrationEstimate] = []  # every published estimate, in order
         self._parts: list[WindowFeatures] = []
+        self._pending: list[tuple] = []  # (windows, their counts' step (g, per axis) or None)
         self._n = 0
         self._n_at_last_fit = -1
         self._offered = 0
@@ -91,9 +92,23 @@ class OnlineCalibrator:
     @property
     def windows(self) -> WindowFeatures:
         """The nonmovement windows accumulated so far (means de-biased for the counts' step)."""
+        self._settle()
         if len(self._parts) > 1:
             self._parts = [WindowFeatures.concat(self._parts)]
         return self._parts[0] if self._parts else WindowFeatures.empty()
+
+    def _settle(self) -> None:
+        """De-bias the windows taken since the last fit, each run of one step at once (the
+        de-biasing is per window: the same values as window by window, in far fewer calls)."""
+        while self._pending:
+            step = self._pending[0][1]
+            k = next((i for i, (_f, s) in enumerate(self._pending)
+                      if (s is None) != (step is None) or not np.array_equal(s, step)),
+                     len(self._pending))
+            run = [f for f, _s in self._pending[:k]]
+            del self._pending[:k]
+            wins = run[0] if len(run) == 1 else WindowFeatures.concat(run)
+            self._parts.append(wins if step is None else dequantised(wins, step))
 
     def _append(self, feats: WindowFeatures) -> None:
         if len(feats) == 0:
@@ -108,9 +123,8 @@ class OnlineCalibrator:
             step = self.count_step.step_g if self.count_step is not None else None
             if step is not None:
                 self._step = step
-            wins = sel.features if self._step is None else dequantised(sel.features, self._step)
-            self._parts.append(wins)
-            self._n += len(wins)
+            self._pending.append((sel.features, self._step))  # de-biased at the next fit
+            self._n += len(sel.features)
 
     # ------------------------------------------------------------------ API
     def add(self, features: WindowFeatures) -> list[CalibrationEstimate]:

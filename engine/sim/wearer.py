@@ -345,6 +345,34 @@ def _cross3(a, b) -> np.ndarray:
     return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
 
 
+def _prefix_below(t: np.ndarray, s0: float, n: int) -> int:
+    """Number of leading rows of increasing t with t - s0 < 1 (as computed in float64)."""
+    k = int(np.searchsorted(t, s0 + 1.0, side="left"))
+    while k > 0 and t[k - 1] - s0 >= 1.0:
+        k -= 1
+    while k < n and t[k] - s0 < 1.0:
+        k += 1
+    return k
+
+
+def _suffix_below(t: np.ndarray, s1: float, n: int) -> int:
+    """Number of trailing rows of increasing t with s1 - t < 1 (as computed in float64)."""
+    k = n - int(np.searchsorted(t, s1 - 1.0, side="right"))
+    while k > 0 and s1 - t[n - k] >= 1.0:
+        k -= 1
+    while k < n and s1 - t[n - k - 1] < 1.0:
+        k += 1
+    return k
+
+
+def _fade(edges: list, *arrays: np.ndarray) -> None:
+    """Multiply each array's rows (1-D, or 2-D by row) by the envelope on the fading edges
+    (``SiteModel._envelope_edges``), in place."""
+    for rows, env in edges:
+        for x in arrays:
+            x[rows] *= env if x.ndim == 1 else env[:, None]
+
+
 def _outer(a: np.ndarray, b) -> np.ndarray:
     """(n,) x (3,) -> (n, 3) by broadcasting (np.outer has per-call overhead)."""
     return np.asarray(a)[:, None] * np.asarray(b)
@@ -649,6 +677,23 @@ class SiteModel:
         s1 = self.schedule.end[i]
         return bool(t.shape[0] and t[0] - s0 >= 1.0 and s1 - t[-1] >= 1.0)
 
+    def _envelope_edges(self, i: int, t: np.ndarray) -> list:
+        """The fade-in and fade-out of ``_envelope(i, t)`` (t increasing): a list of (rows,
+        envelope on those rows) covering every sample within 1 s of either end, where the
+        envelope can be below one; it is exactly one everywhere else (x * 1 = x: the products
+        there are skipped, the same numbers)."""
+        s0 = self.schedule.start[i] + self.schedule.trans_s[i]
+        s1 = self.schedule.end[i]
+        n = t.shape[0]
+        k0 = _prefix_below(t, s0, n)  # rows with t - s0 < 1
+        k1 = n - _suffix_below(t, s1, n)  # rows from k1 on have s1 - t < 1
+        if k0 >= k1:
+            rows = [slice(0, n)] if n else []
+        else:
+            rows = [r for r in (slice(0, k0), slice(k1, n)) if r.stop > r.start]
+        return [(r, np.clip(np.minimum(t[r] - s0, s1 - t[r]), 0.0, 1.0).astype(np.float32))
+                for r in rows]
+
     # --------------------------------------------------------------- rendering
     BLOCK = 16384  # samples per inner block (keeps temporaries in cache)
 
@@ -709,8 +754,7 @@ class SiteModel:
             if w is not None:
                 w[nt:] = 0.0  # linear: no rotation
             return
-        env = self._envelope(i, tm)
-        flat = self._envelope_flat(i, tm)  # env is all ones: x * 1 = x, the products are skipped
+        edges = self._envelope_edges(i, tm)  # the envelope is one elsewhere
         if mot == "fidget":
             wf = 2 * np.pi * sp.freq
             S, Cc = _sincos_cols(tm - s0, wf, sp.phase + wf * s0)
@@ -718,12 +762,12 @@ class SiteModel:
             c1, s1 = np.cos(1.0), np.sin(1.0)  # scalars
             L = (S @ ((sp.lin_amp * c1)[:, None] * sp.lin_dir)
                  + Cc @ ((sp.lin_amp * s1)[:, None] * sp.lin_dir))
-            if not flat:
-                ang *= env
-                L *= env[:, None]
+            _fade(edges, ang, L)
             _device_force(ang, sp.axis, sp.R_base, L, out=f[nt:])
             if w is not None:
-                w[nt:] = _outer((Cc @ (sp.amp * wf)) * env, sp.R_base.T @ sp.axis) * (180 / np.pi)
+                dang = Cc @ (sp.amp * wf)
+                _fade(edges, dang)
+                w[nt:] = _outer(dang, sp.R_base.T @ sp.axis) * (180 / np.pi)
             return
         # gait: trunk acceleration locked to the steps, heel strikes, swing at stride frequency
         st = sch.steps
@@ -749,10 +793,7 @@ class SiteModel:
         sa, ca = _sincos(arg)
         ang = amp * sa
         dang = amp * wv * ca
-        if not flat:
-            L *= env[:, None]
-            ang *= env
-            dang *= env
+        _fade(edges, L, ang, dang)
         if sp.radius > 0:  # pendulum: device at radius r below the pivot, rotating about axis
             ddang = -ang * wv * wv
             u0 = np.array([0.0, 0.0, -sp.radius])  # perpendicular to the swing axis

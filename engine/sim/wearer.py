@@ -33,6 +33,8 @@ from typing import Optional
 
 import numpy as np
 
+from .model import per_axis
+
 G = 9.80665  # m/s^2 per g
 
 ACTIVITIES = ("nonwear_table", "nonwear_drawer", "sleep", "lying", "sitting", "standing",
@@ -481,6 +483,7 @@ class SiteModel:
         self._mount_err = _rot(r.normal(size=3), np.deg2rad(r.uniform(2.0, 10.0)))
         self._cache: dict[int, _SegParams] = {}
         self._end_cache: dict[int, np.ndarray] = {}
+        self._micro_cache: dict[int, Optional[tuple]] = {}
 
     # --------------------------------------------------------------- per-segment parameters
     def _rng(self, i: int) -> np.random.Generator:
@@ -596,6 +599,24 @@ class SiteModel:
         d = r.normal(size=(m, 3))
         d /= np.linalg.norm(d, axis=1, keepdims=True)
         return d, np.asarray(amp), np.asarray(freq), phase
+
+    def _micro_terms(self, i: int):
+        """Segment i's micro-motion as rendered: angular frequencies (m,) rad/s, phases at the
+        segment's start (m,) rad and the device-frame amplitude of each component (m, 3)
+        float32 g; None without micro-motion. Kept for the segment's later blocks."""
+        if i in self._micro_cache:
+            return self._micro_cache[i]
+        mm = self.micromotion(i)
+        terms = None
+        if mm is not None:
+            d, amp, freq, phase = mm
+            wf = 2 * np.pi * freq
+            terms = (wf, phase + wf * self.schedule.start[i],
+                     (amp[:, None] * (d @ self.params(i).R_base)).astype(np.float32))
+        if len(self._micro_cache) > 64:
+            self._micro_cache.clear()
+        self._micro_cache[i] = terms
+        return terms
 
     def micromotion_window_moments(self, i: int, start_s: np.ndarray, width_s: float):
         """Mean (k, 3) and RMS about that mean (k, 3), g in the device frame, of segment i's
@@ -739,18 +760,17 @@ class SiteModel:
         tm = t[nt:]
         mot = MOTIONS[sch.motion[i]]
         if mot == "still":
-            mm = self.micromotion(i)
-            if mm is None:
+            terms = self._micro_terms(i)
+            if terms is None:
                 f[nt:] = sp.R_base[2, :]  # R^T (0, 0, 1): the third row of R
                 if w is not None:
                     w[nt:] = 0.0
                 return
-            d, amp, freq, phase = mm
-            wf = 2 * np.pi * freq
+            wf, phase0, coef = terms
             # R^T (e_z + L): gravity plus the micro-acceleration, into the device frame
-            S = _sin_cols(tm - s0, wf, phase + wf * s0)
-            f[nt:] = S @ (amp[:, None] * (d @ sp.R_base)).astype(np.float32)
-            f[nt:] += sp.R_base[2, :]
+            S = _sin_cols(tm - s0, wf, phase0)
+            f[nt:] = S @ coef
+            per_axis(np.add, f[nt:], sp.R_base[2, :])  # the (n, 3) += (3,) broadcast, flat
             if w is not None:
                 w[nt:] = 0.0  # linear: no rotation
             return

@@ -381,9 +381,15 @@ def _outer(a: np.ndarray, b) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------- rotations
+def _length(v: np.ndarray) -> np.float64:
+    """Euclidean length of a float vector: sqrt(v . v), the arithmetic of np.linalg.norm(v)
+    (the same number) without its per-call dispatch (several calls per segment)."""
+    return np.sqrt(v.dot(v))
+
+
 def _rot(axis, angle) -> np.ndarray:
     axis = np.asarray(axis, np.float64)
-    axis = axis / np.linalg.norm(axis)
+    axis = axis / _length(axis)
     x, y, z = axis
     c, s = np.cos(angle), np.sin(angle)
     C = 1 - c
@@ -394,7 +400,7 @@ def _rot(axis, angle) -> np.ndarray:
 
 def _random_rotation(rng) -> np.ndarray:
     q = rng.normal(size=4)
-    q /= np.linalg.norm(q)
+    q /= _length(q)
     w, x, y, z = q
     return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
                      [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
@@ -406,14 +412,14 @@ def _axis_angle(R) -> tuple[np.ndarray, float]:
     c = np.clip((np.trace(R) - 1) / 2, -1.0, 1.0)
     ang = float(np.arccos(c))
     v = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
-    nv = np.linalg.norm(v)
+    nv = _length(v)
     if ang < 1e-9:
         return np.array([0.0, 0.0, 1.0]), 0.0
     if nv < 1e-9:  # angle ~ pi: axis from the symmetric part
         B = (R + np.eye(3)) / 2
         i = int(np.argmax(np.diag(B)))
         ax = B[:, i] / np.sqrt(max(B[i, i], 1e-12))
-        return ax / np.linalg.norm(ax), ang
+        return ax / _length(ax), ang
     return v / nv, ang
 
 
@@ -553,7 +559,7 @@ class SiteModel:
             if act in ("sleep", "lying"):
                 fa, la = fa * 0.7, la * 0.7
             axis = r.normal(size=3)
-            axis /= np.linalg.norm(axis)
+            axis /= _length(axis)
             amp = np.deg2rad(fa) * r.uniform(0.3, 1.0, 3) if mot == "fidget" else np.zeros(3)
             freq = r.uniform(0.15, 2.5, 3)
             phase = r.uniform(0, 2 * np.pi, 3)

@@ -367,6 +367,17 @@ def _suffix_below(t: np.ndarray, s1: float, n: int) -> int:
     return k
 
 
+def _steps_until(steps: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """For increasing t: the number of heel strikes at or before each time,
+    ``np.searchsorted(steps, t, side="right")``, searched among the strikes between t[0] and
+    t[-1] only (those before are all counted, those after none: the same counts)."""
+    if t.shape[0] == 0:
+        return np.zeros(0, np.intp)
+    lo = int(np.searchsorted(steps, t[0], side="right"))
+    hi = int(np.searchsorted(steps, t[-1], side="right"))
+    return lo + np.searchsorted(steps[lo:hi], t, side="right")
+
+
 def _fade(edges: list, *arrays: np.ndarray) -> None:
     """Multiply each array's rows (1-D, or 2-D by row) by the envelope on the fading edges
     (``SiteModel._envelope_edges``), in place."""
@@ -798,7 +809,7 @@ class SiteModel:
         # gait: trunk acceleration locked to the steps, heel strikes, swing at stride frequency
         st = sch.steps
         hz = sch.step_hz[i]
-        k = np.searchsorted(st, tm, side="right") - 1
+        k = _steps_until(st, tm) - 1
         k0 = np.clip(k, 0, max(st.size - 2, 0))
         t0 = st[k0]
         iv = st[k0 + 1] - t0

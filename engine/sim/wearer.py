@@ -33,8 +33,6 @@ from typing import Optional
 
 import numpy as np
 
-from .model import per_axis
-
 G = 9.80665  # m/s^2 per g
 
 ACTIVITIES = ("nonwear_table", "nonwear_drawer", "sleep", "lying", "sitting", "standing",
@@ -787,7 +785,9 @@ class SiteModel:
             # R^T (e_z + L): gravity plus the micro-acceleration, into the device frame
             S = _sin_cols(tm - s0, wf, phase0)
             f[nt:] = S @ coef
-            per_axis(np.add, f[nt:], sp.R_base[2, :])  # the (n, 3) += (3,) broadcast, flat
+            for j in range(3):  # f += R^T e_z by column (the (n, 3)-by-(3,) broadcast is slower)
+                c = f[nt:, j]
+                c += sp.R_base[2, j]
             if w is not None:
                 w[nt:] = 0.0  # linear: no rotation
             return

@@ -231,8 +231,12 @@ def measure_blocks(true_g: np.ndarray, model: SensorModel, spec: DeviceSpec, *, 
     """``measure`` (quantised) of a chunk with its white noise already drawn (``noise``, or None
     for a noiseless sensor), one block of rows at a time. Every step of the sensor model acts
     on each row alone, so the numbers are those of one call on the whole chunk; the block's
-    intermediate arrays stay in the CPU cache instead of streaming a chunk's through memory."""
+    intermediate arrays stay in the CPU cache instead of streaming a chunk's through memory.
+    (A thermal lag computed here from the temperature series, without ``accel_temperature_c``,
+    runs over the whole chunk in one call.)"""
     n = true_g.shape[0]
+    if accel_temperature_c is None and model.on("thermal_lag"):
+        block = max(n, 1)
 
     def rows(x, a, b):
         return None if x is None else x[a:b]

@@ -18,7 +18,7 @@ import numpy as np
 
 from .clock import ClockModel, make_clock
 from .model import DEFAULT_EFFECTS, ModelError, SensorModel, first_order_lag, load_model, resolve_model
-from .sensor import DeviceSpec, bias_track, measure, noise_sd_g, standard_normals
+from .sensor import DeviceSpec, bias_track, measure_blocks, noise_sd_g, standard_normals
 from .temperature import TRACK_STEP_S, TemperatureParams, temperature_track
 from .truth import WINDOW_S
 from .wearer import SITES, Schedule, SiteModel, WearerParams, make_schedule
@@ -236,9 +236,8 @@ class DeviceSim:
             bias = np.empty((t.shape[0], 3), np.float32)
             for j in range(3):  # 1-D gathers from contiguous per-axis tracks (2-D gathers are slow)
                 bias[:, j] = runs.lerp(self._bias_axes[j], fr32)
-        meas, counts = measure(f, self.model, self.spec, temperature_c=T, time_s=t,
-                               accel_temperature_c=Ta, bias_g=bias, rng=rng, rate_hz=self.hz,
-                               noise=z)
+        meas, counts = measure_blocks(f, self.model, self.spec, temperature_c=T, time_s=t,
+                                      accel_temperature_c=Ta, bias_g=bias, rate_hz=self.hz, noise=z)
         gcounts = None
         if w is not None:
             w = w + self.gyro_bias + rng.standard_normal(w.shape) * (GYRO_NOISE_DPS_RTHZ * np.sqrt(self.hz / 2))

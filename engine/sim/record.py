@@ -165,15 +165,12 @@ class _FileSink:
     def _write(self, c: SimChunk, a: int, b: int) -> None:
         sim = self.sim
         t = c.true_s[a:b]
-        if self._battery_grid is None:  # the battery track is computed once per recording
-            bv = sim.battery_v(sim.t_grid)
-            self._battery_grid = (np.clip(np.rint(bv * 1024.0 / 6.0 - 512.0), 1, 255).astype(np.int64)
-                                  if sim.spec.kind in ("ax3", "ax6") else np.round(bv, 4))
+        if self._battery_grid is None:  # the slow channels' grids are made once per recording
+            self._light_grid, self._battery_grid = _aux_grids(sim)
         # slow channels from the 10 s grid (a sector keeps one value)
-        light, battery = self._grid_values(t, sim.light_grid, self._battery_grid)
+        light, battery = self._grid_values(t, self._light_grid, self._battery_grid)
         if sim.spec.kind in ("ax3", "ax6"):
-            traw = np.rint((c.temperature_c[a:b] + 50.0) * (256.0 / 75.0)).astype(np.int64)
-            np.clip(traw, 0, 1023, out=traw)
+            traw = _ax_temperature_raw(c.temperature_c[a:b])
             self.writer.write(c.time_ns[a:b], c.counts[a:b],
                               gyro_counts=None if c.gyro_counts is None else c.gyro_counts[a:b],
                               temperature_raw=traw, light_raw=light, battery_raw=battery)
@@ -251,6 +248,27 @@ class _FileSink:
             for i in idx:
                 corrupt_sector(self.plain, i, "checksum")
         return idx
+
+
+def _aux_grids(sim: DeviceSim) -> tuple[np.ndarray, np.ndarray]:
+    """The light and battery channels on the 10 s grid as the writer takes them: AX ADC values
+    (light 0-1023, battery 1-255, as int16: a quarter of the bytes to repeat per sample), or
+    GENEActiv light and battery volts."""
+    bv = sim.battery_v(sim.t_grid)
+    if sim.spec.kind in ("ax3", "ax6"):
+        battery = np.clip(np.rint(bv * 1024.0 / 6.0 - 512.0), 1, 255).astype(np.int16)
+        return np.clip(sim.light_grid, 0, 1023).astype(np.int16), battery
+    return sim.light_grid, np.round(bv, 4)
+
+
+def _ax_temperature_raw(temperature_c: np.ndarray) -> np.ndarray:
+    """AX temperature ADC values (0-1023, int16) of temperatures in degC:
+    rint((T + 50) * 256 / 75), clipped (rounded and clipped in the temperatures' dtype: the
+    values are whole numbers there, so the same as clipping the integers)."""
+    x = (temperature_c + 50.0) * (256.0 / 75.0)
+    np.rint(x, out=x)
+    np.clip(x, 0, 1023, out=x)
+    return x.astype(np.int16)
 
 
 def _count_bin_pages(path) -> int:

@@ -220,3 +220,37 @@ def measure(true_g: np.ndarray, model: SensorModel, spec: DeviceSpec, *, tempera
         lo, hi = spec.count_limits()
         np.clip(a, spec.to_g(lo[None, :])[0], spec.to_g(hi[None, :])[0], out=a)
     return a, counts
+
+
+SENSOR_BLOCK = 32768  # samples per pass of the sensor model (a block's arrays stay in the CPU cache)
+
+
+def measure_blocks(true_g: np.ndarray, model: SensorModel, spec: DeviceSpec, *, temperature_c,
+                   time_s, accel_temperature_c, bias_g, rate_hz: float,
+                   noise: Optional[np.ndarray], block: int = SENSOR_BLOCK) -> tuple[np.ndarray, np.ndarray]:
+    """``measure`` (quantised) of a chunk with its white noise already drawn (``noise``, or None
+    for a noiseless sensor), one block of rows at a time. Every step of the sensor model acts
+    on each row alone, so the numbers are those of one call on the whole chunk; the block's
+    intermediate arrays stay in the CPU cache instead of streaming a chunk's through memory.
+    (A thermal lag computed here from the temperature series, without ``accel_temperature_c``,
+    runs over the whole chunk in one call.)"""
+    n = true_g.shape[0]
+    if accel_temperature_c is None and model.on("thermal_lag"):
+        block = max(n, 1)
+
+    def rows(x, a, b):
+        return None if x is None else x[a:b]
+
+    meas = counts = None
+    for a in range(0, max(n, 1), block):
+        b = min(n, a + block)
+        m, c = measure(true_g[a:b], model, spec, temperature_c=rows(temperature_c, a, b),
+                       time_s=rows(time_s, a, b), accel_temperature_c=rows(accel_temperature_c, a, b),
+                       bias_g=rows(bias_g, a, b), rng=None, rate_hz=rate_hz, noise=rows(noise, a, b))
+        if b - a == n:
+            return m, c
+        if meas is None:
+            meas, counts = np.empty((n, 3), m.dtype), np.empty((n, 3), c.dtype)
+        meas[a:b] = m
+        counts[a:b] = c
+    return meas, counts

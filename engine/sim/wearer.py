@@ -345,15 +345,60 @@ def _cross3(a, b) -> np.ndarray:
     return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
 
 
+def _prefix_below(t: np.ndarray, s0: float, n: int) -> int:
+    """Number of leading rows of increasing t with t - s0 < 1 (as computed in float64)."""
+    k = int(np.searchsorted(t, s0 + 1.0, side="left"))
+    while k > 0 and t[k - 1] - s0 >= 1.0:
+        k -= 1
+    while k < n and t[k] - s0 < 1.0:
+        k += 1
+    return k
+
+
+def _suffix_below(t: np.ndarray, s1: float, n: int) -> int:
+    """Number of trailing rows of increasing t with s1 - t < 1 (as computed in float64)."""
+    k = n - int(np.searchsorted(t, s1 - 1.0, side="right"))
+    while k > 0 and s1 - t[n - k] >= 1.0:
+        k -= 1
+    while k < n and s1 - t[n - k - 1] < 1.0:
+        k += 1
+    return k
+
+
+def _steps_until(steps: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """For increasing t: the number of heel strikes at or before each time,
+    ``np.searchsorted(steps, t, side="right")``, searched among the strikes between t[0] and
+    t[-1] only (those before are all counted, those after none: the same counts)."""
+    if t.shape[0] == 0:
+        return np.zeros(0, np.intp)
+    lo = int(np.searchsorted(steps, t[0], side="right"))
+    hi = int(np.searchsorted(steps, t[-1], side="right"))
+    return lo + np.searchsorted(steps[lo:hi], t, side="right")
+
+
+def _fade(edges: list, *arrays: np.ndarray) -> None:
+    """Multiply each array's rows (1-D, or 2-D by row) by the envelope on the fading edges
+    (``SiteModel._envelope_edges``), in place."""
+    for rows, env in edges:
+        for x in arrays:
+            x[rows] *= env if x.ndim == 1 else env[:, None]
+
+
 def _outer(a: np.ndarray, b) -> np.ndarray:
     """(n,) x (3,) -> (n, 3) by broadcasting (np.outer has per-call overhead)."""
     return np.asarray(a)[:, None] * np.asarray(b)
 
 
 # ----------------------------------------------------------------------------- rotations
+def _length(v: np.ndarray) -> np.float64:
+    """Euclidean length of a float vector: sqrt(v . v), the arithmetic of np.linalg.norm(v)
+    (the same number) without its per-call dispatch (several calls per segment)."""
+    return np.sqrt(v.dot(v))
+
+
 def _rot(axis, angle) -> np.ndarray:
     axis = np.asarray(axis, np.float64)
-    axis = axis / np.linalg.norm(axis)
+    axis = axis / _length(axis)
     x, y, z = axis
     c, s = np.cos(angle), np.sin(angle)
     C = 1 - c
@@ -364,7 +409,7 @@ def _rot(axis, angle) -> np.ndarray:
 
 def _random_rotation(rng) -> np.ndarray:
     q = rng.normal(size=4)
-    q /= np.linalg.norm(q)
+    q /= _length(q)
     w, x, y, z = q
     return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
                      [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
@@ -376,14 +421,14 @@ def _axis_angle(R) -> tuple[np.ndarray, float]:
     c = np.clip((np.trace(R) - 1) / 2, -1.0, 1.0)
     ang = float(np.arccos(c))
     v = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
-    nv = np.linalg.norm(v)
+    nv = _length(v)
     if ang < 1e-9:
         return np.array([0.0, 0.0, 1.0]), 0.0
     if nv < 1e-9:  # angle ~ pi: axis from the symmetric part
         B = (R + np.eye(3)) / 2
         i = int(np.argmax(np.diag(B)))
         ax = B[:, i] / np.sqrt(max(B[i, i], 1e-12))
-        return ax / np.linalg.norm(ax), ang
+        return ax / _length(ax), ang
     return v / nv, ang
 
 
@@ -453,6 +498,7 @@ class SiteModel:
         self._mount_err = _rot(r.normal(size=3), np.deg2rad(r.uniform(2.0, 10.0)))
         self._cache: dict[int, _SegParams] = {}
         self._end_cache: dict[int, np.ndarray] = {}
+        self._micro_cache: dict[int, Optional[tuple]] = {}
 
     # --------------------------------------------------------------- per-segment parameters
     def _rng(self, i: int) -> np.random.Generator:
@@ -522,7 +568,7 @@ class SiteModel:
             if act in ("sleep", "lying"):
                 fa, la = fa * 0.7, la * 0.7
             axis = r.normal(size=3)
-            axis /= np.linalg.norm(axis)
+            axis /= _length(axis)
             amp = np.deg2rad(fa) * r.uniform(0.3, 1.0, 3) if mot == "fidget" else np.zeros(3)
             freq = r.uniform(0.15, 2.5, 3)
             phase = r.uniform(0, 2 * np.pi, 3)
@@ -568,6 +614,24 @@ class SiteModel:
         d = r.normal(size=(m, 3))
         d /= np.linalg.norm(d, axis=1, keepdims=True)
         return d, np.asarray(amp), np.asarray(freq), phase
+
+    def _micro_terms(self, i: int):
+        """Segment i's micro-motion as rendered: angular frequencies (m,) rad/s, phases at the
+        segment's start (m,) rad and the device-frame amplitude of each component (m, 3)
+        float32 g; None without micro-motion. Kept for the segment's later blocks."""
+        if i in self._micro_cache:
+            return self._micro_cache[i]
+        mm = self.micromotion(i)
+        terms = None
+        if mm is not None:
+            d, amp, freq, phase = mm
+            wf = 2 * np.pi * freq
+            terms = (wf, phase + wf * self.schedule.start[i],
+                     (amp[:, None] * (d @ self.params(i).R_base)).astype(np.float32))
+        if len(self._micro_cache) > 64:
+            self._micro_cache.clear()
+        self._micro_cache[i] = terms
+        return terms
 
     def micromotion_window_moments(self, i: int, start_s: np.ndarray, width_s: float):
         """Mean (k, 3) and RMS about that mean (k, 3), g in the device frame, of segment i's
@@ -649,6 +713,23 @@ class SiteModel:
         s1 = self.schedule.end[i]
         return bool(t.shape[0] and t[0] - s0 >= 1.0 and s1 - t[-1] >= 1.0)
 
+    def _envelope_edges(self, i: int, t: np.ndarray) -> list:
+        """The fade-in and fade-out of ``_envelope(i, t)`` (t increasing): a list of (rows,
+        envelope on those rows) covering every sample within 1 s of either end, where the
+        envelope can be below one; it is exactly one everywhere else (x * 1 = x: the products
+        there are skipped, the same numbers)."""
+        s0 = self.schedule.start[i] + self.schedule.trans_s[i]
+        s1 = self.schedule.end[i]
+        n = t.shape[0]
+        k0 = _prefix_below(t, s0, n)  # rows with t - s0 < 1
+        k1 = n - _suffix_below(t, s1, n)  # rows from k1 on have s1 - t < 1
+        if k0 >= k1:
+            rows = [slice(0, n)] if n else []
+        else:
+            rows = [r for r in (slice(0, k0), slice(k1, n)) if r.stop > r.start]
+        return [(r, np.clip(np.minimum(t[r] - s0, s1 - t[r]), 0.0, 1.0).astype(np.float32))
+                for r in rows]
+
     # --------------------------------------------------------------- rendering
     BLOCK = 16384  # samples per inner block (keeps temporaries in cache)
 
@@ -694,23 +775,23 @@ class SiteModel:
         tm = t[nt:]
         mot = MOTIONS[sch.motion[i]]
         if mot == "still":
-            mm = self.micromotion(i)
-            if mm is None:
+            terms = self._micro_terms(i)
+            if terms is None:
                 f[nt:] = sp.R_base[2, :]  # R^T (0, 0, 1): the third row of R
                 if w is not None:
                     w[nt:] = 0.0
                 return
-            d, amp, freq, phase = mm
-            wf = 2 * np.pi * freq
+            wf, phase0, coef = terms
             # R^T (e_z + L): gravity plus the micro-acceleration, into the device frame
-            S = _sin_cols(tm - s0, wf, phase + wf * s0)
-            f[nt:] = S @ (amp[:, None] * (d @ sp.R_base)).astype(np.float32)
-            f[nt:] += sp.R_base[2, :]
+            S = _sin_cols(tm - s0, wf, phase0)
+            f[nt:] = S @ coef
+            for j in range(3):  # f += R^T e_z by column (the (n, 3)-by-(3,) broadcast is slower)
+                c = f[nt:, j]
+                c += sp.R_base[2, j]
             if w is not None:
                 w[nt:] = 0.0  # linear: no rotation
             return
-        env = self._envelope(i, tm)
-        flat = self._envelope_flat(i, tm)  # env is all ones: x * 1 = x, the products are skipped
+        edges = self._envelope_edges(i, tm)  # the envelope is one elsewhere
         if mot == "fidget":
             wf = 2 * np.pi * sp.freq
             S, Cc = _sincos_cols(tm - s0, wf, sp.phase + wf * s0)
@@ -718,17 +799,17 @@ class SiteModel:
             c1, s1 = np.cos(1.0), np.sin(1.0)  # scalars
             L = (S @ ((sp.lin_amp * c1)[:, None] * sp.lin_dir)
                  + Cc @ ((sp.lin_amp * s1)[:, None] * sp.lin_dir))
-            if not flat:
-                ang *= env
-                L *= env[:, None]
+            _fade(edges, ang, L)
             _device_force(ang, sp.axis, sp.R_base, L, out=f[nt:])
             if w is not None:
-                w[nt:] = _outer((Cc @ (sp.amp * wf)) * env, sp.R_base.T @ sp.axis) * (180 / np.pi)
+                dang = Cc @ (sp.amp * wf)
+                _fade(edges, dang)
+                w[nt:] = _outer(dang, sp.R_base.T @ sp.axis) * (180 / np.pi)
             return
         # gait: trunk acceleration locked to the steps, heel strikes, swing at stride frequency
         st = sch.steps
         hz = sch.step_hz[i]
-        k = np.searchsorted(st, tm, side="right") - 1
+        k = _steps_until(st, tm) - 1
         k0 = np.clip(k, 0, max(st.size - 2, 0))
         t0 = st[k0]
         iv = st[k0 + 1] - t0
@@ -749,10 +830,7 @@ class SiteModel:
         sa, ca = _sincos(arg)
         ang = amp * sa
         dang = amp * wv * ca
-        if not flat:
-            L *= env[:, None]
-            ang *= env
-            dang *= env
+        _fade(edges, L, ang, dang)
         if sp.radius > 0:  # pendulum: device at radius r below the pivot, rotating about axis
             ddang = -ang * wv * wv
             u0 = np.array([0.0, 0.0, -sp.radius])  # perpendicular to the swing axis

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from stillpoint.engine.operators.anglez import AnglezOperator, anglez_deg
+from stillpoint.engine.operators.anglez import AnglezOperator, anglez_deg, first_subsample, hold_angles
 from stillpoint.engine.run import RunSettings, process_file
 from stillpoint.engine.sim import simulate_recording
 from stillpoint.engine.sim.truth import load_labels
@@ -198,6 +198,18 @@ def test_anglez_block_cut_invariance(cuts):
     got = _anglez_run(t, a, cuts)
     for x, y in zip(ref, got):
         np.testing.assert_array_equal(x, y)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.integers(1, 12), st.integers(1, 40), st.integers(0, 30), st.integers(0, 300), st.integers(1, 300))
+def test_hold_angles_is_the_per_sample_lookup(step, m, a0, p0, n):
+    """Each sample holds the angle of its subsample position, the nearest end outside the known ones."""
+    angle = np.arange(m, dtype=np.float64) + 0.5
+    p1 = p0 + n
+    ref = angle[np.clip(np.arange(p0, p1) // step - a0, 0, m - 1)]
+    np.testing.assert_array_equal(hold_angles(angle, a0, p0, p1, step), ref)
+    off = first_subsample(p0, step)
+    assert (p0 + off) % step == 0 and 0 <= off < step
 
 
 # ---------------------------------------------------------------------------- time zones

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from stillpoint.engine.operators.nonwear import (NonwearOperator, NonwearWindows, clip_threshold_g)
+from stillpoint.engine.operators.nonwear import (NonwearOperator, NonwearWindows, clip_counts,
+                                                 clip_threshold_g, subsample_rows)
 
 RATE = 10.0  # low rate keeps the arrays small; the rule does not depend on the rate
 T0 = 1_700_000_000 * 10**9 // (900 * 10**9) * (900 * 10**9) + 7 * 10**9  # 7 s after a window start
@@ -140,3 +141,44 @@ def test_memory_is_bounded():
 
 def test_clip_threshold():
     assert clip_threshold_g(8) == 7.5 and clip_threshold_g(16) == 15.5 and clip_threshold_g(None) == 7.5
+
+
+def _bins(draw_counts):
+    cnt = np.array(draw_counts, np.int64)
+    return np.concatenate([[0], np.cumsum(cnt)[:-1]]).astype(np.int64), cnt
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.integers(1, 60), min_size=1, max_size=8), st.integers(1, 25))
+def test_subsample_rows_are_every_step_th_sample_of_each_bin(counts, step):
+    st_, cnt = _bins(counts)
+    rows, sub_st, sub_cnt = subsample_rows(st_, cnt, step)
+    pos = np.arange(cnt.sum()) - np.repeat(st_, cnt)  # position within the bin
+    keep = pos % step == 0
+    np.testing.assert_array_equal(rows, np.flatnonzero(keep))
+    np.testing.assert_array_equal(sub_cnt, np.add.reduceat(keep.astype(np.int64), st_))
+    np.testing.assert_array_equal(sub_st, np.concatenate([[0], np.cumsum(sub_cnt)[:-1]]))
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.integers(1, 40), min_size=1, max_size=6), st.integers(0, 2**32 - 1),
+       st.sampled_from([0.0, 0.3, 1.0]), st.booleans())
+def test_clip_counts_match_the_per_sample_rule(counts, seed, beyond, nan):
+    """Counts and hard flags as per-sample comparisons give them: samples at the threshold, just
+    beyond it (either sign), beyond 1.5 x, and NaN."""
+    clip_g = 7.5
+    st_, cnt = _bins(counts)
+    rng = np.random.default_rng(seed)
+    n = int(cnt.sum())
+    a = rng.normal(0, 2, (n, 3))
+    pick = rng.random((n, 3))
+    a[pick < 0.1] = clip_g  # at the threshold: not clipping
+    a[pick > 1 - 0.1 * beyond] = -np.nextafter(clip_g, np.inf)
+    a[pick > 1 - 0.02 * beyond] = 1.6 * clip_g
+    if nan:
+        a[rng.integers(n), rng.integers(3)] = np.nan
+    for arr in (a, np.asfortranarray(a)):
+        over, hard = clip_counts(arr, st_, clip_g)
+        np.testing.assert_array_equal(over, np.add.reduceat((np.abs(a) > clip_g).astype(np.int64), st_, axis=0))
+        np.testing.assert_array_equal(hard, np.logical_or.reduceat(np.abs(a) > 1.5 * clip_g, st_, axis=0))
+        assert over.dtype == np.int64 and hard.dtype == bool

@@ -21,12 +21,13 @@ The rule, as published in GGIR (``detect_nonwear_clipping``, ``g.weardec``):
   0.3.
 
 Streaming: samples are reduced to statistics of 7.5-min half windows (count, mean, sum of squared
-deviations, min, max per axis; the same on the 5 Hz subsample; clipping counts), computed on each
-half window's contiguous samples, and long windows are combined from them (Chan's pairwise
-update), so results do not depend on how the input was cut into blocks. A medium window is final
-once data 75 min past its start have arrived (or at the end of the stream); state is a few
-half-window records. The 5 Hz subsample of the 2023 form starts at each half window's first sample
-(GGIR: at the long window's first sample), the only difference from GGIR's indexing.
+deviations, min, max per axis, of all samples in the 2013 form and of the 5 Hz subsample in the
+2023 form; clipping counts), computed on each half window's contiguous samples, and long windows
+are combined from them (Chan's pairwise update), so results do not depend on how the input was cut
+into blocks. A medium window is final once data 75 min past its start have arrived (or at the end
+of the stream); state is a few half-window records. The 5 Hz subsample of the 2023 form starts at
+each half window's first sample (GGIR: at the long window's first sample), the only difference from
+GGIR's indexing.
 Not done here: GGIR's later ``g.weardec`` pass that turns short wear periods between nonwear into
 nonwear (it needs the whole recording).
 """
@@ -133,14 +134,38 @@ def _bin_stats(a: np.ndarray, st: np.ndarray, cnt: np.ndarray) -> list:
     return [_Stats(cnt[i], mean[i], m2[i], lo[i], hi[i]) for i in range(len(cnt))]
 
 
-class _Half:
-    """Statistics of one 7.5-min half window (merged over segments in arrival order)."""
+def subsample_rows(st: np.ndarray, cnt: np.ndarray, step: int) -> tuple:
+    """Every ``step``-th row of each bin of rows ``st[i] : st[i] + cnt[i]``, counted from the
+    bin's first row: (rows, bin starts and counts within the subsample)."""
+    sub_cnt = (cnt + (step - 1)) // step
+    sub_st = np.concatenate([[0], np.cumsum(sub_cnt)[:-1]]).astype(np.int64)
+    rows = np.arange(int(sub_cnt.sum()), dtype=np.int64) * step - np.repeat(sub_st * step - st, sub_cnt)
+    return rows, sub_st, sub_cnt
 
-    __slots__ = ("full", "sub", "clip", "hard", "n")
+
+def within(a: np.ndarray, limit: float) -> bool:
+    """No sample of a (n, 3) beyond +-``limit`` on any axis (False when a holds NaN)."""
+    return bool(a.max() <= limit and a.min() >= -limit)
+
+
+def clip_counts(a: np.ndarray, st: np.ndarray, clip_g: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per bin of rows from ``st`` and axis: samples beyond ``clip_g`` (int64) and whether any is
+    beyond 1.5 x ``clip_g`` (bool); (k, 3) each."""
+    if within(a, clip_g):
+        return np.zeros((st.shape[0], 3), np.int64), np.zeros((st.shape[0], 3), bool)
+    over = np.abs(a) > clip_g
+    hard = np.abs(a) > 1.5 * clip_g
+    return np.add.reduceat(over.astype(np.int64), st, axis=0), np.logical_or.reduceat(hard, st, axis=0)
+
+
+class _Half:
+    """Statistics of one 7.5-min half window (merged over segments in arrival order): ``still``
+    holds those the rule tests (all samples in the 2013 form, the 5 Hz subsample in the 2023 form)."""
+
+    __slots__ = ("still", "clip", "hard", "n")
 
     def __init__(self):
-        self.full = _EMPTY
-        self.sub = _EMPTY
+        self.still = _EMPTY
         self.clip = np.zeros(3)
         self.hard = np.zeros(3, bool)
         self.n = 0
@@ -182,32 +207,27 @@ class NonwearOperator:
         for ch in chunks:
             a = ch.cols["accel"]
             st, cnt = ch.starts, ch.counts
-            full = _bin_stats(a, st, cnt)
-            pos = np.arange(a.shape[0]) - np.repeat(st, cnt)
-            keep = pos % self.step == 0
-            sub_cnt = np.add.reduceat(keep.astype(np.int64), st)
-            sub_st = np.concatenate([[0], np.cumsum(sub_cnt)[:-1]]).astype(np.int64)
-            sub = _bin_stats(a[keep], sub_st, sub_cnt)
-            over = np.abs(a) > self.clip_g
-            hard = np.abs(a) > 1.5 * self.clip_g
-            clip = np.add.reduceat(over.astype(np.int64), st, axis=0)
-            hard_any = np.logical_or.reduceat(hard, st, axis=0)
+            if self.version == "2013":
+                still = _bin_stats(a, st, cnt)
+            else:
+                rows, sub_st, sub_cnt = subsample_rows(st, cnt, self.step)
+                still = _bin_stats(a[rows], sub_st, sub_cnt)
+            clip, hard_any = clip_counts(a, st, self.clip_g)
             for i, b in enumerate(ch.bins):
                 h = self._half.get(int(b))
                 if h is None:
                     h = self._half[int(b)] = _Half()
-                h.full = h.full.merge(full[i])
-                h.sub = h.sub.merge(sub[i])
+                h.still = h.still.merge(still[i])
                 h.clip = h.clip + clip[i]
                 h.hard = h.hard | hard_any[i]
                 h.n += int(cnt[i])
 
-    def _long(self, h0: int, h1: int, sub: bool) -> _Stats:
+    def _long(self, h0: int, h1: int) -> _Stats:
         s = _EMPTY
         for h in range(h0, h1):
             x = self._half.get(h)
             if x is not None:
-                s = s.merge(x.sub if sub else x.full)
+                s = s.merge(x.still)
         return s
 
     # ------------------------------------------------------------------ the rule
@@ -220,12 +240,12 @@ class NonwearOperator:
             h0, h1 = 2 * (self.last_w + 1 - crit), 2 * (self.last_w + 1)
         else:  # centred on the middle of window w
             h0, h1 = 2 * w + 1 - self.per_long, 2 * w + 1 + self.per_long
-        return self._long(h0, h1, sub=False).still(self.sd_g, self.range_g)
+        return self._long(h0, h1).still(self.sd_g, self.range_g)
 
     def _check_2023(self, c: int) -> np.ndarray:
         r = self._checks.get(c)
         if r is None:
-            r = self._long(2 * c, 2 * (c + self.per_long), sub=True).still(self.sd_g, self.range_g)
+            r = self._long(2 * c, 2 * (c + self.per_long)).still(self.sd_g, self.range_g)
             self._checks[c] = r
         return r
 

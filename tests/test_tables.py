@@ -19,6 +19,7 @@ from stillpoint.engine.sim import simulate_recording
 from stillpoint.engine.sim.truth import load_labels
 from stillpoint.engine.sim.wearer import WearerParams
 from stillpoint.engine.tables import TablesSettings, table_paths
+from stillpoint.engine.tables.epochs import fold_sums, sums_between
 from stillpoint.engine.timezones import UNKNOWN_LABEL, ZoneError, parse_zone
 
 REAL = os.environ.get("STILLPOINT_REAL_DATA")
@@ -210,6 +211,31 @@ def test_hold_angles_is_the_per_sample_lookup(step, m, a0, p0, n):
     np.testing.assert_array_equal(hold_angles(angle, a0, p0, p1, step), ref)
     off = first_subsample(p0, step)
     assert (p0 + off) % step == 0 and 0 <= off < step
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.lists(st.tuples(st.integers(0, 12), st.sampled_from([0.1, 1.7, -2.3, 0.0, -0.0, 1e16])),
+                         max_size=8), max_size=6))
+def test_fold_sums_adds_each_epochs_parts_in_arrival_order(pushes):
+    """Epochs seen again (a segment break inside an epoch, or out of order) are summed part by part
+    in the order the parts arrived, as a running total per epoch would; signed zeros are kept."""
+    ref = {}
+    idx, sums = np.zeros(0, np.int64), np.zeros((0, 2))
+    for rows in pushes:
+        for k, v in rows:
+            if k in ref:
+                ref[k] = [ref[k][0] + 1.0, ref[k][1] + v]
+            else:
+                ref[k] = [1.0, v]
+        new_idx = np.array([k for k, _ in rows], np.int64)
+        new = np.array([[1.0, v] for _, v in rows]).reshape(-1, 2)
+        idx, sums = fold_sums(idx, sums, new_idx, new)
+    assert idx.tolist() == sorted(ref)
+    got = {int(k): s.tolist() for k, s in zip(idx, sums)}
+    for k, v in ref.items():
+        assert got[k] == v and all(np.signbit(a) == np.signbit(b) for a, b in zip(got[k], v))
+    at, part = sums_between(idx, sums, 3, 9)
+    assert (at + 3).tolist() == [k for k in sorted(ref) if 3 <= k < 9] and part.shape == (len(at), 2)
 
 
 # ---------------------------------------------------------------------------- time zones

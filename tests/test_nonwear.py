@@ -8,8 +8,10 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from stillpoint.engine.operators.nonwear import (NonwearOperator, NonwearWindows, clip_counts,
-                                                 clip_threshold_g, subsample_rows)
+from stillpoint.engine.operators.binning import TimeBinner
+from stillpoint.engine.operators.nonwear import (NonwearOperator, NonwearWindows, SubsampleBinner,
+                                                 _bin_stats, clip_counts, clip_threshold_g,
+                                                 subsample_rows)
 
 RATE = 10.0  # low rate keeps the arrays small; the rule does not depend on the rate
 T0 = 1_700_000_000 * 10**9 // (900 * 10**9) * (900 * 10**9) + 7 * 10**9  # 7 s after a window start
@@ -182,3 +184,43 @@ def test_clip_counts_match_the_per_sample_rule(counts, seed, beyond, nan):
         np.testing.assert_array_equal(over, np.add.reduceat((np.abs(a) > clip_g).astype(np.int64), st_, axis=0))
         np.testing.assert_array_equal(hard, np.logical_or.reduceat(np.abs(a) > 1.5 * clip_g, st_, axis=0))
         assert over.dtype == np.int64 and hard.dtype == bool
+
+
+def _half_windows(parts):
+    """[(bin, n, count, mean, m2, lo, hi, clip, hard)] of reduced half windows, in order."""
+    return [(int(b), int(p.n[i]), p.still[i].n, p.still[i].mean.tolist(), p.still[i].m2.tolist(),
+             p.still[i].lo.tolist(), p.still[i].hi.tolist(), p.clip[i].tolist(), p.hard[i].tolist())
+            for p in parts for i, b in enumerate(p.bins)]
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.lists(st.integers(0, 20_000), max_size=20), st.integers(0, 2**32 - 1), st.sampled_from([1, 3, 20]))
+def test_subsample_binner_matches_whole_half_windows(cuts, seed, step):
+    """The 2023 form's half windows, reduced block by block, equal to the bit those of the whole
+    half windows (gathered by TimeBinner) whatever the block cuts, across a segment break and
+    with clipping samples."""
+    rng = np.random.default_rng(seed)
+    n, width_s, brk = 20_000, 60.0, 11_111
+    t = (T0 + np.arange(n) * 50_000_000).astype(np.int64)
+    t[brk:] += 7 * 10**9
+    a = np.asfortranarray(rng.normal(0, 0.5, (n, 3)) + [0, 0, 1])
+    a[rng.integers(0, n, 30), rng.integers(0, 3, 30)] = rng.choice([7.6, -9.0, 12.0], 30)
+    bounds = sorted(set([0, brk, n] + cuts))
+    ref_binner, got_binner = TimeBinner(width_s, {"accel": (np.float64, (3,))}, align="clock"), \
+        SubsampleBinner(width_s, step, 7.5)
+    chunks, got = [], []
+    for i, j in zip(bounds[:-1], bounds[1:]):
+        seg = int(i >= brk)
+        chunks += ref_binner.push(seg, t[i:j], accel=a[i:j])
+        got += got_binner.push(seg, t[i:j], accel=a[i:j])
+    chunks += ref_binner.flush()
+    got += got_binner.flush()
+    ref = []
+    for ch in chunks:
+        x, cnt = ch.cols["accel"], ch.counts
+        rows, sub_st, sub_cnt = subsample_rows(ch.starts, cnt, step)
+        clip = np.add.reduceat((np.abs(x) > 7.5).astype(np.int64), ch.starts, axis=0)
+        hard = np.logical_or.reduceat(np.abs(x) > 11.25, ch.starts, axis=0)
+        ref.append(SimpleNamespace(bins=ch.bins, n=cnt, still=_bin_stats(x[rows], sub_st, sub_cnt),
+                                   clip=clip, hard=hard))
+    assert _half_windows(got) == _half_windows(ref)

@@ -238,6 +238,20 @@ def test_fold_sums_adds_each_epochs_parts_in_arrival_order(pushes):
     assert (at + 3).tolist() == [k for k in sorted(ref) if 3 <= k < 9] and part.shape == (len(at), 2)
 
 
+def test_epoch_row_text():
+    """Fixed decimals, empty cells for values that are not finite, flags as 0/1 (zone unknown:
+    no UTC time, the device clock as local time)."""
+    from stillpoint.engine.tables.epochs import EpochRows
+    from stillpoint.engine.tables.writer import format_rows
+    f = np.array([True, False])
+    rows = EpochRows(np.array([0, 5 * 10**9]), np.array([500, 0]), np.array([1.23456, np.nan]),
+                     np.array([-0.0, np.inf]), np.array([1e17, -np.inf]), np.array([-0.0004, 45.0]),
+                     np.array([25.125, np.nan]), f, ~f, f, ~f, f)
+    assert format_rows(rows, parse_zone(None), 5 * 10**9) == (
+        ",1970-01-01T00:00:00,500,1.235,-0.000,100000000000000000.000,-0.000,25.12,1,0,1,0,1\n"
+        ",1970-01-01T00:00:05,0,,,,45.000,,0,1,0,1,0\n")
+
+
 # ---------------------------------------------------------------------------- time zones
 def test_zones():
     z = parse_zone("Europe/London")

@@ -143,6 +143,7 @@ class AnglezOperator:
         return out
 
     def _held(self, stop: int) -> np.ndarray:
+        """Angles of the waiting samples of positions below ``stop``."""
         if stop <= self._w:
             return np.zeros(0)
         return hold_angles(self._angle, self._a0, self._w, stop, self.step)

@@ -8,7 +8,10 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from stillpoint.engine.operators.nonwear import (NonwearOperator, NonwearWindows, clip_threshold_g)
+from stillpoint.engine.operators.binning import TimeBinner
+from stillpoint.engine.operators.nonwear import (NonwearOperator, NonwearWindows, SubsampleBinner,
+                                                 _bin_stats, clip_counts, clip_threshold_g,
+                                                 subsample_rows)
 
 RATE = 10.0  # low rate keeps the arrays small; the rule does not depend on the rate
 T0 = 1_700_000_000 * 10**9 // (900 * 10**9) * (900 * 10**9) + 7 * 10**9  # 7 s after a window start
@@ -140,3 +143,84 @@ def test_memory_is_bounded():
 
 def test_clip_threshold():
     assert clip_threshold_g(8) == 7.5 and clip_threshold_g(16) == 15.5 and clip_threshold_g(None) == 7.5
+
+
+def _bins(draw_counts):
+    cnt = np.array(draw_counts, np.int64)
+    return np.concatenate([[0], np.cumsum(cnt)[:-1]]).astype(np.int64), cnt
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.integers(1, 60), min_size=1, max_size=8), st.integers(1, 25))
+def test_subsample_rows_are_every_step_th_sample_of_each_bin(counts, step):
+    st_, cnt = _bins(counts)
+    rows, sub_st, sub_cnt = subsample_rows(st_, cnt, step)
+    pos = np.arange(cnt.sum()) - np.repeat(st_, cnt)  # position within the bin
+    keep = pos % step == 0
+    np.testing.assert_array_equal(rows, np.flatnonzero(keep))
+    np.testing.assert_array_equal(sub_cnt, np.add.reduceat(keep.astype(np.int64), st_))
+    np.testing.assert_array_equal(sub_st, np.concatenate([[0], np.cumsum(sub_cnt)[:-1]]))
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.integers(1, 40), min_size=1, max_size=6), st.integers(0, 2**32 - 1),
+       st.sampled_from([0.0, 0.3, 1.0]), st.booleans())
+def test_clip_counts_match_the_per_sample_rule(counts, seed, beyond, nan):
+    """Counts and hard flags as per-sample comparisons give them: samples at the threshold, just
+    beyond it (either sign), beyond 1.5 x, and NaN."""
+    clip_g = 7.5
+    st_, cnt = _bins(counts)
+    rng = np.random.default_rng(seed)
+    n = int(cnt.sum())
+    a = rng.normal(0, 2, (n, 3))
+    pick = rng.random((n, 3))
+    a[pick < 0.1] = clip_g  # at the threshold: not clipping
+    a[pick > 1 - 0.1 * beyond] = -np.nextafter(clip_g, np.inf)
+    a[pick > 1 - 0.02 * beyond] = 1.6 * clip_g
+    if nan:
+        a[rng.integers(n), rng.integers(3)] = np.nan
+    for arr in (a, np.asfortranarray(a)):
+        over, hard = clip_counts(arr, st_, clip_g)
+        np.testing.assert_array_equal(over, np.add.reduceat((np.abs(a) > clip_g).astype(np.int64), st_, axis=0))
+        np.testing.assert_array_equal(hard, np.logical_or.reduceat(np.abs(a) > 1.5 * clip_g, st_, axis=0))
+        assert over.dtype == np.int64 and hard.dtype == bool
+
+
+def _half_windows(parts):
+    """[(bin, n, count, mean, m2, lo, hi, clip, hard)] of reduced half windows, in order."""
+    return [(int(b), int(p.n[i]), p.still[i].n, p.still[i].mean.tolist(), p.still[i].m2.tolist(),
+             p.still[i].lo.tolist(), p.still[i].hi.tolist(), p.clip[i].tolist(), p.hard[i].tolist())
+            for p in parts for i, b in enumerate(p.bins)]
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.lists(st.integers(0, 20_000), max_size=20), st.integers(0, 2**32 - 1), st.sampled_from([1, 3, 20]))
+def test_subsample_binner_matches_whole_half_windows(cuts, seed, step):
+    """The 2023 form's half windows, reduced block by block, equal to the bit those of the whole
+    half windows (gathered by TimeBinner) whatever the block cuts, across a segment break and
+    with clipping samples."""
+    rng = np.random.default_rng(seed)
+    n, width_s, brk = 20_000, 60.0, 11_111
+    t = (T0 + np.arange(n) * 50_000_000).astype(np.int64)
+    t[brk:] += 7 * 10**9
+    a = np.asfortranarray(rng.normal(0, 0.5, (n, 3)) + [0, 0, 1])
+    a[rng.integers(0, n, 30), rng.integers(0, 3, 30)] = rng.choice([7.6, -9.0, 12.0], 30)
+    bounds = sorted(set([0, brk, n] + cuts))
+    ref_binner, got_binner = TimeBinner(width_s, {"accel": (np.float64, (3,))}, align="clock"), \
+        SubsampleBinner(width_s, step, 7.5)
+    chunks, got = [], []
+    for i, j in zip(bounds[:-1], bounds[1:]):
+        seg = int(i >= brk)
+        chunks += ref_binner.push(seg, t[i:j], accel=a[i:j])
+        got += got_binner.push(seg, t[i:j], accel=a[i:j])
+    chunks += ref_binner.flush()
+    got += got_binner.flush()
+    ref = []
+    for ch in chunks:
+        x, cnt = ch.cols["accel"], ch.counts
+        rows, sub_st, sub_cnt = subsample_rows(ch.starts, cnt, step)
+        clip = np.add.reduceat((np.abs(x) > 7.5).astype(np.int64), ch.starts, axis=0)
+        hard = np.logical_or.reduceat(np.abs(x) > 11.25, ch.starts, axis=0)
+        ref.append(SimpleNamespace(bins=ch.bins, n=cnt, still=_bin_stats(x[rows], sub_st, sub_cnt),
+                                   clip=clip, hard=hard))
+    assert _half_windows(got) == _half_windows(ref)

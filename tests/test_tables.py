@@ -13,12 +13,13 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from stillpoint.engine.operators.anglez import AnglezOperator, anglez_deg
+from stillpoint.engine.operators.anglez import AnglezOperator, anglez_deg, first_subsample, hold_angles
 from stillpoint.engine.run import RunSettings, process_file
 from stillpoint.engine.sim import simulate_recording
 from stillpoint.engine.sim.truth import load_labels
 from stillpoint.engine.sim.wearer import WearerParams
 from stillpoint.engine.tables import TablesSettings, table_paths
+from stillpoint.engine.tables.epochs import fold_sums, sums_between
 from stillpoint.engine.timezones import UNKNOWN_LABEL, ZoneError, parse_zone
 
 REAL = os.environ.get("STILLPOINT_REAL_DATA")
@@ -198,6 +199,57 @@ def test_anglez_block_cut_invariance(cuts):
     got = _anglez_run(t, a, cuts)
     for x, y in zip(ref, got):
         np.testing.assert_array_equal(x, y)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.integers(1, 12), st.integers(1, 40), st.integers(0, 30), st.integers(0, 300), st.integers(1, 300))
+def test_hold_angles_is_the_per_sample_lookup(step, m, a0, p0, n):
+    """Each sample holds the angle of its subsample position, the nearest end outside the known ones."""
+    angle = np.arange(m, dtype=np.float64) + 0.5
+    p1 = p0 + n
+    ref = angle[np.clip(np.arange(p0, p1) // step - a0, 0, m - 1)]
+    np.testing.assert_array_equal(hold_angles(angle, a0, p0, p1, step), ref)
+    off = first_subsample(p0, step)
+    assert (p0 + off) % step == 0 and 0 <= off < step
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.lists(st.tuples(st.integers(0, 12), st.sampled_from([0.1, 1.7, -2.3, 0.0, -0.0, 1e16])),
+                         max_size=8), max_size=6))
+def test_fold_sums_adds_each_epochs_parts_in_arrival_order(pushes):
+    """Epochs seen again (a segment break inside an epoch, or out of order) are summed part by part
+    in the order the parts arrived, as a running total per epoch would; signed zeros are kept."""
+    ref = {}
+    idx, sums = np.zeros(0, np.int64), np.zeros((0, 2))
+    for rows in pushes:
+        for k, v in rows:
+            if k in ref:
+                ref[k] = [ref[k][0] + 1.0, ref[k][1] + v]
+            else:
+                ref[k] = [1.0, v]
+        new_idx = np.array([k for k, _ in rows], np.int64)
+        new = np.array([[1.0, v] for _, v in rows]).reshape(-1, 2)
+        idx, sums = fold_sums(idx, sums, new_idx, new)
+    assert idx.tolist() == sorted(ref)
+    got = {int(k): s.tolist() for k, s in zip(idx, sums)}
+    for k, v in ref.items():
+        assert got[k] == v and all(np.signbit(a) == np.signbit(b) for a, b in zip(got[k], v))
+    at, part = sums_between(idx, sums, 3, 9)
+    assert (at + 3).tolist() == [k for k in sorted(ref) if 3 <= k < 9] and part.shape == (len(at), 2)
+
+
+def test_epoch_row_text():
+    """Fixed decimals, empty cells for values that are not finite, flags as 0/1 (zone unknown:
+    no UTC time, the device clock as local time)."""
+    from stillpoint.engine.tables.epochs import EpochRows
+    from stillpoint.engine.tables.writer import format_rows
+    f = np.array([True, False])
+    rows = EpochRows(np.array([0, 5 * 10**9]), np.array([500, 0]), np.array([1.23456, np.nan]),
+                     np.array([-0.0, np.inf]), np.array([1e17, -np.inf]), np.array([-0.0004, 45.0]),
+                     np.array([25.125, np.nan]), f, ~f, f, ~f, f)
+    assert format_rows(rows, parse_zone(None), 5 * 10**9) == (
+        ",1970-01-01T00:00:00,500,1.235,-0.000,100000000000000000.000,-0.000,25.12,1,0,1,0,1\n"
+        ",1970-01-01T00:00:05,0,,,,45.000,,0,1,0,1,0\n")
 
 
 # ---------------------------------------------------------------------------- time zones

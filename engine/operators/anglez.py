@@ -24,19 +24,39 @@ MEDIAN_S = 5.0  # GGIR: rolling median over 5 s
 MEDIAN_HZ = 10.0  # GGIR: the median runs on data subsampled to ~10 Hz
 
 
-def _medians(x: np.ndarray, k: int) -> np.ndarray:
-    """Rolling medians of every complete window of k rows of x (m, 3) -> (m - k + 1, 3)
-    (scipy's compiled median filter; only the windows that lie inside x are kept)."""
+def _medians(sub: np.ndarray, k: int) -> np.ndarray:
+    """Rolling medians of every complete window of k subsamples, one row per axis:
+    (3, m) -> (3, m - k + 1) (scipy's compiled median filter on each contiguous axis row; only the
+    windows that lie inside the row are kept)."""
     from scipy.ndimage import median_filter
     h = k // 2
-    out = np.empty((x.shape[0] - k + 1, 3))
+    m = sub.shape[1]
+    out = np.empty((3, m - k + 1))
     for j in range(3):
-        out[:, j] = median_filter(np.ascontiguousarray(x[:, j]), size=k, mode="nearest")[h:x.shape[0] - h]
+        out[j] = median_filter(sub[j], size=k, mode="nearest")[h:m - h]
     return out
 
 
 def anglez_deg(m: np.ndarray) -> np.ndarray:
     return np.degrees(np.arctan2(m[:, 2], np.sqrt(m[:, 0] ** 2 + m[:, 1] ** 2)))  # = atan(z / r), r >= 0
+
+
+def first_subsample(p: int, step: int) -> int:
+    """Offset from segment position ``p`` to the first subsample at or after it (subsamples are
+    the positions that are multiples of ``step``)."""
+    return (-p) % step
+
+
+def hold_angles(angle: np.ndarray, a0: int, p0: int, p1: int, step: int) -> np.ndarray:
+    """Per-sample angles of segment positions ``p0 <= p < p1``: sample p takes the angle of its
+    subsample position ``p // step``; ``angle`` covers subsample positions ``a0 ...``, and positions
+    outside it take the nearest end (the segment's ends take the nearest complete median)."""
+    q0, q1 = p0 // step, (p1 - 1) // step  # first and last subsample position held
+    idx = np.clip(np.arange(q0 - a0, q1 - a0 + 1), 0, angle.shape[0] - 1)
+    counts = np.full(q1 - q0 + 1, step, np.int64)
+    counts[0] -= p0 - q0 * step
+    counts[-1] -= (q1 + 1) * step - p1
+    return np.repeat(angle[idx], counts)
 
 
 class AnglezOperator:
@@ -57,62 +77,76 @@ class AnglezOperator:
 
     def _reset(self) -> None:
         self._p = 0  # samples seen in this segment
-        self._sub = np.zeros((0, 3))  # subsamples from index self._q0 on
+        self._sub = np.zeros((3, 0))  # subsamples from index self._q0 on, one row per axis
         self._q0 = 0
         self._angle = np.zeros(0)  # anglez of subsample positions [self._a0, self._a0 + len)
         self._a0 = 0
-        self._head = None  # first complete median's angle (fills the segment's first positions)
-        self._t = np.zeros(0, np.int64)  # samples waiting for their angle
-        self._q = np.zeros(0, np.int64)
+        self._w = 0  # segment position of the first sample waiting for its angle
+        self._t = np.zeros(0, np.int64)  # times of the waiting samples (positions self._w ...)
 
     # ------------------------------------------------------------------ per segment
+    def _take(self, accel: np.ndarray) -> None:
+        """Append the block's subsamples to the carried ones (the last k - 1 at most)."""
+        new = accel[first_subsample(self._p, self.step)::self.step]
+        c = self._sub.shape[1]
+        sub = np.empty((3, c + new.shape[0]))
+        sub[:, :c] = self._sub
+        sub[:, c:] = new.T
+        self._sub = sub
+
+    def _extend_angles(self) -> None:
+        """Angles of the subsample positions whose median window is now complete."""
+        if self._sub.shape[1] < self.k:
+            return
+        ang = anglez_deg(_medians(self._sub, self.k).T)  # centres q0 + half ... total - 1 - half
+        centre0 = self._q0 + self.half
+        if self._angle.shape[0]:
+            ang = ang[max(0, self._a0 + self._angle.shape[0] - centre0):]
+        else:
+            self._a0 = centre0
+        self._angle = np.concatenate([self._angle, ang])
+        drop = self._sub.shape[1] - (self.k - 1)  # the next window needs the last k - 1 subsamples
+        if drop > 0:
+            self._sub = self._sub[:, drop:]
+            self._q0 += drop
+
+    def _release(self, stop: int, vals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Hand out the waiting samples of positions below ``stop`` with their angles."""
+        r = stop - self._w
+        out = (self._t[:r], vals)
+        self._t = self._t[r:]
+        self._w = stop
+        return out
+
     def _resolve(self, final: bool) -> tuple[np.ndarray, np.ndarray]:
         """Angles of the waiting samples whose median is known; returns (times, angles)."""
-        total = self._q0 + self._sub.shape[0]  # subsamples so far in the segment
-        if self._sub.shape[0] >= self.k:
-            med = _medians(self._sub, self.k)  # centres q0 + half ... total - 1 - half
-            ang = anglez_deg(med)
-            centre0 = self._q0 + self.half
-            new = ang[max(0, self._a0 + self._angle.shape[0] - centre0):] if self._angle.shape[0] \
-                else ang
-            if not self._angle.shape[0]:
-                self._a0 = centre0
-                self._head = float(ang[0])
-            self._angle = np.concatenate([self._angle, new])
-            keep = self.k - 1  # the next window needs the last k - 1 subsamples
-            drop = self._sub.shape[0] - keep
-            if drop > 0:
-                self._sub = self._sub[drop:]
-                self._q0 += drop
-        known_end = self._a0 + self._angle.shape[0]  # positions < known_end have a median
-        q = self._q
+        self._extend_angles()
         if final:
             if not self._angle.shape[0]:  # segment shorter than one median window
-                if self._sub.shape[0]:
-                    whole = anglez_deg(np.median(self._sub, axis=0)[None, :])[0]
+                if self._sub.shape[1]:
+                    whole = anglez_deg(np.median(self._sub.T, axis=0)[None, :])[0]
                 else:
                     whole = np.nan
-                vals = np.full(q.shape[0], whole)
-            else:
-                idx = np.clip(q - self._a0, 0, self._angle.shape[0] - 1)
-                vals = self._angle[idx]
-            out = (self._t, vals)
-            self._t, self._q = np.zeros(0, np.int64), np.zeros(0, np.int64)
-            return out
+                return self._release(self._p, np.full(self._p - self._w, whole))
+            return self._release(self._p, self._held(self._p))
         if not self._angle.shape[0]:
             return np.zeros(0, np.int64), np.zeros(0)
-        ready = int(np.searchsorted(q, known_end, side="left"))
-        idx = np.maximum(q[:ready] - self._a0, 0)  # head positions take the first median
-        vals = self._angle[idx]
-        out = (self._t[:ready], vals)
-        self._t, self._q = self._t[ready:], self._q[ready:]
+        known_end = self._a0 + self._angle.shape[0]  # positions < known_end have a median
+        stop = min(self._p, known_end * self.step)  # samples whose subsample position is known
+        out = self._release(stop, self._held(stop))
         # angles below the lowest waiting position are no longer needed
-        low = int(self._q[0]) if self._q.shape[0] else known_end
+        low = self._w // self.step if self._w < self._p else known_end
         cut = min(max(0, low - self._a0), self._angle.shape[0] - 1)
         if cut > 0:
             self._angle = self._angle[cut:]
             self._a0 += cut
         return out
+
+    def _held(self, stop: int) -> np.ndarray:
+        """Angles of the waiting samples of positions below ``stop``."""
+        if stop <= self._w:
+            return np.zeros(0)
+        return hold_angles(self._angle, self._a0, self._w, stop, self.step)
 
     def _emit(self, segment, t, v):
         if t.shape[0] == 0:
@@ -140,13 +174,9 @@ class AnglezOperator:
                 chunks += self._emit(self._segment, *self._resolve(final=True))
             self._segment = batch.segment
             self._reset()
-        a = np.asarray(batch.accel, np.float64)
-        p = self._p + np.arange(n, dtype=np.int64)
+        self._take(np.asarray(batch.accel, np.float64))
         self._p += n
-        take = p % self.step == 0
-        self._sub = np.concatenate([self._sub, a[take]])
         self._t = np.concatenate([self._t, batch.time_ns])
-        self._q = np.concatenate([self._q, p // self.step])
         chunks += self._emit(self._segment, *self._resolve(final=False))
         return self._rows(chunks)
 

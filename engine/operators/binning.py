@@ -41,6 +41,34 @@ class BinChunk:
         return self.origin_ns + self.bins * width_ns
 
 
+def bin_cuts(time_ns: np.ndarray, origin: int, width_ns: int, pending_bin) -> tuple:
+    """Where one piece of a segment's (sorted) times falls into bins, given the bin left open by
+    earlier pieces (``pending_bin``, None: none): returns ``(start, stop, starts, bins, last)``.
+    Rows ``[0, start)`` join the open bin (``start == n``: it stays open and nothing else is
+    returned); rows ``[start, stop)`` are whole bins, bin ``bins[i]`` beginning at row
+    ``start + starts[i]``; rows ``[stop, n)`` open bin ``last``. Bin edges are found by searching
+    them in the times, not by dividing every sample's time."""
+    n = time_ns.shape[0]
+    w = width_ns
+    start = 0
+    if pending_bin is not None:
+        start = int(np.searchsorted(time_ns, origin + (pending_bin + 1) * w, side="left"))
+        if start == n:  # the pending bin is still open
+            return n, n, np.zeros(0, np.int64), np.zeros(0, np.int64), pending_bin
+    last = (int(time_ns[-1]) - origin) // w
+    stop = int(np.searchsorted(time_ns, origin + last * w, side="left"))
+    st, bins = np.zeros(0, np.int64), np.zeros(0, np.int64)
+    if stop > start:
+        tt = time_ns[start:stop]
+        b0 = (int(tt[0]) - origin) // w
+        edges = origin + np.arange(b0 + 1, last, dtype=np.int64) * w
+        st = np.concatenate([[0], np.searchsorted(tt, edges, side="left")]).astype(np.int64)
+        st = st[st < tt.shape[0]]
+        st = st[np.concatenate([[True], st[1:] != st[:-1]])]  # bins without samples
+        bins = (tt[st] - origin) // w
+    return start, stop, st, bins, int(last)
+
+
 def _bin_starts(b: np.ndarray) -> np.ndarray:
     """Row offsets where the (sorted) bin number changes, starting with 0."""
     return np.concatenate([[0], np.flatnonzero(b[1:] != b[:-1]) + 1]).astype(np.int64)
@@ -82,37 +110,23 @@ class TimeBinner:
             out += self._emit_pending()
             self.segment = segment
             self.origin = int(time_ns[0]) if self.align == "segment" else 0
-        # bin numbers only where needed: bins change at origin + k * width, so the rows where
-        # they change are found by searching those edges in the (sorted) times, not by dividing
-        # every sample's time
-        w, origin = self.width_ns, self.origin
-        start = 0
+        start, k2, st, bins, last = bin_cuts(time_ns, self.origin, self.width_ns, self.pending_bin)
         if self.pending_bin is not None:
-            k = int(np.searchsorted(time_ns, origin + (self.pending_bin + 1) * w, side="left"))
-            if k == n:  # the pending bin is still open
+            if start == n:  # the pending bin is still open
                 self._ring.append(time=time_ns, **cols)
                 return out
             held = self._ring.view()
             chunk = BinChunk(segment, self.origin, np.array([self.pending_bin], np.int64),
-                             np.zeros(1, np.int64), np.concatenate([held["time"], time_ns[:k]]),
-                             {c: np.concatenate([held[c], cols[c][:k]]) for c in self._names})
+                             np.zeros(1, np.int64), np.concatenate([held["time"], time_ns[:start]]),
+                             {c: np.concatenate([held[c], cols[c][:start]]) for c in self._names})
             self._ring.clear()
             self.pending_bin = None
             out.append(chunk)
-            start = k
-        last = (int(time_ns[-1]) - origin) // w
-        k2 = int(np.searchsorted(time_ns, origin + last * w, side="left"))
         if k2 > start:
-            tt = time_ns[start:k2]
-            b0 = (int(tt[0]) - origin) // w
-            edges = origin + np.arange(b0 + 1, last, dtype=np.int64) * w
-            st = np.concatenate([[0], np.searchsorted(tt, edges, side="left")]).astype(np.int64)
-            st = st[st < tt.shape[0]]
-            st = st[np.concatenate([[True], st[1:] != st[:-1]])]  # bins without samples
-            out.append(BinChunk(segment, self.origin, (tt[st] - origin) // w, st, tt,
+            out.append(BinChunk(segment, self.origin, bins, st, time_ns[start:k2],
                                 {c: cols[c][start:k2] for c in self._names}))
         self._ring.append(time=time_ns[k2:], **{c: cols[c][k2:] for c in self._names})
-        self.pending_bin = int(last)
+        self.pending_bin = last
         return out
 
     def flush(self) -> list[BinChunk]:

@@ -21,12 +21,13 @@ The rule, as published in GGIR (``detect_nonwear_clipping``, ``g.weardec``):
   0.3.
 
 Streaming: samples are reduced to statistics of 7.5-min half windows (count, mean, sum of squared
-deviations, min, max per axis; the same on the 5 Hz subsample; clipping counts), computed on each
-half window's contiguous samples, and long windows are combined from them (Chan's pairwise
-update), so results do not depend on how the input was cut into blocks. A medium window is final
-once data 75 min past its start have arrived (or at the end of the stream); state is a few
-half-window records. The 5 Hz subsample of the 2023 form starts at each half window's first sample
-(GGIR: at the long window's first sample), the only difference from GGIR's indexing.
+deviations, min, max per axis, of all samples in the 2013 form and of the 5 Hz subsample in the
+2023 form; clipping counts), computed on each half window's contiguous samples, and long windows
+are combined from them (Chan's pairwise update), so results do not depend on how the input was cut
+into blocks. A medium window is final once data 75 min past its start have arrived (or at the end
+of the stream); state is a few half-window records. The 5 Hz subsample of the 2023 form starts at
+each half window's first sample (GGIR: at the long window's first sample), the only difference from
+GGIR's indexing.
 Not done here: GGIR's later ``g.weardec`` pass that turns short wear periods between nonwear into
 nonwear (it needs the whole recording).
 """
@@ -39,7 +40,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from .base import ring_capacity
-from .binning import BinChunk, TimeBinner
+from .binning import BinChunk, TimeBinner, bin_cuts
 
 MEDIUM_S = 900.0  # GGIR windowsizes[2]: 15-min windows for nonwear and clipping
 LONG_S = 3600.0  # GGIR windowsizes[3]: the 60-min window tested for each medium window
@@ -133,14 +134,118 @@ def _bin_stats(a: np.ndarray, st: np.ndarray, cnt: np.ndarray) -> list:
     return [_Stats(cnt[i], mean[i], m2[i], lo[i], hi[i]) for i in range(len(cnt))]
 
 
-class _Half:
-    """Statistics of one 7.5-min half window (merged over segments in arrival order)."""
+def subsample_rows(st: np.ndarray, cnt: np.ndarray, step: int) -> tuple:
+    """Every ``step``-th row of each bin of rows ``st[i] : st[i] + cnt[i]``, counted from the
+    bin's first row: (rows, bin starts and counts within the subsample)."""
+    sub_cnt = (cnt + (step - 1)) // step
+    sub_st = np.concatenate([[0], np.cumsum(sub_cnt)[:-1]]).astype(np.int64)
+    rows = np.arange(int(sub_cnt.sum()), dtype=np.int64) * step - np.repeat(sub_st * step - st, sub_cnt)
+    return rows, sub_st, sub_cnt
 
-    __slots__ = ("full", "sub", "clip", "hard", "n")
+
+def within(a: np.ndarray, limit: float) -> bool:
+    """No sample of a (n, 3) beyond +-``limit`` on any axis (False when a holds NaN)."""
+    return bool(a.max() <= limit and a.min() >= -limit)
+
+
+def clip_counts(a: np.ndarray, st: np.ndarray, clip_g: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per bin of rows from ``st`` and axis: samples beyond ``clip_g`` (int64) and whether any is
+    beyond 1.5 x ``clip_g`` (bool); (k, 3) each."""
+    if within(a, clip_g):
+        return np.zeros((st.shape[0], 3), np.int64), np.zeros((st.shape[0], 3), bool)
+    over = np.abs(a) > clip_g
+    hard = np.abs(a) > 1.5 * clip_g
+    return np.add.reduceat(over.astype(np.int64), st, axis=0), np.logical_or.reduceat(hard, st, axis=0)
+
+
+@dataclass
+class HalfWindows:
+    """Half windows reduced to what the rule uses: bin numbers, sample counts, the statistics the
+    rule tests (``_Stats`` each), clipping counts and flags beyond 1.5 x the threshold ((k, 3))."""
+
+    bins: np.ndarray
+    n: np.ndarray
+    still: list
+    clip: np.ndarray
+    hard: np.ndarray
+
+
+class SubsampleBinner:
+    """The half windows of a stream, cut where a clock-aligned ``TimeBinner`` cuts them, reduced as
+    the 2023 form needs them without holding their samples: per half window its sample count,
+    clipping counts and every ``step``-th sample from its first one, gathered across blocks.
+    ``push(segment, time_ns, accel=(n, 3))`` / ``flush()`` -> list of ``HalfWindows`` now complete."""
+
+    def __init__(self, width_s: float, step: int, clip_g: float):
+        self.width_ns = int(round(width_s * 1e9))
+        self.step, self.clip_g = step, clip_g
+        self.segment = None
+        self.pending_bin = None  # the half window still open
+        self._open()
+
+    def _open(self) -> None:
+        self._n = 0  # samples of the open half window so far
+        self._sub = []  # its subsample rows, (m, 3) C-ordered copies
+        self._clip = np.zeros(3, np.int64)
+        self._hard = np.zeros(3, bool)
+
+    def _extend(self, a: np.ndarray) -> None:
+        """Rows of the open half window (its subsample continues from its first sample)."""
+        if not a.shape[0]:
+            return
+        self._sub.append(np.ascontiguousarray(a[(-self._n) % self.step::self.step]))
+        clip, hard = clip_counts(a, np.zeros(1, np.int64), self.clip_g)
+        self._clip += clip[0]
+        self._hard |= hard[0]
+        self._n += a.shape[0]
+
+    def _close(self) -> list:
+        if self.pending_bin is None:
+            return []
+        sub = np.concatenate(self._sub)
+        out = HalfWindows(np.array([self.pending_bin], np.int64), np.array([self._n], np.int64),
+                          _bin_stats(sub, np.zeros(1, np.int64), np.array([sub.shape[0]], np.int64)),
+                          self._clip[None, :], self._hard[None, :])
+        self.pending_bin = None
+        self._open()
+        return [out]
+
+    def push(self, segment: int, time_ns: np.ndarray, accel: np.ndarray) -> list:
+        n = time_ns.shape[0]
+        if n == 0:
+            return []
+        out = []
+        if segment != self.segment:
+            out += self._close()
+            self.segment = segment
+        start, stop, st, bins, last = bin_cuts(time_ns, 0, self.width_ns, self.pending_bin)
+        if self.pending_bin is not None:
+            self._extend(accel[:start])
+            if start == n:
+                return out
+            out += self._close()
+        if stop > start:
+            a = accel[start:stop]
+            cnt = np.diff(np.append(st, a.shape[0]))
+            rows, sub_st, sub_cnt = subsample_rows(st, cnt, self.step)
+            clip, hard = clip_counts(a, st, self.clip_g)
+            out.append(HalfWindows(bins, cnt, _bin_stats(a[rows], sub_st, sub_cnt), clip, hard))
+        self.pending_bin = last
+        self._extend(accel[stop:])
+        return out
+
+    def flush(self) -> list:
+        return self._close()
+
+
+class _Half:
+    """Statistics of one 7.5-min half window (merged over segments in arrival order): ``still``
+    holds those the rule tests (all samples in the 2013 form, the 5 Hz subsample in the 2023 form)."""
+
+    __slots__ = ("still", "clip", "hard", "n")
 
     def __init__(self):
-        self.full = _EMPTY
-        self.sub = _EMPTY
+        self.still = _EMPTY
         self.clip = np.zeros(3)
         self.hard = np.zeros(3, bool)
         self.n = 0
@@ -165,8 +270,11 @@ class NonwearOperator:
         self.medium_ns = int(round(medium_s * 1e9))
         self.per_long = int(ratio)  # medium windows per long window (4)
         self.step = max(1, math.ceil(self.rate_hz / SUBSAMPLE_HZ))
-        self._binner = TimeBinner(medium_s / 2.0, {"accel": (np.float64, (3,))}, align="clock",
-                                  capacity=ring_capacity(medium_s / 2.0, rate_hz))
+        if version == "2013":  # statistics of all samples: half windows gathered whole
+            self._binner = TimeBinner(medium_s / 2.0, {"accel": (np.float64, (3,))}, align="clock",
+                                      capacity=ring_capacity(medium_s / 2.0, rate_hz))
+        else:
+            self._binner = SubsampleBinner(medium_s / 2.0, self.step, self.clip_g)
         self._half: dict[int, _Half] = {}
         self._checks: dict[int, np.ndarray] = {}  # 2023: still axes of the long window at window c
         self._flags: dict[int, np.ndarray] = {}  # per window: still axes (3,) bool before scoring
@@ -178,36 +286,36 @@ class NonwearOperator:
         self.clipping_windows = 0
 
     # ------------------------------------------------------------------ statistics
-    def _take(self, chunks: list[BinChunk]) -> None:
+    def _reduce(self, chunks: list[BinChunk]) -> list:
+        """2013 form: whole half windows reduced to the statistics of all their samples."""
+        out = []
         for ch in chunks:
-            a = ch.cols["accel"]
-            st, cnt = ch.starts, ch.counts
-            full = _bin_stats(a, st, cnt)
-            pos = np.arange(a.shape[0]) - np.repeat(st, cnt)
-            keep = pos % self.step == 0
-            sub_cnt = np.add.reduceat(keep.astype(np.int64), st)
-            sub_st = np.concatenate([[0], np.cumsum(sub_cnt)[:-1]]).astype(np.int64)
-            sub = _bin_stats(a[keep], sub_st, sub_cnt)
-            over = np.abs(a) > self.clip_g
-            hard = np.abs(a) > 1.5 * self.clip_g
-            clip = np.add.reduceat(over.astype(np.int64), st, axis=0)
-            hard_any = np.logical_or.reduceat(hard, st, axis=0)
-            for i, b in enumerate(ch.bins):
+            a, st, cnt = ch.cols["accel"], ch.starts, ch.counts
+            clip, hard = clip_counts(a, st, self.clip_g)
+            out.append(HalfWindows(ch.bins, cnt, _bin_stats(a, st, cnt), clip, hard))
+        return out
+
+    def _take(self, parts: list) -> None:
+        for part in parts:
+            for i, b in enumerate(part.bins):
                 h = self._half.get(int(b))
                 if h is None:
                     h = self._half[int(b)] = _Half()
-                h.full = h.full.merge(full[i])
-                h.sub = h.sub.merge(sub[i])
-                h.clip = h.clip + clip[i]
-                h.hard = h.hard | hard_any[i]
-                h.n += int(cnt[i])
+                h.still = h.still.merge(part.still[i])
+                h.clip = h.clip + part.clip[i]
+                h.hard = h.hard | part.hard[i]
+                h.n += int(part.n[i])
 
-    def _long(self, h0: int, h1: int, sub: bool) -> _Stats:
+    def _parts(self, got: list) -> list:
+        """``HalfWindows`` of what the binner returned (the 2013 form's binner returns samples)."""
+        return self._reduce(got) if self.version == "2013" else got
+
+    def _long(self, h0: int, h1: int) -> _Stats:
         s = _EMPTY
         for h in range(h0, h1):
             x = self._half.get(h)
             if x is not None:
-                s = s.merge(x.sub if sub else x.full)
+                s = s.merge(x.still)
         return s
 
     # ------------------------------------------------------------------ the rule
@@ -220,12 +328,12 @@ class NonwearOperator:
             h0, h1 = 2 * (self.last_w + 1 - crit), 2 * (self.last_w + 1)
         else:  # centred on the middle of window w
             h0, h1 = 2 * w + 1 - self.per_long, 2 * w + 1 + self.per_long
-        return self._long(h0, h1, sub=False).still(self.sd_g, self.range_g)
+        return self._long(h0, h1).still(self.sd_g, self.range_g)
 
     def _check_2023(self, c: int) -> np.ndarray:
         r = self._checks.get(c)
         if r is None:
-            r = self._long(2 * c, 2 * (c + self.per_long), sub=True).still(self.sd_g, self.range_g)
+            r = self._long(2 * c, 2 * (c + self.per_long)).still(self.sd_g, self.range_g)
             self._checks[c] = r
         return r
 
@@ -300,9 +408,10 @@ class NonwearOperator:
             self.first_w = self.next_w = int(t[0]) // self.medium_ns
         self.last_w = max(self.last_w if self.last_w is not None else self.first_w,
                           int(t[-1]) // self.medium_ns)
-        self._take(self._binner.push(batch.segment, t, accel=np.asarray(batch.accel, np.float64)))
+        a = np.asarray(batch.accel, np.float64)
+        self._take(self._parts(self._binner.push(batch.segment, t, accel=a)))
         return self._emit(final=False)
 
     def flush(self) -> NonwearWindows:
-        self._take(self._binner.flush())
+        self._take(self._parts(self._binner.flush()))
         return self._emit(final=True)

@@ -85,6 +85,31 @@ FLAGS = ("nonwear", "clipping", "gap", "qc", "filter_warmup")
 _SECTORS = re.compile(r"sectors? (\d+)\.\.(\d+)")
 
 
+def fold_sums(idx: np.ndarray, sums: np.ndarray, new_idx: np.ndarray,
+              new_sums: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-epoch sums ``(idx, sums)`` (idx sorted and unique, sums (k, c)) with the rows
+    ``(new_idx, new_sums)`` added; the rows of one epoch are added in the order they arrived."""
+    idx = np.concatenate([idx, new_idx])
+    sums = np.concatenate([sums, new_sums])
+    order = np.argsort(idx, kind="stable")
+    idx, sums = idx[order], sums[order]
+    first = np.ones(idx.shape[0], bool)
+    first[1:] = idx[1:] != idx[:-1]
+    if first.all():
+        return idx, sums
+    out = sums[first]
+    group = np.cumsum(first) - 1
+    for i in np.flatnonzero(~first).tolist():  # an epoch cut by a segment break
+        out[group[i]] += sums[i]
+    return idx[first], out
+
+
+def sums_between(idx: np.ndarray, sums: np.ndarray, lo: int, hi: int) -> tuple[np.ndarray, np.ndarray]:
+    """The per-epoch sums of epochs ``lo <= idx < hi``: (offsets from lo, sums)."""
+    a, b = np.searchsorted(idx, [lo, hi])
+    return idx[a:b] - lo, sums[a:b]
+
+
 class EpochAssembler:
     def __init__(self, rate_hz: float, epoch_s: float, band, *, source=None,
                  nonwear_version: str = "2023", clip_g: float = 7.5):
@@ -95,9 +120,11 @@ class EpochAssembler:
         self.nonwear = NonwearOperator(rate_hz, version=nonwear_version, clip_g=clip_g)
         self.anglez = AnglezOperator(rate_hz, epoch_s)
         self.warmup_ns = int(round(filter_warmup_s(rate_hz, band) * 1e9))
-        self._metrics: dict[int, list] = {}  # epoch index -> [n, enmo*n, bfen*n, mad*n, temp*n]
-        self._angle: dict[int, list] = {}  # epoch index -> [n, sum]
-        self._windows: dict[int, tuple] = {}  # medium window index -> (nonwear, clipping)
+        # per-epoch sums waiting for their row: (epoch indices, sorted; sums)
+        self._metrics = (np.zeros(0, np.int64), np.zeros((0, 5)))  # n, enmo*n, bfen*n, mad*n, temp*n
+        self._angle = (np.zeros(0, np.int64), np.zeros((0, 2)))  # n, anglez*n
+        # medium windows (indices, increasing; (k, 2) nonwear, clipping)
+        self._windows = (np.zeros(0, np.int64), np.zeros((0, 2), bool))
         self.medium_ns = self.nonwear.medium_ns
         self._metrics_done = None  # epochs below this index are final in the metrics
         self._angle_done = None
@@ -115,16 +142,9 @@ class EpochAssembler:
         if m is None or not len(m):
             return
         idx = m.start_ns // self.epoch_ns
-        for i in range(len(m)):
-            k = int(idx[i])
-            w = float(m.n[i])
-            r = self._metrics.get(k)
-            vals = [w, m.enmo_mg[i] * w, m.bfen_mg[i] * w, m.mad_mg[i] * w, m.temperature[i] * w]
-            if r is None:
-                self._metrics[k] = vals
-            else:
-                for j in range(5):
-                    r[j] += vals[j]
+        w = m.n.astype(np.float64)
+        rows = np.stack([w, m.enmo_mg * w, m.bfen_mg * w, m.mad_mg * w, m.temperature * w], axis=1)
+        self._metrics = fold_sums(*self._metrics, idx, rows)
         # metrics are emitted in time order: the last row's epoch may still get a second part
         last = int(idx[-1])
         self._metrics_done = last if self._metrics_done is None else max(self._metrics_done, last)
@@ -134,14 +154,8 @@ class EpochAssembler:
         if not s.shape[0]:
             return
         idx = s // self.epoch_ns
-        for i in range(s.shape[0]):
-            k = int(idx[i])
-            r = self._angle.get(k)
-            if r is None:
-                self._angle[k] = [float(n[i]), float(v[i]) * n[i]]
-            else:
-                r[0] += n[i]
-                r[1] += float(v[i]) * n[i]
+        w = n.astype(np.float64)
+        self._angle = fold_sums(*self._angle, idx, np.stack([w, v * w], axis=1))
         last = int(idx[-1])
         self._angle_done = last if self._angle_done is None else max(self._angle_done, last)
 
@@ -149,8 +163,9 @@ class EpochAssembler:
         if not len(w):
             return
         idx = w.start_ns // self.medium_ns
-        for i in range(len(w)):
-            self._windows[int(idx[i])] = (bool(w.nonwear[i]), bool(w.clipping[i]))
+        flags = np.stack([w.nonwear, w.clipping], axis=1).astype(bool)
+        self._windows = (np.concatenate([self._windows[0], idx]),
+                         np.concatenate([self._windows[1], flags]))
         self._windows_done = int(idx[-1]) + 1
 
     def _take_block(self, block) -> None:
@@ -214,13 +229,13 @@ class EpochAssembler:
         return self._emit(final=True)
 
     def _emit(self, final: bool) -> EpochRows:
-        keys = list(self._metrics) + list(self._angle)
+        pending = [i for i in (self._metrics[0], self._angle[0]) if i.shape[0]]
         if self._next is None:
-            if not keys:
+            if not pending:
                 return EpochRows.concat([])
-            self._next = min(keys)
+            self._next = min(int(i[0]) for i in pending)
         if final:
-            stop = max(keys) + 1 if keys else self._next
+            stop = max(int(i[-1]) for i in pending) + 1 if pending else self._next
         else:
             if None in (self._metrics_done, self._angle_done, self._windows_done):
                 return EpochRows.concat([])
@@ -236,21 +251,21 @@ class EpochAssembler:
 
     def _rows(self, k: np.ndarray) -> EpochRows:
         m = len(k)
+        lo, hi = int(k[0]), int(k[-1]) + 1
         n = np.zeros(m, np.int64)
         vals = np.full((m, 5), np.nan)
+        at, r = sums_between(*self._metrics, lo, hi)
+        ok = r[:, 0] > 0
+        at, r = at[ok], r[ok]
+        n[at] = r[:, 0].astype(np.int64)
+        vals[at, 0] = r[:, 0]
+        vals[at, 1:] = r[:, 1:] / r[:, :1]
         ang = np.full(m, np.nan)
-        for i, e in enumerate(k.tolist()):
-            r = self._metrics.pop(e, None)
-            if r is not None and r[0] > 0:
-                n[i] = int(r[0])
-                vals[i] = [r[0]] + [x / r[0] for x in r[1:]]
-            a = self._angle.pop(e, None)
-            if a is not None and a[0] > 0:
-                ang[i] = a[1] / a[0]
+        at, a = sums_between(*self._angle, lo, hi)
+        ok = a[:, 0] > 0
+        ang[at[ok]] = a[ok, 1] / a[ok, 0]
         start = k * self.epoch_ns
-        wi = start // self.medium_ns
-        nonwear = np.array([self._windows.get(int(w), (False, False))[0] for w in wi], bool)
-        clipping = np.array([self._windows.get(int(w), (False, False))[1] for w in wi], bool)
+        nonwear, clipping = self._window_flags(start // self.medium_ns)
         end = start + self.epoch_ns
         qc = np.zeros(m, bool)
         for a0, a1 in self._qc_intervals:
@@ -262,11 +277,22 @@ class EpochAssembler:
         return EpochRows(start, n, vals[:, 1], vals[:, 2], vals[:, 3], ang, vals[:, 4], nonwear,
                          clipping, gap, qc, warm)
 
+    def _window_flags(self, wi: np.ndarray) -> np.ndarray:
+        """(2, k): nonwear and clipping of the medium windows ``wi`` (False for windows not seen)."""
+        idx, flags = self._windows
+        out = np.zeros((2, wi.shape[0]), bool)
+        if idx.shape[0]:
+            j = np.searchsorted(idx, wi, side="right") - 1
+            seen = (j >= 0) & (idx[np.maximum(j, 0)] == wi)
+            out[:, seen] = flags[j[seen]].T
+        return out
+
     def _forget(self, stop: int) -> None:
         t = stop * self.epoch_ns
         w = t // self.medium_ns
-        for d in [x for x in self._windows if x < w]:
-            del self._windows[d]
+        self._metrics = tuple(x[self._metrics[0] >= stop] for x in self._metrics)
+        self._angle = tuple(x[self._angle[0] >= stop] for x in self._angle)
+        self._windows = tuple(x[self._windows[0] >= w] for x in self._windows)
         self._warmups = [x for x in self._warmups if x[1] > t] or self._warmups[-1:]
         self._qc_intervals = [x for x in self._qc_intervals if x[1] > t - 3600 * 10**9]
         horizon = t - 3 * 3600 * 10**9  # a late QC event can still place units of the last 3 h

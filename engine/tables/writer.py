@@ -58,8 +58,17 @@ class TablesSettings:
 
 
 def _num(v: np.ndarray, decimals: int) -> list:
-    s = np.char.mod(f"%.{decimals}f", np.where(np.isfinite(v), v, 0.0))
-    return np.where(np.isfinite(v), s, "").tolist()
+    """Each value as ``%.<decimals>f`` text; empty when not finite."""
+    fmt = f"%.{decimals}f"
+    return [fmt % x if ok else "" for x, ok in zip(v.tolist(), np.isfinite(v).tolist())]
+
+
+def _flag(f: np.ndarray) -> list:
+    """Each flag as 0/1."""
+    return [_BITS[x] for x in f.tolist()]
+
+
+_BITS = ("0", "1")
 
 
 def _iso(t_ns: np.ndarray, unit: str) -> np.ndarray:
@@ -88,12 +97,12 @@ def format_rows(rows: EpochRows, zone: Zone, epoch_ns: int) -> str:
     else:
         utc = [""] * len(rows)
         local = _iso(t, unit).tolist()
-    cols = [utc, local, rows.n.astype(str).tolist()]
+    cols = [utc, local, [str(x) for x in rows.n.tolist()]]
     for name in EPOCH_COLUMNS[3:8]:
         cols.append(_num(getattr(rows, name), _DECIMALS[name]))
     for f in FLAGS:
-        cols.append(getattr(rows, f).astype(np.int8).astype(str).tolist())
-    return "".join(",".join(r) + "\n" for r in zip(*cols))
+        cols.append(_flag(getattr(rows, f)))
+    return "\n".join(map(",".join, zip(*cols))) + "\n"
 
 
 def _cell(v) -> str:

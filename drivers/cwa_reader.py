@@ -41,7 +41,11 @@ look (``first_sector_time``, ``last_sector_time``, ``data_sectors``) from the fi
 sectors, for ``inspect --header-only``. Not decoded (skipped as ``bad_format``): the prototype
 9-axis 0x92 format and the pre-release "rate code 0" format.
 ``decode=False`` skips sample decoding: Blocks carry times and per-sector data, ``accel`` has
-shape (n, 0) (fast scans).
+shape (n, 0) (fast scans). ``sample_times=False`` skips timing every sample: Blocks carry
+``time_ns=None`` and a ``clock`` (``cwa_decode.SampleClock``) that gives the same times for the
+samples asked for (passes that only need window boundaries, such as the calibration).
+``column_major=True`` decodes into column-major ``accel``/``gyro`` arrays (each axis contiguous:
+quicker to decode and to take per-axis statistics from; the same values).
 """
 
 from __future__ import annotations
@@ -58,8 +62,8 @@ from ..engine.blocks import Block, DeviceInfo, QCEvent, QCReport
 from . import constants as C
 from .byteio import (FollowingReader, check_recording_path, is_gzip, open_bytes, read_exact,
                      stream_damage)
-from .cwa_decode import (EMPTY, ERASED, REASONS, classify, decode_samples, interpolate_times,
-                         max_samples, sector_anchors)
+from .cwa_decode import (EMPTY, ERASED, REASONS, SampleClock, classify, decode_samples,
+                         interpolate_times, max_samples, sector_anchors)
 from .cwa_layout import FORMATS, SECTOR_DTYPE, parse_header, parse_timezone
 from .errors import (CorruptRecordingError, RecordingError, TruncatedRecordingError,
                      UnsupportedFormatError)
@@ -205,7 +209,8 @@ class CwaReader:
     """Read a ``.cwa`` (or ``.cwa.gz``) recording as Blocks; see the module docstring."""
 
     def __init__(self, path, *, timezone=0, batch_sectors: int = 2048, follow: bool = False,
-                 follow_idle_s: float = 5.0, decode: bool = True, follow_done=None):
+                 follow_idle_s: float = 5.0, decode: bool = True, follow_done=None,
+                 sample_times: bool = True, column_major: bool = False):
         self.path = Path(path)
         self.follow_done = follow_done  # follow: callable, True once the writer has finished
         self.tz_s = parse_timezone(timezone)
@@ -215,6 +220,8 @@ class CwaReader:
         self.follow = bool(follow)
         self.follow_idle_s = float(follow_idle_s)
         self.decode = bool(decode)
+        self.sample_times = bool(sample_times)
+        self.order = "F" if column_major else "C"
         self._force_slow = False  # testing hook: run the per-sector reference path everywhere
         f = _open_header(self.path, self.follow, self.follow_idle_s)
         try:
@@ -321,10 +328,10 @@ class CwaReader:
         the block -> its first sample's time; a sector skipped before it -> the last sample
         emitted before that sector. Independent of how the file was cut into batches."""
         if not self._untimed:
-            self._last_t = int(block.time_ns[-1])
+            self._last_t = int(block.time_at(block.n - 1))
             return
         ui = block.unit_index
-        first_t = block.time_ns[block.unit_start]
+        first_t = block.time_at(block.unit_start)
         keep = []
         for pos in self._untimed:
             e = self.qc.events[pos]
@@ -335,12 +342,12 @@ class CwaReader:
             if ui[j] == e.index:
                 t = int(first_t[j])
             elif j == 0:
-                t = self._last_t if self._last_t is not None else int(block.time_ns[0])
+                t = self._last_t if self._last_t is not None else int(block.time_at(0))
             else:
-                t = int(block.time_ns[block.unit_start[j] - 1])
+                t = int(block.time_at(block.unit_start[j] - 1))
             self.qc.events[pos] = replace(e, time_ns=t)
         self._untimed = keep
-        self._last_t = int(block.time_ns[-1])
+        self._last_t = int(block.time_at(block.n - 1))
 
     def _init_state(self) -> None:
         self._bounds: list = []  # per emitted Block: first sector, its time, last sector, last time
@@ -503,7 +510,7 @@ class CwaReader:
             # 3-axis rows get a zero gyro placeholder that no Block ever carries
             gyro_cols = 3 if any(FORMATS[int(fmts[a])][0] == 6 for a in bounds[:-1]) else 0
             for a, b in zip(bounds[:-1], bounds[1:]):
-                pa, pg = decode_samples(sec[a:b], int(fmts[a]), count[a:b])
+                pa, pg = decode_samples(sec[a:b], int(fmts[a]), count[a:b], self.order)
                 parts_a.append(pa)
                 parts_g.append(pg if pg is not None else np.zeros((pa.shape[0], gyro_cols), np.int16))
             accel = parts_a[0] if len(parts_a) == 1 else np.concatenate(parts_a)
@@ -773,10 +780,14 @@ class CwaReader:
             slope_last = (t_rel[-1] - t_rel[-2]) / (float(g[-1]) - float(g[-2]))
         else:
             slope_last = seg.nominal_slope
-        rel = interpolate_times(j_begin, ready, g, t_rel, slope_first, slope_last, closed)
-        np.rint(rel, out=rel)
-        time_ns = rel.astype(np.int64)
-        time_ns += seg.origin
+        if self.sample_times:
+            rel = interpolate_times(j_begin, ready, g, t_rel, slope_first, slope_last, closed)
+            np.rint(rel, out=rel)
+            time_ns, clock = rel.astype(np.int64), None
+            time_ns += seg.origin
+        else:
+            time_ns, clock = None, SampleClock(j_begin, ready - j_begin, g, t_rel, slope_first,
+                                               slope_last, closed, seg.origin)
         seg.emitted = ready
         # retain the anchors still needed: the last one at or before `ready`, and everything after
         if not closed and len(seg.ag) > 2:
@@ -785,11 +796,12 @@ class CwaReader:
             if i:
                 del seg.ag[:i]
                 del seg.at[:i]
-        yield self._block(seg, take, time_ns)
+        yield self._block(seg, take, time_ns, clock)
 
-    def _block(self, seg: _Segment, chunks: list, time_ns: np.ndarray) -> Block:
+    def _block(self, seg: _Segment, chunks: list, time_ns: Optional[np.ndarray],
+               clock: Optional[SampleClock] = None) -> Block:
         cat = (lambda xs: xs[0]) if len(chunks) == 1 else np.concatenate
-        n = time_ns.shape[0]
+        n = time_ns.shape[0] if time_ns is not None else clock.n
         cpg = C.cwa_accel_counts_per_g(seg.light_scale_hi >> 3)
         six = FORMATS[seg.fmt][0] == 6
         if self.decode:
@@ -818,11 +830,12 @@ class CwaReader:
             events=cat([c["events"] for c in chunks]).astype(np.uint8),
             segment=seg.id,
             first_sample=self._emitted_total,
+            clock=clock,
         )
         self._emitted_total += n
         self._time_pending(block)
-        self._bounds.append((int(block.unit_index[0]), int(time_ns[0]), int(block.unit_index[-1]),
-                             int(time_ns[-1])))
+        t_first, t_last = block.time_at(np.array([0, n - 1])).tolist()
+        self._bounds.append((int(block.unit_index[0]), t_first, int(block.unit_index[-1]), t_last))
         return block
 
     # ------------------------------------------------------------------ AX6 axis swap (fw < 56)

@@ -10,7 +10,10 @@ have length ``m``. Readers hand over many sectors/pages per Block for speed. Wit
   two segments.
 
 Times are int64 nanoseconds since the Unix epoch, UTC (the device's local clock converted with
-the time-zone setting of the source).
+the time-zone setting of the source). A source asked not to time every sample (``.cwa``:
+``sample_times=False``) leaves ``time_ns`` None and hands a ``clock`` instead, which gives the
+same times for the samples asked for (``time_at``); only consumers that use ``time_at`` (the
+window features, the calibration pass) take such Blocks.
 """
 
 from __future__ import annotations
@@ -98,7 +101,7 @@ class DeviceInfo:
 class Block:
     """Consecutive samples of one device (see the module docstring for the invariants)."""
 
-    time_ns: np.ndarray  # (n,) int64, UTC
+    time_ns: Optional[np.ndarray]  # (n,) int64, UTC; None when ``clock`` times the samples
     accel: np.ndarray  # (n, 3) integer counts
     accel_counts_per_g: np.ndarray  # (3,) float64: g = (counts - accel_zero) / accel_counts_per_g
     accel_zero: np.ndarray  # (3,) float64 counts (0 for AX; header offset/100 for GENEActiv)
@@ -117,11 +120,18 @@ class Block:
     per_sample: dict[str, np.ndarray] = field(default_factory=dict)  # see PER_SAMPLE_* keys
     segment: int = 0  # continuous-logging stretch this block belongs to
     first_sample: int = 0  # absolute index (among valid samples of the source) of sample 0
+    clock: Any = None  # with time_ns None: .n, .at(rows), .times(start, stop), .search(edges)
 
     # ------------------------------------------------------------------ derived views
     @property
     def n(self) -> int:
-        return int(self.time_ns.shape[0])
+        return int(self.time_ns.shape[0]) if self.time_ns is not None else self.clock.n
+
+    def time_at(self, rows) -> np.ndarray:
+        """int64 times of the samples at ``rows``, from ``time_ns`` or the ``clock``."""
+        if self.time_ns is not None:
+            return self.time_ns[rows]
+        return self.clock.at(rows)
 
     @property
     def m(self) -> int:

@@ -20,6 +20,12 @@ except ImportError:  # hypothesis is in the test extra; without it only the prop
 
 REAL_DATA_ENV = "STILLPOINT_REAL_DATA"
 
+# the tests' cache of built tables (engine/cache.py) is their own, not the user's
+if "STILLPOINT_CACHE_DIR" not in os.environ:
+    import tempfile
+
+    os.environ["STILLPOINT_CACHE_DIR"] = tempfile.mkdtemp(prefix="stillpoint-test-cache-")
+
 
 @pytest.fixture(scope="session")
 def real_data_dir() -> Path:

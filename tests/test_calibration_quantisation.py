@@ -101,3 +101,92 @@ def test_online_calibrator_debiases_pieces_as_the_whole():
     want = np.concatenate(want)
     got = cal.windows.mean
     assert got.shape == want.shape and np.array_equal(got, want)
+
+
+def test_tables_built_once_then_read_from_the_cache(tmp_path, monkeypatch):
+    """The tables are built on first use and written to the cache; later runs read the same
+    bits; a damaged cache file is rebuilt; with the cache off nothing is written."""
+    from stillpoint.engine.calibration import quantisation as q
+
+    monkeypatch.setenv("STILLPOINT_CACHE_DIR", str(tmp_path))
+    q._tables.cache_clear()
+    X, V = q._tables()
+    files = list(tmp_path.glob("quantisation_tables-*.npy"))
+    assert len(files) == 1
+    built = np.stack(q.build_tables())
+    assert np.array_equal(np.stack([X, V]).view(np.uint64), built.view(np.uint64))
+    q._tables.cache_clear()
+    calls = []
+    monkeypatch.setattr(q, "build_tables", lambda: calls.append(1) or tuple(built))
+    X2, V2 = q._tables()
+    assert not calls and np.array_equal(X2, X) and np.array_equal(V2, V)  # read, not built
+    files[0].write_bytes(files[0].read_bytes()[:100])  # a torn file
+    q._tables.cache_clear()
+    X3, _ = q._tables()
+    assert calls == [1] and np.array_equal(X3, X)
+    off = tmp_path / "off"
+    monkeypatch.setenv("STILLPOINT_CACHE_DIR", "off")
+    q._tables.cache_clear()
+    q._tables()
+    assert calls == [1, 1] and not off.exists()
+    q._tables.cache_clear()
+
+
+def test_calibration_import_does_not_load_scipy_special(tmp_path, monkeypatch):
+    """Importing the calibration package (and de-biasing on cached tables) leaves
+    scipy.special, the online calibrator and the store unloaded: the start-up cost of
+    ``stillpoint calibrate``; the lazy names still import."""
+    import os
+    import subprocess
+    import sys
+
+    from stillpoint.engine.calibration import quantisation as q
+
+    monkeypatch.setenv("STILLPOINT_CACHE_DIR", str(tmp_path))
+    q._tables.cache_clear()
+    q._tables()  # warms the cache the child reads
+    q._tables.cache_clear()
+
+    code = ("import sys; import stillpoint.engine.calibration as c; "
+            "import numpy as np; from stillpoint.engine.calibration.quantisation import "
+            "dequantise_means; dequantise_means(np.full((4, 3), 0.3), np.full((4, 3), 0.003), "
+            "4 / 256); print([m in sys.modules for m in ('scipy.special', "
+            "'stillpoint.engine.calibration.store', 'stillpoint.engine.calibration.online')]); "
+            "print(c.CalibrationStore.__name__, c.CalibrationStoreError.__name__, "
+            "c.OnlineCalibrator.__name__)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         env=dict(os.environ))
+    assert out.stdout.split("\n")[:2] == ["[False, False, False]",
+                                          "CalibrationStore CalibrationStoreError OnlineCalibrator"]
+
+
+def test_solve_equals_the_full_row_form():
+    """The solve reads the position table at the two bracketing sigmas only: the same bits as
+    interpolating the whole row first."""
+    from stillpoint.engine.calibration import quantisation as q
+
+    def full_rows(m, v_obs, step):
+        X, V = q._tables()
+        out = m.copy()
+        ok = np.isfinite(m) & np.isfinite(v_obs) & (v_obs < (q.SIGMA[-1] * step) ** 2)
+        level = np.floor(m[ok] / step)
+        f = (m[ok] / step - level) * (q.MU.size - 1)
+        i0 = np.minimum(f.astype(np.int64), q.MU.size - 2)
+        t = (f - i0)[:, None]
+        vrow = (1 - t) * V[i0] + t * V[i0 + 1]
+        xrow = (1 - t) * X[i0] + t * X[i0 + 1]
+        vn = v_obs[ok] / (step * step)
+        j = np.clip(np.sum(vrow < vn[:, None], axis=1), 1, q.SIGMA.size - 1)
+        r = np.arange(j.size)
+        lo, hi = vrow[r, j - 1], vrow[r, j]
+        w = np.clip((vn - lo) / np.where(hi > lo, hi - lo, 1.0), 0.0, 1.0)
+        x = (1 - w) * xrow[r, j - 1] + w * xrow[r, j]
+        out[np.nonzero(ok)[0]] = (level + x) * step
+        return out
+
+    rng = np.random.default_rng(11)
+    m = rng.uniform(-2.0, 2.0, 5000)
+    v = (rng.uniform(0.0, 0.03, 5000)) ** 2
+    m[:3] = [np.nan, 0.0, STEP]
+    v[3] = np.inf
+    assert np.array_equal(q._solve(m, v, STEP), full_rows(m, v, STEP), equal_nan=True)

@@ -12,10 +12,8 @@ one-line reason and provenance).
 from .estimate import CalibrationEstimate
 from .fit import (apply_model, calibration_error_g, estimate_error_mg, fit_calibration,
                   icp_sphere_fit, sphere_coverage, temperature_check)
-from .online import OnlineCalibrator
 from .schedule import BatchSchedule, fit_batch_schedule
 from .select import nonmovement_mask, repeat_mask, select_calibration_windows
-from .store import CalibrationStore, CalibrationStoreError
 
 __all__ = [
     "CalibrationEstimate", "fit_calibration", "fit_batch_schedule", "OnlineCalibrator",
@@ -26,9 +24,12 @@ __all__ = [
 ]
 
 _LAZY = {  # imported on first use: recording pulls in the engine's operators (which import
-    # .select from this package), plot pulls in matplotlib
+    # .select from this package), plot pulls in matplotlib; the online calibrator and the store
+    # are not needed by a batch fit (``stillpoint calibrate`` without --store)
     "calibrate_recording": ".recording", "calibrate_source": ".recording",
     "plot_calibration": ".plot", "read_features_csv": ".table",
+    "OnlineCalibrator": ".online", "CalibrationStore": ".store",
+    "CalibrationStoreError": ".store",
 }
 
 

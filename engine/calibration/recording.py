@@ -78,9 +78,9 @@ def calibrate_source(source, *, first_hours: float = FIRST_HOURS, chunk_hours: f
             continue
         step.push(block)
         samples += block.n
-        last_ns = int(block.time_ns[-1])
+        last_ns = int(block.time_at(block.n - 1))
         if first_ns is None:
-            first_ns = int(block.time_ns[0])
+            first_ns = int(block.time_at(0))
         est = feed(wop.push(block), last_ns)
         if progress is not None:
             progress(samples)
@@ -111,10 +111,18 @@ def calibrate_source(source, *, first_hours: float = FIRST_HOURS, chunk_hours: f
 
 def calibrate_recording(path, *, open_options: Optional[dict] = None,
                         **kwargs) -> RecordingCalibration:
-    """Open a recording (``.cwa``, ``.bin``, MCAP) and run :func:`calibrate_source` on it."""
-    from stillpoint.drivers import open_recording
+    """Open a recording (``.cwa``, ``.bin``, MCAP) and run :func:`calibrate_source` on it.
 
-    src = open_recording(path, **(open_options or {}))
+    A ``.cwa`` is read without per-sample times (``sample_times=False``: the windows are cut
+    at the same samples from the sector anchors, ``drivers.cwa_decode.SampleClock``) and into
+    column-major counts (``column_major=True``)."""
+    from stillpoint.drivers import open_recording, sniff_format
+
+    options = dict(open_options or {})
+    if sniff_format(path) == "cwa":
+        options.setdefault("sample_times", False)
+        options.setdefault("column_major", True)
+    src = open_recording(path, **options)
     try:
         return calibrate_source(src, **kwargs)
     finally:

@@ -3,7 +3,8 @@
 Windows are cut by time from the start of each segment (``[t0 + k*10 s, t0 + (k+1)*10 s)``) and
 never span a segment (a gap, a restart, a skipped corrupt sector). Temperature is **held per
 sample** (each sample takes its sector's/page's temperature) and averaged over the window, which
-is what GGIR does for its calibration windows. A window is emitted only if it holds at least
+is what GGIR does for its calibration windows; when the unit values allow exact sums (.cwa
+temperatures) the window's sum is taken per unit (value times samples), the same number. A window is emitted only if it holds at least
 ``min_fill`` of its nominal sample count (``window_s * rate_hz``), so the short tail of a segment
 does not enter the fit; ``min_fill=0`` emits every window.
 
@@ -90,7 +91,10 @@ def chunk_features(chunk: BinChunk, width_ns: int, zero=None, counts_per_g=None,
         else:  # |c| / cpg: the squares already summed exactly, one sqrt, one scale per window
             norm_scaled = True
     sd[cnt < 2] = np.nan
-    temp = np.add.reduceat(chunk.cols["temperature"], st) / cnt
+    if chunk.sums is not None and "temperature" in chunk.sums:
+        temp = chunk.sums["temperature"] / cnt
+    else:
+        temp = np.add.reduceat(chunk.cols["temperature"], st) / cnt
     if norm_scaled and in_place:  # the squares are in a's columns: sum, root, mean per window
         want = np.ones(k, bool) if norm_for is None else np.asarray(norm_for(mean, sd), bool)
         norm_mean = np.full(k, np.nan)
@@ -115,6 +119,19 @@ def chunk_features(chunk: BinChunk, width_ns: int, zero=None, counts_per_g=None,
     return WindowFeatures(start_ns=chunk.bin_start_ns(width_ns), n=cnt.astype(np.int64), mean=mean,
                           sd=sd, temperature=temp, norm_mean=norm_mean,
                           segment=np.full(len(cnt), chunk.segment, np.int64))
+
+
+def exact_unit_sums(unit_start: np.ndarray, values: np.ndarray, n: int) -> bool:
+    """Whether a per-unit column can be summed over windows per unit (value times samples,
+    ``binning.unit_bin_sums``) with the bits of summing it per sample: every value finite and a
+    multiple of 2^-8 below 2^10 in magnitude (a .cwa temperature, raw * 75/256 - 50), so that
+    every partial sum of a block (below 2^10 * n, on the 2^-8 grid) is exact in float64."""
+    if values.shape[0] == 0 or unit_start.shape[0] != values.shape[0] or unit_start[0] != 0:
+        return False
+    if n >= 1 << 40:
+        return False
+    v = values * 256.0
+    return bool(np.all(np.abs(values) < 1024.0) and np.all(v == np.rint(v)))
 
 
 class WindowFeaturesOperator:
@@ -161,10 +178,10 @@ class WindowFeaturesOperator:
         same = (np.array_equal(zero, block.accel_zero)
                 and np.array_equal(cpg, block.accel_counts_per_g))
         acc = block.accel
-        for j in range(3):
-            c = out[j]
-            c[...] = acc[:, j]
-            if not same:
+        out[...] = acc.T  # one pass (quickest from column-major counts)
+        if not same:
+            for j in range(3):
+                c = out[j]
                 c -= block.accel_zero[j]
                 c *= cpg[j] / block.accel_counts_per_g[j]
                 c += zero[j]
@@ -182,8 +199,13 @@ class WindowFeaturesOperator:
             accel = self._counts_columns(block)
         else:
             accel = accel_g_columns(block)
-        chunks = self._binner.push(block.segment, block.time_ns, accel=accel,
-                                   temperature=block.temperature_per_sample())
+        times = block.time_ns if block.time_ns is not None else block.clock
+        if exact_unit_sums(block.unit_start, block.temperature_c, block.n):
+            chunks = self._binner.push(block.segment, times, accel=accel, units=(
+                block.unit_start, {"temperature": block.temperature_c}))
+        else:
+            chunks = self._binner.push(block.segment, times, accel=accel,
+                                       temperature=block.temperature_per_sample())
         return self._features(chunks)
 
     def flush(self) -> WindowFeatures:

@@ -320,3 +320,38 @@ def test_export_from_an_online_run_gives_the_same_tables(small_run, tmp_path):
     from stillpoint.engine.tables import tables_from_mcap
     tables_from_mcap(tmp_path / "o.mcap", tmp_path / "x.epochs.csv.gz")
     assert read_epochs(tmp_path / "x.epochs.csv.gz") == e and read_days(tmp_path / "x.days.csv") == d
+
+
+@pytest.mark.parametrize("m,k", [(51, 51), (52, 51), (400, 51), (1000, 101), (60, 3)])
+def test_anglez_medians_are_scipys_median_filter(m, k):
+    """The rank kernel called directly gives scipy.ndimage.median_filter's numbers exactly (ties,
+    repeated values and NaN-free noise alike), and it is the kernel in use where scipy has it."""
+    from scipy.ndimage import median_filter
+
+    from stillpoint.engine.operators import anglez
+
+    rng = np.random.default_rng(m + k)
+    sub = np.round(rng.normal(0, 1, (3, m)), 1)  # rounded: many equal values
+    sub[1, ::7] = 0.5
+    h = k // 2
+    want = np.stack([median_filter(sub[j], size=k, mode="nearest")[h:m - h] for j in range(3)])
+    got = anglez._medians(sub, k)
+    assert got.shape == want.shape and np.array_equal(got, want)
+    import scipy
+    if tuple(int(p) for p in scipy.__version__.split(".")[:2]) >= (1, 14):
+        assert anglez._RANK is not None  # the fast 1-D kernel ships with this scipy
+
+
+def test_process_does_not_import_scipy_signal_or_ndimage(tmp_path):
+    """A process run loads scipy's filter kernels on their own: no scipy.signal or
+    scipy.ndimage import (0.35-0.5 s and ~20 MB each at start-up)."""
+    from stillpoint.engine.calibration import quantisation
+
+    quantisation._tables()  # the de-biasing tables in the cache (built once per machine)
+    rec = tmp_path / "r.cwa"
+    simulate_recording(rec, days=0.05, hz=25, seed=2)
+    code = ("import sys; from stillpoint.engine.run import RunSettings, process_file; "
+            f"process_file({str(rec)!r}, {str(tmp_path / 'o.mcap')!r}, RunSettings()); "
+            "print([m for m in ('scipy.signal', 'scipy.ndimage', 'scipy.special') if m in sys.modules])")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip().splitlines()[-1] == "[]"

@@ -14,10 +14,9 @@ module cannot be loaded, ``scipy.signal.sosfilt`` is used (same kernel, same num
 
 from __future__ import annotations
 
-import glob
-import os
-
 import numpy as np
+
+from ..kernels import scipy_extension
 
 BFEN_BAND_GGIR = (0.2, 15.0)  # GGIR default band-pass for BFEN (hfen/bfen: lb 0.2 Hz, hb 15 Hz)
 BFEN_BAND_VANHEES = (0.5, 15.0)  # van Hees et al. 2013 (PLoS ONE) comparison of metrics
@@ -64,23 +63,8 @@ def butter_bandpass_sos(order: int, band, fs: float) -> np.ndarray:
 def _load_kernel():
     """scipy's compiled ``_sosfilt(sos, x, zi)`` (filters the rows of C-ordered x in place),
     from its extension module alone (no ``scipy.signal`` import); None if not loadable."""
-    try:
-        import importlib.machinery
-        import importlib.util
-
-        import scipy
-        paths = glob.glob(os.path.join(scipy.__path__[0], "signal", "_sosfilt*.so")) + \
-            glob.glob(os.path.join(scipy.__path__[0], "signal", "_sosfilt*.pyd"))
-        if not paths:
-            return None
-        name = "scipy.signal._sosfilt"
-        loader = importlib.machinery.ExtensionFileLoader(name, paths[0])
-        spec = importlib.util.spec_from_file_location(name, paths[0], loader=loader)
-        mod = importlib.util.module_from_spec(spec)
-        loader.exec_module(mod)
-        return mod._sosfilt
-    except Exception:
-        return None
+    mod = scipy_extension("signal", "_sosfilt")
+    return getattr(mod, "_sosfilt", None)
 
 
 _KERNEL = _load_kernel()

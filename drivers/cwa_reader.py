@@ -326,27 +326,34 @@ class CwaReader:
     def _time_pending(self, block: Block) -> None:
         """Time the events logged before ``block`` whose sector it reaches, exactly: a sector in
         the block -> its first sample's time; a sector skipped before it -> the last sample
-        emitted before that sector. Independent of how the file was cut into batches."""
-        if not self._untimed:
+        emitted before that sector. Independent of how the file was cut into batches. The start
+        of an open axis-swap run is timed by the same rule as a block reaches it (its event is
+        logged only when the run ends, maybe blocks later)."""
+        run = self._swap_run
+        if not self._untimed and (run is None or len(run) > 3):
             self._last_t = int(block.time_at(block.n - 1))
             return
         ui = block.unit_index
         first_t = block.time_at(block.unit_start)
+
+        def sector_time(index: int) -> int:
+            j = int(np.searchsorted(ui, index))
+            if ui[j] == index:
+                return int(first_t[j])
+            if j == 0:
+                return self._last_t if self._last_t is not None else int(block.time_at(0))
+            return int(block.time_at(block.unit_start[j] - 1))
+
         keep = []
         for pos in self._untimed:
             e = self.qc.events[pos]
             if e.index > ui[-1]:
                 keep.append(pos)
                 continue
-            j = int(np.searchsorted(ui, e.index))
-            if ui[j] == e.index:
-                t = int(first_t[j])
-            elif j == 0:
-                t = self._last_t if self._last_t is not None else int(block.time_at(0))
-            else:
-                t = int(block.time_at(block.unit_start[j] - 1))
-            self.qc.events[pos] = replace(e, time_ns=t)
+            self.qc.events[pos] = replace(e, time_ns=sector_time(e.index))
         self._untimed = keep
+        if run is not None and len(run) == 3 and run[0] <= ui[-1]:
+            run.append(sector_time(run[0]))
         self._last_t = int(block.time_at(block.n - 1))
 
     def _init_state(self) -> None:
@@ -359,7 +366,7 @@ class CwaReader:
         self._emitted_total = 0
         self._n_events = 0
         self._erased_run: Optional[list] = None  # [first, last] index of a run of erased sectors
-        self._swap_run: Optional[list] = None
+        self._swap_run: Optional[list] = None  # [first, last sector, swapped seen, (first's time)]
         self._check_swap = (self.info.device_type == "AX6"
                             and self._header["firmware_revision"] < C.CWA_AX6_AXIS_SWAP_FIXED_FIRMWARE)
 
@@ -882,7 +889,8 @@ class CwaReader:
                     f"data sectors {run[0]}..{run[1]} (start of a logging run): the gyro channels "
                     f"hold a steady ~1 g vector and the accel channels do not - accel/gyro triplets "
                     f"look swapped (known AX6 firmware < {C.CWA_AX6_AXIS_SWAP_FIXED_FIRMWARE} bug, "
-                    f"this file has {self._header['firmware_revision']}); data left unchanged")
+                    f"this file has {self._header['firmware_revision']}); data left unchanged",
+                    time_ns=run[3] if len(run) > 3 else None)
 
 
 def _slice_chunk(c: dict, a: int, b: Optional[int]) -> dict:

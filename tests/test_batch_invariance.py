@@ -138,3 +138,21 @@ GNA_FILES = ["geneactiv_temperature_inf.bin", "geneactiv_pagetime_1960.bin",
 def test_geneactiv_batch_size_does_not_change_results(name, batch):
     ref = snapshot(GeneactivReader(FUZZ / name))
     assert_same(ref, snapshot(GeneactivReader(FUZZ / name, batch_pages=batch)), f"{name} batch={batch}")
+
+
+REAL_CWA = ["ax6_ggirread_testfile_100hz_16g_gyro250dps.cwa",  # an axis-swap run (AX6 fw < 56)
+            "ax3_ggirread_corrupt_blocks_0_13_14_142_143_144.cwa",
+            "ax6_skdh_sample_100hz_16g_gyro2000dps.cwa"]
+
+
+@pytest.mark.parametrize("name", REAL_CWA)
+@pytest.mark.parametrize("batch", [1, 3, 7])
+def test_real_cwa_batch_size_does_not_change_results(real_file, name, batch):
+    """Samples and QC events (times included) of real files, whatever the batch size; the
+    axis-swap event is logged when its run ends, blocks after its first sector was emitted."""
+    path = real_file(name)
+    ref = snapshot(CwaReader(path))
+    got = snapshot(CwaReader(path, batch_sectors=batch))
+    assert_same(ref, got, f"{name} batch={batch}")
+    if name.startswith("ax6_ggirread"):
+        assert [q[1] for q in ref["qc"]] == ["axis_swap"]

@@ -33,7 +33,7 @@ import numpy as np
 from . import records as rec
 
 _MSG_HEAD = rec.MESSAGE_HEADER
-_FEW_ENTRIES = 64  # up to this many Message Index entries a chunk, plain Python is faster
+_FEW_ENTRIES = 64  # up to this many framed index entries a chunk, plain Python is faster
 
 
 class FixedRecords:
@@ -220,46 +220,20 @@ class ChunkBuilder:
     def pending(self) -> bool:
         return self._cstart is not None
 
-    def _message_indexes(self) -> list[tuple[int, bytes]]:
-        """(channel id, Message Index record) for every channel in the open chunk, by id.
-        Entries sorted by log time (then file order), as the specification asks."""
-        if self._framed:
-            return self._message_indexes_arrays()
-        out = []
-        for cid in sorted(self._index):
-            items = self._index[cid]
-            if not isinstance(items[0][0], np.ndarray) and all(
-                    not isinstance(it[0], np.ndarray) for it in items):
-                # messages added one by one: a few per chunk, plain Python is fastest
-                if any(items[i][0] > items[i + 1][0] for i in range(len(items) - 1)):
-                    items = sorted(items)
-                flat = [v for it in items for v in it]
-                out.append((cid, rec.message_index(cid, struct.pack(f"<{len(flat)}Q", *flat))))
-                continue
-            ts, os_ = [], []
-            for it in items:
-                if isinstance(it[0], np.ndarray):
-                    ts.append(it[0])
-                    os_.append(it[1])
-                else:
-                    ts.append(np.array([it[0]], np.int64))
-                    os_.append(np.array([it[1]], np.int64))
-            t = np.concatenate(ts) if len(ts) > 1 else ts[0]
-            o = np.concatenate(os_) if len(os_) > 1 else os_[0]
-            e = np.empty((t.shape[0], 2), "<u8")
-            if t.shape[0] > 1 and bool(np.any(t[1:] < t[:-1])):
-                order = np.lexsort((o, t))
-                e[:, 0] = t[order]
-                e[:, 1] = o[order]
-            else:
-                e[:, 0] = t
-                e[:, 1] = o
-            out.append((cid, rec.message_index(cid, e.tobytes())))
-        return out
+    def _message_indexes(self, shift=None) -> list[tuple[int, bytes]]:
+        """(channel id, Message Index record) for every channel in the open chunk, by id, its
+        entries sorted by log time (then offset), as the specification asks. ``shift``: (old
+        part starts, their moves) of ``_regroup``. Entries added one by one, or few in all (a
+        cell of an online run), go through plain Python; many framed entries through one
+        sort by (channel, log time, offset) on arrays. Both give the same records."""
+        arrays = sum(c.shape[0] for c, _t, _o in self._framed) + sum(
+            it[0].shape[0] for v in self._index.values() for it in v
+            if isinstance(it[0], np.ndarray))
+        if arrays <= _FEW_ENTRIES:
+            return self._message_indexes_few(shift)
+        return self._message_indexes_arrays(shift)
 
     def _message_indexes_few(self, shift=None) -> list[tuple[int, bytes]]:
-        """``_message_indexes_arrays`` of a chunk with few entries (one cell of an online run),
-        in plain Python: the same records, without a dozen numpy calls per chunk."""
         per: dict[int, list] = {}
         for c, t, o in self._framed:
             for ci, ti, oi in zip(c.tolist(), t.tolist(), o.tolist()):
@@ -289,24 +263,23 @@ class ChunkBuilder:
         return out
 
     def _message_indexes_arrays(self, shift=None) -> list[tuple[int, bytes]]:
-        """``_message_indexes`` of a chunk holding framed or regrouped records: every entry of
-        the chunk in three arrays, one sort by (channel, log time, offset), one record per
-        channel. ``shift``: (old part starts, their moves) of ``_regroup``."""
-        if sum(c.shape[0] for c, _t, _o in self._framed) + sum(
-                it[0].shape[0] if isinstance(it[0], np.ndarray) else 1
-                for v in self._index.values() for it in v) <= _FEW_ENTRIES:
-            return self._message_indexes_few(shift)
         cs, ts, os_ = [], [], []
         for c, t, o in self._framed:
             cs.append(c)
             ts.append(t)
             os_.append(o)
         for cid, items in self._index.items():
+            one = [it for it in items if not isinstance(it[0], np.ndarray)]
+            if one:  # messages added one by one: one conversion per channel
+                a = np.array(one, np.int64).reshape(-1, 2)
+                cs.append(np.full(a.shape[0], cid, np.int64))
+                ts.append(a[:, 0])
+                os_.append(a[:, 1])
             for it in items:
-                t = np.atleast_1d(np.asarray(it[0], np.int64))
-                cs.append(np.full(t.shape[0], cid, np.int64))
-                ts.append(t)
-                os_.append(np.atleast_1d(np.asarray(it[1], np.int64)))
+                if isinstance(it[0], np.ndarray):
+                    cs.append(np.full(it[0].shape[0], cid, np.int64))
+                    ts.append(np.asarray(it[0], np.int64))
+                    os_.append(np.asarray(it[1], np.int64))
         c, t, o = np.concatenate(cs), np.concatenate(ts), np.concatenate(os_)
         if shift is not None:
             old, delta = shift
@@ -360,7 +333,7 @@ class ChunkBuilder:
         parts, shift = self._regroup()
         data = b"".join(parts)
         lo, hi = self._cstart, self._cend
-        indexes = self._message_indexes() if shift is None else self._message_indexes_arrays(shift)
+        indexes = self._message_indexes(shift)
         self._index = {}
         self._framed = []
         self._parts, self._lanes, self._size, self._cstart, self._cend = [], [], 0, None, None

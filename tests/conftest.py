@@ -22,9 +22,12 @@ REAL_DATA_ENV = "STILLPOINT_REAL_DATA"
 
 # the tests' cache of built tables (engine/cache.py) is their own, not the user's
 if "STILLPOINT_CACHE_DIR" not in os.environ:
+    import atexit
+    import shutil
     import tempfile
 
     os.environ["STILLPOINT_CACHE_DIR"] = tempfile.mkdtemp(prefix="stillpoint-test-cache-")
+    atexit.register(shutil.rmtree, os.environ["STILLPOINT_CACHE_DIR"], True)
 
 
 @pytest.fixture(scope="session")

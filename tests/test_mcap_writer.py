@@ -292,3 +292,68 @@ def test_message_indexes_of_small_and_large_chunks_agree(tmp_path, monkeypatch, 
     monkeypatch.setattr(chunks, "_FEW_ENTRIES", few)
     _write(b, "none", plan, fixed=True)
     assert a.read_bytes() == b.read_bytes()
+
+
+def _whole_chunk_records(rng, cids, nchunks, seq):
+    """Message records of ``nchunks`` chunks, each channel's records of a chunk in one run
+    (times in any order), with their channel, log time and offset from the start."""
+    data, bounds, mc, mt, mo = [], [0], [], [], []
+    at = 0
+    t = 1_700_000_000 * 10**9
+    for _k in range(nchunks):
+        for cid in rng.permutation(cids)[:int(rng.integers(1, len(cids) + 1))].tolist():
+            for _m in range(int(rng.integers(1, 6))):
+                tm = t + int(rng.integers(-10**9, 10**10))
+                r = rec.message(cid, seq[cid], tm, tm, rng.bytes(int(rng.integers(0, 200))))
+                seq[cid] += 1
+                data.append(r)
+                mc.append(cid)
+                mt.append(tm)
+                mo.append(at)
+                at += len(r)
+        t += 10**10
+        bounds.append(at)
+    return (b"".join(data), np.array(bounds, np.int64), np.array(mc, np.int64),
+            np.array(mt, np.int64), np.array(mo, np.int64))
+
+
+@pytest.mark.parametrize("compression", ["zstd", "none"])
+def test_whole_chunks_at_once_equal_one_chunk_at_a_time(tmp_path, compression):
+    """ChunkBuilder.whole_chunks + the writer's "chunks" operation (an online run's cells,
+    many at once, more than one writev's worth) write the bytes that add_framed + take + "chunk"
+    write chunk by chunk; the file follows the specification."""
+    from mcap_layout import conforms
+    rng = np.random.default_rng(6)
+    outs = []
+    for how in ("one", "many"):
+        p = tmp_path / f"{how}.mcap"
+        core = _WriterCore(str(p), compression, 1.0)
+        cb = ChunkBuilder(SCHEMAS, chunk_size=1 << 20)
+        cids = [cb.channel(f"/t{i}", "cdr", "a/Msg") for i in range(4)]
+        cb.add(cids[0], 5, b"first")  # the Channel records go into a chunk of their own
+        core.execute("chunk", *cb.take(), False)
+        seq = {c: cb.sequence(c) for c in cids}
+        data, bounds, mc, mt, mo = _whole_chunk_records(np.random.default_rng(7), cids, 400, seq)
+        if how == "one":
+            for i in range(bounds.shape[0] - 1):
+                sel = (mo >= bounds[i]) & (mo < bounds[i + 1])
+                c = mc[sel]
+                parts = []
+                for cid in dict.fromkeys(c.tolist()):
+                    o = mo[sel][c == cid]
+                    parts.append(data[o[0]:bounds[i + 1] if cid == c[-1] else
+                                      mo[sel][np.flatnonzero(c == cid)[-1] + 1]])
+                cb.add_framed(parts, int(bounds[i + 1] - bounds[i]), c, mt[sel],
+                              mo[sel] - bounds[i], dict(zip(*np.unique(c, return_counts=True))),
+                              list(dict.fromkeys(c.tolist())))
+                core.execute("chunk", *cb.take(), False)
+        else:
+            counts = dict(zip(*[a.tolist() for a in np.unique(mc, return_counts=True)]))
+            core.execute("chunks", *cb.whole_chunks(data, bounds, mc, mt, mo, counts), False)
+        cb.add(cids[1], 10**19 // 10, b"last")
+        core.execute("chunk", *cb.take(), True)
+        core.execute("finish", cb.summary(metadata_count=0))
+        outs.append(p.read_bytes())
+        rep = conforms(p)
+        assert rep["chunks"] == 402
+    assert outs[0] == outs[1]

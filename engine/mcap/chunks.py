@@ -36,6 +36,45 @@ _MSG_HEAD = rec.MESSAGE_HEADER
 _FEW_ENTRIES = 64  # up to this many framed index entries a chunk, plain Python is faster
 
 
+_INDEX_HEAD = np.dtype([("op", "u1"), ("len", "<u8"), ("cid", "<u2"), ("entries", "<u4")])
+
+
+def index_records(chunk: np.ndarray, cids: np.ndarray, times: np.ndarray, offsets: np.ndarray,
+                  nchunks: int) -> tuple[bytes, list, list]:
+    """The Message Index records of ``nchunks`` chunks in one pass: one entry per message
+    (its chunk, channel id, log time, offset in its chunk). Returns ``(blob, bounds, maps)``:
+    chunk i's records are ``blob[bounds[i]:bounds[i + 1]]``, one per channel by ascending id,
+    entries sorted by log time then offset (the specification's order); ``maps[i]``: (channel
+    id, offset of its record from ``bounds[i]``) for each."""
+    n = int(cids.shape[0])
+    order = np.lexsort((offsets, times, cids, chunk))
+    k, c = chunk[order], cids[order]
+    new = np.ones(n, bool)
+    new[1:] = (k[1:] != k[:-1]) | (c[1:] != c[:-1])
+    gs = np.flatnonzero(new)  # first entry of each (chunk, channel) record
+    gn = np.diff(np.append(gs, n))
+    head = np.zeros(gs.shape[0], _INDEX_HEAD)
+    head["op"] = rec.OP_MESSAGE_INDEX
+    head["len"] = 6 + rec.MESSAGE_INDEX_ENTRY * gn
+    head["cid"] = c[gs]
+    head["entries"] = rec.MESSAGE_INDEX_ENTRY * gn
+    hs = _INDEX_HEAD.itemsize
+    ro = np.zeros(gs.shape[0] + 1, np.int64)
+    np.cumsum(hs + rec.MESSAGE_INDEX_ENTRY * gn, out=ro[1:])
+    is_head = np.zeros(int(ro[-1]), bool)
+    is_head[(ro[:-1, None] + np.arange(hs)).reshape(-1)] = True
+    buf = np.empty(int(ro[-1]), np.uint8)
+    buf[is_head] = head.view(np.uint8)
+    ent = np.empty((n, 2), "<u8")
+    ent[:, 0] = times[order]
+    ent[:, 1] = offsets[order]
+    buf[~is_head] = ent.view(np.uint8).reshape(-1)
+    cb = np.searchsorted(k[gs], np.arange(nchunks + 1), side="left").tolist()
+    rol, cl = ro.tolist(), c[gs].tolist()
+    maps = [[(cl[g], rol[g] - rol[cb[i]]) for g in range(cb[i], cb[i + 1])] for i in range(nchunks)]
+    return buf.tobytes(), [rol[g] for g in cb], maps
+
+
 class FixedRecords:
     """Message records framed ahead of time (``ChunkBuilder.prepare_fixed``)."""
 
@@ -284,15 +323,37 @@ class ChunkBuilder:
         if shift is not None:
             old, delta = shift
             o = o + delta[np.searchsorted(old, o, side="right") - 1]
-        order = np.lexsort((o, t, c))
-        e = np.empty((order.shape[0], 2), "<u8")
-        e[:, 0] = t[order]
-        e[:, 1] = o[order]
-        c = c[order]
-        ids = np.flatnonzero(np.concatenate([[True], c[1:] != c[:-1]]))
-        bounds = np.append(ids, c.shape[0]).tolist()
-        return [(cid, rec.message_index(cid, e[a:b].tobytes()))
-                for cid, a, b in zip(c[ids].tolist(), bounds[:-1], bounds[1:])]
+        blob, _bounds, maps = index_records(np.zeros(c.shape[0], np.int64), c, t, o, 1)
+        ends = [off for _cid, off in maps[0][1:]] + [len(blob)]
+        return [(cid, blob[off:end]) for (cid, off), end in zip(maps[0], ends)]
+
+    def whole_chunks(self, data: bytes, bounds: np.ndarray, cids: np.ndarray,
+                     times: np.ndarray, offsets: np.ndarray, counts: dict) -> tuple:
+        """Chunks framed elsewhere whole, many at once (the open chunk must be empty):
+        ``data`` holds the Message records of ``len(bounds) - 1`` chunks back to back (chunk
+        i: ``data[bounds[i]:bounds[i + 1]]``), numbered with the sequence numbers ``sequence``
+        gave and already in grouped order (each channel's records of a chunk in one run);
+        ``cids``, ``times`` (clamped at 0) and ``offsets`` (from the start of ``data``)
+        describe each record; ``counts``: channel id -> messages. Returns the writer's
+        ``"chunks"`` operation arguments (see engine/mcap/writer.py): the same chunks, Message
+        Indexes and statistics as adding each with ``add_framed`` and ``take``."""
+        if self._parts:
+            raise RuntimeError("whole chunks need an empty open chunk")
+        nc = int(bounds.shape[0]) - 1
+        first = np.searchsorted(offsets, bounds[:-1], side="left")  # first record of each chunk
+        k = np.repeat(np.arange(nc, dtype=np.int64), np.diff(np.append(first, offsets.shape[0])))
+        starts = np.minimum.reduceat(times, first)
+        ends = np.maximum.reduceat(times, first)
+        blob, ibounds, maps = index_records(k, cids, times, offsets - bounds[k], nc)
+        for cid, n in counts.items():
+            self._seq[cid] += n
+            self.counts[cid] += n
+        self.message_count += int(cids.shape[0])
+        lo, hi = int(starts.min()), int(ends.max())
+        self.start = lo if self.start is None else min(self.start, lo)
+        self.end = hi if self.end is None else max(self.end, hi)
+        self.chunks += nc
+        return (data, bounds.tolist(), starts.tolist(), ends.tolist(), blob, ibounds, maps)
 
     def _regroup(self):
         """The open chunk's parts in grouped order (see the module docstring) and, if that

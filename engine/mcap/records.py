@@ -68,12 +68,15 @@ def message(cid: int, sequence: int, log_time: int, publish_time: int, data: byt
 _CHUNK_HEAD = struct.Struct("<QQQI")
 
 
-def chunk(start: int, end: int, uncompressed_size: int, crc: int, compression: str,
-          data: bytes) -> list[bytes]:
-    """The Chunk record as parts (write them in order; avoids copying ``data``)."""
-    head = _CHUNK_HEAD.pack(start, end, uncompressed_size, crc) + _str(compression) \
-        + struct.pack("<Q", len(data))
-    return [_REC.pack(OP_CHUNK, len(head) + len(data)) + head, data]
+def chunk_head(start: int, end: int, uncompressed_size: int, crc: int, compression: str,
+               compressed_size: int) -> bytes:
+    """A Chunk record up to its records (write the compressed records right after it)."""
+    c = compression.encode()
+    return _CHUNK_HEAD.pack(OP_CHUNK, 8 + 8 + 8 + 4 + 4 + len(c) + 8 + compressed_size, start, end,
+                            uncompressed_size, crc, len(c)) + c + struct.pack("<Q", compressed_size)
+
+
+_CHUNK_HEAD = struct.Struct("<BQQQQII")
 
 
 MESSAGE_INDEX_ENTRY = 16  # log_time u64, offset u64

@@ -844,8 +844,8 @@ def _frame_block(sink: "McapSink", block: Optional[Block], corrected: list,
         np.cumsum(typ[:, None] == np.arange(len(topics)), axis=0, out=cum[1:])
     roff_l = roff.tolist()
 
-    def append(lo, hi):
-        """Hand the records [lo, hi) to the chunk builder (slices of the topic buffers)."""
+    def pieces(lo, hi):
+        """The records [lo, hi): slices of the topic buffers, and the channel of each."""
         k = bisect.bisect_right(rs_l, lo) - 1
         parts, part_cids = [], []
         while rs_l[k] < hi:
@@ -855,16 +855,55 @@ def _frame_block(sink: "McapSink", block: Optional[Block], corrected: list,
             parts.append(views[t][offl[t][a]:offl[t][a + e0 - s0]])
             part_cids.append(topic_cids[t])
             k += 1
+        return parts, part_cids
+
+    def counts(lo, hi):
         n = (cum[hi] - cum[lo]).tolist()
+        return {c: k for c, k in zip(topic_cids, n) if k}
+
+    def append(lo, hi):
+        """Hand the records [lo, hi) to the chunk builder."""
+        parts, part_cids = pieces(lo, hi)
         ch.add_framed(parts, roff_l[hi] - roff_l[lo], cids[lo:hi], times[lo:hi],
-                      roff[lo:hi] - roff_l[lo],
-                      {c: k for c, k in zip(topic_cids, n) if k}, part_cids)
+                      roff[lo:hi] - roff_l[lo], counts(lo, hi), part_cids)
+
+    def whole(ranges):
+        """Flush ranges that are chunks by themselves, all at once (ChunkBuilder.whole_chunks):
+        one writer operation instead of one chunk after another, the same bytes."""
+        lo, hi = ranges[0][0], ranges[-1][1]
+        b = np.array([r[0] for r in ranges] + [hi], np.int64)
+        op = ch.whole_chunks(b"".join(pieces(lo, hi)[0]), roff[b] - roff_l[lo], cids[lo:hi],
+                             times[lo:hi], roff[lo:hi] - roff_l[lo], counts(lo, hi))
+        sink.flushes += len(ranges)
+        sink._send(("chunks", *op, False))
 
     # records before the flush at iteration f: earlier iterations, and f's phase 0 (pieces)
     key = it * 2 + (ph > 0)
-    cut_at = np.searchsorted(key, np.flatnonzero(flush) * 2 + 1, side="left").tolist()
+    cut_at = np.searchsorted(key, np.flatnonzero(flush) * 2 + 1, side="left")
+    # a flush range is a chunk by itself when it starts an empty chunk, is smaller than a chunk
+    # and holds each channel's records in one run (a one-cell chunk: already in grouped order)
+    whole_ok = [False] * cut_at.shape[0]
+    if cut_at.shape[0] and R:
+        rid = np.searchsorted(cut_at, np.arange(R), side="right")  # flush range of each record
+        brk = np.ones(R, bool)
+        brk[1:] = (cids[1:] != cids[:-1]) | (rid[1:] != rid[:-1])
+        nr = cut_at.shape[0] + 1
+        runs_in = np.bincount(rid[brk], minlength=nr)
+        chans_in = np.bincount(np.unique(rid * 65536 + cids) // 65536, minlength=nr)
+        lo_r = np.concatenate([[0], cut_at[:-1]])
+        whole_ok = ((runs_in[:-1] == chans_in[:-1]) & (cut_at > lo_r)
+                    & (roff[cut_at] - roff[lo_r] < ch.chunk_size)).tolist()
+    cut_at = cut_at.tolist()
     lo = 0
-    for c, flush_after in [(c, True) for c in cut_at] + [(R, False)]:
+    batch = []  # whole-chunk ranges not yet handed over
+    for j, (c, flush_after) in enumerate([(c, True) for c in cut_at] + [(R, False)]):
+        if flush_after and whole_ok[j] and (batch or not ch._parts):
+            batch.append((lo, c))
+            lo = c
+            continue
+        if batch:
+            whole(batch)
+            batch = []
         while lo < c:  # records [lo, c); the chunk ends where it reaches chunk_size
             room = ch.chunk_size - ch.size
             hi = c

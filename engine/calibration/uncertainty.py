@@ -132,11 +132,15 @@ def coefficient_uncertainty(mean: np.ndarray, temperature: Optional[np.ndarray],
     p = J.shape[1]
     WJ = w[:, None] * J
     H = J.T @ WJ
-    S = np.zeros((g, p))
-    np.add.at(S, blocks, r[:, None] * WJ)
-    # per-block information H_b, for the leverage adjustment below
-    Hb = np.zeros((g, p, p))
-    np.add.at(Hb, blocks, J[:, :, None] * WJ[:, None, :])
+    # per-block scores S_b and information H_b (for the leverage adjustment below), one
+    # column at a time: sums in window order, as np.add.at takes them, without an (n, p, p)
+    # temporary (80 MB for a fortnight's windows)
+    S = np.empty((g, p))
+    Hb = np.empty((g, p, p))
+    for j in range(p):
+        S[:, j] = np.bincount(blocks, r * WJ[:, j], minlength=g)
+        for i in range(p):
+            Hb[:, i, j] = np.bincount(blocks, J[:, i] * WJ[:, j], minlength=g)
     cov = np.full((p, p), np.nan)
     if g >= MIN_BLOCKS:
         try:

@@ -332,7 +332,8 @@ class ChunkBuilder:
         """Chunks framed elsewhere whole, many at once (the open chunk must be empty):
         ``data`` holds the Message records of ``len(bounds) - 1`` chunks back to back (chunk
         i: ``data[bounds[i]:bounds[i + 1]]``), numbered with the sequence numbers ``sequence``
-        gave and already in grouped order (each channel's records of a chunk in one run);
+        gave, each chunk's records in the order they go into it (grouped: the caller orders
+        them as ``take`` would);
         ``cids``, ``times`` (clamped at 0) and ``offsets`` (from the start of ``data``)
         describe each record; ``counts``: channel id -> messages. Returns the writer's
         ``"chunks"`` operation arguments (see engine/mcap/writer.py): the same chunks, Message

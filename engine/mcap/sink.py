@@ -869,30 +869,36 @@ def _frame_block(sink: "McapSink", block: Optional[Block], corrected: list,
 
     def whole(ranges):
         """Flush ranges that are chunks by themselves, all at once (ChunkBuilder.whole_chunks):
-        one writer operation instead of one chunk after another, the same bytes."""
+        each chunk's records in grouped order (as ChunkBuilder.take orders them: channels by
+        first appearance, each in its order), one writer operation for all; the same bytes
+        as one chunk after another."""
         lo, hi = ranges[0][0], ranges[-1][1]
         b = np.array([r[0] for r in ranges] + [hi], np.int64)
-        op = ch.whole_chunks(b"".join(pieces(lo, hi)[0]), roff[b] - roff_l[lo], cids[lo:hi],
-                             times[lo:hi], roff[lo:hi] - roff_l[lo], counts(lo, hi))
+        n = hi - lo
+        k = np.repeat(np.arange(len(ranges), dtype=np.int64), np.diff(b))
+        c = cids[lo:hi]
+        _u, first, inv = np.unique(k * 65536 + c, return_index=True, return_inverse=True)
+        perm = np.lexsort((np.arange(n), first[inv]))  # by chunk, channel's first record, order
+        ty, ix, sz = typ[lo:hi][perm], idx[lo:hi][perm], size[lo:hi][perm]
+        off = np.zeros(n + 1, np.int64)
+        np.cumsum(sz, out=off[1:])
+        starts = np.flatnonzero(np.concatenate([[True], (ty[1:] != ty[:-1]) | (ix[1:] != ix[:-1] + 1)]))
+        parts = []
+        for a, e, t, i in zip(starts.tolist(), starts[1:].tolist() + [n], ty[starts].tolist(),
+                              ix[starts].tolist()):
+            parts.append(views[t][offl[t][i]:offl[t][i + e - a]])
+        op = ch.whole_chunks(b"".join(parts), off[b - lo], c[perm], times[lo:hi][perm], off[:-1],
+                             counts(lo, hi))
         sink.flushes += len(ranges)
         sink._send(("chunks", *op, False))
 
     # records before the flush at iteration f: earlier iterations, and f's phase 0 (pieces)
     key = it * 2 + (ph > 0)
     cut_at = np.searchsorted(key, np.flatnonzero(flush) * 2 + 1, side="left")
-    # a flush range is a chunk by itself when it starts an empty chunk, is smaller than a chunk
-    # and holds each channel's records in one run (a one-cell chunk: already in grouped order)
-    whole_ok = [False] * cut_at.shape[0]
-    if cut_at.shape[0] and R:
-        rid = np.searchsorted(cut_at, np.arange(R), side="right")  # flush range of each record
-        brk = np.ones(R, bool)
-        brk[1:] = (cids[1:] != cids[:-1]) | (rid[1:] != rid[:-1])
-        nr = cut_at.shape[0] + 1
-        runs_in = np.bincount(rid[brk], minlength=nr)
-        chans_in = np.bincount(np.unique(rid * 65536 + cids) // 65536, minlength=nr)
-        lo_r = np.concatenate([[0], cut_at[:-1]])
-        whole_ok = ((runs_in[:-1] == chans_in[:-1]) & (cut_at > lo_r)
-                    & (roff[cut_at] - roff[lo_r] < ch.chunk_size)).tolist()
+    # a flush range is a chunk by itself when it starts an empty chunk and is smaller than a
+    # chunk: framed with the others like it at once (``whole``)
+    lo_r = np.concatenate([[0], cut_at[:-1]]) if cut_at.shape[0] else cut_at
+    whole_ok = ((cut_at > lo_r) & (roff[cut_at] - roff[lo_r] < ch.chunk_size)).tolist()
     cut_at = cut_at.tolist()
     lo = 0
     batch = []  # whole-chunk ranges not yet handed over

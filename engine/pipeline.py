@@ -37,10 +37,11 @@ class PipelineStats:
         return (self.last_ns - self.first_ns) / 1e9
 
 
-def split_block(block: Block, max_samples: int) -> list[Block]:
-    """Cut a Block into pieces of at most ``max_samples``, at unit boundaries where possible."""
+def split_block(block: Block, max_samples: Optional[int]) -> list[Block]:
+    """Cut a Block into pieces of at most ``max_samples`` (None: never), at unit boundaries
+    where possible."""
     n = block.n
-    if n <= max_samples:
+    if max_samples is None or n <= max_samples:
         return [block]
     us = block.unit_start
     out = []
@@ -59,10 +60,13 @@ def split_block(block: Block, max_samples: int) -> list[Block]:
 
 
 class Pipeline:
-    def __init__(self, source, stages: Iterable, *, rate_hz: float, max_block_s: float = 10.0):
+    def __init__(self, source, stages: Iterable, *, rate_hz: float,
+                 max_block_s: Optional[float] = 10.0):
+        """``max_block_s``: blocks longer than this (data time) are cut into pieces; None: the
+        source's blocks as they come (blocks timed by a sample clock cannot be cut)."""
         self.source = source
         self.stages = list(stages)
-        self.max_samples = max(1, int(max_block_s * max(rate_hz, 1.0)))
+        self.max_samples = None if max_block_s is None else max(1, int(max_block_s * max(rate_hz, 1.0)))
         self.stats = PipelineStats()
 
     def _fraction(self) -> Optional[float]:
@@ -82,8 +86,8 @@ class Pipeline:
                 st.samples += piece.n
                 st.blocks += 1
                 if st.first_ns is None:
-                    st.first_ns = int(piece.time_ns[0])
-                st.last_ns = int(piece.time_ns[-1])
+                    st.first_ns = int(piece.time_at(0))
+                st.last_ns = int(piece.time_at(piece.n - 1))
                 st.segments.add(piece.segment)
                 for stage in self.stages:
                     stage.push(piece)

@@ -151,7 +151,7 @@ class FeatureStage:
             self.on_features(f)
 
     def push(self, block: Block) -> None:
-        self.last_block_ns = int(block.time_ns[0])
+        self.last_block_ns = int(block.time_at(0))
         self.count_step.push(block)
         self._take(self.windows.push(block))
 
@@ -344,7 +344,9 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
         if not tables.zone.known:
             tables.zone = zone
     t_start = time.perf_counter()
-    src = open_recording(path, **opts)  # raises a StillpointError (exit 2) on unreadable input
+    # raises a StillpointError (exit 2) on unreadable input; a batch run's pass 1 (window
+    # features only) reads a .cwa without per-sample times, as calibrate does
+    src = open_recording(path, **(_features_options(path, opts) if s.mode == "batch" else opts))
     info = src.info
     rate = _rate(info)
     summary: dict = {"input": _utf8_text(str(path)), "mode": s.mode,
@@ -359,8 +361,8 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
         # ---------------------------------------------------------------- pass 1
         feat = FeatureStage(s, rate)
         try:
-            st1 = Pipeline(src, [feat], rate_hz=rate, max_block_s=s.max_block_s).run(
-                _progress_wrapper(progress, "pass 1/2"))
+            st1 = Pipeline(src, [feat], rate_hz=rate, max_block_s=None).run(
+                _progress_wrapper(progress, "pass 1/2"))  # the reader's blocks (flat memory)
         finally:
             src.close()
         if not s.calibrate:
@@ -525,6 +527,16 @@ CHUNK_S_BY_MODE = {"batch": 60.0, "online": None}
 # measured with process_file(..., writer=...) two runs each); an online run writes inline, so a
 # kill loses only the 10 s cell in progress, never a queued chunk too.
 WRITER_BY_MODE = {"batch": "thread", "online": "inline"}
+
+
+def _features_options(path, opts: dict) -> dict:
+    """Reader options for a pass that only needs window features: a ``.cwa`` without
+    per-sample times (a sample clock cuts the windows at the same samples) and column-major
+    counts (the features' layout); the same features, bit for bit, as the per-sample read."""
+    from stillpoint.drivers import sniff_format
+    if sniff_format(path) != "cwa":
+        return opts
+    return dict({"sample_times": False, "column_major": True}, **opts)
 
 
 def chunk_span(s: RunSettings) -> Optional[float]:

@@ -228,3 +228,30 @@ def test_window_features_alike_with_temperature_per_sample(monkeypatch):
         per_sample = _features(p, **kw)
         monkeypatch.undo()
         _assert_same_features(units, per_sample)
+
+
+@pytest.mark.parametrize("name", ["ax3_oxwearables_tiny_sample_3h_with_restart.cwa.gz",
+                                  "ax3_ggirread_corrupt_blocks_0_13_14_142_143_144.cwa"])
+def test_process_pass_one_without_sample_times_writes_the_same_log(real_file, tmp_path, monkeypatch,
+                                                                   name):
+    """A batch run's pass 1 reads a .cwa with the sample clock (no per-sample times, blocks as
+    the reader gives them); its log is the one the per-sample pass 1 writes, byte for byte."""
+    from stillpoint.engine import run as run_mod
+
+    seen = []
+    push = run_mod.FeatureStage.push
+
+    def spy(self, block):
+        seen.append(block.time_ns is None)
+        return push(self, block)
+
+    monkeypatch.setattr(run_mod.FeatureStage, "push", spy)
+    out = tmp_path / "run.mcap"
+    run_mod.process_file(real_file(name), out, run_mod.RunSettings(mode="batch"), writer="inline")
+    clock = out.read_bytes()
+    assert seen and all(seen)
+    seen.clear()
+    monkeypatch.setattr(run_mod, "_features_options", lambda path, opts: opts)
+    run_mod.process_file(real_file(name), out, run_mod.RunSettings(mode="batch"), writer="inline")
+    assert seen and not any(seen)
+    assert out.read_bytes() == clock

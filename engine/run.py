@@ -516,16 +516,16 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
 
 
 # MCAP chunk span by mode when RunSettings.chunk_s is None: an online run (a station correcting
-# while it downloads) keeps every 10 s flush cell in its own chunk, so a kill loses at most 10 s;
-# a batch run, whose input stays on disk and can be run again, writes 60 s chunks (fewer, larger
-# chunks: less CPU and fewer bytes, measured by tools/bench_process.py)
+# while it downloads) keeps every 10 s flush cell in its own chunk, so a kill loses only the
+# pipeline step in progress and the open cell; a batch run, whose input stays on disk and can be
+# run again, writes 60 s chunks (fewer bytes, measured by tools/bench_process.py)
 CHUNK_S_BY_MODE = {"batch": 60.0, "online": None}
 
 # MCAP writer by mode when process_file is given none: a batch run compresses and writes each
-# chunk on a writer thread while the engine works on the next block (zstd releases the GIL; on
-# an idle 2-core machine a 7-day batch run took 7-10 % less wall time for 3-6 % more CPU,
-# measured with process_file(..., writer=...) two runs each); an online run writes inline, so a
-# kill loses only the 10 s cell in progress, never a queued chunk too.
+# pipeline step's chunks on a writer thread while the engine works on the next step (zstd
+# releases the GIL; on an idle 2-core machine a 7-day batch run took ~28 % less wall time for
+# at most 2 % more CPU, /usr/bin/time of process_file(..., writer=...), two runs each); an online run
+# writes inline, so a kill loses only the step in progress, never a queued one too.
 WRITER_BY_MODE = {"batch": "thread", "online": "inline"}
 
 

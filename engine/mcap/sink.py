@@ -26,8 +26,9 @@ Cells: data time is cut into cells of ``flush_every_s`` (default 10 s) on the UT
 messages hold the whole sectors/pages that start in a cell; corrected messages hold the samples
 of one cell and segment (so replay reproduces the message layout exactly). The sink flushes the
 chunk in progress each time a new chunk span begins (``chunk_s``: one cell by default; the engine
-uses 60 s for batch runs), so a killed process loses at most that span (plus the correction's
-one-unit lag). Every chunk is followed by its Message Index
+uses 60 s for batch runs); the chunks a pipeline step completes go to the writer together at the
+end of the step, so a killed process loses the step in progress and the open span (plus the
+correction's one-unit lag). Every chunk is followed by its Message Index
 records (the MCAP specification's layout, which indexed readers such as Foxglove's need).
 Corrected values are rounded to ``corrected_quantum_g`` (2^-16 g = 15 µg, 1/256 of the finest
 AX3 count) before float32: float noise below the sensor's resolution does not compress, and

@@ -4,7 +4,8 @@
 numpy pass for a run of fixed-size messages) appended to the uncompressed chunk in progress,
 and hands the chunk's bytes over at each flush (``take()``) with the chunk's Message Index
 records (one per channel in the chunk: log time and offset of every message, sorted by log
-time, as the MCAP specification asks); compressing and writing them is the writer's job
+time, as the MCAP specification asks); chunks framed whole elsewhere (a pipeline step's cells)
+go through ``whole_chunks``, many at once; compressing and writing them is the writer's job
 (engine/mcap/writer.py). Schemas and Channels are registered lazily: their records
 go into the chunk where the topic first appears (so a salvaged prefix of the file is
 self-describing), and are repeated in the summary. Message counts per channel and the time range
@@ -333,9 +334,9 @@ class ChunkBuilder:
         ``data`` holds the Message records of ``len(bounds) - 1`` chunks back to back (chunk
         i: ``data[bounds[i]:bounds[i + 1]]``), numbered with the sequence numbers ``sequence``
         gave, each chunk's records in the order they go into it (grouped: the caller orders
-        them as ``take`` would);
-        ``cids``, ``times`` (clamped at 0) and ``offsets`` (from the start of ``data``)
-        describe each record; ``counts``: channel id -> messages. Returns the writer's
+        them as ``take`` would); ``cids``, ``times`` (clamped at 0) and ``offsets`` (from the
+        start of ``data``) describe each record; ``counts``: channel id -> messages. Returns the
+        writer's
         ``"chunks"`` operation arguments (see engine/mcap/writer.py): the same chunks, Message
         Indexes and statistics as adding each with ``add_framed`` and ``take``."""
         if self._parts:

@@ -346,7 +346,7 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
     t_start = time.perf_counter()
     # raises a StillpointError (exit 2) on unreadable input; a batch run's pass 1 (window
     # features only) reads a .cwa without per-sample times, as calibrate does
-    src = open_recording(path, **(_features_options(path, opts) if s.mode == "batch" else opts))
+    src = open_recording(path, **_reader_options(path, opts, features_only=s.mode == "batch"))
     info = src.info
     rate = _rate(info)
     summary: dict = {"input": _utf8_text(str(path)), "mode": s.mode,
@@ -385,7 +385,7 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
         quietest = feat.nonmovement.quietest_sd_g
         del feat  # the window table (~0.8 MB a day) is not needed in pass 2: memory stays flat
         # ---------------------------------------------------------------- pass 2
-        src = open_recording(path, **opts)
+        src = open_recording(path, **_reader_options(path, opts))
         sink = McapSink(out, _loggable(src.info), meta_settings, flush_every_s=s.flush_every_s,
                         compression=s.compression, chunk_size=s.chunk_size,
                         corrected_quantum_g=s.corrected_quantum_g, writer=writer,
@@ -529,14 +529,18 @@ CHUNK_S_BY_MODE = {"batch": 60.0, "online": None}
 WRITER_BY_MODE = {"batch": "thread", "online": "inline"}
 
 
-def _features_options(path, opts: dict) -> dict:
-    """Reader options for a pass that only needs window features: a ``.cwa`` without
-    per-sample times (a sample clock cuts the windows at the same samples) and column-major
-    counts (the features' layout); the same features, bit for bit, as the per-sample read."""
+def _reader_options(path, opts: dict, *, features_only: bool = False) -> dict:
+    """Reader options of a run's passes: a ``.cwa`` is decoded column-major (each axis
+    contiguous, the layout the window features, the correction and the raw messages' x/y/z
+    sequences read; the same values); a pass that only needs window features (``features_only``)
+    also reads it without per-sample times (a sample clock cuts the windows at the same samples).
+    The logs are the same, byte for byte, as with the per-sample, row-major read. Options the
+    caller gives win."""
     from stillpoint.drivers import sniff_format
     if sniff_format(path) != "cwa":
         return opts
-    return dict({"sample_times": False, "column_major": True}, **opts)
+    extra = {"column_major": True, "sample_times": False} if features_only else {"column_major": True}
+    return dict(extra, **opts)
 
 
 def chunk_span(s: RunSettings) -> Optional[float]:

@@ -230,28 +230,33 @@ def test_window_features_alike_with_temperature_per_sample(monkeypatch):
         _assert_same_features(units, per_sample)
 
 
+@pytest.mark.parametrize("mode", ["batch", "online"])
 @pytest.mark.parametrize("name", ["ax3_oxwearables_tiny_sample_3h_with_restart.cwa.gz",
-                                  "ax3_ggirread_corrupt_blocks_0_13_14_142_143_144.cwa"])
-def test_process_pass_one_without_sample_times_writes_the_same_log(real_file, tmp_path, monkeypatch,
-                                                                   name):
-    """A batch run's pass 1 reads a .cwa with the sample clock (no per-sample times, blocks as
-    the reader gives them); its log is the one the per-sample pass 1 writes, byte for byte."""
+                                  "ax3_ggirread_corrupt_blocks_0_13_14_142_143_144.cwa",
+                                  "ax6_ggirread_testfile_100hz_16g_gyro250dps.cwa"])
+def test_process_reads_cwa_column_major_and_pass_one_without_sample_times(real_file, tmp_path,
+                                                                          monkeypatch, name, mode):
+    """process reads a .cwa column-major, and a batch run's pass 1 with the sample clock (no
+    per-sample times, blocks as the reader gives them); its log is the one the per-sample,
+    row-major read writes, byte for byte."""
     from stillpoint.engine import run as run_mod
 
-    seen = []
+    seen = []  # per block: (no per-sample times, each axis contiguous)
     push = run_mod.FeatureStage.push
 
     def spy(self, block):
-        seen.append(block.time_ns is None)
+        if block.n > 1:
+            seen.append((block.time_ns is None, block.accel.strides[0] == block.accel.itemsize))
         return push(self, block)
 
     monkeypatch.setattr(run_mod.FeatureStage, "push", spy)
     out = tmp_path / "run.mcap"
-    run_mod.process_file(real_file(name), out, run_mod.RunSettings(mode="batch"), writer="inline")
-    clock = out.read_bytes()
-    assert seen and all(seen)
+    run_mod.process_file(real_file(name), out, run_mod.RunSettings(mode=mode), writer="inline")
+    fast = out.read_bytes()
+    assert seen and all(cm for _clock, cm in seen)
+    assert all(clock for clock, _cm in seen) == (mode == "batch")
     seen.clear()
-    monkeypatch.setattr(run_mod, "_features_options", lambda path, opts: opts)
-    run_mod.process_file(real_file(name), out, run_mod.RunSettings(mode="batch"), writer="inline")
-    assert seen and not any(seen)
-    assert out.read_bytes() == clock
+    monkeypatch.setattr(run_mod, "_reader_options", lambda path, opts, features_only=False: opts)
+    run_mod.process_file(real_file(name), out, run_mod.RunSettings(mode=mode), writer="inline")
+    assert seen and not any(clock or cm for clock, cm in seen)
+    assert out.read_bytes() == fast

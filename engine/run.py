@@ -7,9 +7,10 @@ Dask, Ray) and be re-run after a failure.
 
 Modes (same operators, different schedules):
 
-* ``batch``: pass 1 streams window features and nonmovement windows, then fits by the
-  72 h + 12 h schedule (engine.calibration.fit_batch_schedule); pass 2 streams the file again and
-  logs raw, corrected (final estimate from the first sample), temperature and epoch metrics.
+* ``batch``: pass 1 streams window features and nonmovement windows (a ``.cwa`` read without
+  per-sample times, as ``calibrate`` reads it), then fits by the 72 h + 12 h schedule
+  (engine.calibration.fit_batch_schedule); pass 2 streams the file again and logs raw, corrected
+  (final estimate from the first sample), temperature and epoch metrics.
 * ``online``: one pass. Window features feed ``OnlineCalibrator`` (refit at each 12 h boundary);
   every published estimate is logged; accepted ones take effect from their boundary. The
   correction waits (a few seconds of data at most) until the estimate schedule is final for

@@ -337,15 +337,13 @@ def test_whole_chunks_at_once_equal_one_chunk_at_a_time(tmp_path, compression):
         if how == "one":
             for i in range(bounds.shape[0] - 1):
                 sel = (mo >= bounds[i]) & (mo < bounds[i + 1])
-                c = mc[sel]
-                parts = []
-                for cid in dict.fromkeys(c.tolist()):
-                    o = mo[sel][c == cid]
-                    parts.append(data[o[0]:bounds[i + 1] if cid == c[-1] else
-                                      mo[sel][np.flatnonzero(c == cid)[-1] + 1]])
-                cb.add_framed(parts, int(bounds[i + 1] - bounds[i]), c, mt[sel],
-                              mo[sel] - bounds[i], dict(zip(*np.unique(c, return_counts=True))),
-                              list(dict.fromkeys(c.tolist())))
+                c, o = mc[sel], mo[sel]
+                runs = np.flatnonzero(np.r_[True, c[1:] != c[:-1]])  # one run per channel
+                edges = np.append(o[runs], bounds[i + 1]).tolist()
+                parts = [data[a:b] for a, b in zip(edges[:-1], edges[1:])]
+                counts = dict(zip(*[a.tolist() for a in np.unique(c, return_counts=True)]))
+                cb.add_framed(parts, int(bounds[i + 1] - bounds[i]), c, mt[sel], o - bounds[i],
+                              counts, c[runs].tolist())
                 core.execute("chunk", *cb.take(), False)
         else:
             counts = dict(zip(*[a.tolist() for a in np.unique(mc, return_counts=True)]))

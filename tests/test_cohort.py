@@ -263,3 +263,33 @@ def test_ctrl_c_stops_cleanly_and_a_rerun_finishes(cohort_dir, tmp_path):
     r = subprocess.run(cmd[:-4] + ["--scheduler", "serial", "-q"], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     assert len(_markers(out, DONE)) == N_GOOD and not list((out / "files").glob("*/*.tmp"))
+
+
+def test_ctrl_c_swallowed_by_a_finaliser_still_stops_the_run(cohort_dir, tmp_path, monkeypatch):
+    """Ctrl-C that lands inside a finaliser (a Dask future's ``__del__``: Python swallows it)
+    still stops the run at the next turn of its loop, without an "Exception ignored" traceback."""
+    from stillpoint.engine.cohort import execute
+    real_job = execute.run_job
+    calls = []
+
+    class Finaliser:
+        def __del__(self):  # the interrupt raised here is swallowed by Python
+            signal.getsignal(signal.SIGINT)(signal.SIGINT, None)
+
+    def job(*args):
+        calls.append(args[0]["path"])
+        r = real_job(*args)
+        if len(calls) == 1:
+            f = Finaliser()
+            del f
+        return r
+
+    monkeypatch.setattr(execute, "run_job", job)
+    seen = []
+    monkeypatch.setattr(sys, "unraisablehook", seen.append)  # what would print the traceback
+    files = sorted(str(p) for p in cohort_dir.glob("p0*.cwa"))
+    res = run_cohort(make_plan(files, RunSettings()), tmp_path / "out", scheduler="serial", progress=False)
+    assert res.interrupted and res.done == len(calls) < len(files)  # one turn of the loop
+    assert res.pending == len(files) - len(calls)
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # handler given back
+    assert seen == [] and sys.unraisablehook == seen.append

@@ -335,6 +335,49 @@ def _sigint_ignored():
         signal.signal(signal.SIGINT, old)
 
 
+class _InterruptLatch:
+    """Ctrl-C raises ``KeyboardInterrupt`` as usual and is also remembered, so the run loop
+    stops even when the exception landed where Python swallows it (a finaliser such as a Dask
+    future's ``__del__``); such a swallowed interrupt is not printed as a traceback either.
+    A no-op off the main thread."""
+
+    def __init__(self):
+        self.hit = False
+        self._old = None
+        self._old_hook = None
+
+    def _unraisable(self, u):
+        if u.exc_type is KeyboardInterrupt:
+            self.hit = True
+        else:
+            self._old_hook(u)
+
+    def _on_sigint(self, signum, frame):
+        self.hit = True
+        raise KeyboardInterrupt
+
+    def __enter__(self):
+        import signal
+        try:
+            self._old = signal.signal(signal.SIGINT, self._on_sigint)
+        except ValueError:  # not the main thread
+            self._old = None
+            return self
+        self._old_hook, sys.unraisablehook = sys.unraisablehook, self._unraisable
+        return self
+
+    def check(self) -> None:
+        if self.hit:
+            raise KeyboardInterrupt
+
+    def __exit__(self, *exc):
+        if self._old is not None:
+            import signal
+            signal.signal(signal.SIGINT, self._old)
+            sys.unraisablehook = self._old_hook
+        return False
+
+
 def _backend_error_class(e: BaseException) -> str:
     """Class of an error raised by the backend rather than by the job."""
     name = type(e).__name__
@@ -425,63 +468,11 @@ def run_cohort(plan: Plan, outdir, *, scheduler: str = "local", jobs: Optional[i
     delayed: list = []  # (entry, attempt, not before): transient_io retries wait a little
     inflight: dict = {}
     settings, code = plan.settings, plan.code_version
+    latch = _InterruptLatch()
     try:
-        while queue or inflight or delayed:
-            now = time.monotonic()
-            for d in [d for d in delayed if d[2] <= now]:
-                delayed.remove(d)
-                queue.appendleft(d[:2])
-            limit = max_in_flight or max(getattr(backend, "min_in_flight", 2), 2 * backend.slots())
-            while queue and len(inflight) < limit:
-                e, attempt = queue.popleft()
-                label = f"stillpoint-cohort-{Path(e.folder).name}-a{attempt}"
-                h = backend.submit((e.as_row(), str(outdir), settings, code, attempt), label)
-                inflight[h if not isinstance(h, tuple) else id(h)] = (e, attempt, h)
-            handles = [v[2] for v in inflight.values()]
-            if not handles:
-                time.sleep(0.2)
-                continue
-            for h in backend.wait_any(handles, timeout=0.5):
-                e, attempt, _ = inflight.pop(h if not isinstance(h, tuple) else id(h))
-                try:
-                    r = backend.result(h)
-                except (KeyboardInterrupt, SystemExit):
-                    raise
-                except BaseException as exc:  # noqa: BLE001 - the worker died or the job raised
-                    cls = _backend_error_class(exc)
-                    r = {"state": "failed", "class": cls, "key": e.key, "path": e.path,
-                         "error": f"{e.path}: {one_line(exc)}", "unrecorded": True}
-                if r["state"] == "failed":
-                    cls = r["class"]
-                    if attempt < MAX_ATTEMPTS.get(cls, 1):
-                        res.retried += 1
-                        prog.message(f"retrying {e.path} ({cls}, attempt {attempt + 1} of "
-                                     f"{MAX_ATTEMPTS[cls]}): {r['error']}")
-                        if cls == "transient_io":
-                            delayed.append((e, attempt + 1, time.monotonic() + TRANSIENT_DELAY_S * attempt))
-                        else:
-                            queue.appendleft((e, attempt + 1))
-                        continue
-                    if r.get("unrecorded"):
-                        write_failure(outdir, e.as_row(), cls, r["error"], attempt=attempt)
-                    res.failed[cls] = res.failed.get(cls, 0) + 1
-                    marker = Path(outdir) / e.folder / FAILED
-                    if cls == "bug":
-                        prog.message(f"BUG processing {e.path}: {r['error']}\n    this is a "
-                                     f"stillpoint bug: the traceback is in {marker}; please report it")
-                    else:
-                        prog.message(f"FAILED {e.path} ({cls}): {r['error']}")
-                    prog.update("failed", e.size)
-                elif r["state"] == "done":
-                    res.done += 1
-                    res.bytes_done += e.size
-                    prog.update("done", e.size)
-                else:  # skipped: another run finished it meanwhile
-                    res.already_done += 1
-                    prog.update("done", 0)
-                r["entry"] = e
-                res.results.append(r)
-            prog.tick()
+        with latch:
+            _run_loop(backend, outdir, settings, code, queue, delayed, inflight, res, prog,
+                      max_in_flight, latch)
     except KeyboardInterrupt:
         res.interrupted = True
         backend.cancel([v[2] for v in inflight.values()])
@@ -492,3 +483,66 @@ def run_cohort(plan: Plan, outdir, *, scheduler: str = "local", jobs: Optional[i
         backend.close()
         res.wall_s = time.perf_counter() - t0
     return res
+
+
+def _run_loop(backend, outdir, settings, code, queue, delayed, inflight, res, prog,
+              max_in_flight, latch) -> None:
+    """Submit, collect and retry until nothing is left; ``KeyboardInterrupt`` on Ctrl-C."""
+    while queue or inflight or delayed:
+        latch.check()
+        now = time.monotonic()
+        for d in [d for d in delayed if d[2] <= now]:
+            delayed.remove(d)
+            queue.appendleft(d[:2])
+        limit = max_in_flight or max(getattr(backend, "min_in_flight", 2), 2 * backend.slots())
+        while queue and len(inflight) < limit:
+            e, attempt = queue.popleft()
+            label = f"stillpoint-cohort-{Path(e.folder).name}-a{attempt}"
+            h = backend.submit((e.as_row(), str(outdir), settings, code, attempt), label)
+            inflight[h if not isinstance(h, tuple) else id(h)] = (e, attempt, h)
+        handles = [v[2] for v in inflight.values()]
+        if not handles:
+            time.sleep(0.2)
+            continue
+        for h in backend.wait_any(handles, timeout=0.5):
+            e, attempt, _ = inflight.pop(h if not isinstance(h, tuple) else id(h))
+            try:
+                r = backend.result(h)
+            except (KeyboardInterrupt, SystemExit):
+                raise
+            except BaseException as exc:  # noqa: BLE001 - the worker died or the job raised
+                cls = _backend_error_class(exc)
+                r = {"state": "failed", "class": cls, "key": e.key, "path": e.path,
+                     "error": f"{e.path}: {one_line(exc)}", "unrecorded": True}
+            if r["state"] == "failed":
+                cls = r["class"]
+                if attempt < MAX_ATTEMPTS.get(cls, 1):
+                    res.retried += 1
+                    prog.message(f"retrying {e.path} ({cls}, attempt {attempt + 1} of "
+                                 f"{MAX_ATTEMPTS[cls]}): {r['error']}")
+                    if cls == "transient_io":
+                        delayed.append((e, attempt + 1, time.monotonic() + TRANSIENT_DELAY_S * attempt))
+                    else:
+                        queue.appendleft((e, attempt + 1))
+                    continue
+                if r.get("unrecorded"):
+                    write_failure(outdir, e.as_row(), cls, r["error"], attempt=attempt)
+                res.failed[cls] = res.failed.get(cls, 0) + 1
+                marker = Path(outdir) / e.folder / FAILED
+                if cls == "bug":
+                    prog.message(f"BUG processing {e.path}: {r['error']}\n    this is a "
+                                 f"stillpoint bug: the traceback is in {marker}; please report it")
+                else:
+                    prog.message(f"FAILED {e.path} ({cls}): {r['error']}")
+                prog.update("failed", e.size)
+            elif r["state"] == "done":
+                res.done += 1
+                res.bytes_done += e.size
+                prog.update("done", e.size)
+            else:  # skipped: another run finished it meanwhile
+                res.already_done += 1
+                prog.update("done", 0)
+            r["entry"] = e
+            res.results.append(r)
+        prog.tick()
+    latch.check()

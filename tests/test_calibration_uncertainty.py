@@ -209,3 +209,22 @@ def test_uncertainty_in_cli_process_mcap_and_store(tmp_path, capsys):
         msgs = [json.loads(m.data) for _, _, m in
                 make_reader(fh).iter_messages(topics=["/calibration"])]
     assert msgs and msgs[-1]["uncertainty"] == u
+
+
+def test_leave_block_out_solve_equals_the_pseudo_inverse_and_falls_back_to_it():
+    from stillpoint.engine.calibration.uncertainty import _leave_block_out
+    rng = np.random.default_rng(3)
+    g, p = 40, 5
+    rows = rng.normal(size=(g, 30, p))
+    Hb = np.einsum("bni,bnj->bij", rows, rows)
+    H = Hb.sum(axis=0)
+    S = rng.normal(size=(g, p))
+    want = np.einsum("bjk,bk->bj", np.linalg.pinv(H[None] - Hb), S)
+    assert np.allclose(_leave_block_out(H, Hb, S), want, rtol=1e-10, atol=0)
+    # a coefficient only block 0 informs: H - H_0 is singular, the pseudo-inverse takes over
+    rows[1:, :, 4] = 0.0
+    Hb = np.einsum("bni,bnj->bij", rows, rows)
+    H = Hb.sum(axis=0)
+    got = _leave_block_out(H, Hb, S)
+    assert np.all(np.isfinite(got))
+    assert np.allclose(got, np.einsum("bjk,bk->bj", np.linalg.pinv(H[None] - Hb), S), rtol=1e-8, atol=1e-12)

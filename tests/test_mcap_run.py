@@ -201,16 +201,41 @@ def test_process_cli_summary_and_export(recording, tmp_path, capsys):
     assert np.array_equal(z["corrected/accel/time_ns"], t)
 
 
-def test_flush_cadence_bounds_chunk_time_span(recording, tmp_path):
+def test_online_kill_loses_only_the_step_in_progress_and_the_open_cell(recording, tmp_path,
+                                                                       monkeypatch):
+    """Online chunks span up to 60 s but end at every pipeline step, before its last cell: what
+    a kill right after a step leaves on disk recovers to every raw message before that cell."""
+    import shutil
+
+    from stillpoint.engine.mcap import sink as sink_mod
+    from stillpoint.engine.recover import recover
+    snaps = []
+    real = sink_mod.McapSink.write_slices
+
+    def write_slices(self, block, corrected, epochs):
+        real(self, block, corrected, epochs)
+        if block is not None and block.n:
+            k = len(snaps)
+            shutil.copy(self.part, tmp_path / f"kill{k}.mcap.part")  # a SIGKILL here leaves this
+            open_cell = int(block.time_ns[-1]) // self.cell_ns * self.cell_ns
+            snaps.append((recover(tmp_path / f"kill{k}.mcap.part", tmp_path / f"rec{k}.mcap"), open_cell))
+
+    monkeypatch.setattr(sink_mod.McapSink, "write_slices", write_slices)
     out = tmp_path / "f.mcap"
-    s = process_file(recording, out, RunSettings(mode="online", flush_every_s=10))
+    s = process_file(recording, out, RunSettings(mode="online", max_block_s=290.0))
+    raw_times = np.array([t for t, _d in _messages(out, "/raw/accel")])
+    assert len(snaps) >= 12
+    for k, (_rep, open_cell) in enumerate(snaps):
+        kept = np.array([t for t, _d in _messages(tmp_path / f"rec{k}.mcap", "/raw/accel")])
+        want = raw_times[raw_times < open_cell]
+        assert kept.shape[0] >= want.shape[0] and np.array_equal(kept[:want.shape[0]], want), k
     with open(out, "rb") as f:
         summ = make_reader(f).get_summary()
     spans = [(c.message_end_time - c.message_start_time) / 1e9 for c in summ.chunk_indexes]
-    assert len(summ.chunk_indexes) >= 3600 / 10 - 2
-    # a chunk holds one 10 s cell (+ the corrected tail of the previous one, <= one cell)
-    assert max(spans) <= 20.0
-    assert s["mcap_flushes"] >= 3600 / 10 - 2
+    # 60 s chunks (+ the corrected tail of the cell before, <= one cell), cut at each step too
+    assert max(spans) <= 70.0 and max(spans) > 40.0
+    assert 3600 / 60 <= len(spans) <= 3600 / 60 + len(snaps) + 2 < 3600 / 10
+    assert s["mcap_flushes"] >= len(spans) - 1  # the last chunk ends at close
 
 
 def test_online_applies_each_accepted_estimate_from_its_boundary(recording, tmp_path):

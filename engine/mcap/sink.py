@@ -319,14 +319,18 @@ class McapSink(McapLog):
 
     ``writer``: "inline" (default), "thread" or "process" (see the module docstring).
     ``view_hz``: rate of the ``/view/accel`` topic (0: off). ``chunk_s``: data time a chunk
-    spans (a multiple of ``flush_every_s``; default: one cell), i.e. the most a kill can lose.
+    spans (a multiple of ``flush_every_s``; default: one cell), i.e. the most a kill can lose
+    beyond the step in progress. ``step_chunks``: also end the chunk at the end of every
+    pipeline step, before its last cell (which may still grow), so a kill loses only the step
+    in progress and the open cell whatever ``chunk_s`` (the online mode's setting).
     """
 
     def __init__(self, path, info: DeviceInfo, settings: dict, *, flush_every_s: float = 10.0,
                  fsync_every_wall_s: float = 1.0, compression: str = "zstd",
                  chunk_size: int = CHUNK_SIZE, corrected_quantum_g: float = 2.0 ** -16,
                  message_s: float = 60.0, writer: str = "inline", zstd_level: int = ZSTD_LEVEL,
-                 view_hz: float = 0.0, chunk_s: Optional[float] = None):
+                 view_hz: float = 0.0, chunk_s: Optional[float] = None,
+                 step_chunks: bool = False):
         super().__init__(path, compression=compression, chunk_size=chunk_size,
                          fsync_every_wall_s=fsync_every_wall_s, writer=writer,
                          zstd_level=zstd_level)
@@ -336,6 +340,7 @@ class McapSink(McapLog):
         self.cell_ns = self.flush_every_ns or int(message_s * 1e9)
         # chunks span a whole number of cells on the UTC grid (default: one cell)
         self.cells_per_chunk = max(1, int(round(chunk_s * 1e9 / self.cell_ns))) if chunk_s else 1
+        self.step_chunks = bool(step_chunks)
         self._pending_corr: list[CorrectedBatch] = []
         self._corr_cell: Optional[int] = None
         self.flushes = 0
@@ -464,13 +469,15 @@ class McapSink(McapLog):
         j = 0
         k = 0
         ep_rec = None
+        last = todo.shape[0] - 1
         for i, cell in enumerate(todo.tolist()):
             while j < len(pieces) and pieces[j][0] < cell:  # corrected data of earlier cells
                 self._take_corrected(*pieces[j])
                 j += 1
             if self._cell is None or cell > self._cell:
                 if (self._cell is not None and self.flush_every_ns is not None
-                        and cell // self.cells_per_chunk != self._cell // self.cells_per_chunk):
+                        and (cell // self.cells_per_chunk != self._cell // self.cells_per_chunk
+                             or (self.step_chunks and i == last))):
                     self._flush_cell(False)
                 self._cell = cell
             while k < len(raw_cells) and raw_cells[k] < cell:
@@ -800,6 +807,8 @@ def _frame_block(sink: "McapSink", block: Optional[Block], corrected: list,
         prevc[0] = todo[0] if sink._cell is None else sink._cell
         cpc = sink.cells_per_chunk
         flush = (todo > prevc) & (todo // cpc != prevc // cpc)
+        if sink.step_chunks:  # the chunk also ends before the step's last cell
+            flush[-1] = todo[-1] > prevc[-1]
         if sink._cell is None:
             flush[0] = False
         sink._cell = int(todo[-1]) if sink._cell is None else max(sink._cell, int(todo[-1]))

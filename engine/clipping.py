@@ -59,8 +59,7 @@ class ClippingMonitor:
         cpg = getattr(block, "accel_counts_per_g", None)
         if acc.dtype.kind not in "iu" or zero is None or cpg is None:
             return True
-        flat = acc.reshape(-1)
-        lo, hi = float(flat.min()), float(flat.max())
+        lo, hi = float(acc.min()), float(acc.max())  # no copy of a column-major block
         zero = np.asarray(zero, np.float64)
         cpg = np.abs(np.asarray(cpg, np.float64))
         if not (np.all(np.isfinite(zero)) and np.all(cpg > 0)):

@@ -518,7 +518,7 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
 
 
 # MCAP chunk span when RunSettings.chunk_s is None, in both modes (against one chunk per
-# 10 s cell, a week online: 9 % fewer bytes and 0.5-1.8 s less CPU of ~18 s, in-process with
+# 10 s cell, a week online: 9 % fewer bytes and 0.4-1.8 s less CPU of ~18 s, in-process with
 # process_file(..., writer="inline")). An
 # online run (a station correcting while it downloads) also ends its chunk at the end of every
 # pipeline step, before the step's last cell (McapSink ``step_chunks``), so a kill loses only the

@@ -280,8 +280,7 @@ def test_ctrl_c_swallowed_by_a_finaliser_still_stops_the_run(cohort_dir, tmp_pat
         calls.append(args[0]["path"])
         r = real_job(*args)
         if len(calls) == 1:
-            f = Finaliser()
-            del f
+            Finaliser()  # dropped at once: its __del__ runs here
         return r
 
     monkeypatch.setattr(execute, "run_job", job)

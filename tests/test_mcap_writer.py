@@ -323,7 +323,6 @@ def test_whole_chunks_at_once_equal_one_chunk_at_a_time(tmp_path, compression):
     many at once, more than one writev's worth) write the bytes that add_framed + take + "chunk"
     write chunk by chunk; the file follows the specification."""
     from mcap_layout import conforms
-    rng = np.random.default_rng(6)
     outs = []
     for how in ("one", "many"):
         p = tmp_path / f"{how}.mcap"

@@ -53,6 +53,8 @@ from .operators.metrics import EPOCH_S, EpochMetrics, MetricsOperator
 from .operators.nonmovement import NonmovementOperator
 from .operators.windows import WINDOW_S, WindowFeaturesOperator
 from .pipeline import Pipeline, PipelineStats
+from .prefetch import Prefetched, cores_available
+
 
 class OutputError(StillpointError):
     """The output cannot be written where asked (missing directory, no permission, ...)."""
@@ -316,7 +318,8 @@ def _qc_summary(source) -> dict:
 def process_file(path, out, settings: Optional[RunSettings] = None, *,
                  progress: Optional[Callable[[str, PipelineStats], None]] = None,
                  writer: Optional[str] = None, source_options: Optional[dict] = None,
-                 tables=None, metadata: Optional[dict] = None) -> dict:
+                 tables=None, metadata: Optional[dict] = None,
+                 prefetch: Optional[bool] = None) -> dict:
     """Process one recording into ``out`` (MCAP); return the run summary (see module docstring).
 
     ``writer``: where chunks are compressed and written (engine/mcap/log.py); default by mode,
@@ -324,7 +327,9 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
     or "online"). ``tables``: an ``engine.tables.TablesSettings`` to write the epoch and day
     tables during the output pass. ``metadata``: extra MCAP metadata records
     ``{name: {key: str}}`` written with the summary (e.g. the download station's clock offset,
-    host time zone and station id).
+    host time zone and station id). ``prefetch``: read and decode the next blocks on a thread
+    while the engine works (engine/prefetch.py; the logs are the same); default: when the
+    process may use more than one core.
     """
     s = settings or RunSettings()
     writer = writer or WRITER_BY_MODE[s.mode]
@@ -347,7 +352,14 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
     t_start = time.perf_counter()
     # raises a StillpointError (exit 2) on unreadable input; a batch run's pass 1 (window
     # features only) reads a .cwa without per-sample times, as calibrate does
-    src = open_recording(path, **_reader_options(path, opts, features_only=s.mode == "batch"))
+    if prefetch is None:
+        prefetch = cores_available() > 1
+
+    def source(**options):
+        src = open_recording(path, **options)
+        return Prefetched(src) if prefetch else src
+
+    src = source(**_reader_options(path, opts, features_only=s.mode == "batch"))
     info = src.info
     rate = _rate(info)
     summary: dict = {"input": _utf8_text(str(path)), "mode": s.mode,
@@ -386,7 +398,7 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
         quietest = feat.nonmovement.quietest_sd_g
         del feat  # the window table (~0.8 MB a day) is not needed in pass 2: memory stays flat
         # ---------------------------------------------------------------- pass 2
-        src = open_recording(path, **_reader_options(path, opts))
+        src = source(**_reader_options(path, opts))
         sink = McapSink(out, _loggable(src.info), meta_settings, flush_every_s=s.flush_every_s,
                         compression=s.compression, chunk_size=s.chunk_size,
                         corrected_quantum_g=s.corrected_quantum_g, writer=writer,

@@ -1,0 +1,139 @@
+"""A source read ahead on a thread (engine/prefetch.py) changes nothing the pipeline sees: the
+same blocks, the QC report as it stood at each block, the source's error in its place, and a
+log byte for byte the same as without the thread (damaged files, both modes, real files)."""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from stillpoint.engine.blocks import QCEvent, QCReport
+from stillpoint.engine.prefetch import Prefetched
+from stillpoint.engine.run import RunSettings, process_file
+
+
+class _Source:
+    """Yields integers; before each, logs an event and re-times the event before it in place
+    (as a reader times an event once a later block reaches it); optionally fails at the end."""
+
+    def __init__(self, n, fail_after=None):
+        self.n, self.fail_after = n, fail_after
+        self.qc = QCReport(unit="sector")
+        self.closed = False
+        self.finished = threading.Event()  # the generator's cleanup ran
+        self.expected = []  # the QC log as it stood when each item was yielded
+
+    def __iter__(self):
+        try:
+            for i in range(self.n):
+                if self.fail_after is not None and i == self.fail_after:
+                    raise ValueError(f"{i}: damaged")
+                if self.qc.events:
+                    self.qc.events[-1] = replace(self.qc.events[-1], time_ns=i)
+                self.qc.add(QCEvent(index=i, reason="checksum"))
+                self.qc.total += 1
+                self.expected.append((self.qc.total, list(self.qc.events)))
+                yield i
+            self.qc.events.append(QCEvent(index=-1, reason="end"))
+        finally:
+            self.finished.set()
+
+    def close(self):
+        self.closed = True
+
+
+def test_blocks_and_qc_as_they_stood_while_the_thread_runs_ahead():
+    src = _Source(8)
+    pre = Prefetched(src, depth=3)
+    seen = []
+    for item in pre:
+        time.sleep(0.02)  # a slow stage: the thread is up to three items ahead
+        seen.append((item, pre.qc.total, list(pre.qc.events)))
+    assert [s[0] for s in seen] == list(range(8))
+    for i, (_, total, events) in enumerate(seen):
+        assert (total, events) == src.expected[i], f"item {i}"
+    assert src.qc.events[-1].reason == "end" and pre.qc is src.qc  # exhausted: the live report
+
+
+def test_the_source_error_comes_after_the_blocks_before_it():
+    src = _Source(10, fail_after=4)
+    pre = Prefetched(src)
+    got = []
+    with pytest.raises(ValueError, match="4: damaged"):
+        for item in pre:
+            got.append(item)
+    assert got == [0, 1, 2, 3]
+    assert pre.qc.total == 4  # the report as it stood when the error was raised
+
+
+def test_leaving_early_stops_the_thread_and_close_closes_the_source():
+    src = _Source(10_000)
+    pre = Prefetched(src, depth=2)
+    for item in pre:
+        if item == 3:
+            break
+    pre.close()
+    assert src.finished.wait(5), "the source's generator was not closed"
+    assert src.closed and not pre._thread.is_alive()
+    assert src.qc.total < 100  # the thread stopped; it did not read the source to the end
+
+
+def test_single_pass():
+    pre = Prefetched(_Source(2))
+    assert list(pre) == [0, 1]
+    with pytest.raises(RuntimeError, match="single-pass"):
+        list(pre)
+
+
+def _damaged_cwa(path: Path, seed: int) -> Path:
+    from stillpoint.drivers.cwa_writer import CwaWriter
+    rng = np.random.default_rng(seed)
+    n = 120 * 400
+    t = 1_700_000_000_000_000_000 + np.rint(np.arange(n) * 1e7).astype(np.int64)
+    a = (np.sin(np.arange(n)[:, None] / 50.0 + np.arange(3)) * 400).astype(np.int64) + rng.integers(-8, 9, (n, 3))
+    w = CwaWriter(path, rate_hz=100, packed=True)
+    w.write(t, a)
+    w.close()
+    data = bytearray(path.read_bytes())
+    for s in rng.choice(np.arange(2, 390), 25, replace=False):  # checksum / header damage
+        i = 1024 + int(s) * 512 + int(rng.integers(0, 512))
+        data[i] ^= 1 << int(rng.integers(0, 8))
+    path.write_bytes(bytes(data))
+    return path
+
+
+def _run(src: Path, where: Path, mode: str, prefetch: bool, monkeypatch, **kw) -> bytes:
+    """The MCAP of one run, written under a relative name (the summary records the name)."""
+    from stillpoint.engine.tables import TablesSettings
+    where.mkdir()
+    monkeypatch.chdir(where)
+    tables = TablesSettings(epochs_path=Path("out.epochs.csv"), days_path=Path("out.days.csv"))
+    summary = process_file(src, "out.mcap", RunSettings(mode=mode, chunk_hours=0.25, first_hours=0.25),
+                           prefetch=prefetch, tables=tables, **kw)
+    assert summary["qc"]["events"] > 0 or "damaged" not in src.name
+    return b"".join((where / f).read_bytes() for f in ("out.mcap", "out.epochs.csv", "out.days.csv"))
+
+
+@pytest.mark.parametrize("mode", ["batch", "online"])
+def test_logs_are_the_same_with_and_without_the_thread(tmp_path, monkeypatch, mode):
+    src = _damaged_cwa(tmp_path / "damaged.cwa", 7)
+    opts = {"source_options": {"batch_sectors": 3}}  # many blocks, QC events between them
+    a = _run(src, tmp_path / "off", mode, False, monkeypatch, **opts)
+    b = _run(src, tmp_path / "on", mode, True, monkeypatch, **opts)
+    assert a == b
+
+
+@pytest.mark.parametrize("name", ["ax3_ggirread_corrupt_blocks_0_13_14_142_143_144.cwa",
+                                  "ax3_oxwearables_tiny_sample_3h_with_restart.cwa.gz",
+                                  "geneactiv_ggirread_testfile_85p7hz_truncated64k.bin"])
+def test_real_files_same_with_and_without_the_thread(real_file, tmp_path, monkeypatch, name):
+    src = real_file(name)
+    for mode in ("batch", "online"):
+        a = _run(src, tmp_path / f"off_{mode}", mode, False, monkeypatch)
+        b = _run(src, tmp_path / f"on_{mode}", mode, True, monkeypatch)
+        assert a == b, f"{name} {mode}"

@@ -53,6 +53,7 @@ from .operators.metrics import EPOCH_S, EpochMetrics, MetricsOperator
 from .operators.nonmovement import NonmovementOperator
 from .operators.windows import WINDOW_S, WindowFeaturesOperator
 from .pipeline import Pipeline, PipelineStats
+from .malloc import one_arena
 from .prefetch import Prefetched, cores_available
 
 
@@ -354,6 +355,8 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
     # features only) reads a .cwa without per-sample times, as calibrate does
     if prefetch is None:
         prefetch = cores_available() > 1
+    if prefetch:
+        one_arena()
 
     def source(**options):
         src = open_recording(path, **options)

@@ -137,3 +137,17 @@ def test_real_files_same_with_and_without_the_thread(real_file, tmp_path, monkey
         a = _run(src, tmp_path / f"off_{mode}", mode, False, monkeypatch)
         b = _run(src, tmp_path / f"on_{mode}", mode, True, monkeypatch)
         assert a == b, f"{name} {mode}"
+
+
+@pytest.mark.skipif(not __import__("sys").platform.startswith("linux"), reason="glibc's mallopt: Linux only")
+def test_one_arena_once_and_the_environment_wins():
+    import subprocess
+    import sys
+    code = ("from stillpoint.engine.malloc import one_arena; "
+            "print(one_arena(), one_arena())")
+    env = {k: v for k, v in __import__("os").environ.items() if k != "MALLOC_ARENA_MAX"}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["True", "True"]
+    out = subprocess.run([sys.executable, "-c", code], env=dict(env, MALLOC_ARENA_MAX="4"),
+                         capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["False", "False"]

@@ -243,8 +243,13 @@ def run_job(entry: dict, outdir: str, settings: dict, code: str, attempt: int = 
                                        "started_utc": _utc(started), "attempt": attempt})
             scoped = _reset_peak_rss()
             from stillpoint.engine.tables import TablesSettings, table_paths
+            # no reader thread (engine/prefetch.py): a cohort uses the cores by running files
+            # side by side, and a reader thread per file would take them from the other workers
+            # and hold its own allocator arena (peak RSS per worker 123-127 -> 180-200 MB on
+            # 1-day files, tools/bench_cohort.py)
             summary = process_file(path, tmp / MCAP_NAME, RunSettings.from_dict(settings),
-                                   tables=TablesSettings(*table_paths(tmp / MCAP_NAME)))
+                                   tables=TablesSettings(*table_paths(tmp / MCAP_NAME)),
+                                   prefetch=False)
             t_engine = time.perf_counter() - t0
             rss = peak_rss_mb()
             summary = {k: v for k, v in summary.items() if k not in _VOLATILE}

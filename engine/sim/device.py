@@ -24,6 +24,9 @@ from .truth import WINDOW_S
 from .wearer import SITES, Schedule, SiteModel, WearerParams, make_schedule
 
 CHUNK_S = 3600.0  # one hour of true time: the unit of generation and of the noise seeds
+# chunks from which the motion is rendered in a child process (its start-up, ~0.3 s, is
+# covered by the chunks the parent renders meanwhile; a thread suffices for short recordings)
+PROCESS_MIN_CHUNKS = 24
 DEFAULT_START = "2025-03-03T10:00:00+00:00"  # a Monday, 10:00 (device handed out)
 GYRO_NOISE_DPS_RTHZ = 0.007  # BMI160 datasheet gyro noise density
 GYRO_BIAS_SD_DPS = 0.5  # zero-rate offset spread (BMI160: +-3 deg/s max), not a named accel effect
@@ -254,11 +257,26 @@ class DeviceSim:
         r = self._render(k)
         return None if r is None else self._measure(k, r)
 
-    def chunks(self, prefetch: bool = True) -> Iterator[SimChunk]:
-        """All chunks in order. With ``prefetch`` the motion of chunk k+1 is rendered in a
-        worker thread while chunk k is measured and consumed (numpy releases the GIL; the
-        output is identical either way)."""
+    def chunks(self, prefetch=True) -> Iterator[SimChunk]:
+        """All chunks in order. With ``prefetch`` the motion of the next chunks is rendered
+        while chunk k is measured and consumed: in a child process for a recording of at least
+        ``PROCESS_MIN_CHUNKS`` chunks when the process may use more than one core
+        (engine/sim/render_process.py), else on a worker thread; ``prefetch="thread"`` or
+        ``"process"`` chooses. The output is identical either way."""
         _tune_malloc()
+        if prefetch is True:
+            from stillpoint.engine.prefetch import cores_available
+            prefetch = ("process" if self.n_chunks >= PROCESS_MIN_CHUNKS and cores_available() > 1
+                        else "thread")
+        if prefetch == "process":
+            from .render_process import rendered
+            for k, r in rendered(self):
+                if r is None:
+                    continue
+                c = self._measure(k, r)
+                if c.n:
+                    yield c
+            return
         if not prefetch or self.n_chunks < 2:
             for k in range(self.n_chunks):
                 c = self.chunk(k)

@@ -2,7 +2,9 @@
 
 Each measurement runs in a fresh subprocess (wall time and peak RSS of that child):
   1. baseline: write the same number of samples of zeros through CwaWriter (1 h per write);
-  2. `stillpoint simulate` API (simulate_recording), the full wearer + sensor + writer + truth.
+  2. `stillpoint simulate` API (simulate_recording), the full wearer + sensor + writer + truth
+     (a week's motion is rendered in a child process: its peak RSS is printed beside the
+     parent's, its CPU time is in the total).
 Prints both and the ratio simulate / baseline (machines are noisy; the ratio is the stable figure).
 Targets: <= 20 s, peak RSS < 300 MB.
 
@@ -49,7 +51,9 @@ from stillpoint.engine.sim.record import simulate_recording
 days, hz, path = float(sys.argv[1]), float(sys.argv[2]), sys.argv[3]
 t0 = time.perf_counter()
 tr = simulate_recording(path, device="ax3", site="wrist", days=days, hz=hz, seed=1, packed=True)
-print(time.perf_counter() - t0, tr.samples_written)
+import resource
+render_child_mb = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024.0
+print(time.perf_counter() - t0, tr.samples_written, render_child_mb)
 """
 
 
@@ -95,25 +99,29 @@ def main(argv=None) -> int:
     load0 = os.getloadavg()[0]
     wb, cb, rb, ob = run_child(BASELINE, a.days, a.hz, zeros_path)
     ws, cs, rs, os_ = run_child(SIMULATE, a.days, a.hz, sim_path)
-    inner_s, samples = os_.split()
+    inner_s, samples, child_mb = os_.split()
+    child_mb = float(child_mb)  # the motion's render process (0: rendered in-process)
     size = os.path.getsize(sim_path) / 1e6
     res = {"days": a.days, "hz": a.hz, "samples": int(samples), "file_mb": round(size, 1),
            "baseline_zeros_write_s": round(wb, 2), "baseline_cpu_s": round(cb, 2),
            "baseline_peak_rss_mb": round(rb, 1),
            "simulate_s": round(ws, 2), "simulate_cpu_s": round(cs, 2),
            "simulate_inner_s": round(float(inner_s), 2), "load_average": round(load0, 2),
-           "simulate_peak_rss_mb": round(rs, 1), "ratio_simulate_over_baseline": round(ws / wb, 2),
+           "simulate_peak_rss_mb": round(rs, 1), "render_process_peak_rss_mb": round(child_mb, 1),
+           "ratio_simulate_over_baseline": round(ws / wb, 2),
            "target_s": 20.0, "target_rss_mb": 300.0,
-           "meets_time": ws <= 20.0, "meets_rss": rs < 300.0}
+           "meets_time": ws <= 20.0, "meets_rss": rs + child_mb < 300.0}
     if a.json:
         print(json.dumps(res, indent=1))
     else:
         print(f"{a.days:g} days at {a.hz:g} Hz AX3 packed: {int(samples):,} samples, {size:.0f} MB")
         print(f"  baseline (zeros through CwaWriter):     wall {wb:6.2f} s  CPU {cb:6.2f} s  peak RSS {rb:6.1f} MB")
-        print(f"  simulate (wearer+sensor+writer+truth):  wall {ws:6.2f} s  CPU {cs:6.2f} s  peak RSS {rs:6.1f} MB")
-        print(f"  ratio simulate / baseline: wall {ws / wb:.2f}x, CPU {cs / cb:.2f}x")
+        print(f"  simulate (wearer+sensor+writer+truth):  wall {ws:6.2f} s  CPU {cs:6.2f} s  peak RSS {rs:6.1f} MB"
+              + (f" + render process {child_mb:.1f} MB (the shared chunk slots counted in both)"
+                 if child_mb else ""))
+        print(f"  ratio simulate / baseline: wall {ws / wb:.2f}x, CPU {cs / cb:.2f}x (CPU: both processes)")
         print(f"  targets: <= 20 s wall ({'met' if ws <= 20 else 'MISSED'}; CPU {cs:.1f} s), "
-              f"< 300 MB ({'met' if rs < 300 else 'MISSED'})")
+              f"< 300 MB ({'met' if rs + child_mb < 300 else 'MISSED'}, both processes)")
         print(f"  load average before/after: {load0:.2f}/{os.getloadavg()[0]:.2f} "
               f"(2 cores; a load above 2 inflates wall times, CPU time is the stable figure)")
     if not a.dir:

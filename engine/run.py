@@ -41,6 +41,7 @@ from .calibration.schedule import CHUNK_HOURS, FIRST_HOURS
 from .calibration.select import MAX_ABS_MEAN_G, SD_THRESHOLD_G
 from .clipping import ClippingMonitor
 from .features import WindowFeatures
+from .malloc import one_arena
 from .mcap.sink import CHUNK_SIZE, ZSTD_LEVEL, McapSink
 
 # default rate of the plottable view topic. A view sample costs ~75 bytes of MCAP (28 B payload,
@@ -53,7 +54,6 @@ from .operators.metrics import EPOCH_S, EpochMetrics, MetricsOperator
 from .operators.nonmovement import NonmovementOperator
 from .operators.windows import WINDOW_S, WindowFeaturesOperator
 from .pipeline import Pipeline, PipelineStats
-from .malloc import one_arena
 from .prefetch import Prefetched, cores_available
 
 

@@ -34,6 +34,7 @@ from typing import Optional
 
 from stillpoint.drivers.errors import StillpointError
 
+from ..prefetch import cores_available
 from .job import DONE, FAILED, MAX_ATTEMPTS, one_line, paths, read_marker, run_job, write_failure
 from .plan import Entry, Plan
 
@@ -54,10 +55,7 @@ def have_dask() -> bool:
 
 
 def default_workers() -> int:
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # pragma: no cover
-        return max(1, os.cpu_count() or 1)
+    return max(1, cores_available())
 
 
 @dataclass

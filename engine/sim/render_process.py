@@ -8,9 +8,10 @@ rendering and ~3.9 s of measuring and writing, each alone. A child process has a
 ``rendered(sim)`` yields ``(k, sim._render(k))`` for every chunk in order, the same values bit for
 bit (``_render`` is a pure function of the device and k; the chunk's generator travels pickled,
 its state exact). The child (``python -c`` with the parent's import path: no ``multiprocessing``
-start-up, so a caller's script is never imported again) gets the pickled device on its stdin and writes each chunk's arrays into one of ``SLOTS`` slots of a shared file
-mapping (``/dev/shm`` where there is one), announcing it with a small pickle on its stdout; the
-parent copies the arrays out and frees the slot. While the child starts, the parent renders the
+start-up, so a caller's script is never imported again) gets the pickled device on its stdin
+and writes each chunk's arrays into one of ``SLOTS`` slots of a shared file mapping
+(``/dev/shm`` where there is one), announcing it with a small pickle on its stdout; the parent
+copies the arrays out and frees the slot. While the child starts, the parent renders the
 first chunks itself; the child takes over from the chunk the parent names.
 
 Whatever goes wrong with the child (it cannot start, dies, is killed, sends something

@@ -132,7 +132,7 @@ def test_logs_are_the_same_with_and_without_the_thread(tmp_path, monkeypatch, mo
                                   "ax3_oxwearables_tiny_sample_3h_with_restart.cwa.gz",
                                   "geneactiv_ggirread_testfile_85p7hz_truncated64k.bin"])
 def test_real_files_same_with_and_without_the_thread(real_file, tmp_path, monkeypatch, name):
-    src = real_file(name)
+    src = real_file(name).resolve()  # the runs change folder; the data folder may be relative
     for mode in ("batch", "online"):
         a = _run(src, tmp_path / f"off_{mode}", mode, False, monkeypatch)
         b = _run(src, tmp_path / f"on_{mode}", mode, True, monkeypatch)

@@ -23,7 +23,7 @@ Both passes hold only bounded state: ring buffers of one window/epoch, the nonmo
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Callable, Optional
 

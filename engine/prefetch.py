@@ -98,8 +98,9 @@ class Prefetched:
         return not self._stop.is_set()
 
     def _produce(self) -> None:
-        it = iter(self.source)
+        it = None
         try:
+            it = iter(self.source)
             for block in it:
                 if not self._put((_BLOCK, block, self._snapshot())):
                     return

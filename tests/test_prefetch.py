@@ -83,6 +83,25 @@ def test_leaving_early_stops_the_thread_and_close_closes_the_source():
     assert src.qc.total < 100  # the thread stopped; it did not read the source to the end
 
 
+def test_an_error_starting_the_source_is_raised_not_waited_for():
+    class Broken(_Source):
+        def __iter__(self):
+            raise OSError("cannot start")
+
+    got = []
+
+    def run():  # on a thread, so a consumer left waiting fails the test instead of hanging it
+        try:
+            list(Prefetched(Broken(3)))
+        except OSError as e:
+            got.append(str(e))
+
+    t = threading.Thread(target=run, daemon=True)
+    t.start()
+    t.join(10)
+    assert got == ["cannot start"]
+
+
 def test_single_pass():
     pre = Prefetched(_Source(2))
     assert list(pre) == [0, 1]

@@ -117,3 +117,10 @@ def test_leaving_early_stops_the_child():
         assert p.poll() is not None, "the child still runs"
     assert procs, "the child never took over"
     assert _leftovers() <= before
+
+
+def test_a_chunk_larger_than_its_slot_is_rendered_by_the_parent(monkeypatch, child_renders_all):
+    ref = _chunks(_sim(), False)
+    monkeypatch.setattr(render_process, "_slot_bytes", lambda sim: 4096)
+    _same(ref, _chunks(_sim(), "process"))
+    assert child_renders_all == []  # the child could not pack chunk 0 and stopped

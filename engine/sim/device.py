@@ -260,14 +260,16 @@ class DeviceSim:
     def chunks(self, prefetch=True) -> Iterator[SimChunk]:
         """All chunks in order. With ``prefetch`` the motion of the next chunks is rendered
         while chunk k is measured and consumed: in a child process for a recording of at least
-        ``PROCESS_MIN_CHUNKS`` chunks when the process may use more than one core
-        (engine/sim/render_process.py), else on a worker thread; ``prefetch="thread"`` or
+        ``PROCESS_MIN_CHUNKS`` chunks when the process may use more than one core and the rate
+        is not too high for its shared slots (engine/sim/render_process.py ``suits``), else on
+        a worker thread; ``prefetch="thread"`` or
         ``"process"`` chooses. The output is identical either way."""
         _tune_malloc()
         if prefetch is True:
             from stillpoint.engine.prefetch import cores_available
+            from .render_process import suits
             prefetch = ("process" if self.n_chunks >= PROCESS_MIN_CHUNKS and cores_available() > 1
-                        else "thread")
+                        and suits(self) else "thread")
         if prefetch == "process":
             from .render_process import rendered
             for k, r in rendered(self):

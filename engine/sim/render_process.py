@@ -32,20 +32,37 @@ from typing import Iterator
 import numpy as np
 
 SLOTS = 3  # chunks rendered ahead of the one being measured, at most
+MAX_SLOT_BYTES = 64 << 20  # 3 slots: <= 192 MB of shared memory
 _ALIGN = 64
 
 
 def _slot_bytes(sim) -> int:
-    """Bytes of one slot: a chunk's arrays at their largest (times float64, force and gyro
-    float64 at most, noise float32), each aligned."""
+    """Bytes of one slot: a chunk's arrays at their largest, each aligned (``DeviceSim._render``:
+    times float64, force float32, gyro float64 on an AX6 with gyro, noise float32; 8 bytes a
+    sample to spare. A chunk that does not fit ends the child: the parent renders the rest)."""
     from .device import CHUNK_S
     n = int(np.ceil(CHUNK_S * sim.clock.rate_true_hz)) + 2
-    per = 8 + 3 * 8 + 3 * 8 + 3 * 4
+    gyro = sim.spec.kind == "ax6" and sim.spec.gyro_range_dps is not None
+    per = 8 + 3 * 4 + (3 * 8 if gyro else 0) + 3 * 4 + 8
     return (n * per + 4 * _ALIGN + _ALIGN - 1) // _ALIGN * _ALIGN
 
 
-def _shm_dir():
-    return "/dev/shm" if os.path.isdir("/dev/shm") and os.access("/dev/shm", os.W_OK) else None
+def _shm_dir(need: int = 0):
+    """/dev/shm when it exists, is writable and has twice ``need`` bytes free (a container's is
+    often 64 MB); else None (the temporary folder)."""
+    try:
+        st = os.statvfs("/dev/shm")
+    except (OSError, AttributeError):
+        return None
+    if not os.access("/dev/shm", os.W_OK) or st.f_bavail * st.f_frsize < 2 * need:
+        return None
+    return "/dev/shm"
+
+
+def suits(sim) -> bool:
+    """Whether the child pays for ``sim``: slots of at most ``MAX_SLOT_BYTES`` (an hour's motion
+    up to ~400 Hz, ~250 Hz with gyro; above that the slots would hold too much memory)."""
+    return _slot_bytes(sim) <= MAX_SLOT_BYTES
 
 
 # ---------------------------------------------------------------------------- the parent
@@ -54,7 +71,8 @@ class _Child:
         self.proc = self.map = None
         self.ready = False
         self.slot = _slot_bytes(sim)
-        fd, self.path = tempfile.mkstemp(prefix="stillpoint-render-", dir=_shm_dir())
+        fd, self.path = tempfile.mkstemp(prefix="stillpoint-render-",
+                                         dir=_shm_dir(self.slot * SLOTS))
         try:
             try:
                 os.ftruncate(fd, self.slot * SLOTS)

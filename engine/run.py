@@ -134,22 +134,25 @@ class FeatureStage:
     def __init__(self, s: RunSettings, rate_hz: float,
                  on_features: Optional[Callable[[WindowFeatures], None]] = None):
         self.windows = WindowFeaturesOperator(rate_hz, s.window_s, s.min_fill)
-        self.nonmovement = NonmovementOperator(s.sd_threshold_g, s.max_abs_mean_g, keep=False)
+        # batch: the fit reads the nonmovement windows and every window's start time (8 bytes a
+        # window), not the whole window table, so memory stays flat in the file's length
+        self.keep = on_features is None
+        self.nonmovement = NonmovementOperator(s.sd_threshold_g, s.max_abs_mean_g, keep=self.keep)
         self.on_features = on_features
-        self.keep_all = on_features is None  # batch: keep every window for the fit (~60k rows/week)
-        self._all: list[WindowFeatures] = []
+        self._starts: list[np.ndarray] = []
         self.last_block_ns: Optional[int] = None
         self.count_step = CountStep()  # quantisation step of the counts (calibration)
 
     @property
-    def all_windows(self) -> WindowFeatures:
-        if len(self._all) > 1:
-            self._all = [WindowFeatures.concat(self._all)]
-        return self._all[0] if self._all else WindowFeatures.empty()
+    def all_starts(self) -> np.ndarray:
+        """Start times of every window seen (batch), in stream order."""
+        if len(self._starts) != 1:
+            self._starts = [np.concatenate(self._starts) if self._starts else np.zeros(0, np.int64)]
+        return self._starts[0]
 
     def _take(self, f: WindowFeatures) -> None:
-        if self.keep_all and len(f):
-            self._all.append(f)
+        if self.keep and len(f):
+            self._starts.append(np.array(f.start_ns, np.int64))
         self.nonmovement.push(f)
         if self.on_features is not None:
             self.on_features(f)
@@ -389,7 +392,9 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
             est = CalibrationEstimate.identity("no samples: not calibrated")
         else:
             est = fit_batch_schedule(
-                feat.all_windows, select=True, recording_start_ns=st1.first_ns, recording_end_ns=st1.last_ns,
+                feat.nonmovement.selected, select=False, all_starts=feat.all_starts,
+                repeats_collapsed=feat.nonmovement.repeats_dropped,
+                recording_start_ns=st1.first_ns, recording_end_ns=st1.last_ns,
                 first_hours=s.first_hours, chunk_hours=s.chunk_hours, temperature=s.temperature,
                 ggir_compatible=s.ggir_compatible, sd_threshold=s.sd_threshold_g,
                 max_abs_mean=s.max_abs_mean_g, device_key=info.device_key, window_s=s.window_s,

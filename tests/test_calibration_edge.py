@@ -140,3 +140,39 @@ def test_random_directions_respects_restriction():
     d = random_directions(rng, 500, np.array([-1, -1, 0.4]))
     assert d.shape == (500, 3) and d[:, 2].min() >= 0.4
     np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1.0)
+
+
+@pytest.mark.parametrize("cuts", [[], [1], [517, 518, 4000], list(range(0, 30000, 2048))])
+def test_streamed_selection_gives_the_whole_table_estimate(truth, cuts):
+    """A batch run's pass 1 keeps only the nonmovement windows (NonmovementOperator) and every
+    window's start time, not the window table: the estimate, its schedule and its counts are
+    exactly those of the whole table, with repeats on a table, a cut inside a repeat run and a
+    restart that sends the clock back."""
+    from stillpoint.engine.operators.nonmovement import NonmovementOperator
+    rec = synthetic_recording(100, truth, seed=46, table_hours=6.0)
+    f = rec.features
+    k = len(f)
+    back = np.arange(k, dtype=np.int64)
+    back[k // 2:] -= 3000  # a restart: the second half begins ~8 h earlier
+    f = WindowFeatures.from_arrays(f.mean, f.sd, f.temperature, start_ns=f.start_ns[back])
+    whole = fit_batch_schedule(f, recording_start_ns=int(f.start_ns.min()),
+                               recording_end_ns=int(f.start_ns.max()))
+    nm = NonmovementOperator()
+    starts = []
+    edges = [0] + [c for c in cuts if 0 < c < k] + [k]
+    for a, b in zip(edges[:-1], edges[1:]):
+        piece = f.select(np.arange(a, b))
+        starts.append(piece.start_ns)
+        nm.push(piece)
+    assert nm.repeats_dropped > 100  # the table hours were collapsed
+    streamed = fit_batch_schedule(nm.selected, select=False, all_starts=np.concatenate(starts),
+                                  repeats_collapsed=nm.repeats_dropped,
+                                  recording_start_ns=int(f.start_ns.min()),
+                                  recording_end_ns=int(f.start_ns.max()))
+    assert whole.status == "ok" and streamed.status == whole.status
+    for name in ("offset", "scale", "tempoffset"):
+        assert np.array_equal(getattr(streamed, name), getattr(whole, name)), name
+    for name in ("temperature_ref", "error_before_mg", "error_after_mg", "windows",
+                 "hours_used", "reason"):
+        assert getattr(streamed, name) == getattr(whole, name), name
+    assert streamed.extra == whole.extra

@@ -163,12 +163,16 @@ def fit_batch_schedule(features: WindowFeatures, *, first_hours: float = FIRST_H
                        target_error_mg: float = TARGET_ERROR_MG,
                        sd_threshold: float = SD_THRESHOLD_G, max_abs_mean: float = MAX_ABS_MEAN_G,
                        device_key: Optional[str] = None, window_s: float = WINDOW_S,
+                       all_starts: Optional[np.ndarray] = None, repeats_collapsed: int = 0,
                        **fit_options) -> CalibrationEstimate:
     """Fit a whole recording's windows by the 72 h + 12 h schedule; returns the final estimate.
 
     ``features``: every window of the recording (or only its nonmovement windows, then pass
-    ``recording_start_ns``/``recording_end_ns`` so the schedule knows the data time). The
-    estimate's ``hours_used`` is the data time loaded when the schedule stopped;
+    ``select=False`` and ``recording_start_ns``/``recording_end_ns`` so the schedule knows the
+    data time). A stream that selected the windows as it went (``NonmovementOperator``) passes
+    the start times of every window it saw as ``all_starts`` and the repeats it collapsed as
+    ``repeats_collapsed``: the estimate is then the one the whole table gives, without holding
+    the table. The estimate's ``hours_used`` is the data time loaded when the schedule stopped;
     ``extra["schedule"]`` lists every attempt (hours, windows, status, error).
     """
     if first_hours <= 0 or chunk_hours <= 0:
@@ -180,6 +184,8 @@ def fit_batch_schedule(features: WindowFeatures, *, first_hours: float = FIRST_H
         sel = select_calibration_windows(features, sd_threshold=sd_threshold,
                                          max_abs_mean=max_abs_mean)
         windows, n_in, repeats = sel.features, sel.windows_in, sel.repeats_dropped
+    elif all_starts is not None:
+        windows, n_in, repeats = features, len(all_starts), int(repeats_collapsed)
     else:
         windows, n_in, repeats = features, len(features), 0
     fit_kw = dict(temperature=temperature, ggir_compatible=ggir_compatible, variant=variant,
@@ -192,7 +198,10 @@ def fit_batch_schedule(features: WindowFeatures, *, first_hours: float = FIRST_H
         return est
     if len(windows) > 1 and np.any(np.diff(windows.start_ns) < 0):
         windows = windows.select(np.argsort(windows.start_ns, kind="stable"))
-    all_starts = np.sort(features.start_ns) if select else None
+    if select:
+        all_starts = np.sort(features.start_ns)
+    elif all_starts is not None:
+        all_starts = np.sort(np.asarray(all_starts, np.int64))
     sched = BatchSchedule(t0, first_hours=first_hours, chunk_hours=chunk_hours,
                           window_s=window_s, all_starts=all_starts, **fit_kw)
     est = sched.add(windows)

@@ -1,12 +1,20 @@
 """stillpoint: a streaming engine for raw wearable-accelerometer data (AX3/AX6 .cwa, GENEActiv
 .bin) - readers in ``stillpoint.drivers``, the engine in ``stillpoint.engine``, the command line
-in ``stillpoint.tools``. ``__version__`` is the installed distribution's version."""
+in ``stillpoint.tools``. ``__version__`` is the installed distribution's version (looked up on
+first use: importing the package stays quick, so the command line's own Ctrl-C handling is in
+place almost at once)."""
 
-try:
-    from importlib.metadata import PackageNotFoundError, version as _version
+
+def __getattr__(name):
+    if name != "__version__":
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
     try:
-        __version__ = _version("stillpoint")
-    except PackageNotFoundError:  # running from a source tree that was never installed
-        __version__ = "0+unknown"
-except ImportError:  # pragma: no cover
-    __version__ = "0+unknown"
+        from importlib.metadata import PackageNotFoundError, version
+        try:
+            v = version("stillpoint")
+        except PackageNotFoundError:  # running from a source tree that was never installed
+            v = "0+unknown"
+    except ImportError:  # pragma: no cover
+        v = "0+unknown"
+    globals()["__version__"] = v
+    return v

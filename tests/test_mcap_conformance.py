@@ -112,6 +112,20 @@ def test_view_topic_one_message_per_sample_at_the_asked_rate(rec, tmp_path, hz):
     assert cor["time_ns"][k] == t[0] and cor["x"][k] == np.float32(msgs[0][1]["x"])
 
 
+def test_interrupt_while_the_command_loads_is_one_line(tmp_path, capsys, monkeypatch):
+    """A Ctrl-C while the command's modules import (before any run starts): exit 130 and one
+    line, no traceback."""
+    import stillpoint.tools.cli as cli_mod
+
+    def interrupt(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli_mod, "build_parser", interrupt)
+    assert cli(["process", str(tmp_path / "x.cwa"), "-o", str(tmp_path / "x.mcap")]) == 130
+    err = capsys.readouterr().err
+    assert err == "stillpoint: interrupted\n"
+
+
 def test_interrupted_run_names_its_partial_file(rec, tmp_path, capsys, monkeypatch):
     """An interrupt mid-run leaves OUT.mcap.part (never OUT.mcap) and says how to salvage it."""
     from stillpoint.engine.mcap import sink as sink_mod

@@ -102,8 +102,12 @@ def main(argv=None) -> int:
     # only stillpoint's own one-line messages
     warnings.filterwarnings("ignore", module=r"matplotlib(\..*)?$")
     argv = sys.argv[1:] if argv is None else list(argv)
-    parser = build_parser(_only_requested(argv))
-    args = parser.parse_args(argv)
+    try:  # building the parser imports the command's modules: a Ctrl-C here is one line too
+        parser = build_parser(_only_requested(argv))
+        args = parser.parse_args(argv)
+    except KeyboardInterrupt:
+        print("stillpoint: interrupted", file=sys.stderr)
+        return 130
     if not getattr(args, "_run", None):
         parser.print_help()
         return 2

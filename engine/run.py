@@ -135,7 +135,7 @@ class FeatureStage:
                  on_features: Optional[Callable[[WindowFeatures], None]] = None):
         self.windows = WindowFeaturesOperator(rate_hz, s.window_s, s.min_fill)
         # batch: the fit reads the nonmovement windows and every window's start time (8 bytes a
-        # window), not the whole window table, so memory stays flat in the file's length
+        # window), not the whole window table (11 values a window)
         self.keep = on_features is None
         self.nonmovement = NonmovementOperator(s.sd_threshold_g, s.max_abs_mean_g, keep=self.keep)
         self.on_features = on_features
@@ -399,12 +399,10 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
                 ggir_compatible=s.ggir_compatible, sd_threshold=s.sd_threshold_g,
                 max_abs_mean=s.max_abs_mean_g, device_key=info.device_key, window_s=s.window_s,
                 quantisation_step_g=feat.count_step.step_g)
-            if est.windows == 0 and feat.nonmovement.count:
-                raise AssertionError("nonmovement operator and calibration selection disagree")
         est.effective_from_ns = None
         windows, nonmove = feat.windows.windows, feat.nonmovement.count
         quietest = feat.nonmovement.quietest_sd_g
-        del feat  # the window table (~0.8 MB a day) is not needed in pass 2: memory stays flat
+        del feat  # its nonmovement windows (up to ~0.8 MB a day) are not needed in pass 2
         # ---------------------------------------------------------------- pass 2
         src = source(**_reader_options(path, opts))
         sink = McapSink(out, _loggable(src.info), meta_settings, flush_every_s=s.flush_every_s,

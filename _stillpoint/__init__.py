@@ -18,3 +18,15 @@ def __getattr__(name):
         v = "0+unknown"
     globals()["__version__"] = v
     return v
+
+
+def main():
+    """The ``stillpoint`` command (``stillpoint.tools.cli.main``): a Ctrl-C while the command
+    line itself is imported exits 130 with one line, as it does later."""
+    try:
+        from stillpoint.tools.cli import main as cli_main
+    except KeyboardInterrupt:
+        import sys
+        print("stillpoint: interrupted", file=sys.stderr)
+        return 130
+    return cli_main()

@@ -8,6 +8,9 @@ recovered SIGKILLed run: tests/test_mcap_recover.py.)"""
 from __future__ import annotations
 
 import json
+import os
+import signal
+import time
 
 import numpy as np
 import pytest
@@ -124,6 +127,42 @@ def test_interrupt_while_the_command_loads_is_one_line(tmp_path, capsys, monkeyp
     assert cli(["process", str(tmp_path / "x.cwa"), "-o", str(tmp_path / "x.mcap")]) == 130
     err = capsys.readouterr().err
     assert err == "stillpoint: interrupted\n"
+
+    def converted(*a, **k):  # an extension's initialisation turns the interrupt into ImportError
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(5)  # the handler raises here
+        except KeyboardInterrupt:
+            raise ImportError("PyCapsule_Import could not import module \"datetime\"") from None
+        raise AssertionError("no SIGINT arrived")
+
+    monkeypatch.setattr(cli_mod, "build_parser", converted)
+    assert cli(["process", str(tmp_path / "x.cwa"), "-o", str(tmp_path / "x.mcap")]) == 130
+    assert capsys.readouterr().err == "stillpoint: interrupted\n"
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # given back
+
+    def missing(*a, **k):  # an ImportError without an interrupt is not an interruption
+        raise ImportError("No module named 'nothing'")
+
+    monkeypatch.setattr(cli_mod, "build_parser", missing)
+    with pytest.raises(ImportError):
+        cli(["process", str(tmp_path / "x.cwa"), "-o", str(tmp_path / "x.mcap")])
+
+
+def test_interrupt_while_the_command_line_imports_is_one_line(capsys, monkeypatch):
+    """The `stillpoint` entry point: a Ctrl-C while stillpoint.tools.cli itself is imported."""
+    import sys
+    import types
+
+    import stillpoint
+
+    class Loading(types.ModuleType):
+        def __getattr__(self, name):
+            raise KeyboardInterrupt
+
+    monkeypatch.setitem(sys.modules, "stillpoint.tools.cli", Loading("stillpoint.tools.cli"))
+    assert stillpoint.main() == 130
+    assert capsys.readouterr().err == "stillpoint: interrupted\n"
 
 
 def test_interrupted_run_names_its_partial_file(rec, tmp_path, capsys, monkeypatch):

@@ -96,18 +96,46 @@ def _interrupt_note(args) -> str:
         return ""
 
 
+def _note_sigint(seen: list):
+    """While the command loads: SIGINT raises KeyboardInterrupt as Python's own handler does and
+    is also appended to ``seen``. Returns the function that puts the previous handler back (a
+    SIGINT the caller ignores, or a call off the main thread, is left alone)."""
+    import signal
+
+    def note(signum, frame):
+        seen.append(signum)
+        raise KeyboardInterrupt
+
+    try:
+        if signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+            return lambda: None
+        signal.signal(signal.SIGINT, note)
+    except ValueError:  # not the main thread
+        return lambda: None
+    return lambda: signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
 def main(argv=None) -> int:
     import warnings
     # the plots' library warnings (fonts, layout) are not the user's business: stderr carries
     # only stillpoint's own one-line messages
     warnings.filterwarnings("ignore", module=r"matplotlib(\..*)?$")
     argv = sys.argv[1:] if argv is None else list(argv)
-    try:  # building the parser imports the command's modules: a Ctrl-C here is one line too
+    # building the parser imports the command's modules: a Ctrl-C there is one line too. An
+    # extension module's initialisation can turn the KeyboardInterrupt into an ImportError
+    # (numpy's does, while it imports datetime), so the SIGINT is also noted as it arrives.
+    sigints = []
+    restore = _note_sigint(sigints)
+    try:
         parser = build_parser(_only_requested(argv))
         args = parser.parse_args(argv)
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, ImportError) as e:
+        if isinstance(e, ImportError) and not sigints:
+            raise
         print("stillpoint: interrupted", file=sys.stderr)
         return 130
+    finally:
+        restore()
     if not getattr(args, "_run", None):
         parser.print_help()
         return 2

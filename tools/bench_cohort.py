@@ -6,7 +6,8 @@ Measured in one run, each side in its own child process (wall, CPU, peak RSS fro
 ``benchlib.measure``):
 
 * **serial baseline**: one Python process calling ``engine.run.process_file`` on each file in
-  turn (the per-file engine cost with nothing around it);
+  turn with the epoch and day tables, as ``stillpoint process`` and a cohort job write them (the
+  per-file engine cost with nothing around it);
 * **cohort**: ``stillpoint cohort run DIR -o OUT -j N`` as a user runs it: planning (keys),
   starting a Dask LocalCluster of N worker processes, the jobs (process + summary + hashes +
   fsync + markers), collation;
@@ -38,10 +39,12 @@ SERIAL = r"""
 import json, sys, time
 from pathlib import Path
 from stillpoint.engine.run import RunSettings, process_file
+from stillpoint.engine.tables import TablesSettings, table_paths
 out = Path(sys.argv[1]); walls = []
 for f in sys.argv[2:]:
     t = time.perf_counter()
-    process_file(f, out / (Path(f).stem + ".mcap"), RunSettings())
+    m = out / (Path(f).stem + ".mcap")
+    process_file(f, m, RunSettings(), tables=TablesSettings(*table_paths(m)))
     walls.append(time.perf_counter() - t)
 print(json.dumps(walls))
 """

@@ -170,3 +170,24 @@ def test_one_arena_once_and_the_environment_wins():
     out = subprocess.run([sys.executable, "-c", code], env=dict(env, MALLOC_ARENA_MAX="4"),
                          capture_output=True, text=True, check=True)
     assert out.stdout.split() == ["False", "False"]
+
+
+@pytest.mark.parametrize("mode, cores, used", [("batch", 2, True), ("online", 2, False),
+                                               ("batch", 1, False)])
+def test_the_thread_by_default_reads_for_batch_runs_on_more_than_one_core(
+        tmp_path, monkeypatch, mode, cores, used):
+    """process_file's default: a batch run reads ahead where it has a second core; an online run
+    (the station's, which compresses inline) does not (run.PREFETCH_BY_MODE)."""
+    import stillpoint.engine.run as run_mod
+    made = []
+
+    class Spy(Prefetched):
+        def __init__(self, source, *a, **k):
+            made.append(source)
+            super().__init__(source, *a, **k)
+
+    monkeypatch.setattr(run_mod, "Prefetched", Spy)
+    monkeypatch.setattr(run_mod, "cores_available", lambda: cores)
+    src = _damaged_cwa(tmp_path / "damaged.cwa", 3)
+    process_file(src, tmp_path / "out.mcap", RunSettings(mode=mode, chunk_hours=0.25, first_hours=0.25))
+    assert bool(made) == used

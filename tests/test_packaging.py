@@ -46,3 +46,10 @@ def test_version_in_api_and_cli():
     out = subprocess.run([sys.executable, "-m", "stillpoint.tools", "--version"],
                          capture_output=True, text=True, check=True).stdout
     assert out.strip() == f"stillpoint {stillpoint.__version__}"
+
+
+def test_python_m_stillpoint_is_the_command():
+    out = subprocess.run([sys.executable, "-m", "stillpoint", "--version"],
+                         capture_output=True, text=True, check=True).stdout
+    import stillpoint
+    assert out.strip() == f"stillpoint {stillpoint.__version__}"

@@ -1,0 +1,7 @@
+"""``python -m stillpoint``: the ``stillpoint`` command."""
+
+import sys
+
+from stillpoint import main
+
+sys.exit(main())

@@ -553,9 +553,10 @@ WRITER_BY_MODE = {"batch": "thread", "online": "inline"}
 
 # Reader thread (engine/prefetch.py) by mode when process_file is not told, on a machine with more
 # than one core. `stillpoint process` on the week's bench file, /usr/bin/time, runs alternating
-# with and without it: a batch run 13.41 s against 13.85 s wall (4 runs each), for 19.53 s
-# against 18.50 s CPU (+6 %); an online run, which compresses inline, 19.37 s against 19.17 s
-# wall (3 runs each) for 20.25 s against 18.97 s CPU (+7 %) and 2-5 MB more peak RSS. So only
+# with and without it (means over the runs): a batch run 13.41 s against 13.85 s wall (4 runs
+# each), for 19.53 s against 18.50 s CPU (+6 %); an online run, which compresses inline, 19.37 s
+# against 19.17 s wall (3 runs each) for 20.25 s against 18.97 s CPU (+7 %) and 2-5 MB more
+# peak RSS. So only
 # a batch run reads ahead; an online run (the station's) reads in the engine's thread.
 PREFETCH_BY_MODE = {"batch": True, "online": False}
 

@@ -53,6 +53,38 @@ def time_bytes(t_ns: np.ndarray) -> np.ndarray:
     return a.view(np.uint8).reshape(-1, 8)
 
 
+def _plan(cdr_type: CdrType) -> tuple:
+    """``(head, rest)`` of a CDR type, computed once per type. ``head``: the structured dtype of
+    the encapsulation header and the fields before the first sequence (their offsets are the
+    same in every message: alignment padding is part of the dtype); ``rest``: ``(field, kind,
+    dtype, elements)`` of the fields from the first sequence on."""
+    plan = cdr_type.__dict__.get("_frame_plan")
+    if plan is not None:
+        return plan
+    names, formats, offsets = ["enc"], ["<u4"], [0]
+    pos, rest = 0, []
+    for f, t in cdr_type.fields:
+        if t == "time":
+            dt, n = _TIME, 0
+            align = 4
+        else:
+            base, n = _parse(t)
+            dt = np.dtype(_PRIM[base])
+            align = dt.itemsize
+        if rest or n is None:
+            rest.append((f, "time" if t == "time" else ("seq" if n is None else
+                                                       ("prim" if n == 0 else "arr")), dt, n))
+            continue
+        pos += (-pos) % align
+        names.append(f)
+        formats.append(dt if not n else (dt, (n,)))
+        offsets.append(pos + 4)
+        pos += dt.itemsize * (n or 1)
+    head = np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": pos + 4})
+    plan = cdr_type.__dict__["_frame_plan"] = (head, tuple(rest))
+    return plan
+
+
 class CdrLayout:
     """Field offsets (from the start of each payload) of k messages of ``cdr_type``."""
 
@@ -60,56 +92,54 @@ class CdrLayout:
         """``seq_lens``: field -> (k,) element counts of every sequence field."""
         self.type = cdr_type
         self.k = k
-        self.field = {}  # name -> (kind, dtype, data offsets (k,), count offsets (k,) or None)
-        pos = np.zeros(k, np.int64)
-        for f, t in cdr_type.fields:
-            if t == "time":
-                pos += (-pos) & 3
-                self.field[f] = ("time", None, pos + 4, None)
-                pos = pos + 8
-                continue
-            base, n = _parse(t)
-            dt = np.dtype(_PRIM[base])
-            size = dt.itemsize
-            if n == 0:
-                pos += (-pos) % size
-                self.field[f] = ("prim", dt, pos + 4, None)
-                pos = pos + size
-            elif n is None:
+        self.head, rest = _plan(cdr_type)
+        self.field = {}  # from the first sequence on: name -> (kind, dtype, data offsets (k,),
+        # count offsets (k,) or None)
+        pos = np.full(k, self.head.itemsize - 4, np.int64)
+        for f, kind, dt, n in rest:
+            size = 4 if kind == "time" else dt.itemsize
+            if kind == "seq":
                 cnt = np.asarray(seq_lens[f], np.int64)
                 pos += (-pos) & 3
                 cpos = pos + 4
                 pos = pos + 4
-                pos += np.where(cnt > 0, (-pos) % size, 0)
+                if size > 4:
+                    pos += np.where(cnt > 0, (-pos) % size, 0)
                 self.field[f] = ("seq", dt, pos + 4, cpos)
                 pos = pos + cnt * size
             else:
                 pos += (-pos) % size
-                self.field[f] = ("arr", dt, pos + 4, None)
-                pos = pos + n * size
+                self.field[f] = (kind, dt, pos + 4, None)
+                pos = pos + (8 if kind == "time" else size * max(n, 1))
         self.size = pos + 4  # payload bytes (with the encapsulation header)
 
-    def put_header(self, buf: np.ndarray, base: np.ndarray) -> None:
-        scatter(buf, base, np.frombuffer(b"\x00\x01\x00\x00" * self.k, np.uint8).reshape(-1, 4))
+    def put_head(self, buf, base, values: dict) -> None:
+        """The encapsulation header and the fields before the first sequence (``values``: field
+        -> a value, or one value or row per message; times in ns), one scatter for all."""
+        a = np.zeros(self.k, self.head)
+        a["enc"] = 0x100  # 00 01 00 00: CDR, little-endian
+        for f in self.head.names[1:]:
+            v = values[f]
+            a[f] = time_bytes(v).view(_TIME).reshape(-1) if self.head[f] == _TIME else v
+        scatter(buf, base, a.view(np.uint8).reshape(self.k, -1))
 
-    def put_time(self, buf, base, f: str, t_ns) -> None:
-        scatter(buf, base + self.field[f][2], time_bytes(t_ns))
+    def put_counts_of(self, buf, base, fields, counts) -> None:
+        """The element counts of several sequence fields in one scatter (``counts[j]``: the
+        (k,) counts of ``fields[j]``)."""
+        at = np.concatenate([base + self.field[f][3] for f in fields])
+        v = np.concatenate([np.asarray(c, "<u4") for c in counts])
+        scatter(buf, at, v.view(np.uint8).reshape(-1, 4))
 
-    def put_fixed(self, buf, base, f: str, values) -> None:
-        """A primitive or fixed-array field: ``values`` has one row per message."""
-        dt = self.field[f][1]
-        v = np.ascontiguousarray(values, dt)
-        scatter(buf, base + self.field[f][2], v.view(np.uint8).reshape(self.k, -1))
-
-    def put_counts(self, buf, base, f: str, counts: np.ndarray) -> None:
-        scatter(buf, base + self.field[f][3],
-                np.asarray(counts, "<u4").view(np.uint8).reshape(self.k, 4))
-
-    def put_seq_runs(self, buf, base, f: str, src: np.ndarray, counts: np.ndarray) -> None:
-        """A sequence field whose messages take consecutive runs of ``src`` (short runs)."""
-        dt = self.field[f][1]
-        s = np.ascontiguousarray(src, dt).view(np.uint8)
-        scatter_runs(buf, base + self.field[f][2], s, np.asarray(counts, np.int64) * dt.itemsize)
+    def put_seq_runs_of(self, buf, base, fields, srcs, counts: np.ndarray) -> None:
+        """Sequence fields whose messages take consecutive runs of ``srcs`` (short runs, the
+        same counts in every field: e.g. a few sectors' values), all in one scatter."""
+        at, data, lens = [], [], []
+        for f, src in zip(fields, srcs):
+            dt = self.field[f][1]
+            data.append(np.ascontiguousarray(src, dt).view(np.uint8))
+            at.append(base + self.field[f][2])
+            lens.append(counts * dt.itemsize)
+        scatter_runs(buf, np.concatenate(at), np.concatenate(data), np.concatenate(lens))
 
     def put_seq_slices(self, buf, base, f: str, src: np.ndarray, starts, counts) -> None:
         """A sequence field whose message i holds ``src[starts[i]:starts[i] + counts[i]]``
@@ -130,8 +160,9 @@ def put_rows(buf: np.ndarray, at: np.ndarray, stride: np.ndarray, rows: np.ndarr
     message writes them all (``at``: offsets of the first field's data)."""
     w = rows.dtype.itemsize
     k = rows.shape[0]
+    b = np.ascontiguousarray(rows).view(np.uint8)
     for d, st, a, n in zip(at.tolist(), stride.tolist(), starts, counts):
-        buf[d:d + k * st].reshape(k, st)[:, :n * w] = rows[:, a:a + n].view(np.uint8)
+        buf[d:d + k * st].reshape(k, st)[:, :n * w] = b[:, a * w:(a + n) * w]
 
 
 def record_headers(cids: np.ndarray, seqs: np.ndarray, times: np.ndarray,
@@ -168,7 +199,8 @@ def fixed_records(payloads: np.ndarray, cid: int, seq0: int, times: np.ndarray) 
 class VariableRecords:
     """The Message records of k messages of one CDR type (``layout``), back to back in one
     zeroed buffer: framing written here, payload fields by the caller (``base``: payload
-    offsets; ``off``: record offsets, k + 1 of them)."""
+    offsets; ``off``: record offsets, k + 1 of them; the payloads' head, ``CdrLayout.put_head``,
+    is the caller's too)."""
 
     def __init__(self, layout: CdrLayout, cid: int, seq0: int, times: np.ndarray, slack: int = 0):
         """``slack``: zero bytes after the last record (room for ``put_rows`` regions)."""
@@ -181,4 +213,3 @@ class VariableRecords:
                 record_headers(np.full(k, cid, np.int64), np.arange(seq0, seq0 + k, dtype=np.int64),
                                times, layout.size))
         self.base = self.off[:-1] + HEAD
-        layout.put_header(self.buf, self.base)

@@ -293,6 +293,7 @@ class _CorrectedRun:
         if self.ok:
             n = batch.n
             self.words = np.empty((4, n), "<u4")
+            self.bytes = self.words.view(np.uint8)  # (4, 4 n)
             self.dt = self.words[0].view("<i4")
             q = self.words[1:].view("<f4")
             a = batch.accel.T
@@ -561,6 +562,9 @@ class McapSink(McapLog):
 
 # ---------------------------------------------------------------------------- per-block framing
 _TYPE_RAW, _TYPE_GYRO, _TYPE_TEMP, _TYPE_CORR, _TYPE_VIEW, _TYPE_EPOCH = range(6)
+_UNIT_FIELDS = ("unit_index", "unit_sequence", "unit_start", "temperature_c", "temperature_raw",
+                "light", "battery_v", "events")  # the raw message's per-unit sequences (_RawCells.units)
+_RAW_SEQUENCES = tuple(f for f, t in ACCEL_BATCH_RAW.fields if t.endswith("[]"))
 _TEMP_PAYLOAD = np.dtype([("hdr", "V4"), ("sec", "<i4"), ("nsec", "<u4"), ("celsius", "<f8")])
 assert _TEMP_PAYLOAD.itemsize == 20, TEMPERATURE.name
 
@@ -641,12 +645,13 @@ def _frame_block(sink: "McapSink", block: Optional[Block], corrected: list,
         np.not_equal(pc[1:], pc[:-1], out=newg[1:])
     gj = np.flatnonzero(newg)  # pieces opening a group
     msgs = []  # emitted messages: (piece that emits it, [(run, a, b), ...])
-    prev = list(pend) + [(runs[int(pr[j])], int(pa[j]), int(pb[j])) for j in range(int(gj[0]) if gj.shape[0] else pa.shape[0])]
+    piece = [(runs[r], a, b) for r, a, b in zip(pr.tolist(), pa.tolist(), pb.tolist())]
     bounds = gj.tolist() + [pa.shape[0]]
+    prev = list(pend) + piece[:bounds[0]]
     for q in range(gj.shape[0]):
         if prev:
             msgs.append((bounds[q], prev))
-        prev = [(runs[int(pr[j])], int(pa[j]), int(pb[j])) for j in range(bounds[q], bounds[q + 1])]
+        prev = piece[bounds[q]:bounds[q + 1]]
     new_pending = prev
     # ------------------------------------------------------------ channels in use
     need = []
@@ -714,35 +719,26 @@ def _frame_block(sink: "McapSink", block: Optional[Block], corrected: list,
         cid = ids[TOPIC_RAW]
         vr = bf.VariableRecords(lay, cid, ch.sequence(cid), tc, slack=8)
         buf, base = vr.buf, vr.base
-        lay.put_time(buf, base, "stamp", t0)
-        lay.put_fixed(buf, base, "t0_ns", t0)
-        lay.put_fixed(buf, base, "segment", np.full(kk, raw.head[0], np.int64))
-        lay.put_fixed(buf, base, "first_sample", block.first_sample + s0)
-        lay.put_fixed(buf, base, "counts_per_g", np.tile(raw.head[2], (kk, 1)))
-        lay.put_fixed(buf, base, "zero_counts", np.tile(raw.head[3], (kk, 1)))
+        lay.put_head(buf, base, {"stamp": t0, "t0_ns": t0, "segment": raw.head[0],
+                                 "first_sample": block.first_sample + s0,
+                                 "counts_per_g": raw.head[2], "zero_counts": raw.head[3]})
         sl, nl = s0.tolist(), n_s.tolist()
-        for f, src in (("dt_ns", raw.dt), ("x", None), ("y", None), ("z", None),
-                       ("light_raw", raw.light_raw), ("button", raw.button)):
-            lay.put_counts(buf, base, f, lens[f])
+        lay.put_counts_of(buf, base, _RAW_SEQUENCES, [lens[f] for f in _RAW_SEQUENCES])
+        for f, src in (("dt_ns", raw.dt), ("light_raw", raw.light_raw), ("button", raw.button)):
             if src is not None:
                 lay.put_seq_slices(buf, base, f, src, sl, nl)
         bf.put_rows(buf, base + lay.field["x"][2], lay.field["y"][2] - lay.field["x"][2],
                     raw.xyz, sl, nl)
         u0, u1 = int(ua[rk][0]), int(ub[rk][-1])
-        for f, arr in zip(("unit_index", "unit_sequence", "unit_start", "temperature_c",
-                           "temperature_raw", "light", "battery_v", "events"), raw.units):
-            lay.put_counts(buf, base, f, n_u)
-            lay.put_seq_runs(buf, base, f, arr[u0:u1], n_u)
+        lay.put_seq_runs_of(buf, base, _UNIT_FIELDS, [arr[u0:u1] for arr in raw.units], n_u)
         add(_TYPE_RAW, buf, vr.off, tc, rit, 2, 0, 0)
         if raw.gyro is not None:
             glay = bf.CdrLayout(GYRO_BATCH_RAW, kk, {f: n_s for f in ("dt_ns", "x", "y", "z")})
             cid = ids[TOPIC_GYRO]
             gr = bf.VariableRecords(glay, cid, ch.sequence(cid), tc, slack=8)
-            glay.put_time(gr.buf, gr.base, "stamp", t0)
-            glay.put_fixed(gr.buf, gr.base, "t0_ns", t0)
-            glay.put_fixed(gr.buf, gr.base, "dps_per_count", np.full(kk, float(block.gyro_dps_per_count)))
-            for f in ("dt_ns", "x", "y", "z"):
-                glay.put_counts(gr.buf, gr.base, f, n_s)
+            glay.put_head(gr.buf, gr.base, {"stamp": t0, "t0_ns": t0,
+                                            "dps_per_count": float(block.gyro_dps_per_count)})
+            glay.put_counts_of(gr.buf, gr.base, ("dt_ns", "x", "y", "z"), [n_s] * 4)
             glay.put_seq_slices(gr.buf, gr.base, "dt_ns", raw.dt, sl, nl)
             bf.put_rows(gr.buf, gr.base + glay.field["x"][2], glay.field["y"][2] - glay.field["x"][2],
                         raw.gyro, sl, nl)
@@ -759,27 +755,29 @@ def _frame_block(sink: "McapSink", block: Optional[Block], corrected: list,
     if msgs:
         m = len(msgs)
         mj = np.array([j for j, _p in msgs], np.int64)
-        n_m = np.array([sum(b - a for _r, a, b in p) for _j, p in msgs], np.int64)
-        t0 = np.array([int(p[0][0].time_ns[p[0][1]]) for _j, p in msgs], np.int64)
+        n_ml = [sum(b - a for _r, a, b in p) for _j, p in msgs]
+        n_m = np.array(n_ml, np.int64)
+        t0 = np.array([p[0][0].time_ns[p[0][1]] for _j, p in msgs], np.int64)
         tc = np.maximum(t0, 0)
         clay = bf.CdrLayout(ACCEL_BATCH, m, {f: n_m for f in ("dt_ns", "x", "y", "z")})
         cid = ids[TOPIC_CORRECTED]
         cr = bf.VariableRecords(clay, cid, ch.sequence(cid), tc, slack=8)
         buf, base = cr.buf, cr.base
-        clay.put_time(buf, base, "stamp", t0)
-        clay.put_fixed(buf, base, "t0_ns", t0)
-        clay.put_fixed(buf, base, "segment", np.full(m, msgs[0][1][0][0].segment, np.int64))
-        for f in ("dt_ns", "x", "y", "z"):
-            clay.put_counts(buf, base, f, n_m)
+        clay.put_head(buf, base, {"stamp": t0, "t0_ns": t0, "segment": msgs[0][1][0][0].segment})
+        clay.put_counts_of(buf, base, ("dt_ns", "x", "y", "z"), [n_m] * 4)
         # dt_ns, x, y, z: 4-byte rows, each after its count: one (4, n) copy per piece
         fo = (base + clay.field["dt_ns"][2]).tolist()
         for i, (_j, p) in enumerate(msgs):
-            stride = 4 * int(n_m[i]) + 4
+            stride = 4 * n_ml[i] + 4
             region = buf[fo[i]:fo[i] + 4 * stride].reshape(4, stride)
+            if len(p) == 1:  # one piece of one batch (most messages)
+                r, a, b = p[0]
+                region[:, :4 * (b - a)] = r.bytes[:, 4 * a:4 * b]
+                continue
             at = 0
             prev_t = None
             for r, a, b in p:
-                region[:, 4 * at:4 * (at + b - a)] = r.words[:, a:b].view(np.uint8)
+                region[:, 4 * at:4 * (at + b - a)] = r.bytes[:, 4 * a:4 * b]
                 if prev_t is not None:  # a join inside the message: its own step, not 0
                     region[0, 4 * at:4 * at + 4] = np.array([int(r.time_ns[a]) - prev_t], "<i4").view(np.uint8)
                 prev_t = int(r.time_ns[b - 1])

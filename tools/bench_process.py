@@ -68,7 +68,10 @@ def before_tree(workdir: Path, rev: str) -> dict:
     pkg = root / "stillpoint"
     if not (pkg / "engine").is_dir():
         pkg.mkdir(parents=True, exist_ok=True)
-        (pkg / "__init__.py").write_text("")
+        init = subprocess.run(["git", "-C", str(repo), "show", f"{sha}:_stillpoint/__init__.py"],
+                              stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
+        # the package's own __init__ (the entry point), where the revision has one
+        (pkg / "__init__.py").write_bytes(init.stdout if init.returncode == 0 else b"")
         tar = subprocess.run(["git", "-C", str(repo), "archive", sha, "engine", "drivers", "tools"],
                              check=True, stdout=subprocess.PIPE).stdout
         subprocess.run(["tar", "-x", "-C", str(pkg)], input=tar, check=True)

@@ -251,6 +251,11 @@ class ChunkBuilder:
         self._size += nbytes
         self._times(int(times.min()), int(times.max()))
 
+    def detach(self) -> None:
+        """Copy the open chunk's parts that are views of larger buffers (``add_framed``'s
+        slices of a step's topic buffers), so those buffers are freed with the step."""
+        self._parts = [bytes(p) if isinstance(p, memoryview) else p for p in self._parts]
+
     @property
     def size(self) -> int:
         return self._size

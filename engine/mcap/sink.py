@@ -308,6 +308,16 @@ class _CorrectedRun:
             self.dt[0] = 0
             self.dt[1:] = d
 
+    def tail(self, a: int, quantum_g: float) -> "_CorrectedRun":
+        """Samples [a, n) of an already framed run (``a``: a message start, or 0), copied, so
+        the step's arrays are not held into the next step (the same words: quantisation is per
+        sample, and the copy's first step is 0 as the message start's is)."""
+        b = self.batch
+        t = _CorrectedRun(CorrectedBatch(b.time_ns[a:].copy(), b.accel[a:].copy(),
+                                         b.temperature[a:].copy(), b.segment), quantum_g)
+        t.view = self.view
+        return t
+
     def cut(self, starts: list) -> None:
         """Messages will start at these indices: each starts its own deltas."""
         if self.ok:
@@ -811,8 +821,9 @@ def _frame_block(sink: "McapSink", block: Optional[Block], corrected: list,
             flush[0] = False
         sink._cell = int(todo[-1]) if sink._cell is None else max(sink._cell, int(todo[-1]))
     # ------------------------------------------------------------ pending corrected samples
-    if runs:
-        sink._pending_corr = new_pending
+    if runs:  # the open cell's samples, copied out of this step's batches (each a run's tail)
+        sink._pending_corr = [(r.tail(a, sink.quantum), 0, b - a) if b == r.batch.n else (r, a, b)
+                              for r, a, b in new_pending]
         sink._corr_cell = int(pc[-1])
     # ------------------------------------------------------------ records in file order
     if topics:
@@ -930,4 +941,5 @@ def _frame_block(sink: "McapSink", block: Optional[Block], corrected: list,
             lo = hi
         if flush_after:
             sink._flush_cell(False)
+    ch.detach()  # the open chunk's records, out of this step's buffers
     return True

@@ -54,3 +54,22 @@ def one_arena() -> bool:
         return False
     _ONE_ARENA = True
     return True
+
+
+_LIBC = None
+
+
+def trim() -> bool:
+    """Give the heap's free pages back to the system (glibc ``malloc_trim(0)``: the top of the
+    heap and whole free pages inside it); False where it cannot be done (not glibc)."""
+    global _LIBC
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        if _LIBC is None:
+            import ctypes
+            _LIBC = ctypes.CDLL("libc.so.6")
+        _LIBC.malloc_trim(0)
+        return True
+    except (OSError, AttributeError):
+        return False

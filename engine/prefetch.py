@@ -29,7 +29,10 @@ from typing import Iterator
 
 from .blocks import Block
 
-DEPTH = 2  # blocks decoded ahead (a .cwa reader block is ~1 MB of samples; memory stays flat)
+# Blocks decoded ahead (a .cwa reader block is ~1 MB of samples). `stillpoint process` on the
+# week's bench file, four alternating runs each: one block ahead 11.93-12.16 s wall at 68.3-68.9
+# MB peak RSS, two blocks ahead 11.82-12.19 s at 69.6-70.3 MB.
+DEPTH = 1
 _JOIN_S = 5.0  # how long close() waits for the thread before closing the source under it
 
 _BLOCK, _END, _ERROR = 0, 1, 2

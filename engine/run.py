@@ -36,6 +36,7 @@ from .blocks import Block
 from .calibration import OnlineCalibrator, fit_batch_schedule
 from .calibration.trust import CountStep
 from .calibration.estimate import CalibrationEstimate
+from .calibration.quantisation import release_tables
 from .calibration.validate import validate_estimate
 from .calibration.schedule import CHUNK_HOURS, FIRST_HOURS
 from .calibration.select import MAX_ABS_MEAN_G, SD_THRESHOLD_G
@@ -407,6 +408,7 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
         windows, nonmove = feat.windows.windows, feat.nonmovement.count
         quietest = feat.nonmovement.quietest_sd_g
         del feat  # its nonmovement windows (up to ~0.8 MB a day) are not needed in pass 2
+        release_tables()
         # ---------------------------------------------------------------- pass 2
         src = source(**_reader_options(path, opts))
         sink = McapSink(out, _loggable(src.info), meta_settings, flush_every_s=s.flush_every_s,

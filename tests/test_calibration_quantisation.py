@@ -190,3 +190,29 @@ def test_solve_equals_the_full_row_form():
     m[:3] = [np.nan, 0.0, STEP]
     v[3] = np.inf
     assert np.array_equal(q._solve(m, v, STEP), full_rows(m, v, STEP), equal_nan=True)
+
+
+def test_windows_solved_a_chunk_at_a_time_as_all_at_once(monkeypatch):
+    """The windows are solved CHUNK at a time (small temporaries); any cut gives the same bits."""
+    import stillpoint.engine.calibration.quantisation as q
+    rng = np.random.default_rng(3)
+    m = rng.normal(0.0, 0.5, (1500, 3))
+    sd = np.abs(rng.normal(0.004, 0.002, (1500, 3)))
+    monkeypatch.setattr(q, "CHUNK", 10**6)
+    whole = dequantise_means(m, sd, 0.0156)
+    assert not np.array_equal(whole, m)  # the pull was removed somewhere
+    for chunk in (7, 512):
+        monkeypatch.setattr(q, "CHUNK", chunk)
+        assert np.array_equal(dequantise_means(m, sd, 0.0156), whole), chunk
+
+
+def test_a_batch_run_lets_the_tables_go_after_its_fit(tmp_path):
+    """Pass 2 fits nothing: the tables (~1 MB) are not held through it."""
+    from stillpoint.engine.calibration.quantisation import _tables
+    from stillpoint.engine.run import RunSettings, process_file
+    from test_prefetch import _damaged_cwa
+    src = _damaged_cwa(tmp_path / "d.cwa", 3)
+    _tables()
+    assert _tables.cache_info().currsize == 1
+    process_file(src, tmp_path / "out.mcap", RunSettings(mode="batch", chunk_hours=0.25, first_hours=0.25))
+    assert _tables.cache_info().currsize == 0

@@ -37,7 +37,7 @@ SPAN = 7.0  # levels within +-SPAN sigma of x carry the mass
 SIGMA = np.exp(np.linspace(np.log(0.12), np.log(1.5), 121))
 GRID_X = 1024  # positions within a step for the tables
 MU = np.linspace(0.0, 1.0, 513)  # fractional means for the tables
-CHUNK = 2048  # windows solved at a time
+CHUNK = 512  # windows solved at a time: (CHUNK, sigma grid) temporaries of ~0.5 MB each
 
 
 def level_count(x: np.ndarray, s: np.ndarray, step: float, span: float = SPAN) -> int:
@@ -95,6 +95,12 @@ def _tables():
     xv = cached_array("quantisation_tables", key, lambda: np.stack(build_tables()),
                       shape=(2, MU.size, SIGMA.size))
     return xv[0], xv[1]
+
+
+def release_tables() -> None:
+    """Let the tables go (~1 MB; loaded again on the next use, ~1 ms): a batch run's pass 2
+    fits nothing."""
+    _tables.cache_clear()
 
 
 def _scipy_version() -> str:

@@ -297,11 +297,13 @@ class _CorrectedRun:
             self.dt = self.words[0].view("<i4")
             q = self.words[1:].view("<f4")
             a = batch.accel.T
-            if quantum_g:  # quantize(), into the rows (float64 scratch reused across blocks)
-                t = scratch(n) if scratch is not None else np.empty((3, n))
-                np.multiply(a, 1.0 / quantum_g, out=t)
-                np.round(t, out=t)
-                np.multiply(t, quantum_g, out=q, casting="same_kind")
+            if quantum_g:  # quantize(), into the rows, a row at a time (float64 scratch
+                # reused across blocks)
+                t = scratch(n) if scratch is not None else np.empty(n)
+                for j in range(3):
+                    np.multiply(a[j], 1.0 / quantum_g, out=t)
+                    np.round(t, out=t)
+                    np.multiply(t, quantum_g, out=q[j], casting="same_kind")
             else:
                 np.copyto(q, a, casting="same_kind")
             self.x, self.y, self.z = q
@@ -367,10 +369,10 @@ class McapSink(McapLog):
     _scratch = None
 
     def _tmp(self, n: int) -> np.ndarray:
-        """A (3, n) float64 scratch array, reused from block to block."""
-        if self._scratch is None or self._scratch.shape[1] < n:
-            self._scratch = np.empty((3, max(n, 1)))
-        return self._scratch[:, :n]
+        """An (n,) float64 scratch array, reused from block to block."""
+        if self._scratch is None or self._scratch.shape[0] < n:
+            self._scratch = np.empty(max(n, 1))
+        return self._scratch[:n]
 
     def _msg(self, topic, encoding, schema, log_time, data):
         ch = self._chunk

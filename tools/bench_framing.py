@@ -1,0 +1,68 @@
+"""What framing the MCAP log costs a pipeline step of `stillpoint process`.
+
+    python tools/bench_framing.py [REC.cwa] [--mode batch] [--repeat 3]
+
+Runs ``engine.run.process_file`` (with the epoch and day tables, as the command does) on the
+recording (default: the 1-day bench file of tools/bench_process.py, written there if missing)
+and prints, per run, the CPU time of the engine's thread spent in ``McapSink.write_slices``
+(framing every message of a step, handing its chunks to the writer) per pipeline step, its
+share of the run's CPU, and the run's wall and CPU time. The CPU clock is the calling thread's
+(``time.thread_time``), so the writer and reader threads' work is not in the framing figure.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import tempfile
+import time
+from pathlib import Path
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("recording", nargs="?", default=None)
+    ap.add_argument("--mode", choices=("batch", "online"), default="batch")
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--workdir", default=os.path.join(tempfile.gettempdir(), "stillpoint_bench"))
+    a = ap.parse_args(argv)
+    if a.recording is None:
+        from bench_process import recording
+        wd = Path(a.workdir)
+        wd.mkdir(parents=True, exist_ok=True)
+        path = recording(wd, 1.0, 100.0)
+    else:
+        path = Path(a.recording)
+
+    import stillpoint.engine.mcap.sink as sink_mod
+    from stillpoint.engine.run import RunSettings, process_file
+    from stillpoint.engine.tables import TablesSettings, table_paths
+
+    spent = [0.0, 0]
+    write_slices = sink_mod.McapSink.write_slices
+
+    def timed(self, *args, **kw):
+        t = time.thread_time()
+        try:
+            return write_slices(self, *args, **kw)
+        finally:
+            spent[0] += time.thread_time() - t
+            spent[1] += 1
+
+    sink_mod.McapSink.write_slices = timed
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "framing.mcap"
+        print(f"{path.name}, --mode {a.mode}")
+        for _ in range(a.repeat):
+            spent[:] = [0.0, 0]
+            w, c = time.perf_counter(), time.process_time()
+            process_file(path, out, RunSettings(mode=a.mode), tables=TablesSettings(*table_paths(out)))
+            wall, cpu = time.perf_counter() - w, time.process_time() - c
+            print(f"  framing {1e3 * spent[0] / max(spent[1], 1):.2f} ms CPU a step over {spent[1]} "
+                  f"steps ({spent[0]:.2f} s, {100 * spent[0] / cpu:.0f} % of the run's CPU); "
+                  f"run {wall:.2f} s wall, {cpu:.2f} s CPU")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -11,6 +11,9 @@ A thread's first allocation gives it an arena of its own, which keeps the block-
 freed for itself: :func:`one_arena` makes threads started afterwards allocate from the existing
 arena, so the arrays a reader thread frees are reused by the engine's thread (a week's batch run
 with a reader thread: ~10 MB less peak RSS). ``MALLOC_ARENA_MAX`` in the environment wins.
+
+Freed arrays around longer-lived ones stay resident: :func:`trim` gives the heap's free pages
+back (a run calls it every few pipeline steps, engine.run.TRIM_EVERY_STEPS).
 """
 
 from __future__ import annotations
@@ -22,6 +25,16 @@ M_MMAP_THRESHOLD = -3  # malloc.h
 M_ARENA_MAX = -8  # malloc.h
 
 _ONE_ARENA = False
+_LIBC = None
+
+
+def _libc():
+    """glibc, loaded once (raises OSError where there is none)."""
+    global _LIBC
+    if _LIBC is None:
+        import ctypes
+        _LIBC = ctypes.CDLL("libc.so.6")
+    return _LIBC
 
 
 def set_block_thresholds() -> bool:
@@ -29,8 +42,7 @@ def set_block_thresholds() -> bool:
     if not sys.platform.startswith("linux"):
         return False
     try:
-        import ctypes
-        libc = ctypes.CDLL("libc.so.6")
+        libc = _libc()
         libc.mallopt(M_MMAP_THRESHOLD, 32 << 20)
         libc.mallopt(M_TRIM_THRESHOLD, 64 << 20)
         return True
@@ -48,28 +60,20 @@ def one_arena() -> bool:
     if not sys.platform.startswith("linux") or "MALLOC_ARENA_MAX" in os.environ:
         return False
     try:
-        import ctypes
-        ctypes.CDLL("libc.so.6").mallopt(M_ARENA_MAX, 1)
+        _libc().mallopt(M_ARENA_MAX, 1)
     except (OSError, AttributeError):
         return False
     _ONE_ARENA = True
     return True
 
 
-_LIBC = None
-
-
 def trim() -> bool:
     """Give the heap's free pages back to the system (glibc ``malloc_trim(0)``: the top of the
     heap and whole free pages inside it); False where it cannot be done (not glibc)."""
-    global _LIBC
     if not sys.platform.startswith("linux"):
         return False
     try:
-        if _LIBC is None:
-            import ctypes
-            _LIBC = ctypes.CDLL("libc.so.6")
-        _LIBC.malloc_trim(0)
+        _libc().malloc_trim(0)
         return True
     except (OSError, AttributeError):
         return False

@@ -12,14 +12,17 @@ lock) is kept, renamed to ``<name>.part.<UTC time>``, so nothing already written
 new name is reported in ``AtomicOutput.set_aside``.
 
 ``check_output_path`` validates a destination before any work starts (folder exists, is a
-folder, is writable, the name can be encoded), so a long run cannot fail at its end for a
-reason that was knowable at its start.
+folder, is writable, the name can be encoded, the path is not a device, pipe or socket), so a
+long run cannot fail at its end for a reason that was knowable at its start. A device such as
+``/dev/null`` is refused rather than written: the rename that completes an output would put a
+plain file in its place.
 """
 
 from __future__ import annotations
 
 import errno
 import os
+import stat
 import time
 from contextlib import contextmanager
 from pathlib import Path
@@ -68,10 +71,15 @@ def partial_path(path) -> Path:
     return p.with_name(p.name + PART_SUFFIX)
 
 
+_SPECIAL = ((stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+            (stat.S_ISFIFO, "a named pipe"), (stat.S_ISSOCK, "a socket"))
+
+
 def check_output_path(path, *, what: str = "output") -> Path:
     """Refuse, before any work, an output that cannot be written: the folder is missing or
-    not a folder or not writable, the path is a folder, or the name cannot be encoded for the
-    file system. Returns the path as a ``Path``."""
+    not a folder or not writable, the path is a folder or a device, pipe or socket (links
+    followed), or the name cannot be encoded for the file system. Returns the path as a
+    ``Path``."""
     p = Path(path)
     try:
         os.fsencode(p.name)
@@ -82,8 +90,16 @@ def check_output_path(path, *, what: str = "output") -> Path:
         raise OutputError(path, f"{what} folder {folder} does not exist")
     if not folder.is_dir():
         raise OutputError(path, f"{what} folder {folder} is not a folder")
-    if p.is_dir():
+    try:
+        mode = os.stat(p).st_mode
+    except OSError:
+        mode = None  # not there yet (or a dangling link): created at commit
+    if mode is not None and stat.S_ISDIR(mode):
         raise OutputError(path, f"{what} path is a folder")
+    if mode is not None and not stat.S_ISREG(mode):
+        kind = next((k for test, k in _SPECIAL if test(mode)), "not a regular file")
+        raise OutputError(path, f"{what} path is {kind}, not a file (outputs are written "
+                                "under a temporary name and renamed into place)")
     if not os.access(folder, os.W_OK | os.X_OK):
         raise OutputError(path, f"{what} folder {folder} is not writable")
     return p

@@ -5,6 +5,7 @@ export, CLI."""
 from __future__ import annotations
 
 import json
+import os
 import re
 import subprocess
 import sys
@@ -320,6 +321,20 @@ def test_empty_recording_and_bad_output_path(tmp_path, capsys):
         assert s["samples"] == 0 and s["epochs"] == 0 and s["enmo_mean_mg"] is None
     assert cli(["process", str(empty), "-o", str(tmp_path / "no" / "such" / "dir.mcap")]) == 2
     assert "does not exist" in capsys.readouterr().err
+
+
+def test_output_on_a_named_pipe_refused_with_one_line(recording, tmp_path, capsys):
+    """`process -o` naming a device or pipe (/dev/null, a FIFO): exit 2, one line naming it,
+    the pipe left as it was and no table written beside it."""
+    import stat
+    fifo = tmp_path / "out.mcap"
+    os.mkfifo(fifo)
+    assert cli(["process", str(recording), "-o", str(fifo)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(fifo) in err[0] and "a named pipe" in err[0]
+    assert "Traceback" not in err[0]
+    assert stat.S_ISFIFO(os.stat(fifo).st_mode)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.mcap"]
 
 
 def _job(args):

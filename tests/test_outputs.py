@@ -76,3 +76,34 @@ def test_bad_destinations_refused_before_work(tmp_path, case):
     with pytest.raises(OutputError) as e:
         check_output_path(p)
     assert str(p) in str(e.value) or str(p.parent) in str(e.value)
+
+
+@pytest.mark.parametrize("via_link", [False, True])
+def test_device_pipe_or_socket_refused_not_replaced(tmp_path, via_link):
+    """A destination that is not a regular file (a device such as /dev/null, a named pipe,
+    a socket; links followed) is refused before any work: the rename that completes an output
+    would otherwise put a plain file in its place."""
+    import socket
+    import stat
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    sock_path = tmp_path / "sock"
+    sock = socket.socket(socket.AF_UNIX)
+    sock.bind(str(sock_path))
+    try:
+        for target, kind in ((fifo, "a named pipe"), (sock_path, "a socket")):
+            p = target
+            if via_link:
+                p = tmp_path / (target.name + ".link")
+                p.symlink_to(target)
+            with pytest.raises(OutputError) as e:
+                AtomicOutput(p)
+            assert str(p) in str(e.value) and kind in str(e.value)
+            assert not partial_path(p).exists()
+        assert stat.S_ISFIFO(os.stat(fifo).st_mode)
+    finally:
+        sock.close()
+    if os.path.exists("/dev/null"):  # checked only: the refusal comes before anything is opened
+        with pytest.raises(OutputError) as e:
+            check_output_path("/dev/null")
+        assert "a character device" in str(e.value)

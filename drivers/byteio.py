@@ -4,7 +4,9 @@ and *follow* mode for a file that is still being written (a download in progress
 from __future__ import annotations
 
 import io
+import errno
 import os
+import stat
 import time
 import zlib
 from typing import BinaryIO, Callable, Optional
@@ -180,17 +182,30 @@ class FollowingReader(io.RawIOBase):
         super().close()
 
 
+_NOT_A_FILE = ((stat.S_ISFIFO, "a pipe"), (stat.S_ISCHR, "a character device"),
+               (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"))
+
+
 def check_recording_path(path, *, allow_empty: bool = False) -> None:
-    """Raise the typed error for a path that cannot hold a recording: missing, a directory, or
-    empty (an empty file is allowed when following a file that is about to be written)."""
+    """Raise the typed error for a path that cannot hold a recording: missing, a directory, a
+    pipe, device or socket (recordings are read with seeks; opening a pipe would wait for a
+    writer), or empty (an empty file is allowed when following a file that is about to be
+    written)."""
     from .errors import RecordingError, TruncatedRecordingError
 
     p = os.fspath(path)
-    if not os.path.exists(p):
-        raise RecordingError(p, "no such file")
-    if os.path.isdir(p):
+    try:
+        st = os.stat(p)
+    except OSError as e:
+        raise RecordingError(p, "no such file" if e.errno == errno.ENOENT else
+                             f"cannot read: {e.strerror or e}") from None
+    if stat.S_ISDIR(st.st_mode):
         raise RecordingError(p, "is a directory, not a recording")
-    if not allow_empty and os.path.getsize(p) == 0:
+    if not stat.S_ISREG(st.st_mode):
+        kind = next((k for test, k in _NOT_A_FILE if test(st.st_mode)), "not a regular file")
+        raise RecordingError(p, f"is {kind}, not a recording file (save the recording to a "
+                                "file first)")
+    if not allow_empty and st.st_size == 0:
         raise TruncatedRecordingError(p, "file is empty (0 bytes)")
 
 

@@ -49,7 +49,7 @@ from .constants import (GNA_GAIN_MAX, GNA_HEX_PER_SAMPLE, GNA_LIGHT_SHIFT, GNA_O
                         GNA_PAGE_MARKER, GNA_RATE_85_7, GNA_SAMPLES_PER_PAGE, NS_TIME_RANGE_MS,
                         PLAUSIBLE_BATTERY_V, PLAUSIBLE_RATE_HZ, PLAUSIBLE_TEMPERATURE_C,
                         PLAUSIBLE_TIME_NS, PLAUSIBLE_YEARS, gna_rate_hz)
-from .errors import (CorruptRecordingError, RecordingError, TruncatedRecordingError,
+from .errors import (CorruptRecordingError, TruncatedRecordingError,
                      UnsupportedFormatError)
 from .geneactiv_header import (CALIBRATION_KEYS, SUBJECT_KEYS, TRIAL_KEYS, GeneactivHeader,
                                header_range_g, header_rate_hz, parse_header_text, parse_number,
@@ -1056,10 +1056,7 @@ def _device_info(hdr: GeneactivHeader, path: Path, timezone, rest: bytes = b"") 
 def read_header(path, *, timezone=None) -> DeviceInfo:
     """DeviceInfo from the header only (fast: reads no pages)."""
     p = Path(path)
-    if not p.exists():
-        raise RecordingError(p, "no such file")
-    if p.stat().st_size == 0:
-        raise TruncatedRecordingError(p, "file is empty (0 bytes)")
+    check_recording_path(p)
     with open_bytes(p) as f:
         hdr, rest = _read_header(f, p)
         return _device_info(hdr, p, timezone, rest)

@@ -27,7 +27,8 @@ from stillpoint.engine.mcap.schemas import ACCEL_BATCH_RAW, GYRO_BATCH_RAW, time
 from stillpoint.engine.mcap.stream import iter_messages, read_metadata
 
 from . import constants as C
-from .errors import CorruptRecordingError, RecordingError, UnsupportedFormatError
+from .byteio import check_recording_path
+from .errors import CorruptRecordingError, UnsupportedFormatError
 
 TOPIC_RAW = "/raw/accel"
 TOPIC_GYRO = "/raw/gyro"
@@ -139,8 +140,7 @@ class McapRawSource:
 
     def __init__(self, path, **_options):
         self.path = Path(path)
-        if not self.path.is_file():
-            raise RecordingError(self.path, "no such file")
+        check_recording_path(self.path)
         self._f = open(self.path, "rb")
         self.settings: Optional[dict] = None
         self.metadata: dict[str, dict] = {}

@@ -21,7 +21,8 @@ from pathlib import Path
 from mcap.exceptions import McapError
 from mcap.records import (Attachment, Channel, DataEnd, Footer, Message, Metadata, Schema)
 
-from stillpoint.drivers.errors import CorruptRecordingError, RecordingError
+from stillpoint.drivers.errors import CorruptRecordingError
+from stillpoint.drivers.byteio import check_recording_path
 from stillpoint.engine.mcap.log import McapLog
 from stillpoint.engine.mcap.reading import BadRecord, TornTail, walk_records
 
@@ -57,8 +58,7 @@ def is_finished(path) -> bool:
 
 def recover(path, out, *, compression: str = "zstd") -> RecoveryReport:
     path, out = Path(path), Path(out)
-    if not path.is_file():
-        raise RecordingError(path, "no such file")
+    check_recording_path(path)
     with open(path, "rb") as f:
         if f.read(len(MAGIC)) != MAGIC:
             raise CorruptRecordingError(path, "not an MCAP file (bad magic)")

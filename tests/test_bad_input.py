@@ -105,6 +105,10 @@ def make_missing(d):
     return d / "does_not_exist.cwa"
 
 
+def make_char_device(d):
+    return os.devnull  # reads as empty: refused as a device, not as an empty file
+
+
 CASES = {
     "zero_length_bin": (make_zero_bin, TruncatedRecordingError, "empty"),
     "zero_length_cwa": (make_zero_cwa, TruncatedRecordingError, "empty"),
@@ -117,6 +121,7 @@ CASES = {
     "all_corrupt_bin": (make_all_corrupt_bin, CorruptRecordingError, "none of the 4 page"),
     "genea": (make_genea, UnsupportedFormatError, "original GENEA"),
     "missing": (make_missing, RecordingError, "no such file"),
+    "char_device": (make_char_device, RecordingError, "is a character device"),
 }
 
 
@@ -185,6 +190,22 @@ def test_cli_export_exit_2_one_line(tmp_path, case, capsys):
     _, err = capsys.readouterr()
     assert code == 2 and len(err.strip().splitlines()) == 1 and msg in err
     assert not out.exists() and not (tmp_path / "out.csv.partial").exists()
+
+
+@pytest.mark.parametrize("command", ["inspect", "process", "replay", "recover", "report"])
+def test_named_pipe_refused_without_waiting_for_a_writer(tmp_path, command):
+    """A pipe given as the input (a FIFO, or `<(zcat rec.cwa.gz)`) is refused at once: opening
+    it would wait for a writer, and recordings are read with seeks."""
+    p = tmp_path / "pipe.cwa"
+    os.mkfifo(p)
+    args = [command, str(p)] + (["-o", str(tmp_path / "out.mcap")]
+                                if command in ("process", "replay", "recover") else [])
+    r = subprocess.run([sys.executable, "-m", "stillpoint.tools", *args], capture_output=True,
+                       text=True, timeout=60, env=dict(os.environ, PYTHONWARNINGS="ignore"))
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 2 and len(lines) == 1, r.stderr
+    assert lines[0].startswith(f"stillpoint {command}: error: {p}: is a pipe, not a recording")
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["pipe.cwa"]
 
 
 def test_real_genea_file_via_cli(real_file):

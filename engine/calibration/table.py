@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from stillpoint.drivers.byteio import check_recording_path
 from stillpoint.drivers.errors import RecordingError
 
 from ..features import WindowFeatures
@@ -37,8 +38,7 @@ def _float(text: str) -> float:
 def read_features_csv(path, *, window_s: float = WINDOW_S) -> WindowFeatures:
     """Parse the CSV; a bad header or value raises RecordingError naming the file and line."""
     p = Path(path)
-    if not p.is_file():
-        raise RecordingError(p, "no such file")
+    check_recording_path(p, allow_empty=True)
     with open(p, newline="", encoding="utf-8-sig") as f:
         reader = csv.reader(f)
         try:

@@ -17,6 +17,7 @@ from typing import Optional
 import numpy as np
 
 from stillpoint.drivers.errors import RecordingError
+from stillpoint.drivers.byteio import check_recording_path
 
 from ..features import WindowFeatures
 from .sensor_fit import WindowData
@@ -167,8 +168,7 @@ def read_feature_table(path) -> WindowFeatures:
 def sniff_input(path) -> str:
     """"table" for a CSV feature table, else the recording format from the driver's sniffer."""
     p = Path(path)
-    if not p.exists():
-        raise RecordingError(p, "no such file")
+    check_recording_path(p)
     with open(p, "rb") as fh:
         head = fh.read(256)
     low = head.lower()

@@ -42,6 +42,34 @@ def test_uncommitted_change_is_not_seen(tmp_path):
     assert Ledger(tmp_path).verified_download(5, 1) is None
 
 
+def test_damaged_ledger_refused_at_open_and_on_read(tmp_path):
+    """A ledger whose pages are damaged is refused when opened (quick_check), naming the file;
+    damage met later, on a read, is a LedgerError too (one line from the CLI, the device not
+    cleared), never a raw sqlite3 error."""
+    lg = Ledger(tmp_path)
+    for i in range(3000):
+        lg.event(i, f"serial-{i}", "verified", "x" * 60)
+    lg.close()  # the last connection: the WAL is checkpointed into the file
+    data = bytearray(lg.path.read_bytes())
+    assert len(data) > 64 * 1024
+    page = 4096
+    data[8 * page:9 * page] = b"\xab" * page  # a data page, not the schema's
+    lg.path.write_bytes(bytes(data))
+    with pytest.raises(LedgerError, match="the ledger is damaged") as e:
+        Ledger(tmp_path)
+    assert str(lg.path) in str(e.value)
+
+    class Failing:
+        def execute(self, *_a):
+            raise sqlite3.DatabaseError("database disk image is malformed")
+
+    (tmp_path / "fresh").mkdir()
+    ok = Ledger(tmp_path / "fresh")
+    ok.db = Failing()
+    with pytest.raises(LedgerError, match="cannot read the ledger: database disk image is malformed"):
+        ok.verified_download(1, 1)
+
+
 def test_second_station_refused(tmp_path):
     fd = acquire_station_lock(tmp_path)
     try:

@@ -116,6 +116,15 @@ class Ledger:
             self.db.executescript(_SCHEMA)
         except sqlite3.Error as e:
             raise LedgerError(f"{self.path}: cannot open the ledger: {e}") from None
+        try:  # every page read once: damage is refused at the start, not at a device's clear
+            check = self.db.execute("PRAGMA quick_check").fetchall()
+        except sqlite3.DatabaseError as e:
+            check = [(str(e),)]
+        if check != [("ok",)]:
+            self.db.close()
+            raise LedgerError(f"{self.path}: the ledger is damaged ({check[0][0]}); move it "
+                              "aside or restore it from a backup (no device is cleared "
+                              "without it)")
         self._lock = threading.Lock()
 
     def close(self) -> None:
@@ -132,12 +141,15 @@ class Ledger:
                     self.db.execute("ROLLBACK")
                 except sqlite3.Error:
                     pass
-                raise LedgerError(f"{self.path}: {e}") from None
+                raise LedgerError(f"{self.path}: cannot write the ledger: {e}") from None
             return cur.lastrowid
 
     def _q(self, sql: str, args=()) -> list:
         with self._lock:
-            return self.db.execute(sql, args).fetchall()
+            try:
+                return self.db.execute(sql, args).fetchall()
+            except sqlite3.Error as e:  # a damaged file: no verified record can be trusted
+                raise LedgerError(f"{self.path}: cannot read the ledger: {e}") from None
 
     # ------------------------------------------------------------------ writes
     def event(self, device_id, serial, state: str, reason: Optional[str] = None) -> None:

@@ -182,8 +182,18 @@ class FollowingReader(io.RawIOBase):
         super().close()
 
 
-_NOT_A_FILE = ((stat.S_ISFIFO, "a pipe"), (stat.S_ISCHR, "a character device"),
-               (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"))
+_NOT_A_FILE = ((stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a pipe"),
+               (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+               (stat.S_ISSOCK, "a socket"))
+
+
+def not_a_file(mode: int) -> Optional[str]:
+    """What a path of this ``st_mode`` is when it is not a regular file ("a pipe", "a
+    character device", ...), else None. Such a path is neither read as a recording (reads
+    seek; opening a named pipe waits for a writer) nor replaced by an output."""
+    if stat.S_ISREG(mode):
+        return None
+    return next((k for test, k in _NOT_A_FILE if test(mode)), "not a regular file")
 
 
 def check_recording_path(path, *, allow_empty: bool = False) -> None:
@@ -201,8 +211,8 @@ def check_recording_path(path, *, allow_empty: bool = False) -> None:
                              f"cannot read: {e.strerror or e}") from None
     if stat.S_ISDIR(st.st_mode):
         raise RecordingError(p, "is a directory, not a recording")
-    if not stat.S_ISREG(st.st_mode):
-        kind = next((k for test, k in _NOT_A_FILE if test(st.st_mode)), "not a regular file")
+    kind = not_a_file(st.st_mode)
+    if kind:
         raise RecordingError(p, f"is {kind}, not a recording file (save the recording to a "
                                 "file first)")
     if not allow_empty and st.st_size == 0:

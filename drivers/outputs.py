@@ -28,6 +28,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import BinaryIO, Iterator, Optional
 
+from .byteio import not_a_file
 from .errors import StillpointError
 
 try:  # POSIX; on other systems the second-writer guard is skipped
@@ -71,10 +72,6 @@ def partial_path(path) -> Path:
     return p.with_name(p.name + PART_SUFFIX)
 
 
-_SPECIAL = ((stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
-            (stat.S_ISFIFO, "a named pipe"), (stat.S_ISSOCK, "a socket"))
-
-
 def check_output_path(path, *, what: str = "output") -> Path:
     """Refuse, before any work, an output that cannot be written: the folder is missing or
     not a folder or not writable, the path is a folder or a device, pipe or socket (links
@@ -96,8 +93,8 @@ def check_output_path(path, *, what: str = "output") -> Path:
         mode = None  # not there yet (or a dangling link): created at commit
     if mode is not None and stat.S_ISDIR(mode):
         raise OutputError(path, f"{what} path is a folder")
-    if mode is not None and not stat.S_ISREG(mode):
-        kind = next((k for test, k in _SPECIAL if test(mode)), "not a regular file")
+    kind = None if mode is None else not_a_file(mode)
+    if kind:
         raise OutputError(path, f"{what} path is {kind}, not a file (outputs are written "
                                 "under a temporary name and renamed into place)")
     if not os.access(folder, os.W_OK | os.X_OK):

@@ -293,3 +293,21 @@ def test_ctrl_c_swallowed_by_a_finaliser_still_stops_the_run(cohort_dir, tmp_pat
     assert res.pending == len(files) - len(calls)
     assert signal.getsignal(signal.SIGINT) is before  # handler given back
     assert seen == [] and sys.unraisablehook == seen.append
+
+
+def test_a_named_pipe_among_the_inputs_fails_without_waiting(tmp_path):
+    """A named pipe found in an input folder is a failed input ("is a pipe"), taken as such
+    before it is opened: opening it would wait for a writer and stall the whole plan."""
+    d = tmp_path / "in"
+    d.mkdir()
+    _sim(d / "p.cwa", seed=3)
+    os.mkfifo(d / "pipe.cwa")
+    got = {}
+    t = threading.Thread(target=lambda: got.update(plan=make_plan(discover_inputs([d]), RunSettings())),
+                         daemon=True)
+    t.start()
+    t.join(60)
+    assert not t.is_alive(), "the plan waited on the named pipe"
+    entries = {Path(e.path).name: e for e in got["plan"].entries}
+    assert entries["pipe.cwa"].error == "cannot open: is a pipe, not a recording file"
+    assert entries["p.cwa"].error == "" and entries["p.cwa"].size > 0

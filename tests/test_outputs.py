@@ -91,7 +91,7 @@ def test_device_pipe_or_socket_refused_not_replaced(tmp_path, via_link):
     sock = socket.socket(socket.AF_UNIX)
     sock.bind(str(sock_path))
     try:
-        for target, kind in ((fifo, "a named pipe"), (sock_path, "a socket")):
+        for target, kind in ((fifo, "a pipe"), (sock_path, "a socket")):
             p = target
             if via_link:
                 p = tmp_path / (target.name + ".link")

@@ -17,6 +17,7 @@ plan, with ``error`` set and a key made from its path, so it lands in the failur
 from __future__ import annotations
 
 import csv
+import errno
 import hashlib
 import io
 import json
@@ -27,6 +28,7 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Iterable, Optional
 
+from stillpoint.drivers.byteio import not_a_file
 from stillpoint.drivers.errors import StillpointError
 from stillpoint.drivers.outputs import OutputError, atomic_output
 
@@ -124,11 +126,13 @@ def discover_inputs(inputs: Iterable) -> list[Path]:
 
 
 def fingerprint(path: Path) -> dict:
-    """Size, SHA-256 of the first ``HEADER_BYTES`` bytes, and modification time (not in the key)."""
+    """Size, SHA-256 of the first ``HEADER_BYTES`` bytes, and modification time (not in the key).
+    A path that is not a regular file raises before it is opened (a named pipe would wait)."""
+    kind = not_a_file(os.stat(path).st_mode)
+    if kind:
+        raise OSError(errno.EINVAL, f"is {kind}, not a recording file", str(path))
     with open(path, "rb") as f:
         st = os.fstat(f.fileno())
-        if not os.path.isfile(path):
-            raise IsADirectoryError(21, "is not a regular file", str(path))
         head = f.read(HEADER_BYTES)
     return {"size": st.st_size, "header_sha256": hashlib.sha256(head).hexdigest(),
             "mtime_ns": st.st_mtime_ns}

@@ -11,7 +11,7 @@ A second writer to the same output is refused: the ``.part`` file is held with a
 lock) is kept, renamed to ``<name>.part.<UTC time>``, so nothing already written is lost; its
 new name is reported in ``AtomicOutput.set_aside``.
 
-``check_output_path`` validates a destination before any work starts (folder exists, is a
+``check_output_path`` (and ``check_output_folder`` for a folder) validates a destination before any work starts (folder exists, is a
 folder, is writable, the name can be encoded, the path is not a device, pipe or socket), so a
 long run cannot fail at its end for a reason that was knowable at its start. A device such as
 ``/dev/null`` is refused rather than written: the rename that completes an output would put a
@@ -99,6 +99,21 @@ def check_output_path(path, *, what: str = "output") -> Path:
                                 "under a temporary name and renamed into place)")
     if not os.access(folder, os.W_OK | os.X_OK):
         raise OutputError(path, f"{what} folder {folder} is not writable")
+    return p
+
+
+def check_output_folder(folder, *, what: str = "output folder") -> Path:
+    """Refuse, before any work, a destination folder that is missing, is not a folder, or is
+    not writable. Returns it as a ``Path``."""
+    p = Path(folder)
+    try:
+        mode = os.stat(p).st_mode
+    except OSError:
+        raise OutputError(p, f"{what} does not exist") from None
+    if not stat.S_ISDIR(mode):
+        raise OutputError(p, f"{what} is {not_a_file(mode) or 'a file'}, not a folder")
+    if not os.access(p, os.W_OK | os.X_OK):
+        raise OutputError(p, f"{what} is not writable")
     return p
 
 

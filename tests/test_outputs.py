@@ -5,7 +5,7 @@ import os
 import pytest
 
 from stillpoint.drivers.outputs import (AtomicOutput, OutputError, atomic_output,
-                                        check_output_path, partial_path)
+                                        check_output_folder, check_output_path, partial_path)
 
 
 def test_complete_output_replaces_only_at_commit(tmp_path):
@@ -107,3 +107,17 @@ def test_device_pipe_or_socket_refused_not_replaced(tmp_path, via_link):
         with pytest.raises(OutputError) as e:
             check_output_path("/dev/null")
         assert "a character device" in str(e.value)
+
+
+def test_output_folder_checked_for_what_it_is(tmp_path):
+    """A destination folder (the station's, a device download's) that is missing, a file or a
+    pipe is refused with what it is."""
+    (tmp_path / "f").write_text("")
+    os.mkfifo(tmp_path / "p")
+    for name, msg in (("nope", "output folder does not exist"),
+                      ("f", "output folder is a file, not a folder"),
+                      ("p", "output folder is a pipe, not a folder")):
+        with pytest.raises(OutputError, match=msg) as e:
+            check_output_folder(tmp_path / name)
+        assert str(tmp_path / name) in str(e.value)
+    assert check_output_folder(tmp_path) == tmp_path

@@ -35,10 +35,11 @@ def test_profile_values_and_times(tmp_path):
     ('[device]\nsession = "random"\n', "session must be"),
     ('[metadata]\nx = "' + "y" * 500 + '"\n', "device holds 448"),
     ('[device\n', "not valid TOML"),
+    (b"MD\xfc\x01\x00\x00", "not a TOML text file"),  # e.g. a recording given by mistake
 ])
 def test_profile_errors_name_the_file(tmp_path, text, msg):
     p = tmp_path / "bad.toml"
-    p.write_text(text)
+    p.write_bytes(text) if isinstance(text, bytes) else p.write_text(text)
     with pytest.raises(ProfileError, match=msg) as e:
         load_profile(p)
     assert str(p) in str(e.value)

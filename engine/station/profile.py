@@ -52,6 +52,8 @@ def _toml_load(path: Path) -> dict:
         raise ProfileError(f"{path}: cannot read: {e.strerror}") from None
     except tomllib.TOMLDecodeError as e:
         raise ProfileError(f"{path}: not valid TOML: {e}") from None
+    except UnicodeDecodeError as e:
+        raise ProfileError(f"{path}: not a TOML text file (byte {e.start} is not UTF-8)") from None
 
 
 @dataclass

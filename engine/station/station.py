@@ -13,11 +13,10 @@ from __future__ import annotations
 import sys
 import threading
 import time
-from pathlib import Path
 from typing import Optional
 
 from stillpoint.drivers.ax.discovery import discover
-from stillpoint.drivers.outputs import OutputError
+from stillpoint.drivers.outputs import check_output_folder
 
 from .flow import DeviceFlow, StationOptions
 from .ledger import Ledger, acquire_station_lock
@@ -45,9 +44,7 @@ def table_lines(flows) -> list[str]:
 class Station:
     def __init__(self, options: StationOptions, backend=None, *, poll_s: float = 0.5,
                  out=None, tty: Optional[bool] = None, inbox=None):
-        folder = Path(options.out_dir)
-        if not folder.is_dir():
-            raise OutputError(folder, "output folder does not exist")
+        folder = check_output_folder(options.out_dir)
         self._lock_fd = acquire_station_lock(folder)
         self.opts = options
         self.backend = backend

@@ -130,12 +130,10 @@ def _volume_waiter(att):
 
 
 def _with_ledger(args, att) -> int:
-    from stillpoint.drivers.outputs import OutputError
+    from stillpoint.drivers.outputs import check_output_folder
     from stillpoint.engine.station.flow import DeviceFlow, StationOptions
     from stillpoint.engine.station.ledger import Ledger, acquire_station_lock
-    out = args.output
-    if not out.is_dir():
-        raise OutputError(out, "output folder does not exist")
+    out = check_output_folder(args.output)
     import os
     fd = acquire_station_lock(out)
     ledger = Ledger(out)

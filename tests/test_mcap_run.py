@@ -202,6 +202,39 @@ def test_process_cli_summary_and_export(recording, tmp_path, capsys):
     assert np.array_equal(z["corrected/accel/time_ns"], t)
 
 
+def test_export_columns_empty_topics_and_foreign_logs(recording, tmp_path, capsys):
+    """Every exportable topic's rows have the columns export.COLUMNS names (a CSV's header); a
+    topic the log holds no message of is a CSV with its header only; an MCAP another program
+    wrote is refused with one line, as replay and inspect refuse it, and nothing is written."""
+    from mcap.writer import Writer
+
+    from stillpoint.engine.mcap.export import COLUMNS, _rows
+    out = tmp_path / "c.mcap"
+    assert cli(["process", str(recording), "-o", str(out), "-q"]) == 0
+    seen = set()
+    for topic in COLUMNS:
+        for _lt, data in _messages(out, topic)[:1]:
+            assert tuple(_rows(topic, data, _lt, out, 0)) == COLUMNS[topic], topic
+            seen.add(topic)
+    assert seen == set(COLUMNS) - {"/raw/gyro"}  # an AX3: no gyro
+    gyro = tmp_path / "gyro.csv"
+    assert cli(["export", str(out), "-o", str(gyro), "--topic", "/raw/gyro"]) == 0
+    assert gyro.read_text() == "time,time_ns,gx,gy,gz\n"
+    foreign = tmp_path / "foreign.mcap"
+    with open(foreign, "wb") as f:
+        w = Writer(f)
+        w.start()
+        cid = w.register_channel(topic="/metrics/epoch", message_encoding="json", schema_id=0)
+        w.add_message(cid, log_time=1, data=b"{}", publish_time=1)
+        w.finish()
+    capsys.readouterr()
+    for dest in ("f.csv", "f.npz"):
+        assert cli(["export", str(foreign), "-o", str(tmp_path / dest)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "not a stillpoint log" in err[0] and str(foreign) in err[0]
+        assert not list(tmp_path.glob(dest + "*"))
+
+
 def test_online_kill_loses_only_the_step_in_progress_and_the_open_cell(recording, tmp_path,
                                                                        monkeypatch):
     """Online chunks span up to 60 s but end at every pipeline step, before its last cell: what

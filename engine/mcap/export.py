@@ -41,6 +41,16 @@ from .schemas import (ACCEL_BATCH, ACCEL_BATCH_RAW, EPOCH_METRICS, GYRO_BATCH_RA
 
 DEFAULT_NPZ_TOPICS = ("/corrected/accel", "/metrics/epoch", "/temperature", "/calibration")
 DEFAULT_CSV_TOPIC = "/metrics/epoch"
+COLUMNS = {  # per exportable topic: the columns of ``_rows``, in order (a CSV's header)
+    "/corrected/accel": ("time_ns", "x", "y", "z", "segment"),
+    "/raw/accel": ("time_ns", "x", "y", "z", "cx", "cy", "cz", "segment"),
+    "/raw/gyro": ("time_ns", "gx", "gy", "gz"),
+    "/metrics/epoch": ("time_ns", "n", "enmo_mg", "bfen_mg", "mad_mg", "x", "y", "z",
+                       "temperature_c"),
+    "/temperature": ("time_ns", "celsius"),
+    "/calibration": ("time_ns", "json"),
+    "/qc": ("time_ns", "json"),
+}
 
 
 class ExportError(StillpointError):
@@ -83,8 +93,7 @@ def _rows(topic: str, data: bytes, log_time: int, path=None, index: int = 0) -> 
     if topic in ("/calibration", "/qc"):
         return {"time_ns": np.array([log_time], np.int64),
                 "json": np.array([text(path, topic, index, data)], object)}
-    raise ExportError(f"topic {topic} cannot be exported (known: /corrected/accel, /raw/accel, "
-                      f"/raw/gyro, /metrics/epoch, /temperature, /calibration, /qc)")
+    raise ExportError(f"topic {topic} cannot be exported (known: {', '.join(COLUMNS)})")
 
 
 def _iso(t: np.ndarray) -> np.ndarray:
@@ -107,15 +116,13 @@ def _messages(path, topics):
 def _export_csv(path, raw, topic: str, gz: bool) -> int:
     """Rows of ``topic`` as CSV text into the binary file ``raw`` (left open)."""
     rows = 0
-    header = None
     inner = gzip.GzipFile(fileobj=raw, mode="wb", compresslevel=6) if gz else io.BufferedWriter(raw, 1 << 20)
     f = io.TextIOWrapper(inner, encoding="utf-8", newline="")
     try:
+        header = ["time"] + list(COLUMNS[topic])
+        f.write(",".join(header) + "\n")  # also when the log holds no message of the topic
         for _t, i, msg in _messages(path, [topic]):
             cols = _rows(topic, msg.data, msg.log_time, path, i)
-            if header is None:
-                header = ["time"] + list(cols)
-                f.write(",".join(header) + "\n")
             parts = [_iso(cols["time_ns"])] + [_fmt(np.asarray(cols[k])) for k in header[1:]]
             lines = parts[0]
             for p in parts[1:]:
@@ -183,26 +190,41 @@ def _export_npz(path, out: Path, topics) -> dict:
     return counts
 
 
+def _check_stillpoint_log(path) -> None:
+    """Refuse an MCAP that another program wrote (no 'device' metadata record), as replay and
+    inspect do. A log without a summary (not finished) is left to the streaming read, which
+    names any damage and points at ``recover``."""
+    from stillpoint.drivers.errors import UnsupportedFormatError
+    from .stream import read_metadata
+    with open(path, "rb") as f:
+        try:
+            meta = read_metadata(f)
+        except Exception:  # noqa: BLE001 - unfinished or damaged: the export's own read reports it
+            return
+    if "device" not in meta:
+        raise UnsupportedFormatError(path, "MCAP has no 'device' metadata record: not a "
+                                           "stillpoint log")
+
+
 def export_mcap(path, out, topics=None) -> dict:
     """Export topics of a stillpoint MCAP to CSV or NPZ; returns rows per topic."""
     out = Path(out)
     name = out.name.lower()
     topics = [t if t.startswith("/") else "/" + t for t in (topics or [])]
+    for t in topics:
+        if t not in COLUMNS:
+            _rows(t, b"", 0)  # the error naming the topics that can be exported
     if name.endswith(".csv") or name.endswith(".csv.gz"):
         if len(topics) > 1:
             raise ExportError("CSV export takes one --topic (use .npz for several)")
         topic = topics[0] if topics else DEFAULT_CSV_TOPIC
-        _rows(topic, b"", 0) if topic not in ("/corrected/accel", "/raw/accel", "/raw/gyro",
-                                              "/metrics/epoch", "/temperature", "/calibration",
-                                              "/qc") else None
         check_output_path(out)
+        _check_stillpoint_log(path)
         with atomic_output(out) as raw:
             n = _export_csv(path, raw, topic, name.endswith(".gz"))
         return {topic: n}
     if name.endswith(".npz"):
-        for t in topics:
-            if t not in ("/corrected/accel", "/raw/accel", "/raw/gyro", "/metrics/epoch",
-                         "/temperature", "/calibration", "/qc"):
-                _rows(t, b"", 0)
+        check_output_path(out)
+        _check_stillpoint_log(path)
         return _export_npz(path, out, topics or DEFAULT_NPZ_TOPICS)
     raise ExportError(f"{out}: output must end with .csv, .csv.gz or .npz")

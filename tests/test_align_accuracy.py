@@ -84,6 +84,38 @@ def test_recordings_that_do_not_overlap():
     assert not res.ok and "do not overlap" in res.reason
 
 
+def test_recordings_months_apart_are_refused_without_filling_the_gap():
+    """Two short recordings 60 days apart (either one first): the streams are read merged by
+    time and nothing is kept past the usable span, so the answer comes at once instead of after
+    NaN-filling two months of grid (which grew without bound and took hours)."""
+    import threading
+    a = SyntheticPair(seed=23, duration_s=1800, rate_ref=20, rate_other=20)
+    b = SyntheticPair(seed=23, duration_s=1800, rate_ref=20, rate_other=20,
+                      clock_other=DeviceClock(offset_s=60 * 86400.0))
+    for ref, oth in ((a.source(0), b.source(1)), (b.source(1), a.source(0))):
+        got = {}
+        t = threading.Thread(target=lambda: got.update(res=estimate_alignment(ref, oth, AlignConfig())),
+                             daemon=True)
+        t.start()
+        t.join(120)
+        assert not t.is_alive(), "the alignment filled the gap between the recordings"
+        assert not got["res"].ok and "do not overlap" in got["res"].reason
+
+
+def test_lag_estimator_keeps_nothing_past_the_usable_span():
+    from stillpoint.engine.alignment.lags import LagEstimator
+    est = LagEstimator(RATE, 600.0, 300)
+    rng = np.random.default_rng(5)
+    est.feed("ref", 0, rng.normal(size=int(RATE * 900)))
+    est.finish("ref")
+    end = est.ref.k_end
+    reach = end + est.P + est.M
+    est.feed("other", reach + 10 * est.B, rng.normal(size=1000))  # far past the reference
+    assert est.other.k_end <= reach
+    est.feed("other", end, rng.normal(size=3 * est.B))  # straddling the end: cut at reach
+    assert est.other.k_end == reach
+
+
 def test_online_estimates_converge_to_the_batch_estimate():
     pair = _pair(4, 1.5)
     seen = []

@@ -252,6 +252,12 @@ class LagEstimator:
     def feed(self, which: str, k0: int, values: np.ndarray) -> list[BlockLag]:
         buf = self.ref if which == "ref" else self.other
         out: list[BlockLag] = []
+        limit = self._last_block_end()
+        if limit is not None:  # past the usable span no block reads a sample: none is kept
+            reach = limit + self.P + (self.M if buf is self.other else 0)
+            if k0 >= reach:
+                return self._process_ready()
+            values = values[:reach - k0]
         # bounded memory across long gaps: fill NaN one block at a time and process as we go
         while k0 - buf.k_end > self.B:
             buf.extend_nan(buf.k_end + self.B)
@@ -274,13 +280,8 @@ class LagEstimator:
     def done(self) -> bool:
         return self.ref.finished and self.other.finished
 
-    def wants(self) -> str:
-        """Which stream the driver should read next (the one whose grid is behind)."""
-        if self.ref.finished:
-            return "other"
-        if self.other.finished:
-            return "ref"
-        return "ref" if self.ref.k_end <= self.other.k_end else "other"
+    def finished(self, which: str) -> bool:
+        return (self.ref if which == "ref" else self.other).finished
 
     # ------------------------------------------------------------------ processing
     def _last_block_end(self) -> Optional[int]:

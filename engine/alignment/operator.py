@@ -218,7 +218,7 @@ def estimate_alignment(reference, other, config: Optional[AlignConfig] = None,
                        keep_correlograms=config.keep_correlograms)
     refit_every = max(1, int(round(3600.0 / config.block_length_s)))
     iters = {"ref": it_ref, "other": it_oth}
-    pending = {"ref": first, "other": None}
+    pending = {"ref": first, "other": None}  # each stream's next non-empty block, read ahead
     blocks: list[BlockLag] = []
     last_fit: Optional[ClockFit] = None
 
@@ -236,17 +236,32 @@ def estimate_alignment(reference, other, config: Optional[AlignConfig] = None,
                     continue
                 on_estimate(last_fit, bl)
 
-    while not est.done:
-        which = est.wants()
-        blk = pending[which]
-        pending[which] = None
-        if blk is None:
+    def upcoming(which):
+        if pending[which] is None:
             blk = next(iters[which], None)
-        if blk is None:
-            handle(est.finish(which))
+            while blk is not None and blk.n == 0:
+                blk = next(iters[which], None)
+            pending[which] = blk
+        return pending[which]
+
+    # the two streams are merged by time: the next block read is the one that starts first, so
+    # a stream is never fed far past what the other has reached (a recording that starts a
+    # year after the other would otherwise be NaN-filled across the whole year before either
+    # could be compared)
+    while not est.done:
+        nxt = {}
+        for which in ("ref", "other"):
+            if not est.finished(which):
+                blk = upcoming(which)
+                if blk is None:
+                    handle(est.finish(which))
+                else:
+                    nxt[which] = blk
+        if not nxt:
             continue
-        if blk.n == 0:
-            continue
+        which = min(nxt, key=lambda w: int(nxt[w].time_ns[0]))  # a tie: the reference first
+        blk = nxt[which]
+        pending[which] = None
         temps[which].push_block(blk, t0_ns)
         for k0, vals in rs[which].push(blk):
             handle(est.feed(which, k0, vals))

@@ -64,6 +64,8 @@ def test_too_few_blocks_is_a_clear_cannot_align():
     for f in (fit_brond, fit_robust):
         with pytest.raises(CannotAlign, match="too few blocks: 3 usable .*2 inactive"):
             f(blocks, RATE)
+        with pytest.raises(CannotAlign, match=r"too few blocks: 0 usable block\(s\) .*\(0 block"):
+            f([], RATE)  # no block at all: no block length is named (it used to say 60 min)
 
 
 def test_robust_confidence_intervals_cover_the_truth():

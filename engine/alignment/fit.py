@@ -324,9 +324,9 @@ def _check_enough(blocks: Sequence[BlockLag], n_valid: int, min_blocks: int,
         return
     reasons = _count_reasons(blocks, min_corr)
     detail = ", ".join(f"{v} {k}" for k, v in sorted(reasons.items()))
-    minutes = blocks[0].duration_s / 60 if blocks else 60.0
+    size = f" {blocks[0].duration_s / 60:g} min" if blocks else ""  # no block: no length to name
     raise CannotAlign(
-        f"too few blocks: {n_valid} usable {minutes:g} min block(s) where at least {min_blocks} "
+        f"too few blocks: {n_valid} usable{size} block(s) where at least {min_blocks} "
         f"are needed ({len(blocks)} block(s) in the overlap"
         + (f"; not usable: {detail}" if detail else "") + "); the recordings overlap too little "
         "or were worn while sedentary, so the second recording is left unaligned")

@@ -64,6 +64,34 @@ def test_inbox_ingests_stable_files_once(tmp_path):
     assert len(lg.downloads()) == 1  # once
 
 
+def test_inbox_ingests_the_same_bytes_once_and_is_not_the_output_folder(tmp_path):
+    """A file dropped again under another name is not ingested again (its SHA-256 is in the
+    ledger); an inbox that is the output folder is refused (its raw copies would come back in,
+    for ever)."""
+    import shutil
+
+    from stillpoint.drivers.outputs import OutputError
+    from stillpoint.engine.sim.record import simulate_recording
+    inbox, out = tmp_path / "inbox", tmp_path / "out"
+    inbox.mkdir()
+    out.mkdir()
+    simulate_recording(inbox / "p01.bin", device="geneactiv", days=0.01, truth_path=False)
+    lg = Ledger(out)
+    ib = Inbox(inbox, out, stable_s=0.2, ledger=lg)
+    end = time.monotonic() + 30
+    while time.monotonic() < end and not ib.idle():
+        time.sleep(0.1)
+    shutil.copy(inbox / "p01.bin", inbox / "p01-again.bin")
+    end = time.monotonic() + 30
+    while time.monotonic() < end and not ib.idle():
+        time.sleep(0.1)
+    assert len(lg.downloads()) == 1
+    assert "already ingested as" in ib.done[str(inbox / "p01-again.bin")]
+    assert "same SHA-256" in ib.done[str(inbox / "p01-again.bin")]
+    with pytest.raises(OutputError, match="cannot be the station's output folder"):
+        Inbox(out, out, ledger=lg)
+
+
 def test_inbox_flags_an_incomplete_file(tmp_path):
     from stillpoint.engine.sim.record import simulate_recording
     inbox, out = tmp_path / "inbox", tmp_path / "out"

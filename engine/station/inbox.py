@@ -26,6 +26,14 @@ INCOMPLETE = ("page_count_mismatch", "sequence_gap", "truncated_page", "truncate
 SUFFIXES = (".bin", ".cwa")
 
 
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for b in iter(lambda: f.read(1 << 20), b""):
+            h.update(b)
+    return h.hexdigest()
+
+
 class Inbox:
     def __init__(self, folder, out_dir, *, stable_s: float = 5.0, ledger=None):
         self.folder = Path(folder)
@@ -37,9 +45,12 @@ class Inbox:
         self.errors: list[str] = []
         self._busy: Optional[threading.Thread] = None
         self._queue: list[Path] = []
+        from stillpoint.drivers.outputs import OutputError
         if not self.folder.is_dir():
-            from stillpoint.drivers.outputs import OutputError
             raise OutputError(self.folder, "inbox folder does not exist")
+        if self.out.is_dir() and os.path.samefile(self.folder, self.out):
+            raise OutputError(self.folder, "the inbox cannot be the station's output folder "
+                                           "(its raw copies would be ingested again)")
 
     def idle(self) -> bool:
         self.step()
@@ -97,6 +108,10 @@ class Inbox:
         mcap_out = self.out / f"{stem}.mcap"
         if raw_out.exists():
             return f"already ingested as {raw_out.name}"
+        if self.ledger is not None:  # the same bytes under another name
+            done = self.ledger.verified_by_sha256(_sha256(p))
+            if done is not None:
+                return f"already ingested as {Path(done.cwa_path).name} (same SHA-256)"
         dl = None
         dev_id = int(dev) if dev.isdigit() else -1
         if self.ledger is not None:

@@ -217,6 +217,17 @@ class Ledger:
                 return rec
         return None
 
+    def verified_by_sha256(self, sha256: str) -> Optional[DownloadRecord]:
+        """The latest verified download with these bytes whose raw copy is still where the
+        ledger says (the inbox ingests each file's content once)."""
+        rows = self._q(f"SELECT {self._COLS} FROM downloads WHERE sha256=? AND verified=1 "
+                       "AND state='verified' ORDER BY id DESC", (sha256,))
+        for r in rows:
+            rec = self._rec(r)
+            if rec.cwa_path and os.path.isfile(rec.cwa_path):
+                return rec
+        return None
+
     def downloads(self, device_id: Optional[int] = None) -> list[DownloadRecord]:
         if device_id is None:
             rows = self._q(f"SELECT {self._COLS} FROM downloads ORDER BY id")

@@ -15,7 +15,9 @@ new name is reported in ``AtomicOutput.set_aside``.
 folder, is writable, the name can be encoded, the path is not a device, pipe or socket), so a
 long run cannot fail at its end for a reason that was knowable at its start. A device such as
 ``/dev/null`` is refused rather than written: the rename that completes an output would put a
-plain file in its place.
+plain file in its place. So is a file the running command reads (``protect_inputs``: the command
+line registers its inputs), and two outputs of one command that are the same file
+(``check_distinct_outputs``).
 """
 
 from __future__ import annotations
@@ -72,6 +74,38 @@ def partial_path(path) -> Path:
     return p.with_name(p.name + PART_SUFFIX)
 
 
+_INPUTS: dict[tuple[int, int], str] = {}  # (device, inode) -> path of the command's input files
+
+
+def protect_inputs(paths) -> None:
+    """Remember the files the running command reads (its recordings, profile, prior...):
+    ``check_output_path``, and so every ``AtomicOutput``, refuses to write over one of them,
+    however the path is spelled (links, relative paths). Replaces what was remembered."""
+    _INPUTS.clear()
+    for p in paths:
+        try:
+            st = os.stat(p)
+        except (OSError, ValueError):
+            continue
+        if stat.S_ISREG(st.st_mode):
+            _INPUTS[(st.st_dev, st.st_ino)] = str(p)
+
+
+def check_distinct_outputs(outputs: dict) -> None:
+    """Refuse outputs of one command that are the same file (``outputs``: what -> path, None
+    skipped): the last one written would replace the others (e.g. ``--summary`` naming the
+    MCAP)."""
+    seen: dict[str, tuple[str, object]] = {}
+    for what, path in outputs.items():
+        if path is None:
+            continue
+        key = os.path.realpath(path)
+        if key in seen:
+            other, other_path = seen[key]
+            raise OutputError(path, f"the {what} and the {other} are the same file ({other_path})")
+        seen[key] = (what, path)
+
+
 def check_output_path(path, *, what: str = "output") -> Path:
     """Refuse, before any work, an output that cannot be written: the folder is missing or
     not a folder or not writable, the path is a folder or a device, pipe or socket (links
@@ -88,9 +122,12 @@ def check_output_path(path, *, what: str = "output") -> Path:
     if not folder.is_dir():
         raise OutputError(path, f"{what} folder {folder} is not a folder")
     try:
-        mode = os.stat(p).st_mode
+        st = os.stat(p)
+        mode = st.st_mode
     except OSError:
-        mode = None  # not there yet (or a dangling link): created at commit
+        st = mode = None  # not there yet (or a dangling link): created at commit
+    if st is not None and (st.st_dev, st.st_ino) in _INPUTS:
+        raise OutputError(path, f"{what} would overwrite the input {_INPUTS[(st.st_dev, st.st_ino)]}")
     if mode is not None and stat.S_ISDIR(mode):
         raise OutputError(path, f"{what} path is a folder")
     kind = None if mode is None else not_a_file(mode)

@@ -202,6 +202,32 @@ def test_process_cli_summary_and_export(recording, tmp_path, capsys):
     assert np.array_equal(z["corrected/accel/time_ns"], t)
 
 
+def test_no_output_overwrites_an_input_or_another_output(recording, tmp_path, capsys):
+    """`--summary` naming the recording, or the MCAP, or a table; `-o` naming the input; align's
+    JSON naming its MCAP: each is one line and exit 2 before any work, and nothing is touched
+    (the summary used to replace the recording itself)."""
+    import hashlib
+    import shutil
+    rec = tmp_path / "rec.cwa"
+    shutil.copy(recording, rec)
+    digest = hashlib.sha256(rec.read_bytes()).hexdigest()
+    m = tmp_path / "m.mcap"
+    for argv, msg in ((["process", str(rec), "-o", str(m), "--summary", str(rec)],
+                       "summary would overwrite the input"),
+                      (["process", str(rec), "-o", str(rec)], "MCAP output would overwrite the input"),
+                      (["process", str(rec), "-o", str(m), "--summary", str(m)],
+                       "the summary and the MCAP output are the same file"),
+                      (["process", str(rec), "-o", str(m), "--summary", str(tmp_path / "m.days.csv")],
+                       "the day table and the summary are the same file"),
+                      (["align", str(rec), str(rec), "-o", str(m), "--json-out", str(m)],
+                       "the JSON output and the MCAP output are the same file")):
+        assert cli(argv) == 2, argv
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and msg in err[0], err
+    assert hashlib.sha256(rec.read_bytes()).hexdigest() == digest
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rec.cwa"]
+
+
 def test_export_columns_empty_topics_and_foreign_logs(recording, tmp_path, capsys):
     """Every exportable topic's rows have the columns export.COLUMNS names (a CSV's header); a
     topic the log holds no message of is a CSV with its header only; an MCAP another program

@@ -5,7 +5,8 @@ import os
 import pytest
 
 from stillpoint.drivers.outputs import (AtomicOutput, OutputError, atomic_output,
-                                        check_output_folder, check_output_path, partial_path)
+                                        check_distinct_outputs, check_output_folder,
+                                        check_output_path, partial_path, protect_inputs)
 
 
 def test_complete_output_replaces_only_at_commit(tmp_path):
@@ -121,3 +122,32 @@ def test_output_folder_checked_for_what_it_is(tmp_path):
             check_output_folder(tmp_path / name)
         assert str(tmp_path / name) in str(e.value)
     assert check_output_folder(tmp_path) == tmp_path
+
+
+def test_protected_input_is_never_an_output_however_spelled(tmp_path, monkeypatch):
+    """An input of the running command is refused as an output through a symlink, a hard link
+    or a relative path, and only while it is protected."""
+    rec = tmp_path / "rec.cwa"
+    rec.write_bytes(b"MD recording bytes")
+    (tmp_path / "link.cwa").symlink_to(rec)
+    os.link(rec, tmp_path / "hard.cwa")
+    monkeypatch.chdir(tmp_path)
+    protect_inputs([rec])
+    try:
+        for p in (rec, tmp_path / "link.cwa", tmp_path / "hard.cwa", "rec.cwa"):
+            with pytest.raises(OutputError, match="summary would overwrite the input"):
+                check_output_path(p, what="summary")
+            with pytest.raises(OutputError, match="would overwrite the input"):
+                AtomicOutput(p)
+    finally:
+        protect_inputs(())
+    assert rec.read_bytes() == b"MD recording bytes"
+    assert check_output_path(rec) == rec  # no longer an input
+
+
+def test_two_outputs_of_one_command_may_not_be_one_file(tmp_path):
+    check_distinct_outputs({"MCAP output": tmp_path / "a.mcap", "summary": None,
+                            "plot": tmp_path / "a.png"})
+    with pytest.raises(OutputError, match="the summary and the MCAP output are the same file"):
+        check_distinct_outputs({"MCAP output": tmp_path / "a.mcap",
+                                "summary": tmp_path / "x" / ".." / "a.mcap"})

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import pkgutil
 import sys
 
@@ -115,6 +116,22 @@ def _note_sigint(seen: list):
     return lambda: signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
+# the arguments that name files a command reads (recordings, logs, tables, profiles, models)
+INPUT_ARGUMENTS = ("file", "files", "reference", "other", "input", "right_file", "inputs",
+                   "prior", "profile", "static", "model", "truth")
+
+
+def _input_files(args) -> list:
+    out = []
+    for name in INPUT_ARGUMENTS:
+        v = getattr(args, name, None)
+        if isinstance(v, (list, tuple)):
+            out += [x for x in v if isinstance(x, (str, os.PathLike))]
+        elif isinstance(v, (str, os.PathLike)):
+            out.append(v)
+    return out
+
+
 def main(argv=None) -> int:
     import warnings
     # the plots' library warnings (fonts, layout) are not the user's business: stderr carries
@@ -139,6 +156,8 @@ def main(argv=None) -> int:
     if not getattr(args, "_run", None):
         parser.print_help()
         return 2
+    from stillpoint.drivers.outputs import protect_inputs
+    protect_inputs(_input_files(args))
     try:
         return int(args._run(args) or 0)
     except StillpointError as e:
@@ -155,6 +174,8 @@ def main(argv=None) -> int:
         where = f"{e.filename}: " if getattr(e, "filename", None) else ""
         print(f"stillpoint {args.command}: error: {where}{describe_os_error(e)}", file=sys.stderr)
         return 2
+    finally:
+        protect_inputs(())  # for this command only (main() is also called in-process)
 
 
 if __name__ == "__main__":  # pragma: no cover

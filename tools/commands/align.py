@@ -12,7 +12,7 @@ import json
 import sys
 
 from ._numbers import RATE_HZ, SECONDS_DAY, number
-from stillpoint.drivers.outputs import atomic_output, check_output_path
+from stillpoint.drivers.outputs import atomic_output, check_distinct_outputs, check_output_path
 from stillpoint.engine.jsonsafe import jsonable
 
 NAME = "align"
@@ -98,6 +98,8 @@ def run(args) -> int:
                          detect_steps=not args.no_steps, keep_correlograms=bool(args.plot))
     open_recording(args.reference).close()  # fail early (exit 2) on unreadable input
     open_recording(args.other).close()
+    check_distinct_outputs({"MCAP output": args.output, "JSON output": args.json_out,
+                            "plot": args.plot})
     for path, what in ((args.output, "MCAP output"), (args.json_out, "JSON output"),
                        (args.plot, "plot")):
         if path:

@@ -97,13 +97,14 @@ def human(label: str, s: dict) -> str:
 
 
 def run(args) -> int:
-    from stillpoint.drivers.outputs import atomic_output, check_output_path
+    from stillpoint.drivers.outputs import atomic_output, check_distinct_outputs, check_output_path
     from stillpoint.engine.mcap.sink import dumps
     from stillpoint.engine.movements import count_leg
 
     from ._runopts import OptionError
     files = [args.file] + ([args.right_file] if args.right_file else [])
     labels = ["left", "right"] if len(files) == 2 else ["left"]
+    check_distinct_outputs({"movements CSV": args.output, "plot": args.plot, "MCAP": args.mcap})
     for p in (args.output, args.plot, args.mcap):
         if p is not None:
             check_output_path(p)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from stillpoint.drivers.outputs import check_output_path
+from stillpoint.drivers.outputs import check_distinct_outputs, check_output_path
 from stillpoint.engine.calibration.estimate import CalibrationEstimate
 from stillpoint.engine.run import RunSettings, process_file
 
@@ -82,10 +82,19 @@ def build_settings(args, base: dict | None = None) -> RunSettings:
 
 
 def execute(args, settings: RunSettings, out: Path) -> int:
-    # every output is checked before the work starts: a long run must not fail at its end
+    # every output is checked before the work starts: a long run must not fail at its end (none
+    # may be an input: the command line protects those; nor two of them the same file)
     check_output_path(out, what="MCAP output")
     if getattr(args, "summary", None):
         check_output_path(args.summary, what="summary")
+    named = {"MCAP output": out, "summary": getattr(args, "summary", None)}
+    if getattr(args, "tables", False):
+        from stillpoint.engine.tables import table_paths
+        named["epoch table"], named["day table"] = table_paths(out)
+    if getattr(args, "report", False):
+        from stillpoint.engine.report import report_paths
+        named["report"], named["report page"] = report_paths(out)
+    check_distinct_outputs(named)
     if getattr(args, "store", None) is not None:
         _store(args.store).check()
     progress = Progress(enabled=False if args.quiet else None)
@@ -136,6 +145,4 @@ def execute(args, settings: RunSettings, out: Path) -> int:
 
 def run(args) -> int:
     out = args.output or default_output(args.file)
-    if out.resolve() == args.file.resolve():
-        raise OptionError(f"output {out} would overwrite the input")
     return execute(args, build_settings(args), out)

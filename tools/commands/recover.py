@@ -29,11 +29,8 @@ def default_output(path: Path) -> Path:
 
 def run(args) -> int:
     out = args.output or default_output(args.file)
-    if out.resolve() == args.file.resolve():
-        from ._runopts import OptionError
-        raise OptionError("recover never overwrites its input: choose another -o")
     from stillpoint.drivers.outputs import check_output_path
-    check_output_path(out, what="recovered MCAP")
+    check_output_path(out, what="recovered MCAP")  # never the input (protected by the CLI)
     rep = recover(args.file, out)
     if args.json:
         print(json.dumps(rep.as_dict(), indent=2, sort_keys=True))

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from stillpoint.drivers.mcap_replay import McapRawSource
 
-from ._runopts import OptionError, add_setting_arguments
+from ._runopts import add_setting_arguments
 from ._staticopts import add_static_arguments
 from .process import build_settings, default_output, execute
 
@@ -37,8 +37,6 @@ def run(args) -> int:
     src.close()
     logged.setdefault("view_hz", 0.0)  # a log from before the view topic had none
     out = args.output or default_output(args.file)
-    if out.resolve() == args.file.resolve():
-        raise OptionError(f"output {out} would overwrite the input")
     settings = build_settings(args, logged)
     rc = execute(args, settings, out)
     if args.check:

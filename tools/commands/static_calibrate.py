@@ -65,13 +65,14 @@ def human(cal) -> str:
 
 
 def run(args) -> int:
-    from stillpoint.drivers.outputs import atomic_output, check_output_path
+    from stillpoint.drivers.outputs import atomic_output, check_distinct_outputs, check_output_path
     from stillpoint.engine.calibration.static import (read_calibration_recording,
                                                       static_calibration_file)
     from stillpoint.engine.mcap.sink import dumps
     from ._runopts import OptionError
     if args.allow_nan and args.mode != "reference":
         raise OptionError("--allow-nan reproduces the reference code: only with --mode reference")
+    check_distinct_outputs({"calibration JSON": args.output, "plot": args.plot, "MCAP": args.mcap})
     for p in (args.output, args.plot, args.mcap):
         if p is not None:
             check_output_path(p)

@@ -3,8 +3,8 @@ and *follow* mode for a file that is still being written (a download in progress
 
 from __future__ import annotations
 
-import io
 import errno
+import io
 import os
 import stat
 import time

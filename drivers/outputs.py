@@ -11,9 +11,10 @@ A second writer to the same output is refused: the ``.part`` file is held with a
 lock) is kept, renamed to ``<name>.part.<UTC time>``, so nothing already written is lost; its
 new name is reported in ``AtomicOutput.set_aside``.
 
-``check_output_path`` (and ``check_output_folder`` for a folder) validates a destination before any work starts (folder exists, is a
-folder, is writable, the name can be encoded, the path is not a device, pipe or socket), so a
-long run cannot fail at its end for a reason that was knowable at its start. A device such as
+``check_output_path`` (``check_output_folder`` for a folder) validates a destination before any
+work starts (folder exists, is a folder, is writable, the name can be encoded, the path is not a
+device, pipe or socket), so a long run cannot fail at its end for a reason that was knowable at
+its start. A device such as
 ``/dev/null`` is refused rather than written: the rename that completes an output would put a
 plain file in its place. So is a file the running command reads (``protect_inputs``: the command
 line registers its inputs), and two outputs of one command that are the same file
@@ -126,8 +127,9 @@ def check_output_path(path, *, what: str = "output") -> Path:
         mode = st.st_mode
     except OSError:
         st = mode = None  # not there yet (or a dangling link): created at commit
-    if st is not None and (st.st_dev, st.st_ino) in _INPUTS:
-        raise OutputError(path, f"{what} would overwrite the input {_INPUTS[(st.st_dev, st.st_ino)]}")
+    source = None if st is None else _INPUTS.get((st.st_dev, st.st_ino))
+    if source is not None:
+        raise OutputError(path, f"{what} would overwrite the input {source}")
     if mode is not None and stat.S_ISDIR(mode):
         raise OutputError(path, f"{what} path is a folder")
     kind = None if mode is None else not_a_file(mode)

@@ -137,6 +137,38 @@ def test_rows_cover_the_span_with_gap_rows(small_run, tmp_path):
     assert warm and warm[0] <= 1 and len(warm) < len(e1) // 10
 
 
+def test_a_gap_of_weeks_is_written_a_slice_at_a_time(tmp_path, monkeypatch):
+    """Two 20-minute stretches 40 days apart: the ~690,000 gap rows between them are built and
+    written in slices of at most ROWS_PER_SLICE (they were one array: 2.8 GB for a year's gap),
+    and the table is the same whatever the slice size."""
+    import stillpoint.engine.tables.epochs as epochs_mod
+    import stillpoint.engine.tables.writer as writer_mod
+    from stillpoint.drivers.cwa import CwaWriter
+    rec = tmp_path / "gap.cwa"
+    rng = np.random.default_rng(0)
+    with CwaWriter(rec, device_type="AX3", rate_hz=12.5, range_g=8, packed=False) as w:
+        for base in (1_700_000_000 * 10**9, (1_700_000_000 + 40 * 86400) * 10**9):
+            n = int(1200 * 12.5)
+            a = rng.integers(-3, 4, size=(n, 3)).astype(np.int32)
+            a[:, 2] += 256
+            w.write(base + np.arange(n, dtype=np.int64) * 80_000_000, a, temperature_raw=300,
+                    light_raw=0, battery_raw=190)
+    sizes = []
+    real = writer_mod.format_rows
+
+    def spy(rows, *a, **k):
+        sizes.append(len(rows))
+        return real(rows, *a, **k)
+
+    monkeypatch.setattr(writer_mod, "format_rows", spy)
+    _s, e1, d1 = run_tables(rec, tmp_path / "a.mcap", RunSettings(calibrate=False))
+    assert len(e1) > 40 * 17280 and max(sizes) <= epochs_mod.ROWS_PER_SLICE
+    assert len(d1) >= 41 and sum(r["gap"] == "1" for r in e1) > 40 * 17000
+    monkeypatch.setattr(epochs_mod, "ROWS_PER_SLICE", 1000)
+    _s, e2, d2 = run_tables(rec, tmp_path / "b.mcap", RunSettings(calibrate=False))
+    assert e1 == e2 and d1 == d2
+
+
 @pytest.mark.skipif(not REAL, reason="STILLPOINT_REAL_DATA is not set: real-recording test skipped")
 def test_reader_flagged_sectors_stay_out_of_the_means(tmp_path):
     """GGIRread's AX6 file: sectors 0-25 hold gyro in the accel slots (the reader flags them)."""

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass, fields
+from typing import Iterator
 
 import numpy as np
 
@@ -34,6 +35,7 @@ QC_FLAGGED_REASONS = frozenset({
     "bad_page_time", "page_time_fixed", "page_count_mismatch", "bad_frequency", "desync",
 })
 GAP_FILL = 0.5  # an epoch with fewer than half its nominal samples is a gap row
+ROWS_PER_SLICE = 1 << 14  # rows built at once: a gap of months is written a slice at a time
 WARMUP_TOLERANCE_G = 0.001  # BFEN start-up: until the 1 g step response is below 1 mg
 
 
@@ -214,40 +216,43 @@ class EpochAssembler:
         return out
 
     # ------------------------------------------------------------------ rows
-    def push(self, block, batches, metrics) -> EpochRows:
+    def push(self, block, batches, metrics) -> Iterator[EpochRows]:
+        """Take one output step; returns the rows it made final, in slices of at most
+        ``ROWS_PER_SLICE`` (an iterator: consume it before the next push). A recording with a
+        gap of months has millions of gap rows; they are never one array."""
         self._take_block(block)
         self._take_batches(batches)
         self._take_metrics(metrics)
         self._take_qc()
         return self._emit(final=False)
 
-    def flush(self, metrics=None) -> EpochRows:
+    def flush(self, metrics=None) -> Iterator[EpochRows]:
+        """The rows still held, in slices as ``push``."""
         self._take_metrics(metrics)
         self._take_windows(self.nonwear.flush())
         self._take_angle(self.anglez.flush())
         self._take_qc()
         return self._emit(final=True)
 
-    def _emit(self, final: bool) -> EpochRows:
+    def _emit(self, final: bool) -> Iterator[EpochRows]:
         pending = [i for i in (self._metrics[0], self._angle[0]) if i.shape[0]]
         if self._next is None:
             if not pending:
-                return EpochRows.concat([])
+                return
             self._next = min(int(i[0]) for i in pending)
         if final:
             stop = max(int(i[-1]) for i in pending) + 1 if pending else self._next
         else:
             if None in (self._metrics_done, self._angle_done, self._windows_done):
-                return EpochRows.concat([])
+                return
             stop = min(self._metrics_done, self._angle_done,
                        (self._windows_done * self.medium_ns) // self.epoch_ns)
-        if stop <= self._next:
-            return EpochRows.concat([])
-        k = np.arange(self._next, stop, dtype=np.int64)
-        rows = self._rows(k)
-        self._next = stop
-        self._forget(stop)
-        return rows
+        while self._next < stop:
+            end = min(stop, self._next + ROWS_PER_SLICE)
+            rows = self._rows(np.arange(self._next, end, dtype=np.int64))
+            self._next = end
+            self._forget(end)
+            yield rows
 
     def _rows(self, k: np.ndarray) -> EpochRows:
         m = len(k)

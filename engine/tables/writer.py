@@ -139,15 +139,16 @@ class TablesTap:
         self.clean = 0
         self._closed = False
 
-    def _write(self, rows: EpochRows) -> None:
-        if not len(rows):
-            return
-        self.rows += len(rows)
-        for f in FLAGS:
-            self.flag_counts[f] += int(getattr(rows, f).sum())
-        self.clean += int(rows.clean.sum())
-        self._gz.write(format_rows(rows, self.ts.zone, self.epoch_ns).encode())
-        self.days.push(rows)
+    def _write(self, slices) -> None:
+        for rows in slices:
+            if not len(rows):
+                continue
+            self.rows += len(rows)
+            for f in FLAGS:
+                self.flag_counts[f] += int(getattr(rows, f).sum())
+            self.clean += int(rows.clean.sum())
+            self._gz.write(format_rows(rows, self.ts.zone, self.epoch_ns).encode())
+            self.days.push(rows)
 
     def push(self, block, batches, metrics) -> None:
         self._write(self.assembler.push(block, batches, metrics))

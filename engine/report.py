@@ -62,18 +62,60 @@ def report_paths(mcap) -> tuple[Path, Path]:
 
 
 # ---------------------------------------------------------------------------- inputs
-def _read_epochs(path) -> dict:
-    with gzip.open(path, "rt") as f:
-        rows = list(csv.DictReader(f))
-    def num(k):
-        return np.array([float(r[k]) if r[k] else np.nan for r in rows])
-    local = [r["time_local"] for r in rows]
-    d = {k: num(k) for k in ("enmo_mg", "temperature_c", "anglez_deg")}
-    for k in ("nonwear", "clipping", "gap", "qc", "filter_warmup"):
-        d[k] = np.array([r[k] == "1" for r in rows])
-    d["date"] = np.array([s[:10] for s in local])
-    d["hour"] = np.array([int(s[11:13]) + int(s[14:16]) / 60 + float(s[17:19]) / 3600 for s in local])
-    d["local"] = np.array([np.datetime64(s[:19]) for s in local]) if local else np.zeros(0, "M8[s]")
+_FLAG_COLUMNS = ("nonwear", "clipping", "gap", "qc", "filter_warmup")
+READ_ROWS = 1 << 15  # epoch rows parsed at once
+
+
+def _read_epochs(path, days_shown: int = DAYS_SHOWN) -> dict:
+    """What the page draws from the epoch table, read ``READ_ROWS`` rows at a time: every local
+    date in order (``dates``); the rows of the first ``days_shown`` dates (``date``, ``hour``,
+    ``enmo_mg`` and the flags); the finite temperatures with their local times (``temp_local``,
+    ``temp_c``). Memory follows the days drawn, not the table's length (a month of 5 s epochs,
+    or a clock that jumps a year, is millions of rows)."""
+    dates: dict[str, None] = {}
+    parts: dict[str, list] = {k: [] for k in ("date", "hour", "enmo_mg", "temp_local", "temp_c",
+                                               *_FLAG_COLUMNS)}
+
+    def num(col):
+        return np.array([float(x) if x else np.nan for x in col])
+
+    def take(rows):
+        cols = dict(zip(header, zip(*rows)))
+        local = np.array([x[:19] for x in cols["time_local"]], "M8[s]")
+        date = np.datetime_as_string(local.astype("M8[D]"))
+        for d in dict.fromkeys(date.tolist()):
+            dates.setdefault(d)
+        temp = num(cols["temperature_c"])
+        ok = np.isfinite(temp)
+        parts["temp_local"].append(local[ok])
+        parts["temp_c"].append(temp[ok])
+        shown = set(list(dates)[:days_shown])
+        keep = np.isin(date, list(shown))
+        if not keep.any():
+            return
+        sec = (local - local.astype("M8[D]")).astype(np.int64)[keep]
+        parts["date"].append(date[keep])
+        parts["hour"].append(sec / 3600.0)
+        parts["enmo_mg"].append(num(cols["enmo_mg"])[keep])
+        for k in _FLAG_COLUMNS:
+            parts[k].append(np.array([x == "1" for x in cols[k]])[keep])
+
+    with gzip.open(path, "rt", newline="") as f:
+        reader = csv.reader(f)
+        header = next(reader, [])
+        rows = []
+        for r in reader:
+            rows.append(r)
+            if len(rows) == READ_ROWS:
+                take(rows)
+                rows = []
+        if rows:
+            take(rows)
+    empty = {"date": np.zeros(0, "U10"), "hour": np.zeros(0), "enmo_mg": np.zeros(0),
+             "temp_local": np.zeros(0, "M8[s]"), "temp_c": np.zeros(0),
+             **{k: np.zeros(0, bool) for k in _FLAG_COLUMNS}}
+    d = {k: np.concatenate(v) if v else empty[k] for k, v in parts.items()}
+    d["dates"] = list(dates)
     return d
 
 
@@ -146,7 +188,7 @@ def _shade(ax, hour, mask, color, label, hatch=None, step_h=5 / 3600):
 
 def _draw(plt, ep: dict, days: list[dict], windows, est, rec: dict, title: str, epoch_s: float):
     fig = plt.figure(figsize=(8.27, 11.69), dpi=110)
-    dates = [d for d in dict.fromkeys(ep["date"].tolist())]
+    dates = ep["dates"]
     shown = dates[:DAYS_SHOWN]
     n_day = max(len(shown), 1)
     day_h = 1.0 if n_day > 4 else 1.4
@@ -212,10 +254,8 @@ def _draw(plt, ep: dict, days: list[dict], windows, est, rec: dict, title: str, 
                            bbox_to_anchor=(0, 1.0), borderaxespad=0.1)
     # temperature
     ax = fig.add_subplot(gs[n_day + 1, :])
-    t = ep["temperature_c"]
-    ok = np.isfinite(t)
-    if ok.any():
-        ax.plot(ep["local"][ok], t[ok], lw=0.6, color="tab:red")
+    if len(ep["temp_c"]):
+        ax.plot(ep["temp_local"], ep["temp_c"], lw=0.6, color="tab:red")
     ax.set_ylabel("degC", fontsize=7)
     ax.set_title("device temperature (local time)", fontsize=8)
     ax.tick_params(labelsize=6.5)
@@ -347,7 +387,7 @@ def write_report(mcap, *, summary: Optional[dict] = None, out_png=None, out_html
     windows, est = _sphere(mcap, est_json, settings)
     dev = (rec.get("summary") or {}).get("device") or {}
     title = (f"{mcap.name}: {dev.get('type', '')} {dev.get('id', '')}, "
-             f"{ep['date'][0] if len(ep['date']) else '?'} to {ep['date'][-1] if len(ep['date']) else '?'}")
+             f"{ep['dates'][0] if ep['dates'] else '?'} to {ep['dates'][-1] if ep['dates'] else '?'}")
     fig = _draw(plt, ep, days, windows, est, rec, title, float(settings.get("epoch_s", 5.0)))
     with atomic_output(png) as f:
         fig.savefig(f, format="png")

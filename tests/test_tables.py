@@ -325,6 +325,27 @@ def test_report_page_is_written(small_run, tmp_path):
     assert "data:image/png;base64," in page and small_run.days[0]["date"] in page
 
 
+def test_report_reads_the_epoch_table_a_slice_at_a_time(small_run, tmp_path, monkeypatch):
+    """The page keeps the rows of the days it draws and the finite temperatures only, whatever
+    the cut of the reading; every date is still listed."""
+    import stillpoint.engine.report as report
+    from stillpoint.engine.tables import table_paths
+    ep_path = table_paths(small_run.dir / "a.mcap")[0]
+    whole = report._read_epochs(ep_path)
+    monkeypatch.setattr(report, "READ_ROWS", 7)
+    cut = report._read_epochs(ep_path)
+    assert whole["dates"] == cut["dates"] == list(dict.fromkeys(r["time_local"][:10]
+                                                               for r in small_run.epochs))
+    for k, v in whole.items():
+        assert np.array_equal(v, cut[k], equal_nan=v.dtype.kind == "f") if k != "dates" else True, k
+    assert len(whole["enmo_mg"]) == len(small_run.epochs)
+    temps = [float(r["temperature_c"]) for r in small_run.epochs if r["temperature_c"]]
+    assert np.array_equal(whole["temp_c"], temps)
+    one = report._read_epochs(ep_path, days_shown=1)  # only the first date's rows are kept
+    assert set(one["date"].tolist()) == {whole["dates"][0]}
+    assert len(one["temp_c"]) == len(temps)
+
+
 def test_report_without_matplotlib_says_how_to_install(monkeypatch):
     from stillpoint.engine import report
     monkeypatch.setitem(sys.modules, "matplotlib", None)

@@ -102,6 +102,57 @@ def test_recordings_months_apart_are_refused_without_filling_the_gap():
         assert not got["res"].ok and "do not overlap" in got["res"].reason
 
 
+def test_a_gap_of_months_inside_both_recordings_costs_nothing():
+    """Both recordings stop and start again 90 days later (a clock that jumped): the grid across
+    the gap is never stored (it was filled with NaN: gigabytes, hours); each gap block is a
+    "no_overlap" block, settled without its arrays."""
+    import threading
+
+    from stillpoint.engine.blocks import Block, DeviceInfo
+
+    class Source:
+        def __init__(self, seed):
+            rng = np.random.default_rng(seed)
+            self.info = DeviceInfo("AX3", str(seed), 1, "t", 20.0, 8.0)
+            self.parts = []
+            for seg, start in enumerate((0, 90 * 86400)):
+                t = start + np.arange(0, 1800, 0.05)
+                a = np.zeros((t.size, 3), np.int64)
+                a[:, 2] = 256 + rng.integers(-30, 30, t.size)
+                self.parts.append(Block(time_ns=(t * 1e9).astype(np.int64), accel=a,
+                                        accel_counts_per_g=np.full(3, 256.0),
+                                        accel_zero=np.zeros(3), segment=seg))
+
+        def __iter__(self):
+            return iter(self.parts)
+
+    got = {}
+    t = threading.Thread(target=lambda: got.update(res=estimate_alignment(Source(1), Source(2),
+                                                                          AlignConfig())),
+                         daemon=True)
+    t.start()
+    t.join(120)
+    assert not t.is_alive(), "the alignment stored the grid across the gap"
+    res = got["res"]
+    assert not res.ok and len(res.blocks) > 12_000  # 90 days of 10-minute blocks
+    assert sum(b.reason == "no_overlap" for b in res.blocks) > 12_000
+
+
+def test_grid_buffer_stores_no_gap():
+    from stillpoint.engine.alignment.lags import _GridBuffer
+    b = _GridBuffer(0)
+    b.append(0, np.arange(5.0))
+    b.extend_nan(10**12)  # a gap of ~1,000 years at 30 Hz: nothing stored
+    b.append(10**12, np.array([7.0, 8.0]))
+    assert b.k_end == 10**12 + 2 and sum(v.size for _a, v in b._pieces) == 7
+    assert not b.has_data(5, 10**12) and b.has_data(4, 6)
+    assert np.array_equal(b.get(3, 7), [3.0, 4.0, np.nan, np.nan], equal_nan=True)
+    assert np.array_equal(b.get(10**12 - 1, 10**12 + 1), [np.nan, 7.0], equal_nan=True)
+    b.trim(10**12 + 1)
+    assert b.k_start == 10**12 + 1 and np.array_equal(b.get(10**12, 10**12 + 2), [np.nan, 8.0],
+                                                      equal_nan=True)
+
+
 def test_lag_estimator_keeps_nothing_past_the_usable_span():
     from stillpoint.engine.alignment.lags import LagEstimator
     est = LagEstimator(RATE, 600.0, 300)

@@ -186,20 +186,18 @@ class BlockLag:
 
 
 class _GridBuffer:
-    """Contiguous grid samples [k_start, k_end) of one device; NaN where there was no data."""
+    """Grid samples of one device from ``k_start`` on, known up to ``k_end``: pieces of data
+    (increasing, not overlapping); every point not in a piece is NaN without being stored, so a
+    gap of any length costs nothing."""
 
     def __init__(self, k_start: int):
         self.k_start = k_start
-        self.data = np.zeros(0)
+        self.k_end = k_start
+        self._pieces: list[tuple[int, np.ndarray]] = []
         self.finished = False
 
-    @property
-    def k_end(self) -> int:
-        return self.k_start + self.data.size
-
     def extend_nan(self, k: int) -> None:
-        if k > self.k_end:
-            self.data = np.concatenate([self.data, np.full(k - self.k_end, np.nan)])
+        self.k_end = max(self.k_end, k)
 
     def append(self, k0: int, values: np.ndarray) -> None:
         if k0 < self.k_end:  # overlap with what we have (or before the start): drop it
@@ -207,23 +205,36 @@ class _GridBuffer:
             k0 = self.k_end
         if values.size == 0:
             return
-        self.extend_nan(k0)
-        self.data = np.concatenate([self.data, values])
+        last = self._pieces[-1] if self._pieces else None
+        if last is not None and last[0] + last[1].size == k0:
+            self._pieces[-1] = (last[0], np.concatenate([last[1], values]))
+        else:
+            self._pieces.append((k0, values))
+        self.k_end = k0 + values.size
+
+    def has_data(self, k0: int, k1: int) -> bool:
+        """Whether any stored point lies in [k0, k1) (False: all NaN there)."""
+        return any(a < k1 and a + v.size > k0 for a, v in self._pieces)
 
     def get(self, k0: int, k1: int) -> np.ndarray:
         out = np.full(k1 - k0, np.nan)
-        a, b = max(k0, self.k_start), min(k1, self.k_end)
-        if b > a:
-            out[a - k0:b - k0] = self.data[a - self.k_start:b - self.k_start]
+        for a, v in self._pieces:
+            lo, hi = max(k0, a), min(k1, a + v.size)
+            if hi > lo:
+                out[lo - k0:hi - k0] = v[lo - a:hi - a]
         return out
 
     def trim(self, k: int) -> None:
-        if k > self.k_start:
-            drop = min(k - self.k_start, self.data.size)
-            self.data = self.data[drop:].copy() if drop else self.data
-            self.k_start += drop
-            if self.k_start < k:  # trimmed past the data
-                self.k_start = k
+        if k <= self.k_start:
+            return
+        kept = []
+        for a, v in self._pieces:
+            if a + v.size <= k:
+                continue
+            kept.append((k, v[k - a:].copy()) if a < k else (a, v))
+        self._pieces = kept
+        self.k_start = k
+        self.k_end = max(self.k_end, k)
 
 
 class LagEstimator:
@@ -320,6 +331,13 @@ class LagEstimator:
     def _block(self, index: int, s: int, e: int) -> BlockLag:
         n, M, P = e - s, self.M, self.P
         bl = BlockLag(index=index, start_s=s / self.rate, duration_s=n / self.rate)
+        # a block one device has no point in (a gap, however long) is settled without its arrays
+        has_ref, has_oth = self.ref.has_data(s, e), self.other.has_data(s, e)
+        if not (has_ref and has_oth):
+            bl.coverage_ref = float(np.isfinite(self.ref.get(s, e)).mean()) if has_ref else 0.0
+            bl.coverage_other = float(np.isfinite(self.other.get(s, e)).mean()) if has_oth else 0.0
+            bl.reason = "no_overlap"
+            return bl
         r_raw = self.ref.get(s - P, e + P)
         o_raw = self.other.get(s - M - P, e + M + P)
         r_in = r_raw[P:P + n]

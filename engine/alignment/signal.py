@@ -108,7 +108,8 @@ class GridResampler:
     """Streaming resampling of one device's ‖a‖ − 1 onto the grid ``t0_ns + k / rate``.
 
     ``push(block)`` yields ``(k0, values)`` pieces in increasing, contiguous k (the first piece
-    starts at the first grid point after the device's first sample). ``nominal_rate`` sets the gap
+    starts at the first grid point after the device's first sample; across a segment break
+    longer than ``MAX_PIECE`` grid points k jumps, the points between being NaN). ``nominal_rate`` sets the gap
     tolerance: consecutive samples further apart than ``GAP_FACTOR / nominal_rate`` seconds (or in
     different segments) leave the grid points between them NaN.
     """
@@ -203,8 +204,11 @@ class GridResampler:
             self.k_next = k_first
         k_last = int(np.floor(t[-1] * self.rate + 1e-9))
         # grid points between the previous segment's last sample and this one's first: NaN
+        # (across a break longer than a piece, k jumps instead: the points between are NaN to
+        # every consumer, and a clock that jumps months would be millions of them)
         if self.k_next < k_first:
-            yield from self._nan_pieces(self.k_next, k_first)
+            if k_first - self.k_next <= MAX_PIECE:
+                yield from self._nan_pieces(self.k_next, k_first)
             self.k_next = k_first
         self._last_t, self._last_v = float(t[-1]), float(v[-1])
         if k_last < self.k_next:

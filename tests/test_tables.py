@@ -169,6 +169,34 @@ def test_a_gap_of_weeks_is_written_a_slice_at_a_time(tmp_path, monkeypatch):
     assert e1 == e2 and d1 == d2
 
 
+def test_epochs_the_table_cannot_hold_are_counted_and_said(tmp_path, capsys):
+    """A restart that sends the clock back a day: the log holds both hours, the table (written in
+    time order as the run goes) only the first; the summary counts the epochs left out and the
+    text summary says so, instead of losing them silently."""
+    from stillpoint.drivers.cwa import CwaWriter
+    from stillpoint.tools.cli import main as cli
+    rng = np.random.default_rng(1)
+    parts = []
+    for name, base in (("a.cwa", 1_704_067_200), ("b.cwa", 1_704_067_200 - 86400)):
+        with CwaWriter(tmp_path / name, device_type="AX3", rate_hz=12.5, range_g=8,
+                       packed=False) as w:
+            n = int(3600 * 12.5)
+            a = rng.integers(-30, 31, size=(n, 3)).astype(np.int32)
+            a[:, 2] += 256
+            w.write(base * 10**9 + np.arange(n, dtype=np.int64) * 80_000_000, a,
+                    temperature_raw=300, light_raw=0, battery_raw=190)
+        parts.append((tmp_path / name).read_bytes())
+    rec = tmp_path / "back.cwa"
+    rec.write_bytes(parts[0] + parts[1][1024:])  # the second session's sectors after the first's
+    s, e, _days = run_tables(rec, tmp_path / "back.mcap", RunSettings(calibrate=False))
+    assert s["epochs"] == 1440 and len(e) == 720
+    assert s["tables"]["epochs_not_in_table"] == 720
+    assert cli(["process", str(rec), "-o", str(tmp_path / "c.mcap"), "--no-calibrate"]) == 0
+    assert "warning: 720 epochs are in the MCAP log but not in the tables" in capsys.readouterr().out
+    s2, _e, _d = run_tables(tmp_path / "a.cwa", tmp_path / "a.mcap", RunSettings(calibrate=False))
+    assert "epochs_not_in_table" not in s2["tables"]  # only said when it happens
+
+
 @pytest.mark.skipif(not REAL, reason="STILLPOINT_REAL_DATA is not set: real-recording test skipped")
 def test_reader_flagged_sectors_stay_out_of_the_means(tmp_path):
     """GGIRread's AX6 file: sectors 0-25 hold gyro in the accel slots (the reader flags them)."""

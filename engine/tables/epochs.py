@@ -132,6 +132,9 @@ class EpochAssembler:
         self._angle_done = None
         self._windows_done = None  # medium windows below this are final
         self._next = None  # next epoch index to emit
+        # epochs older than the rows already written (a restart that sent the clock back): the
+        # log holds them, the table cannot (it is written in time order as the run goes)
+        self.epochs_not_in_table = 0
         self._segment = None
         self._warmups: list[tuple[int, int]] = []  # [start, end) ns after each segment start
         self._units = []  # (unit_index, first_ns, last_ns) arrays of recent Blocks
@@ -144,6 +147,10 @@ class EpochAssembler:
         if m is None or not len(m):
             return
         idx = m.start_ns // self.epoch_ns
+        if self._next is not None:  # a segment whose clock went back: its rows were written
+            late = idx < self._next
+            if late.any():
+                self.epochs_not_in_table += int(np.unique(idx[late]).shape[0])
         w = m.n.astype(np.float64)
         rows = np.stack([w, m.enmo_mg * w, m.bfen_mg * w, m.mad_mg * w, m.temperature * w], axis=1)
         self._metrics = fold_sums(*self._metrics, idx, rows)

@@ -171,12 +171,15 @@ class TablesTap:
                 w.writerow([_cell(d.get(c)) for c in cols])
         self._closed = True
         nw = self.assembler.nonwear
-        return {"epochs": str(self.ts.epochs_path), "days": str(self.ts.days_path),
-                "timezone": self.ts.zone.label, "nonwear_version": self.ts.nonwear_version,
-                "epoch_rows": self.rows, "clean_epochs": self.clean, "flags": self.flag_counts,
-                "nonwear_windows": nw.nonwear_windows, "clipping_windows": nw.clipping_windows,
-                "filter_warmup_s": self.assembler.warmup_ns / 1e9,
-                "day_rows": len(days), "file": summary}
+        out = {"epochs": str(self.ts.epochs_path), "days": str(self.ts.days_path),
+               "timezone": self.ts.zone.label, "nonwear_version": self.ts.nonwear_version,
+               "epoch_rows": self.rows, "clean_epochs": self.clean, "flags": self.flag_counts,
+               "nonwear_windows": nw.nonwear_windows, "clipping_windows": nw.clipping_windows,
+               "filter_warmup_s": self.assembler.warmup_ns / 1e9,
+               "day_rows": len(days), "file": summary}
+        if self.assembler.epochs_not_in_table:
+            out["epochs_not_in_table"] = self.assembler.epochs_not_in_table
+        return out
 
     def abort(self) -> None:
         if self._closed:

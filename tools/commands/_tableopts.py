@@ -69,4 +69,8 @@ def tables_text(summary: dict) -> str:
             f"filter warm-up {fl['filter_warmup']:,}), {t['day_rows']} day(s), "
             f"{f['valid_day']} valid; mean ENMO over clean epochs "
             f"{'n/a' if enmo is None else f'{enmo:.2f} mg'} (nonwear rule {t['nonwear_version']})")
+        if t.get("epochs_not_in_table"):
+            lines.append(f"warning: {t['epochs_not_in_table']:,} epochs are in the MCAP log but not "
+                         "in the tables: the clock went back at a restart, to before rows already "
+                         "written")
     return "\n".join(lines)

@@ -4,6 +4,7 @@ and *follow* mode for a file that is still being written (a download in progress
 from __future__ import annotations
 
 import errno
+import hashlib
 import io
 import os
 import stat
@@ -217,6 +218,15 @@ def check_recording_path(path, *, allow_empty: bool = False) -> None:
                                 "file first)")
     if not allow_empty and st.st_size == 0:
         raise TruncatedRecordingError(p, "file is empty (0 bytes)")
+
+
+def sha256_file(path, chunk: int = 1 << 20) -> str:
+    """The SHA-256 of a file's bytes (hex), read ``chunk`` bytes at a time."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for b in iter(lambda: f.read(chunk), b""):
+            h.update(b)
+    return h.hexdigest()
 
 
 def file_size(path) -> Optional[int]:

@@ -45,7 +45,15 @@ def test_profile_errors_name_the_file(tmp_path, text, msg):
     assert str(p) in str(e.value)
 
 
-def test_inbox_ingests_stable_files_once(tmp_path):
+def _settle(ib, timeout_s: float = 30.0) -> None:
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end and not ib.idle():
+        time.sleep(0.1)
+
+
+def _inbox_with_one_file(tmp_path):
+    """An inbox holding a short simulated GENEActiv p01.bin, an output folder with its ledger,
+    and the Inbox once it has settled."""
     from stillpoint.engine.sim.record import simulate_recording
     inbox, out = tmp_path / "inbox", tmp_path / "out"
     inbox.mkdir()
@@ -53,9 +61,12 @@ def test_inbox_ingests_stable_files_once(tmp_path):
     simulate_recording(inbox / "p01.bin", device="geneactiv", days=0.01, truth_path=False)
     lg = Ledger(out)
     ib = Inbox(inbox, out, stable_s=0.2, ledger=lg)
-    end = time.monotonic() + 30
-    while time.monotonic() < end and not ib.idle():
-        time.sleep(0.1)
+    _settle(ib)
+    return inbox, out, lg, ib
+
+
+def test_inbox_ingests_stable_files_once(tmp_path):
+    inbox, out, lg, ib = _inbox_with_one_file(tmp_path)
     names = sorted(x.name for x in out.iterdir() if not x.name.startswith("stillpoint-ledger"))
     assert len([n for n in names if n.endswith(".bin")]) == 1 and len([n for n in names if n.endswith(".mcap")]) == 1
     recs = lg.downloads()
@@ -71,20 +82,9 @@ def test_inbox_ingests_the_same_bytes_once_and_is_not_the_output_folder(tmp_path
     import shutil
 
     from stillpoint.drivers.outputs import OutputError
-    from stillpoint.engine.sim.record import simulate_recording
-    inbox, out = tmp_path / "inbox", tmp_path / "out"
-    inbox.mkdir()
-    out.mkdir()
-    simulate_recording(inbox / "p01.bin", device="geneactiv", days=0.01, truth_path=False)
-    lg = Ledger(out)
-    ib = Inbox(inbox, out, stable_s=0.2, ledger=lg)
-    end = time.monotonic() + 30
-    while time.monotonic() < end and not ib.idle():
-        time.sleep(0.1)
+    inbox, out, lg, ib = _inbox_with_one_file(tmp_path)
     shutil.copy(inbox / "p01.bin", inbox / "p01-again.bin")
-    end = time.monotonic() + 30
-    while time.monotonic() < end and not ib.idle():
-        time.sleep(0.1)
+    _settle(ib)
     assert len(lg.downloads()) == 1
     assert "already ingested as" in ib.done[str(inbox / "p01-again.bin")]
     assert "same SHA-256" in ib.done[str(inbox / "p01-again.bin")]
@@ -103,8 +103,6 @@ def test_inbox_flags_an_incomplete_file(tmp_path):
     f.write_bytes(data[: int(len(data) * 0.7)])  # extraction stopped part-way
     lg = Ledger(out)
     ib = Inbox(inbox, out, stable_s=0.2, ledger=lg)
-    end = time.monotonic() + 30
-    while time.monotonic() < end and not ib.idle():
-        time.sleep(0.1)
+    _settle(ib)
     assert ib.errors and "incomplete" in ib.errors[0]
     assert lg.downloads()[0].verified is False

@@ -22,9 +22,10 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Optional
 
+from stillpoint.drivers.byteio import sha256_file
 from stillpoint.drivers.outputs import atomic_output
 
-from .job import DONE, FAILED, RUNNING, SUMMARY_NAME, _sha256, paths
+from .job import DONE, FAILED, RUNNING, SUMMARY_NAME, paths
 from .plan import read_plan
 
 SUMMARY_CSV = "cohort_summary.csv"
@@ -104,7 +105,7 @@ def _check_outputs(final: Path, done: dict, verify: bool) -> dict:
             raise UnreadableOutput(f"{p}: {e.strerror or e}") from None
         if size != meta.get("bytes"):
             raise UnreadableOutput(f"{p}: {size} bytes, the marker says {meta.get('bytes')}")
-        if verify and _sha256(p) != meta.get("sha256"):
+        if verify and sha256_file(p) != meta.get("sha256"):
             raise UnreadableOutput(f"{p}: SHA-256 differs from the marker's")
     try:
         with open(final / SUMMARY_NAME, encoding="utf-8") as f:

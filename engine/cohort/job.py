@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import errno
 import gzip
-import hashlib
 import json
 import os
 import platform
@@ -46,6 +45,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Optional
 
+from stillpoint.drivers.byteio import sha256_file
 from stillpoint.drivers.errors import StillpointError
 from stillpoint.drivers.outputs import atomic_output, fsync_folder
 
@@ -178,14 +178,6 @@ def _reset_peak_rss() -> bool:
         return False
 
 
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
-
-
 def _fsync(path: Path) -> None:
     fd = os.open(path, os.O_RDONLY)
     try:
@@ -262,7 +254,7 @@ def run_job(entry: dict, outdir: str, settings: dict, code: str, attempt: int = 
             outputs = {}
             for f in sorted(tmp.iterdir()):
                 _fsync(f)
-                outputs[f.name] = {"sha256": _sha256(f), "bytes": f.stat().st_size}
+                outputs[f.name] = {"sha256": sha256_file(f), "bytes": f.stat().st_size}
             marker = {
                 "key": entry["key"], "input": dict(fp, path=path), "settings": settings,
                 "code_version": code, "outputs": outputs, "attempts": attempt,

@@ -19,19 +19,12 @@ import time
 from pathlib import Path
 from typing import Optional
 
+from stillpoint.drivers.byteio import sha256_file
 from stillpoint.drivers.outputs import AtomicOutput, describe_os_error, fsync_folder
 
 INCOMPLETE = ("page_count_mismatch", "sequence_gap", "truncated_page", "truncated",
               "restart")
 SUFFIXES = (".bin", ".cwa")
-
-
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for b in iter(lambda: f.read(1 << 20), b""):
-            h.update(b)
-    return h.hexdigest()
 
 
 class Inbox:
@@ -109,7 +102,7 @@ class Inbox:
         if raw_out.exists():
             return f"already ingested as {raw_out.name}"
         if self.ledger is not None:  # the same bytes under another name
-            done = self.ledger.verified_by_sha256(_sha256(p))
+            done = self.ledger.verified_by_sha256(sha256_file(p))
             if done is not None:
                 return f"already ingested as {Path(done.cwa_path).name} (same SHA-256)"
         dl = None

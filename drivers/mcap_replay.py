@@ -14,7 +14,6 @@ Blocks into exactly the logged raw messages again.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Iterator, Optional
 
@@ -30,6 +29,7 @@ from . import constants as C
 from .byteio import check_recording_path
 from .errors import CorruptRecordingError, UnsupportedFormatError
 
+NOT_A_STILLPOINT_LOG = "MCAP has no 'device' metadata record: not a stillpoint log"
 TOPIC_RAW = "/raw/accel"
 TOPIC_GYRO = "/raw/gyro"
 TOPIC_QC = "/qc"
@@ -153,8 +153,7 @@ class McapRawSource:
                            f"interrupted, run `stillpoint recover` on it first") from None
         if "device" not in self.metadata:
             self._f.close()
-            raise UnsupportedFormatError(self.path, "MCAP has no 'device' metadata record: not a "
-                                                    "stillpoint log")
+            raise UnsupportedFormatError(self.path, NOT_A_STILLPOINT_LOG)
         self.info = _device_info(self.metadata["device"], self.path)
         if "settings" in self.metadata:
             self.settings = loads_json(self.path, None, "settings",

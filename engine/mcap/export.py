@@ -24,7 +24,6 @@ from __future__ import annotations
 import gzip
 import io
 import json
-import os
 import shutil
 import tempfile
 import zipfile
@@ -93,7 +92,11 @@ def _rows(topic: str, data: bytes, log_time: int, path=None, index: int = 0) -> 
     if topic in ("/calibration", "/qc"):
         return {"time_ns": np.array([log_time], np.int64),
                 "json": np.array([text(path, topic, index, data)], object)}
-    raise ExportError(f"topic {topic} cannot be exported (known: {', '.join(COLUMNS)})")
+    raise _not_exportable(topic)
+
+
+def _not_exportable(topic: str) -> "ExportError":
+    return ExportError(f"topic {topic} cannot be exported (known: {', '.join(COLUMNS)})")
 
 
 def _iso(t: np.ndarray) -> np.ndarray:
@@ -195,6 +198,7 @@ def _check_stillpoint_log(path) -> None:
     inspect do. A log without a summary (not finished) is left to the streaming read, which
     names any damage and points at ``recover``."""
     from stillpoint.drivers.errors import UnsupportedFormatError
+    from stillpoint.drivers.mcap_replay import NOT_A_STILLPOINT_LOG
     from .stream import read_metadata
     with open(path, "rb") as f:
         try:
@@ -202,8 +206,7 @@ def _check_stillpoint_log(path) -> None:
         except Exception:  # noqa: BLE001 - unfinished or damaged: the export's own read reports it
             return
     if "device" not in meta:
-        raise UnsupportedFormatError(path, "MCAP has no 'device' metadata record: not a "
-                                           "stillpoint log")
+        raise UnsupportedFormatError(path, NOT_A_STILLPOINT_LOG)
 
 
 def export_mcap(path, out, topics=None) -> dict:
@@ -213,7 +216,7 @@ def export_mcap(path, out, topics=None) -> dict:
     topics = [t if t.startswith("/") else "/" + t for t in (topics or [])]
     for t in topics:
         if t not in COLUMNS:
-            _rows(t, b"", 0)  # the error naming the topics that can be exported
+            raise _not_exportable(t)
     if name.endswith(".csv") or name.endswith(".csv.gz"):
         if len(topics) > 1:
             raise ExportError("CSV export takes one --topic (use .npz for several)")

@@ -196,9 +196,6 @@ class _GridBuffer:
         self._pieces: list[tuple[int, np.ndarray]] = []
         self.finished = False
 
-    def extend_nan(self, k: int) -> None:
-        self.k_end = max(self.k_end, k)
-
     def append(self, k0: int, values: np.ndarray) -> None:
         if k0 < self.k_end:  # overlap with what we have (or before the start): drop it
             values = values[self.k_end - k0:]
@@ -262,20 +259,14 @@ class LagEstimator:
     # ------------------------------------------------------------------ feeding
     def feed(self, which: str, k0: int, values: np.ndarray) -> list[BlockLag]:
         buf = self.ref if which == "ref" else self.other
-        out: list[BlockLag] = []
         limit = self._last_block_end()
         if limit is not None:  # past the usable span no block reads a sample: none is kept
             reach = limit + self.P + (self.M if buf is self.other else 0)
             if k0 >= reach:
                 return self._process_ready()
             values = values[:reach - k0]
-        # bounded memory across long gaps: fill NaN one block at a time and process as we go
-        while k0 - buf.k_end > self.B:
-            buf.extend_nan(buf.k_end + self.B)
-            out += self._process_ready()
-        buf.append(k0, values)
-        out += self._process_ready()
-        return out
+        buf.append(k0, values)  # after a gap: a new piece (the points between are not stored)
+        return self._process_ready()
 
     def finish(self, which: str) -> list[BlockLag]:
         """Mark one stream as finished (its extent is final)."""

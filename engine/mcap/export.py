@@ -227,7 +227,6 @@ def export_mcap(path, out, topics=None) -> dict:
             n = _export_csv(path, raw, topic, name.endswith(".gz"))
         return {topic: n}
     if name.endswith(".npz"):
-        check_output_path(out)
-        _check_stillpoint_log(path)
+        _check_stillpoint_log(path)  # the output is checked by _export_npz, before any work
         return _export_npz(path, out, topics or DEFAULT_NPZ_TOPICS)
     raise ExportError(f"{out}: output must end with .csv, .csv.gz or .npz")

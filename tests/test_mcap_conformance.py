@@ -120,6 +120,17 @@ def test_interrupt_while_the_command_loads_is_one_line(tmp_path, capsys, monkeyp
     line, no traceback."""
     import stillpoint.tools.cli as cli_mod
 
+    # a fresh process starts with Python's own SIGINT handler; an earlier test in the same process
+    # (a Dask cluster, a station) may have left another one, which the command leaves alone
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        _interrupt_while_loading(cli_mod, tmp_path, capsys, monkeypatch)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def _interrupt_while_loading(cli_mod, tmp_path, capsys, monkeypatch):
+
     def interrupt(*a, **k):
         raise KeyboardInterrupt
 

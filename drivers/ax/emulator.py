@@ -113,7 +113,7 @@ class EmulatedDevice:
         self.mounted = False
         self.streaming = False
         self.events: list[str] = []
-        self.clears: list[tuple] = []  # (device id, session, SHA-256 of the file) per CLEAR DATA  # what happened (for tests and the emulate command's log)
+        self.clears: list[tuple] = []  # (device id, header session, SHA-256 of the file) per erase  # what happened (for tests and the emulate command's log)
         self._out = bytearray()
         self._cv = threading.Condition()
         self._line = bytearray()
@@ -549,10 +549,11 @@ class EmulatedDevice:
 
         def finish():
             target = self._ejected() if mounted else self.volume
-            if what == "CLEAR":  # what was on the device when it was cleared (tests check it)
-                import hashlib
-                self.clears.append((self.device_id, self.session_id,
-                                    hashlib.sha256((target / C.AX_DATA_FILE).read_bytes()).hexdigest()))
+            if what in ("CLEAR", "FORMAT"):  # what was on the device when it was erased (tests
+                import hashlib  # check it): device id, the file header's session, SHA-256
+                data = (target / C.AX_DATA_FILE).read_bytes()
+                self.clears.append((self.device_id, int.from_bytes(data[7:11], "little"),
+                                    hashlib.sha256(data).hexdigest()))
             action(target / C.AX_DATA_FILE)
             if "commit-no-remount" in self.faults:  # the reply comes, the drive never does
                 self.events.append(f"{what.lower()} done; drive not re-inserted")

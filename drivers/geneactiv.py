@@ -53,7 +53,7 @@ from .errors import (CorruptRecordingError, TruncatedRecordingError,
                      UnsupportedFormatError)
 from .geneactiv_header import (CALIBRATION_KEYS, SUBJECT_KEYS, TRIAL_KEYS, GeneactivHeader,
                                header_range_g, header_rate_hz, parse_header_text, parse_number,
-                               parse_time_ms, parse_times_ms_fixed, parse_timezone)
+                               parse_time_ms, parse_times_ms, parse_timezone)
 
 __all__ = ["GeneactivReader", "read_header", "decode_hex_samples", "GeneactivWriter"]
 
@@ -764,7 +764,7 @@ class GeneactivReader:
                 return 0
         except (ValueError, OverflowError):
             return 0  # comma decimals, empty values, huge numbers...: the general parser handles them
-        tms, tok = parse_times_ms_fixed(tbytes.split(b"\n"))
+        tms, tok = parse_times_ms(tbytes.split(b"\n"))
         freq = np.where(np.abs(freq - 85.7) < 1e-6, GNA_RATE_85_7, freq)
         hexes = np.frombuffer(b"".join(lines[i + 9:end:10]), np.uint8).reshape(P, -1)[:, :cut]
         acc, light, button, badhex = decode_hex_samples(np.ascontiguousarray(hexes), P * GNA_SAMPLES_PER_PAGE)
@@ -820,11 +820,8 @@ class GeneactivReader:
                 decoded[c[0]] = (acc, light, button, bool(bad.any()))
         # page times: vectorised for the standard fixed-width form, per page otherwise
         tvals = [c[1].get(b"Page Time", b"").strip(_VALUE_STRIP) for c in cand]
-        parsed = parse_times_ms_fixed(tvals)
-        if parsed is None:
-            tms = [parse_time_ms(v.decode("latin-1")) for v in tvals]
-        else:
-            tms = [int(t) if ok else None for t, ok in zip(parsed[0].tolist(), parsed[1].tolist())]
+        parsed = parse_times_ms(tvals)
+        tms = [int(t) if ok else None for t, ok in zip(parsed[0].tolist(), parsed[1].tolist())]
         freq_cache: dict[bytes, Optional[float]] = {}
         for c, t in zip(cand, tms):
             index, fields, hexline, partial, pos = c

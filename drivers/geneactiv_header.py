@@ -175,15 +175,32 @@ def parse_time_ms(text: str) -> Optional[int]:
     return ((days * 24 + hh) * 60 + mi) * 60_000 + ss * 1000 + ms
 
 
-def parse_times_ms_fixed(values: list[bytes]) -> Optional[tuple[np.ndarray, np.ndarray]]:
-    """Vectorised parse of many zero-padded "YYYY-MM-DD HH:MM:SS:mmm" strings (23 bytes each).
+def parse_times_ms(values: list[bytes]) -> tuple[np.ndarray, np.ndarray]:
+    """Many Page Time values -> (ms since 1970 on the device clock, valid mask).
 
-    Returns (ms since 1970, valid mask), or None when any string has another width (the caller
-    then falls back to ``parse_time_ms`` per string).
-    """
-    if not values or any(len(v) != 23 for v in values):
-        return None
-    a = np.frombuffer(b"".join(values), np.uint8).reshape(-1, 23).astype(np.int64) - 48
+    The zero-padded "YYYY-MM-DD HH:MM:SS:mmm" form (23 bytes) is parsed vectorised; every value
+    that form does not accept (another width, a 'T' separator, '.mmm', ...) is parsed on its own
+    by ``parse_time_ms``. A value's result never depends on the other values in the list (so a
+    page's time does not depend on which pages share its read batch)."""
+    n = len(values)
+    t = np.zeros(n, np.int64)
+    ok = np.zeros(n, bool)
+    fixed = [i for i, v in enumerate(values) if len(v) == 23]
+    if fixed:
+        rows = np.asarray(fixed, np.int64)
+        tf, okf = _parse_fixed(b"".join(values[i] for i in fixed))
+        t[rows] = tf
+        ok[rows] = okf
+    for i in np.flatnonzero(~ok).tolist():
+        v = parse_time_ms(values[i].decode("latin-1"))
+        if v is not None:
+            t[i], ok[i] = v, True
+    return t, ok
+
+
+def _parse_fixed(joined: bytes) -> tuple[np.ndarray, np.ndarray]:
+    """The vectorised part of parse_times_ms: 23-byte values joined, -> (ms, valid mask)."""
+    a = np.frombuffer(joined, np.uint8).reshape(-1, 23).astype(np.int64) - 48
     sep_ok = ((a[:, 4] == ord("-") - 48) & (a[:, 7] == ord("-") - 48) & (a[:, 10] == ord(" ") - 48)
               & (a[:, 13] == ord(":") - 48) & (a[:, 16] == ord(":") - 48) & (a[:, 19] == ord(":") - 48))
     digit_cols = [0, 1, 2, 3, 5, 6, 8, 9, 11, 12, 14, 15, 17, 18, 20, 21, 22]

@@ -9,7 +9,9 @@ coefficients, ENMO mean, wear time when the run summary gives one, output paths,
 ``cohort_failures.csv``, one row per failed file with its class and error. Only folders with a
 ``_DONE.json`` for their key are read; a finished file whose outputs are missing, of the wrong
 size (or, with ``verify``, the wrong SHA-256) or unreadable goes to the failure table with the
-class ``unreadable_output`` instead of stopping the collation.
+class ``unreadable_output`` instead of stopping the collation. Cells pass through
+``drivers.names.csv_cell``: a header's serial such as ``=HYPERLINK(...)`` is text in a
+spreadsheet, never a formula.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from pathlib import Path
 from typing import Optional
 
 from stillpoint.drivers.byteio import sha256_file
+from stillpoint.drivers.names import csv_cell
 from stillpoint.drivers.outputs import atomic_output
 
 from .job import DONE, FAILED, RUNNING, SUMMARY_NAME, paths
@@ -134,7 +137,7 @@ def _write_csv(path: Path, fields, rows) -> Path:
         w = csv.DictWriter(f, fieldnames=fields, lineterminator="\n", extrasaction="ignore")
         w.writeheader()
         for r in rows:
-            w.writerow({k: ("" if r.get(k) is None else r.get(k)) for k in fields})
+            w.writerow({k: ("" if r.get(k) is None else csv_cell(r.get(k))) for k in fields})
     return path
 
 

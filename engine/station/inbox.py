@@ -5,7 +5,9 @@ talks to them: the vendor software extracts ``.bin`` files into a folder, and ``
 be dropped there too. ``Inbox(folder, out_dir)`` ingests each file once its size and mtime have
 been stable for ``stable_s``: a raw copy ``<out>/<device>_<stem>.<ext>`` with its SHA-256 (written
 through ``.part``, fsynced, renamed), the online pipeline's MCAP beside it, and a ledger download
-record. Completeness is checked from the reader's QC: a page count that disagrees with the header,
+record. ``<device>`` (the header's free-text serial) and ``<stem>`` pass through
+``drivers.names.safe_name_part``: a serial such as ``../x`` or ``/tmp/x`` names a file inside
+``<out>``, never a path. Completeness is checked from the reader's QC: a page count that disagrees with the header,
 sequence gaps, a last page cut inside its data line make the record ``error`` (the outputs are kept,
 not marked verified). Each file is ingested once (its SHA-256 is remembered in the ledger).
 """
@@ -20,6 +22,7 @@ from pathlib import Path
 from typing import Optional
 
 from stillpoint.drivers.byteio import sha256_file
+from stillpoint.drivers.names import safe_child, safe_name_part
 from stillpoint.drivers.outputs import AtomicOutput, describe_os_error, fsync_folder
 
 INCOMPLETE = ("page_count_mismatch", "sequence_gap", "truncated_page", "truncated",
@@ -96,9 +99,9 @@ class Inbox:
         src.close()
         dev = str(info.device_id or "unknown")
         session = info.session_id if info.session_id is not None else 0
-        stem = f"{dev}_{p.stem}"
-        raw_out = self.out / f"{stem}{p.suffix.lower()}"
-        mcap_out = self.out / f"{stem}.mcap"
+        stem = f"{safe_name_part(dev)}_{safe_name_part(p.stem, fallback='recording')}"
+        raw_out = safe_child(self.out, f"{stem}{p.suffix.lower()}")
+        mcap_out = safe_child(self.out, f"{stem}.mcap")
         if raw_out.exists():
             return f"already ingested as {raw_out.name}"
         if self.ledger is not None:  # the same bytes under another name
@@ -106,7 +109,7 @@ class Inbox:
             if done is not None:
                 return f"already ingested as {Path(done.cwa_path).name} (same SHA-256)"
         dl = None
-        dev_id = int(dev) if dev.isdigit() else -1
+        dev_id = int(dev) if dev.isascii() and dev.isdigit() and len(dev) <= 18 else -1
         if self.ledger is not None:
             dl = self.ledger.download_started(dev_id, int(session), cwa_path=str(raw_out),
                                               mcap_path=str(mcap_out))
@@ -126,10 +129,10 @@ class Inbox:
             except OSError as e:
                 ao.abandon()
                 raise OSError(e.errno, f"copying {p}: {describe_os_error(e)}") from None
-            summary = process_file(p, self.out / f"{stem}.mcap.part", RunSettings(mode="online"),
+            summary = process_file(p, mcap_out.with_name(mcap_out.name + ".part"), RunSettings(mode="online"),
                                    metadata={"station": {"inbox_file": str(p), "sha256": h.hexdigest()}})
             ao.commit()
-            os.replace(self.out / f"{stem}.mcap.part", mcap_out)
+            os.replace(mcap_out.with_name(mcap_out.name + ".part"), mcap_out)
             fsync_folder(self.out)
             reasons = (summary.get("qc") or {}).get("reasons", {})
             bad = {k: v for k, v in reasons.items() if k in INCOMPLETE}

@@ -21,6 +21,7 @@ from typing import Optional
 
 import numpy as np
 
+from stillpoint.drivers.names import csv_cell
 from stillpoint.drivers.outputs import AtomicOutput, atomic_output, check_output_path
 
 from ..operators.nonwear import DEFAULT_VERSION, clip_threshold_g
@@ -168,7 +169,7 @@ class TablesTap:
             w = csv.writer(f, lineterminator="\n")
             w.writerow(cols)
             for d in days + [summary]:
-                w.writerow([_cell(d.get(c)) for c in cols])
+                w.writerow([csv_cell(_cell(d.get(c))) for c in cols])
         self._closed = True
         nw = self.assembler.nonwear
         out = {"epochs": str(self.ts.epochs_path), "days": str(self.ts.days_path),

@@ -97,6 +97,7 @@ def human(label: str, s: dict) -> str:
 
 
 def run(args) -> int:
+    from stillpoint.drivers.names import csv_cell
     from stillpoint.drivers.outputs import atomic_output, check_distinct_outputs, check_output_path
     from stillpoint.engine.mcap.sink import dumps
     from stillpoint.engine.movements import count_leg
@@ -128,7 +129,8 @@ def run(args) -> int:
             w.writeheader()
             for label, leg in zip(labels, legs):
                 for row in leg.rows():
-                    w.writerow(dict(row, leg=label, file=leg.path, device=leg.device_key))
+                    w.writerow({k: csv_cell(v) for k, v in
+                                dict(row, leg=label, file=leg.path, device=leg.device_key).items()})
         outputs["csv"] = str(args.output)
     if args.plot:
         from stillpoint.engine.movements.plot import plot_movements

@@ -1,0 +1,117 @@
+"""Names and CSV cells made from recording metadata: a header's serial is never a path and never
+a spreadsheet formula (drivers.names; the station inbox, the cohort summary, the day table)."""
+
+from __future__ import annotations
+
+import csv
+import time
+from pathlib import Path
+
+import pytest
+
+from stillpoint.drivers.names import MAX_NAME_PART, csv_cell, safe_child, safe_name_part
+
+DATA = Path(__file__).parent / "data" / "hostile_names"
+
+HOSTILE = ["../escaped", "/tmp/stillpoint_escaped", "..", ".", "", "a/../../b", "..\\..\\x",
+           "x\x00y", "line\nbreak", "tab\there", "-rf", ".hidden", "~/x", "C:\\Windows",
+           "é/ü", "²", "=HYPERLINK(\"http://x\")", "a" * 5000, "../" * 100, " ", "...",
+           "\ud800", "con", "a..b"]
+
+
+@pytest.mark.parametrize("text", HOSTILE)
+def test_a_name_part_is_one_plain_component(text, tmp_path):
+    s = safe_name_part(text)
+    assert s and len(s) <= MAX_NAME_PART
+    assert "/" not in s and "\\" not in s and ".." not in s
+    assert not s.startswith((".", "-"))
+    assert all(c.isascii() and (c.isalnum() or c in "._-") for c in s)
+    p = safe_child(tmp_path, s + ".bin")
+    assert p.parent == tmp_path
+    p.write_bytes(b"")  # a name the file system takes
+
+
+def test_clean_names_are_unchanged_and_changed_names_stay_distinct():
+    for clean in ("10001", "AX3-39434", "p01", "GENEActiv_012345", "rec.v2"):
+        assert safe_name_part(clean) == clean
+    assert safe_name_part("a/b") != safe_name_part("a_b")
+    assert safe_name_part("../x") != safe_name_part("x")
+    assert safe_name_part(None) == "unknown" and safe_name_part("", fallback="recording") == "recording"
+    assert safe_name_part("a" * 5000) != safe_name_part("a" * 4999)
+
+
+@pytest.mark.parametrize("part", ["", ".", "..", "a/b", "../x", "/abs", "x\x00"])
+def test_safe_child_refuses_anything_but_a_file_name(part, tmp_path):
+    with pytest.raises(ValueError):
+        safe_child(tmp_path, part)
+
+
+@pytest.mark.parametrize("text", ["=1+2", "+cmd|' /C calc'!A0", "-2+3", "@SUM(A1)", "\tx", "\rx",
+                                  "=HYPERLINK(\"http://evil\",\"x\")", "-x", "+"])
+def test_formula_text_is_neutralised(text):
+    assert csv_cell(text) == "'" + text
+
+
+@pytest.mark.parametrize("value", [-12.5, -3, 0, 2.5e-3, "-12.5", "+3e-2", "-0", ".5", "+01:00",
+                                   "-05:30", "AX3", "2025-03-03", "", None, True, "a=b"])
+def test_numbers_and_plain_text_stay_as_they_are(value):
+    assert csv_cell(value) is value or csv_cell(value) == value
+
+
+# ---------------------------------------------------------------------------- the station inbox
+def _ingest(tmp_path, src: Path, name: str):
+    from stillpoint.engine.station.inbox import Inbox
+    from stillpoint.engine.station.ledger import Ledger
+    inbox, out = tmp_path / "inbox", tmp_path / "deep" / "out"
+    inbox.mkdir()
+    out.mkdir(parents=True)
+    (inbox / name).write_bytes(src.read_bytes())
+    lg = Ledger(out)
+    ib = Inbox(inbox, out, stable_s=0.0, ledger=lg)
+    end = time.monotonic() + 60
+    while time.monotonic() < end and not ib.idle():
+        time.sleep(0.05)
+    return out, lg, ib
+
+
+@pytest.mark.parametrize("repro, escaped", [
+    ("geneactiv_serial_dotdot.bin", "escaped_rel"),
+    ("geneactiv_serial_absolute.bin", "/tmp/stillpoint_escaped_abs"),
+])
+def test_a_header_serial_never_writes_outside_the_output_folder(tmp_path, repro, escaped):
+    name = "rel.bin" if "dotdot" in repro else "abs.bin"
+    out, lg, ib = _ingest(tmp_path, DATA / repro, name)
+    outside = (out.parent / escaped) if not escaped.startswith("/") else Path(escaped)
+    assert not any(Path(str(outside) + ext).exists() for ext in (".bin", ".mcap"))
+    assert sorted(p.name for p in out.parent.iterdir()) == ["out"]
+    made = sorted(p.name for p in out.iterdir() if not p.name.startswith("stillpoint-ledger"))
+    assert [n for n in made if n.endswith(".bin")] and [n for n in made if n.endswith(".mcap")]
+    assert all(n.startswith("escaped-") or n.startswith("tmp_stillpoint_escaped-") for n in made), made
+    rec = lg.downloads()[0]
+    for p in (rec.cwa_path, rec.mcap_path):
+        assert Path(p).parent == out and Path(p).is_file()
+
+
+# ---------------------------------------------------------------------------- CSV tables
+def _hyperlink_bin(tmp_path) -> Path:
+    """The reproducer with its 10-character serial ``../escaped`` replaced by ``=HYPERLINK``."""
+    data = (DATA / "geneactiv_serial_dotdot.bin").read_bytes()
+    assert data.count(b"Serial Code:../escaped\r\n") >= 1  # the header and every page
+    p = tmp_path / "formula.bin"
+    p.write_bytes(data.replace(b"Serial Code:../escaped", b"Serial Code:=HYPERLINK"))
+    return p
+
+
+def test_cohort_summary_cells_are_never_formulas(tmp_path):
+    from stillpoint.tools.cli import main
+    rec = _hyperlink_bin(tmp_path)
+    out = tmp_path / "co"
+    assert main(["cohort", "run", str(rec), "-o", str(out), "--scheduler", "serial", "-q"]) == 0
+    with open(out / "cohort_summary.csv", newline="", encoding="utf-8") as f:
+        rows = list(csv.DictReader(f))
+    assert rows[0]["device_id"] == "'=HYPERLINK"
+    assert all(not v.startswith(("=", "+", "@", "\t", "\r")) for r in rows for v in r.values())
+    assert float(rows[0]["offset_x"]) == float(rows[0]["offset_x"])  # numbers stay numbers
+    negative = [v for r in rows for k, v in r.items() if k.startswith("offset_") and v.startswith("-")]
+    assert all(float(v) < 0 for v in negative)
+

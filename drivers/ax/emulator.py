@@ -47,6 +47,8 @@ FAULTS = {
     "id-mismatch": "the ID reply names a different device id than the USB serial",
     "session-mismatch": "the SESSION reply differs from the data file's session",
     "commit-no-remount": "after COMMIT/CLEAR the drive never comes back",
+    "no-automount": "after COMMIT/CLEAR/FORMAT the drive comes back present but not mounted (a "
+                    "headless host): the host must mount it",
     "locked": "settings are locked (ERROR: Locked.)",
     "stream-left-running": "the device is streaming its preview when the host opens the port",
 }
@@ -149,6 +151,17 @@ class EmulatedDevice:
     def _ejected(self) -> Path:
         return self.root / f".ejected-{self.label}"
 
+    def _unmounted(self) -> Path:
+        """The drive present but not mounted (``no-automount``): the host mounts it through the
+        ``mount`` signal."""
+        return self.root / f".unmounted-{self.label}"
+
+    def _mount(self) -> None:
+        if self._unmounted().exists() and not self.volume.exists():
+            os.replace(self._unmounted(), self.volume)
+            self.mounted = True
+            self.events.append("mounted by the host")
+
     def _make_drive(self) -> None:
         self.volume.mkdir(parents=True, exist_ok=True)
         if self.data_file.exists():
@@ -238,7 +251,8 @@ class EmulatedDevice:
             "product": f"{self.kind} Composite Device", "vid": C.AX_USB_VID, "pid": C.AX_USB_PID,
             "port": self.pty_path if self._use_pty else f"axemu://{self.serial}",
             "media": str(self.media), "slot": self.slot, "owner_pid": os.getpid(),
-            "faults": sorted(self.faults), "control": str(self.control), "read_bps": self.read_bps})
+            "faults": sorted(self.faults), "control": str(self.control), "read_bps": self.read_bps,
+            "unmounted": str(self._unmounted())})
 
     def unplug(self) -> None:
         """Pull the cable: the port and the drive vanish (the drive folder moves aside)."""
@@ -248,6 +262,8 @@ class EmulatedDevice:
         EMULATORS.pop(self.serial, None)
         if self.volume.exists():
             os.replace(self.volume, self._ejected())
+        elif self._unmounted().exists():
+            os.replace(self._unmounted(), self._ejected())
         self.mounted = False
         self._close_pty()
         with self._cv:
@@ -269,7 +285,7 @@ class EmulatedDevice:
     def _watch_control(self) -> None:
         """Signals from the emulated volume's file layer (see ``volume``)."""
         while not self._stop.is_set():
-            for sig in ("unplug", "swap"):
+            for sig in ("unplug", "swap", "mount"):
                 p = self.control / sig
                 if p.exists():
                     try:
@@ -282,6 +298,8 @@ class EmulatedDevice:
                         threading.Timer(self.replug_s, self._replug).start()
                     elif sig == "swap":
                         self._swap()
+                    elif sig == "mount":
+                        self._mount()
             self._stop.wait(0.05)
 
     def _replug(self) -> None:
@@ -548,7 +566,8 @@ class EmulatedDevice:
             self.mounted = False
 
         def finish():
-            target = self._ejected() if mounted else self.volume
+            target = self._ejected() if mounted else (
+                self._unmounted() if self._unmounted().exists() else self.volume)
             if what in ("CLEAR", "FORMAT"):  # what was on the device when it was erased (tests
                 import hashlib  # check it): device id, the file header's session, SHA-256
                 data = (target / C.AX_DATA_FILE).read_bytes()
@@ -559,7 +578,9 @@ class EmulatedDevice:
                 self.events.append(f"{what.lower()} done; drive not re-inserted")
                 self._say("COMMIT")
                 return
-            if mounted and self.plugged:
+            if mounted and self.plugged and "no-automount" in self.faults:
+                os.replace(self._ejected(), self._unmounted())  # back, but nothing mounts it
+            elif mounted and self.plugged:
                 os.replace(self._ejected(), self.volume)
                 self.mounted = True
             self._say("COMMIT")

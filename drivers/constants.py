@@ -177,4 +177,62 @@ AX_FORBIDDEN_COMMANDS = ("WRITEL", "READRAW", "WRITERAW", "ERASERAW", "FILEBLOCK
                          "FORMAT D", "TEST_RESULTS", "LOGFILE", "EXIT", "DEVICE ", "RESET", "CLEAR ALL",
                          "LOCK", "ILOCK", "UNLOCK")
 AX_EMPTY_DATA_BYTES = 1024  # [USB] A7 step 3: axconfig: a data file > 1024 bytes still holds data
+AX_LOCKED_ECHO_S = 0.5  # [USB] A5 / conformance spec §1: after "ERROR: Locked." a setter prints
+#                         "<KEY>=<old>" at once (Settings.c); wait this long for it
 AX_STREAM_STOP_S = 5.0  # [USB] A6: OmApi gives up flushing a running stream after 5 s
+
+# ----------------------------------------------------------------------------- AX3/AX6 data file identity
+# How each firmware writes the device id into the data file header ([FW] below):
+# AX3 (V50, "FW V50. 32-bit device IDs", commit 144ef13) keeps only the low 16 bits and leaves the
+# upper word (bytes 11-12) erased: Firmware/AX3/Firmware/src/Logger.c 447-448
+# `SET_WORD(loggerBuffer + 5, settings.deviceId)`. AX6 writes both words:
+# Firmware/AX6/Firmware/src/Logger.c 538-540. 0xFFFF in the upper word means "not written".
+CWA_UPPER_ID_UNSET = 0xFFFF
+
+# ----------------------------------------------------------------------------- what an AX3/AX6 can record
+# The settings each device type can record. A setting outside these is accepted and echoed by the
+# firmware but records nothing, so the station refuses it when a study profile loads and again when a
+# device is configured. Sources (one row each):
+# [FW]    digitalinteraction/openmovement @ 5df5c9101ffc5b0bcd55853db5b281e7adefda21
+# [OMGUI] openmovementproject/openmovement Software/OM/omgui (the vendor's desktop UI)
+# [AXCFG] openmovementproject/openmovement-axconfig @ 5c85e6f5382a19a5e32e092a30f410dd2747b500
+# (restated with the lines quoted in ../shared/specs/ax-firmware-conformance.md §2.3)
+AX_RATE_LIMITS_HZ = {
+    # AX3 records packed (DATAMODE 18, the firmware default) under stillpoint; packed below 12.5 Hz
+    # is refused: [OMGUI] DateRangeForm.cs 818-830 "not supported by firmware in packed mode" (< 12 Hz
+    # packed); [AXCFG] src/js/ax3device.mjs 711-718 "minimum rate of 12.5Hz in packed mode."
+    "AX3": (12.5, 3200.0),
+    # AX6: the IMU set-up has no 3200 Hz case ([FW] Firmware/AX6/Firmware/src/IMU-BMI160.c 193-266,
+    # "default: settingCheck = 0"); [OMGUI] DateRangeForm.cs 818-830 "not supported by device"
+    # (> 1600 Hz); [AXCFG] ax3device.mjs 711-718 "maximum rate of 1600Hz."
+    "AX6": (6.25, 1600.0),
+}
+# Gyro full-scale ranges the AX6 IMU accepts: [FW] IMU-BMI160.c 193-266, `switch(imu_gyro_range)`
+# cases 125, 250, 500, 1000, 2000 (others: settingCheck = 0). The AX3 has no gyroscope.
+AX_GYRO_DEVICE_TYPES = ("AX6",)
+# With the gyro on, the AX6 needs at least 25 Hz: [FW] IMU-BMI160.c 193-266, rate cases 1-13 (up
+# to 12.5 Hz) `if(imu_gyro_range != 0) settingCheck = 0;`; [OMGUI] DateRangeForm.cs 818-830 "not
+# supported with gyro"; [AXCFG] ax3device.mjs 711-718 "minimum rate of 25Hz with the gyroscope".
+AX_GYRO_MIN_RATE_HZ = 25.0
+# Session id: the header field is u32, but the vendor's UI stops at 2^31 - 1: [OMGUI]
+# DateRangeForm.Designer.cs `numericUpDownSessionID.Maximum = 2147483647`.
+AX_SESSION_MAX = 2**31 - 1
+# Annotation: 14 slots of 32 characters: [FW] Firmware/AX3/Firmware/src/Settings.c, ANNOTATEnn
+# (`nn >= 14` -> "ERROR: Invalid annotation id N", each slot printed as 32 characters; the
+# conformance spec §1, ANNOTATEnn row).
+AX_ANNOTATION_SLOTS = 14
+AX_ANNOTATION_SLOT_CHARS = 32
+# Start/stop times a device can hold: the packed timestamp's year is 6 bits from 2000 ([CWA] §3);
+# [OMGUI] DateRangeForm.Designer.cs date pickers `MinDate = 2000-03-01`, `MaxDate = 2063-12-31`.
+AX_TIME_YEARS = (2000, 2063)
+# "Never record": the firmware logs only while start < stop ([FW] Firmware/AX3/Firmware/src/main.c
+# 516-529, RunLogging: start >= stop -> no logging). The vendor's clear sets HIBERNATE -1, STOP -1
+# and SESSION 0 before erasing ([OMGUI] Software/OM/omapinet/OmDevice.cs 610-625, "Never log").
+AX_NEVER_LOG = (("HIBERNATE", "-1"), ("STOP", "-1"), ("SESSION", "0"))
+# Erase levels: FORMAT QC (quick: filesystem, label and every file rebuilt, then the data file
+# re-created from the settings) or FORMAT WC (the NAND wiped first). [OMGUI] OmDevice.cs 610-625;
+# OmApi include/omapi.h 741 (`OmClearDataAndCommit` is QUICKFORMAT); [AXCFG] default `FORMAT WC`.
+AX_ERASE_COMMANDS = {"quick": "FORMAT QC", "wipe": "FORMAT WC"}
+# FORMAT's reply: "FORMAT: Delayed activation.", then "FORMAT: Complete." (or "ERROR: Problem during
+# ... format"), then "COMMIT" ([FW] Settings.c SettingsAction, FORMAT with C).
+AX_FORMAT_COMPLETE = "FORMAT: Complete."

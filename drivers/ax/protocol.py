@@ -4,10 +4,11 @@
 or an ``axemu://`` URL). Framing as OmApi/axconfig: send ``"\\r\\n" + COMMAND + "\\r\\n"``, read CR LF
 lines until one starts with the expected prefix (success), one starts with ``ERROR:`` (a typed
 ``DeviceCommandError``; ``ERROR: Locked.`` is ``DeviceLocked``) or the command's timeout passes
-(``DeviceTimeout``); other lines are ignored. The factory/destructive commands listed in
+(``DeviceTimeout``); other lines are ignored. After ``ERROR: Locked.`` the setter's
+``<KEY>=<old>`` line is read too, so it is never taken as a later reply. The factory/destructive commands listed in
 ``constants.AX_FORBIDDEN_COMMANDS`` are refused before anything is sent.
 
-Delayed activation: after ``COMMIT``, ``CLEAR DATA`` or ``FORMAT QC`` the device ejects its drive,
+Delayed activation: after ``COMMIT`` or ``FORMAT QC``/``WC`` the device ejects its drive,
 rewrites it and re-inserts it. The client waits for the bare ``COMMIT`` line (a ``...: Delayed
 activation.`` line also starts with ``COMMIT`` and must not end the wait) and then for the caller's
 ``wait_volume()`` to see the drive again; nothing reads the drive meanwhile.
@@ -172,10 +173,22 @@ class AxClient:
             self.log.append("< " + line)
             if line.startswith("ERROR:"):
                 if "Locked" in line:
+                    self._drop_locked_echo(expect)
                     raise DeviceLocked(self.name, cmd, line)
                 raise DeviceCommandError(self.name, cmd, line)
             if (until(line) if until else line.upper().startswith(expect.upper())):
                 return line
+
+    def _drop_locked_echo(self, expect: str) -> None:
+        """After ``ERROR: Locked.`` a setter prints its unchanged value (``<KEY>=<old>``,
+        conformance spec §1, HIBERNATE row); read it now so that a later command with the same
+        prefix never takes it as its reply. Any other line is put back."""
+        line = self._readline(time.monotonic() + C.AX_LOCKED_ECHO_S)
+        if line is None:
+            return
+        self.log.append("< " + line)
+        if not (expect and line.upper().startswith(expect.upper())):
+            self._buf = line.encode("ascii", "replace") + b"\r\n" + self._buf
 
     def _value(self, cmd: str, key: str, timeout_s: Optional[float] = None) -> str:
         line = self.command(cmd, key + "=", timeout_s)
@@ -298,14 +311,28 @@ class AxClient:
         drive's return."""
         self._delayed("COMMIT", C.AX_TIMEOUT_COMMIT_S, wait_volume)
 
-    def clear_data(self, wait_volume: Optional[Callable[[], None]] = None) -> None:
-        """``CLEAR DATA``: delete and recreate the data file. Call only through the station's
-        clear rule (engine.station.clearing)."""
-        self._delayed("CLEAR DATA", C.AX_TIMEOUT_COMMIT_S, wait_volume)
+    def erase(self, level: str = "quick", wait_volume: Optional[Callable[[], None]] = None) -> None:
+        """``FORMAT QC`` (``level="quick"``) or ``FORMAT WC`` (``"wipe"``): the filesystem, label
+        and every file rebuilt, the data file re-created from the settings in RAM. Waits for
+        ``FORMAT: Complete.`` and the bare ``COMMIT`` (the firmware prints them in that order; an
+        ``ERROR: Problem during ... format`` line is a ``DeviceCommandError``), then for the
+        drive's return. Call only through the station's clear rule (engine.station.clearing)."""
+        if level not in C.AX_ERASE_COMMANDS:
+            raise ValueError(f"erase level must be one of {', '.join(C.AX_ERASE_COMMANDS)}, not {level!r}")
+        seen = set()
 
-    def format(self, wipe: bool = False, wait_volume: Optional[Callable[[], None]] = None) -> None:
-        self._delayed("FORMAT WC" if wipe else "FORMAT QC",
-                      C.AX_TIMEOUT_FORMAT_WIPE_S if wipe else C.AX_TIMEOUT_COMMIT_S, wait_volume)
+        def done(line: str) -> bool:
+            text = line.strip()
+            if text == C.AX_FORMAT_COMPLETE:
+                seen.add("complete")
+            elif text == "COMMIT":
+                seen.add("commit")
+            return seen == {"complete", "commit"}
+
+        self.command(C.AX_ERASE_COMMANDS[level], "", C.AX_TIMEOUT_FORMAT_WIPE_S if level == "wipe"
+                     else C.AX_TIMEOUT_COMMIT_S, until=done)
+        if wait_volume is not None:
+            wait_volume()
 
     # ------------------------------------------------------------------ stream preview
     def stream_start(self) -> None:

@@ -1,7 +1,9 @@
 """Configuring a device for the next wearer from a study profile (usb-protocols.md A7).
 
-``configure_device(client, profile, *, data_file, wait_volume)``: LED blue; battery at least
-the profile's minimum; the data file must be empty (cleared) unless ``allow_data``; the clock set
+``configure_device(client, profile, *, data_file, wait_volume)``: the profile checked against
+the device's type (``StudyProfile.check_device``: what it cannot record is refused before any
+setting is sent); LED blue; battery at least the profile's minimum; the data file must be empty
+(at most the 1024-byte header: a new recording is never appended to an old one); the clock set
 the way OMGui does (``sync_time``); RATE, SESSION, MAXSAMPLES 0, DEBUG, HIBERNATE, STOP and the
 14 annotation slots, each reply read back and checked; COMMIT with delayed activation; the data
 file's header read back (device, session, rate code); LED magenta. Returns (settings, warnings).
@@ -63,8 +65,10 @@ def clock_offset_s(client) -> float:
 
 
 def configure_device(client, profile: StudyProfile, *, data_file, wait_volume: Optional[Callable],
-                     session_now: int, allow_data: bool = False) -> tuple[dict, list[str]]:
+                     session_now: int) -> tuple[dict, list[str]]:
     warnings: list[str] = []
+    ax6 = client_is_ax6(client)
+    profile.check_device("AX6" if ax6 else "AX3")
     client.led(1)
     batt = client.battery()
     if batt.percent < profile.min_battery_pct:
@@ -74,12 +78,10 @@ def configure_device(client, profile: StudyProfile, *, data_file, wait_volume: O
         warnings.append(f"battery low ({batt.percent} %)")
     size = os.stat(data_file).st_size if data_file and os.path.exists(data_file) else 0
     if size > C.AX_EMPTY_DATA_BYTES:
-        msg = f"the device still holds data ({size} bytes): not cleared"
-        if not allow_data:
-            raise DeviceError(client.name, msg + "; download and clear it first")
-        warnings.append(msg)
+        raise DeviceError(client.name, f"the device still holds data ({size} bytes): download and "
+                                       "clear it first (a new recording is never appended to an old one)")
     offset = sync_time(client)
-    gyro = profile.gyro_dps if client_is_ax6(client) else 0
+    gyro = profile.gyro_dps if ax6 else 0
     code, hz, g = _retry(client.rate, profile.rate_code, gyro or None)
     if code != profile.rate_code or (gyro and g != gyro):
         raise DeviceError(client.name, f"RATE reads back {code},{hz},{g}; expected "

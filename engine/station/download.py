@@ -111,9 +111,11 @@ def _check_header(path: Path, job: DownloadJob) -> None:
         h = parse_header(head)
     except ValueError as e:
         raise IdentityMismatch(job.device_id, f"the data file header is not readable: {e}") from None
-    if h["device_id"] != job.device_id:
-        raise IdentityMismatch(job.device_id, f"the data file header names device {h['device_id']}, "
-                                              f"not {job.device_id}")
+    from stillpoint.drivers.ax.identity import header_device_text, header_names_device
+    if not header_names_device(h, job.device_id, job.device_type):
+        raise IdentityMismatch(job.device_id, f"the data file header names device "
+                                              f"{header_device_text(h)}, not {job.device_type} "
+                                              f"{job.device_id}")
     if h["session_id"] != job.session_id:
         raise IdentityMismatch(job.device_id, f"session mismatch: SESSION says {job.session_id}, the "
                                               f"data file header says {h['session_id']}")

@@ -43,6 +43,7 @@ class StationOptions:
     throttle_bps: Optional[float] = None
     run_settings: dict = field(default_factory=dict)
     static_from_store: Optional[str] = None  # apply the store's static calibration ("" = default store)
+    erase: str = "quick"  # "quick" (FORMAT QC) | "wipe" (FORMAT WC): the clear's erase level
     remount_s: float = C.AX_COMMIT_REMOUNT_S
     volume_wait_s: float = C.AX_BOOTLOADER_S
     pipeline: bool = True
@@ -166,12 +167,17 @@ class DeviceFlow:
                 self._set("verified", f"already downloaded: {Path(rec.cwa_path).name}")
             else:
                 self._download(data_file, session, offset, batt.percent)
+        configure = opts.configure_after and opts.profile is not None
+        if configure and self.state in ("verified", "empty"):
+            opts.profile.check_device(ident.device_type)  # refused before the device is touched
         if opts.clear_after_verify and self.state == "verified":
+            # the same byte rule whether this run downloaded it or the ledger says it was
+            # ("already downloaded"): copy, device and ledger must agree before the erase
             self._set("clearing")
             clear_verified(client, self.ledger, att.device_id, session, self.att.data_file,
-                           self.wait_volume)
+                           self.wait_volume, device_type=ident.device_type, erase=opts.erase)
             self._set("cleared", self.info)
-        if opts.configure_after and opts.profile is not None and self.state in ("cleared", "empty"):
+        if configure and self.state in ("cleared", "empty"):
             self._set("configuring")
             try:
                 settings, warnings = configure_device(client, opts.profile, data_file=self.att.data_file,

@@ -48,6 +48,18 @@ CREATE TABLE IF NOT EXISTS events (
 """
 
 
+# Columns the clears table gained after its first release (an older ledger gets them when opened;
+# its rows keep NULL there): the erase level sent and what was read back after the erase.
+_CLEAR_COLUMNS = (("erase", "TEXT"), ("readback", "TEXT"))
+
+
+def _add_clear_columns(db) -> None:
+    have = {r[1] for r in db.execute("PRAGMA table_info(clears)").fetchall()}
+    for name, kind in _CLEAR_COLUMNS:
+        if name not in have:
+            db.execute(f"ALTER TABLE clears ADD COLUMN {name} {kind}")
+
+
 class LedgerError(StillpointError):
     """The ledger cannot be opened or a second station wants the same folder."""
 
@@ -125,6 +137,11 @@ class Ledger:
             raise LedgerError(f"{self.path}: the ledger is damaged ({check[0][0]}); move it "
                               "aside or restore it from a backup (no device is cleared "
                               "without it)")
+        try:
+            _add_clear_columns(self.db)
+        except sqlite3.Error as e:
+            self.db.close()
+            raise LedgerError(f"{self.path}: cannot open the ledger: {e}") from None
         self._lock = threading.Lock()
 
     def close(self) -> None:
@@ -182,13 +199,16 @@ class Ledger:
                  "WHERE id=?", (bytes_, sha256, bad_sectors, cwa_path, mcap_path, time.time(),
                                 json.dumps(summary, default=str) if summary else None, download_id))
 
-    def clear_attempt(self, device_id: int, session_id: int, download_id: int, sha256: str) -> int:
-        return self._tx("INSERT INTO clears(device_id, session_id, download_id, sha256, time, result) "
-                        "VALUES (?,?,?,?,?,?)", (device_id, session_id, download_id, sha256,
-                                                 time.time(), "sent"))
+    def clear_attempt(self, device_id: int, session_id: int, download_id: int, sha256: str,
+                      erase: Optional[str] = None) -> int:
+        return self._tx("INSERT INTO clears(device_id, session_id, download_id, sha256, time, result, "
+                        "erase) VALUES (?,?,?,?,?,?,?)", (device_id, session_id, download_id, sha256,
+                                                          time.time(), "sent", erase))
 
-    def clear_result(self, clear_id: int, result: str, reason: Optional[str] = None) -> None:
-        self._tx("UPDATE clears SET result=?, reason=? WHERE id=?", (result, reason, clear_id))
+    def clear_result(self, clear_id: int, result: str, reason: Optional[str] = None,
+                     readback: Optional[str] = None) -> None:
+        self._tx("UPDATE clears SET result=?, reason=?, readback=? WHERE id=?",
+                 (result, reason, readback, clear_id))
 
     def configured(self, device_id: int, session_id, settings: dict, result: str,
                    reason: Optional[str] = None) -> None:
@@ -237,8 +257,9 @@ class Ledger:
         return [self._rec(r) for r in rows]
 
     def clears(self) -> list[tuple]:
-        return self._q("SELECT device_id, session_id, download_id, sha256, result, reason FROM clears "
-                       "ORDER BY id")
+        """(device, session, download id, SHA-256, result, reason, erase level, read-back) per clear."""
+        return self._q("SELECT device_id, session_id, download_id, sha256, result, reason, erase, "
+                       "readback FROM clears ORDER BY id")
 
     def events(self, device_id: Optional[int] = None) -> list[tuple]:
         if device_id is None:

@@ -7,6 +7,7 @@ import sys
 import time
 from pathlib import Path
 
+from stillpoint.drivers import constants as C
 from stillpoint.drivers.errors import StillpointError
 
 NAME = "device"
@@ -27,14 +28,18 @@ def add_arguments(p) -> None:
     s = dev("download", "verified download + corrected MCAP into OUTDIR (the device is not cleared)")
     s.add_argument("-o", "--output", type=Path, required=True, help="output folder (holds the ledger)")
     s.add_argument("--stall-s", type=float, default=30.0, help="stop a download without progress this long")
-    s = dev("verify", "re-read the device (bypassing the cache) and compare with the ledger's verified copy")
+    s = dev("verify", "re-read the device (bypassing the cache) and the raw copy on disk and compare "
+                      "both with the ledger's verified download")
     s.add_argument("-o", "--output", type=Path, required=True, help="the station output folder")
-    s = dev("clear", "clear the device: only if OUTDIR's ledger holds a verified download of its session")
+    s = dev("clear", "clear the device: only if the device, the raw copy in OUTDIR and its ledger's "
+                     "verified download hold the same bytes")
     s.add_argument("-o", "--output", type=Path, required=True, help="the station output folder")
-    s = dev("configure", "configure for the next wearer from a study profile (TOML)")
+    s.add_argument("--erase", choices=("quick", "wipe"), default="quick",
+                   help="quick (FORMAT QC, default) or wipe (FORMAT WC: the memory wiped too; slower)")
+    s = dev("configure", "configure for the next wearer from a study profile (TOML); the device "
+                         "must be cleared")
     s.add_argument("--profile", type=Path, required=True)
     s.add_argument("-o", "--output", type=Path, default=None, help="record it in this folder's ledger")
-    s.add_argument("--allow-data", action="store_true", help="configure even if the device holds data")
     dev("sync-time", "set the device clock to host local time (as OMGui does) and read it back")
     s = dev("stream", "log the STREAM preview (irregular, not analysis data) to MCAP")
     s.add_argument("-o", "--output", type=Path, required=True, help="preview MCAP")
@@ -80,6 +85,10 @@ def _say(msg: str) -> None:
 def run(args) -> int:
     if args.action == "emulate":
         return _emulate(args)
+    prof = None
+    if args.action == "configure":  # every profile value checked before any device is touched
+        from stillpoint.engine.station.profile import load_profile
+        prof = load_profile(args.profile)
     att = _find(args)
     if args.action in ("download", "clear", "verify"):
         return _with_ledger(args, att)
@@ -103,17 +112,22 @@ def run(args) -> int:
                  f"{r['output']} (preview only, not analysis data)")
             return 0
         if args.action == "configure":
-            from stillpoint.engine.station.profile import load_profile
-            prof = load_profile(args.profile)
-            flow_wait = _volume_waiter(att)
-            settings, warnings = cfg.configure_device(client, prof, data_file=att.data_file,
-                                                      wait_volume=flow_wait,
-                                                      session_now=ident.session_id,
-                                                      allow_data=args.allow_data)
+            prof.check_device(ident.device_type)
+            ledger = None
+            session_now = ident.session_id
             if args.output:
                 from stillpoint.engine.station.ledger import Ledger
-                Ledger(args.output).configured(att.device_id, settings["session"], settings, "ok",
-                                               "; ".join(warnings) or None)
+                ledger = Ledger(args.output)
+                # a clear sets SESSION 0: "increment" counts from the session it erased
+                session_now = max([session_now] + [c[1] for c in ledger.clears()
+                                                   if c[0] == att.device_id and c[4] == "ok"])
+            flow_wait = _volume_waiter(att)
+            settings, warnings = cfg.configure_device(client, prof, data_file=att.data_file,
+                                                      wait_volume=flow_wait, session_now=session_now)
+            if ledger is not None:
+                ledger.configured(att.device_id, settings["session"], settings, "ok",
+                                  "; ".join(warnings) or None)
+                ledger.close()
             for w in warnings:
                 print(f"warning: device {att.device_id}: {w}", file=sys.stderr)
             _say(f"device {att.device_id}: configured session {settings['session']}, rate "
@@ -165,8 +179,11 @@ def _with_ledger(args, att) -> int:
             with AxClient.open(att.port, str(att.device_id)) as client:
                 client.stream_stop()
                 session = client.session()
-                clear_verified(client, ledger, att.device_id, session, att.data_file, flow.wait_volume)
-            _say(f"device {att.device_id}: cleared (session {session} was verified in {ledger.path})")
+                clear_verified(client, ledger, att.device_id, session, att.data_file, flow.wait_volume,
+                               device_type=att.device_type, erase=args.erase)
+            _say(f"device {att.device_id}: cleared by {C.AX_ERASE_COMMANDS[args.erase]}; it will not "
+                 f"record until configured (session {session}: device, raw copy and {ledger.path} "
+                 "held the same bytes)")
             return 0
     finally:
         ledger.close()
@@ -192,9 +209,9 @@ def _progress_printer():
 
 
 def _verify(att, ledger) -> int:
-    import hashlib
+    """Device, raw copy and ledger: the three must hold the same bytes (size and SHA-256)."""
     from stillpoint.drivers.ax.protocol import AxClient
-    from stillpoint.drivers.ax.volume import open_data_file
+    from stillpoint.engine.station.clearing import copy_sha256, device_sha256
     with AxClient.open(att.port, str(att.device_id)) as client:
         client.stream_stop()
         session = client.session()
@@ -202,23 +219,25 @@ def _verify(att, ledger) -> int:
     if rec is None:
         raise _Err(f"device {att.device_id}: the ledger {ledger.path} holds no verified download of "
                    f"session {session}")
-    f = open_data_file(att.data_file, verify=True)
-    h = hashlib.sha256()
-    n = 0
     try:
-        while True:
-            b = f.read(1 << 20)
-            if not b:
-                break
-            h.update(b)
-            n += len(b)
-    finally:
-        f.close()
-    if h.hexdigest() != rec.sha256 or n != rec.bytes:
-        raise _Err(f"device {att.device_id}: the device file ({n} bytes, SHA-256 {h.hexdigest()[:16]}) "
-                   f"differs from the verified copy {rec.cwa_path} ({rec.bytes} bytes, {rec.sha256[:16]})")
-    _say(f"device {att.device_id}: session {session} matches the verified copy {rec.cwa_path} "
-         f"({n} bytes, SHA-256 {rec.sha256[:16]}...)")
+        cn, csha = copy_sha256(rec.cwa_path)
+    except OSError as e:
+        raise _Err(f"device {att.device_id}: cannot read the raw copy {rec.cwa_path}: "
+                   f"{e.strerror or e}") from None
+    try:
+        n, sha = device_sha256(att.data_file)
+    except OSError as e:
+        raise _Err(f"device {att.device_id}: cannot read the data file {att.data_file}: "
+                   f"{e.strerror or e}") from None
+    want = f"the ledger's verified download ({rec.bytes} bytes, SHA-256 {(rec.sha256 or '')[:16]})"
+    if cn != rec.bytes or csha != rec.sha256:
+        raise _Err(f"device {att.device_id}: the raw copy {rec.cwa_path} ({cn} bytes, SHA-256 "
+                   f"{csha[:16]}) differs from {want}; the device is not to be cleared")
+    if n != rec.bytes or sha != rec.sha256:
+        raise _Err(f"device {att.device_id}: the device file ({n} bytes, SHA-256 {sha[:16]}) differs "
+                   f"from {want} and its copy {rec.cwa_path}")
+    _say(f"device {att.device_id}: session {session} matches the verified copy {rec.cwa_path}: the "
+         f"device, the copy and the ledger hold the same {n} bytes (SHA-256 {rec.sha256[:16]}...)")
     return 0
 
 

@@ -18,6 +18,9 @@ def add_arguments(p) -> None:
                    help="clear each device once its download is verified (also from the profile)")
     p.add_argument("--configure-after", action="store_true", default=None,
                    help="configure each cleared (or empty) device from the profile")
+    p.add_argument("--erase", choices=("quick", "wipe"), default=None,
+                   help="how a clear erases: quick (FORMAT QC, the default) or wipe (FORMAT WC, the "
+                        "memory wiped too; slower); also [station] erase in the profile")
     p.add_argument("--inbox", type=Path, default=None,
                    help="also ingest .bin/.cwa files dropped in this folder (GENEActiv extractions)")
     p.add_argument("--once", action="store_true", help="handle the devices attached now, then exit")
@@ -43,8 +46,9 @@ def run(args) -> int:
             args.outdir.mkdir()
         except OSError:
             pass  # the station's own check below names what is wrong
+    erase = args.erase or (prof.erase if prof else "quick")
     opts = StationOptions(str(args.outdir), profile=prof, clear_after_verify=clear,
-                          configure_after=configure, stall_s=args.stall_s,
+                          configure_after=configure, stall_s=args.stall_s, erase=erase,
                           static_from_store=args.static_from_store)
     inbox = None
     if args.inbox:

@@ -132,3 +132,76 @@ def test_unplugged_port_is_device_gone(emu):
         c.identify()
     with pytest.raises(DeviceGone):
         AxClient.open(f"axemu://{d.serial}")
+
+
+class ScriptedPort:
+    """A port that answers each command line with the bytes the script gives for it."""
+
+    def __init__(self, script):
+        self.script = script  # command -> reply bytes
+        self.written = b""
+        self.pending = b""
+        self.timeout = 0.01
+
+    def write(self, b):
+        self.written += b
+        for line in b.split(b"\r\n"):
+            cmd = line.decode()
+            if cmd in self.script:
+                self.pending += self.script[cmd]
+
+    def flush(self):
+        pass
+
+    @property
+    def in_waiting(self):
+        return len(self.pending)
+
+    def read(self, n):
+        out, self.pending = self.pending[:n], self.pending[n:]
+        return out
+
+
+def test_locked_setter_echo_is_not_taken_as_a_later_reply():
+    """After ``ERROR: Locked.`` the firmware prints the setter's old value; the next command with
+    the same prefix must get its own reply, not that line."""
+    port = ScriptedPort({"HIBERNATE -1": b"ERROR: Locked.\r\nHIBERNATE=2030/01/01,00:00:00\r\n",
+                         "HIBERNATE": b"HIBERNATE=0\r\n"})
+    c = AxClient(port, "t")
+    with pytest.raises(DeviceLocked):
+        c.hibernate("-1")
+    assert c.hibernate() == "0"
+
+
+def test_locked_error_keeps_an_unrelated_line():
+    port = ScriptedPort({"STOP -1": b"ERROR: Locked.\r\nRATE=74,100\r\n"})
+    c = AxClient(port, "t")
+    with pytest.raises(DeviceLocked):
+        c.stop("-1")
+    assert c._readline(__import__("time").monotonic() + 0.1) == "RATE=74,100"
+
+
+def test_format_waits_for_complete_then_commit(monkeypatch):
+    """The firmware's order: Delayed activation, Complete, COMMIT; the drive is awaited after.
+    Either line missing is a timeout (no COMMIT: no data file re-created)."""
+    from stillpoint.drivers import constants as C
+    port = ScriptedPort({"FORMAT QC": b"FORMAT: Delayed activation.\r\nFORMAT: Complete.\r\nCOMMIT\r\n"})
+    waited = []
+    AxClient(port, "t").erase("quick", lambda: waited.append(1))
+    assert b"\r\nFORMAT QC\r\n" in port.written and waited == [1]
+    monkeypatch.setattr(C, "AX_TIMEOUT_COMMIT_S", 0.3)
+    for reply in (b"FORMAT: Delayed activation.\r\nFORMAT: Complete.\r\n",
+                  b"FORMAT: Delayed activation.\r\nCOMMIT\r\n"):
+        c = AxClient(ScriptedPort({"FORMAT QC": reply}), "t")
+        with pytest.raises(DeviceTimeout):
+            c.erase("quick", lambda: waited.append(2))
+    assert waited == [1]
+    with pytest.raises(ValueError, match="erase level"):
+        c.erase("delete")
+
+
+def test_format_error_line_is_an_error():
+    port = ScriptedPort({"FORMAT QC": b"FORMAT: Delayed activation.\r\n"
+                                      b"ERROR: Problem during quick format\r\n"})
+    with pytest.raises(DeviceCommandError, match="Problem during quick format"):
+        AxClient(port, "t").erase("quick")

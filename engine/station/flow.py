@@ -112,8 +112,15 @@ class DeviceFlow:
 
     def wait_volume(self, timeout_s: Optional[float] = None) -> str:
         """Wait for this device's drive (after a delayed activation or enumeration); returns the
-        data file path."""
-        end = time.monotonic() + (timeout_s if timeout_s is not None else self.opts.remount_s)
+        data file path. A drive that is back but not mounted (a headless station: nothing mounts
+        it again after a COMMIT) is mounted by the station (``drivers/ax/mount.py``) once an
+        automounter has had its grace period; a drive that cannot be mounted is an error."""
+        from stillpoint.drivers.ax.discovery import CombinedBackend
+        from stillpoint.drivers.ax.mount import AUTOMOUNT_GRACE_S, remount
+        limit = timeout_s if timeout_s is not None else self.opts.remount_s
+        end = time.monotonic() + limit
+        unmounted_since: Optional[float] = None
+        mounted = None
         while True:
             if self.cancel.is_set():
                 raise DeviceError(self.att.device_id, "stopped")
@@ -121,10 +128,18 @@ class DeviceFlow:
             if a is not None and a.volume and a.data_file.exists():
                 self.att.volume = a.volume
                 return str(a.data_file)
-            if time.monotonic() >= end:
+            now = time.monotonic()
+            if a is not None and a.block_device and mounted is None:
+                unmounted_since = unmounted_since if unmounted_since is not None else now
+                if now - unmounted_since >= min(AUTOMOUNT_GRACE_S, limit / 4):
+                    remount(a, self.backend or CombinedBackend())  # MountError: one line, the reason
+                    mounted = a.block_device
+            if now >= end:
                 raise DeviceError(self.att.device_id, "the drive did not come back within "
-                                  f"{timeout_s or self.opts.remount_s:g} s (after COMMIT/CLEAR or "
-                                  "enumeration); unplug and re-plug the device")
+                                  f"{limit:g} s (after COMMIT/CLEAR or enumeration"
+                                  + (f"; the station mounted {mounted} but no {C.AX_DATA_FILE} "
+                                     "appeared" if mounted else "")
+                                  + "); unplug and re-plug the device")
             time.sleep(0.1)
 
     # ------------------------------------------------------------------ the flow

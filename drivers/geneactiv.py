@@ -72,6 +72,7 @@ _MARKER = GNA_PAGE_MARKER.encode()
 _MARKER_CR = _MARKER + b"\r"
 _MARKER_RE = re.compile(rb"(?:^|\n)Recorded Data[ \t\r\x00]*(?:\n|$)")
 _VALUE_STRIP = b" \t\r\x00"
+_NOT_PAGE_REASONS = ("page_count_mismatch", "header_value")  # QC events that say nothing of a page
 
 
 def _data_chars(line: bytes) -> bytes:
@@ -259,6 +260,8 @@ class GeneactivReader:
         self._serial_warned = False
         self._time_warned = False
         self._rate_warned = False
+        for fault in self.info.header.get("channel_faults", ()):
+            self._event(0, "header_value", fault)
 
     # ------------------------------------------------------------------ Source protocol
     def __enter__(self):
@@ -481,10 +484,10 @@ class GeneactivReader:
                         f"header Number of Pages is {n_hdr}, the file holds {self.qc.total}", always=True)
             self._list_events()
         if self.qc.valid == 0 and self.qc.events and any(
-                e.reason != "page_count_mismatch" for e in self.qc.events):
+                e.reason not in _NOT_PAGE_REASONS for e in self.qc.events):
             counts: dict[str, int] = {}
             for e in self.qc.events:
-                if e.reason != "page_count_mismatch":
+                if e.reason not in _NOT_PAGE_REASONS:
                     counts[e.reason] = counts.get(e.reason, 0) + 1
             why = ", ".join(f"{k} x{v}" for k, v in counts.items())
             raise CorruptRecordingError(
@@ -945,6 +948,26 @@ def _read_header(f, path: Path) -> tuple[GeneactivHeader, bytes]:
     return hdr, rest
 
 
+def _light_calibration(hdr: GeneactivHeader) -> tuple[Optional[float], Optional[float], list]:
+    """(Volts, Lux, faults) of the header's Calibration Data. Light in lux is raw * Lux / Volts
+    ([GNA] §5), so each must be a positive finite number; otherwise both are None (the light in lux
+    is blank) and ``faults`` says which value and why (logged as a QC event by the reader)."""
+    values = {}
+    for key in ("Volts", "Lux"):
+        text = hdr.get(key, "Calibration Data")
+        try:
+            values[key] = parse_number(text)
+        except (ValueError, IndexError, AttributeError):
+            why = "missing" if text in (None, "") else f"{text!r} is not a number"
+            return None, None, [f"Calibration Data: {key} {why}; light in lux unavailable"]
+    bad = [k for k, v in values.items() if not (np.isfinite(v) and v > 0)]
+    if bad:
+        k = bad[0]
+        return None, None, [f"Calibration Data: {k} {values[k]:g} is not a positive finite number; "
+                            "light in lux unavailable"]
+    return values["Volts"], values["Lux"], []
+
+
 def _device_info(hdr: GeneactivHeader, path: Path, timezone, rest: bytes = b"") -> DeviceInfo:
     warnings = hdr.warnings
     gains, offsets = [], []
@@ -967,12 +990,8 @@ def _device_info(hdr: GeneactivHeader, path: Path, timezone, rest: bytes = b"") 
                                         where="header")
         gains.append(g)
         offsets.append(o)
-    volts = lux = None
-    try:
-        volts = parse_number(hdr.get("Volts", "Calibration Data"))
-        lux = parse_number(hdr.get("Lux", "Calibration Data"))
-    except (ValueError, IndexError, AttributeError):
-        warnings.append("Calibration Data: Volts/Lux missing or unreadable; light in lux unavailable")
+    volts, lux, faults = _light_calibration(hdr)
+    warnings.extend(faults)
     if timezone is not None:
         try:
             tz = parse_timezone(timezone)
@@ -1029,6 +1048,7 @@ def _device_info(hdr: GeneactivHeader, path: Path, timezone, rest: bytes = b"") 
         "start_time_ns": None if start_ms is None else (start_ms * 1_000_000 - tz * 10**9),
         "header_lines": hdr.lines,
         "warnings": warnings,
+        "channel_faults": faults,  # header values that leave a channel blank (QC events when read)
     })
     metadata = {}
     for k in TRIAL_KEYS + SUBJECT_KEYS:

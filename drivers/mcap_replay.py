@@ -120,6 +120,34 @@ def _device_info(meta: dict, path: Path) -> DeviceInfo:
         bad(str(e))
 
 
+def _check_order(prev: Optional[tuple], b: Block, path, i: int) -> tuple:
+    """A logged raw stream is in order: sample numbers rise from message to message (a recovered
+    log may miss some), segments never go back, and times never go back inside a segment (a
+    message's own times included). Anything else is a damaged log: a typed error naming the
+    message, never a buffer overflow in the engine or a silently reordered stream. Returns the
+    state for the next message."""
+    def bad(why: str):
+        raise McapReadError(path, f"raw messages out of order: {why}; the log is damaged",
+                            channel=TOPIC_RAW, record=f"message {i}")
+
+    t = b.time_ns
+    if b.n > 1 and (t[1:] < t[:-1]).any():
+        k = int(np.flatnonzero(t[1:] < t[:-1])[0])
+        bad(f"time goes back {int(t[k] - t[k + 1])} ns after sample {k} of the message")
+    if prev is not None:
+        seg, end, last = prev
+        if b.first_sample < end:
+            bad(f"it starts at sample {b.first_sample}, before the end of the previous message "
+                f"(sample {end})")
+        if b.segment < seg:
+            bad(f"segment {b.segment} after segment {seg}")
+        if b.n and b.segment == seg and last is not None and int(t[0]) < last:
+            bad(f"its first time is {last - int(t[0])} ns before the previous message's last, "
+                f"in the same segment {seg}")
+    last = int(t[-1]) if b.n else (prev[2] if prev is not None else None)
+    return b.segment, b.first_sample + b.n, last
+
+
 def _cell(b: Block, cell_ns: int) -> int:
     return int(b.time_ns[b.unit_start[0] if b.m else 0]) // cell_ns
 
@@ -158,8 +186,11 @@ class McapRawSource:
         if "settings" in self.metadata:
             self.settings = loads_json(self.path, None, "settings",
                                        self.metadata["settings"].get("json", ""), what="metadata")
-            if not isinstance(self.settings, dict):
-                raise McapReadError(self.path, "settings metadata is not a JSON object",
+            from stillpoint.engine.run import settings_problem
+            problem = settings_problem(self.settings)
+            if problem:
+                self._f.close()
+                raise McapReadError(self.path, f"settings metadata: {problem}",
                                     record="metadata 'settings'")
         self.qc = QCReport(unit="sector" if self.info.device_type.startswith("AX") else "page")
 
@@ -184,6 +215,7 @@ class McapRawSource:
         rate = float(self.info.sample_rate_nominal or 0.0)
         max_join = int(JOIN_FRACTION * float(st.get("max_block_s") or 0.0) * rate)
         n_group = 0
+        order = None  # (segment, end of the samples, last time) of the last raw message
 
         def joined():
             nonlocal n_group
@@ -215,6 +247,7 @@ class McapRawSource:
                                                   f"message {i} {n}", channel=TOPIC_GYRO,
                                             record=f"message {j}")
                 b = block_from_message(raw, gyro)
+                order = _check_order(order, b, path, i)
                 self.qc.total += b.m
                 self.qc.valid += b.m
                 if group and (not _joinable(group[-1], b, cell_ns) or n_group + b.n > max_join):

@@ -128,6 +128,62 @@ class RunSettings:
         return RunSettings(**kw)
 
 
+def settings_problem(d: dict) -> Optional[str]:
+    """The first value of a settings record (``RunSettings.to_dict`` form, e.g. the ``settings``
+    metadata of an MCAP log) that a run cannot take, as "key: why"; None when every value is
+    usable. Keys a RunSettings does not have are ignored; a missing key keeps its default. Every
+    value is checked here, when the record is read, so a damaged record is one clear line and
+    never a type error deep in the engine."""
+    import math
+    from .mcap.writer import COMPRESSIONS
+
+    def num(v) -> bool:
+        return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+    def within(lo: float, hi: float, unit: str):  # (lo, hi]: the command line's ranges
+        return (lambda v: num(v) and lo < v <= hi), f"a number in ({lo:g}, {hi:g}] {unit}"
+
+    rules = {"window_s": within(0, 86_400, "s"), "epoch_s": within(0, 86_400, "s"),
+             "first_hours": within(0, 8760, "h"), "chunk_hours": within(0, 8760, "h"),
+             "sd_threshold_g": within(0, 1, "g"), "max_abs_mean_g": within(0, 1000, "g")}
+    rules.update({
+        "mode": (lambda v: v in ("batch", "online"), "'batch' or 'online'"),
+        "min_fill": (lambda v: num(v) and 0 < v <= 1, "a fraction in (0, 1]"),
+        "bfen_band_hz": (lambda v: isinstance(v, (list, tuple)) and len(v) == 2
+                         and all(num(x) for x in v) and 0 <= v[0] < v[1], "[low, high] in Hz"),
+        "temperature": (lambda v: isinstance(v, bool), "true or false"),
+        "ggir_compatible": (lambda v: isinstance(v, bool), "true or false"),
+        "calibrate": (lambda v: isinstance(v, bool), "true or false"),
+        "corrected_quantum_g": (lambda v: num(v) and 0 <= v <= 1, "a step in g in [0, 1]"),
+        # bounded: the block and chunk sizes set how much of the recording is held in memory
+        "max_block_s": (lambda v: num(v) and 0 < v <= 86_400, "seconds in (0, 86400]"),
+        "flush_every_s": (lambda v: num(v) and 0 < v <= 86_400, "seconds in (0, 86400]"),
+        "chunk_s": (lambda v: v is None or (num(v) and 0 < v <= 86_400), "null or seconds in (0, 86400]"),
+        "compression": (lambda v: v in COMPRESSIONS, "one of " + ", ".join(COMPRESSIONS)),
+        "zstd_level": (lambda v: isinstance(v, int) and not isinstance(v, bool) and 1 <= v <= 22,
+                       "an integer zstd level 1..22"),
+        "chunk_size": (lambda v: isinstance(v, int) and not isinstance(v, bool) and 0 < v <= 1 << 30,
+                       "a byte count in (0, 1 GiB]"),
+        "view_hz": (lambda v: num(v) and 0 <= v <= 5000, "0 (off) or samples per second up to 5000"),
+        "timezone": (lambda v: v is None or (isinstance(v, str) and 0 < len(v) <= 64), "null or a zone name"),
+    })
+    if not isinstance(d, dict):
+        return f"not a JSON object ({type(d).__name__})"
+    for key, (ok, what) in rules.items():
+        if key in d and not ok(d[key]):
+            return f"{key} is {d[key]!r}, expected {what}"
+    for key in ("prior", "static_calibration"):
+        v = d.get(key)
+        if v is None:
+            continue
+        from .calibration.validate import validate_estimate
+        try:
+            validate_estimate(v, key)
+        except StillpointError as e:
+            return str(e)
+    return None
+
+
 # ---------------------------------------------------------------------------- stages
 class FeatureStage:
     """Block -> window features -> nonmovement windows (and, online, the calibrator)."""

@@ -51,7 +51,7 @@ def test_device_download_verify_clear_configure(emu, tmp_path, capsys):
     assert "no verified download" in capsys.readouterr().err
     assert d.clears == []
     assert main(["device", "download", "10001", "-o", str(out)]) == 0
-    assert (out / "10001_1.cwa").exists() and (out / "10001_1.mcap").exists()
+    assert (out / "AX3-10001_1.cwa").exists() and (out / "AX3-10001_1.mcap").exists()
     assert main(["device", "verify", "10001", "-o", str(out)]) == 0
     assert "matches the verified copy" in capsys.readouterr().out
     assert main(["device", "clear", "10001", "-o", str(out)]) == 0
@@ -68,7 +68,7 @@ def test_device_download_verify_clear_configure(emu, tmp_path, capsys):
 
 
 def test_device_errors_are_one_line_exit_2(emu, tmp_path, capsys):
-    emu(10001, faults=("bit-flip",))
+    emu(10001, faults=("change-between-reads",))
     out = tmp_path / "out"
     out.mkdir()
     assert main(["device", "download", "10001", "-o", str(out)]) == 2
@@ -157,8 +157,8 @@ def test_end_to_end_emulate_and_station_over_pty(tmp_path, runtime):
         assert "Traceback" not in r.stderr
         assert "10001 [emu-1] configured: session 2" in r.stdout
         assert "10002 [emu-2] error: reading" in r.stdout and "Input/output error" in r.stdout
-        assert (out / "10001_1.cwa").exists() and (out / "10001_1.mcap").exists()
-        assert (out / "10002_1.cwa.part").exists() and not (out / "10002_1.cwa").exists()
+        assert (out / "AX3-10001_1.cwa").exists() and (out / "AX3-10001_1.mcap").exists()
+        assert (out / "AX3-10002_1.cwa.part").exists() and not (out / "AX3-10002_1.cwa").exists()
     finally:
         emu_p.terminate()
         emu_p.wait(10)

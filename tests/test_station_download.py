@@ -18,6 +18,19 @@ def _job(d, out, **kw):
                        tuple(sorted(d.faults)), str(d.control), **kw)
 
 
+def _complete(r, out):
+    """What the station does with a verified result: the ledger completes it."""
+    from stillpoint.engine.station.completion import complete
+    from stillpoint.engine.station.ledger import Ledger
+    led = Ledger(out)
+    try:
+        i = led.download_started(1, 1, cwa_path=r.cwa_path, mcap_path=r.mcap_path)
+        complete(led, i, cwa_path=r.cwa_path, mcap_path=r.mcap_path, sha256=r.sha256,
+                 bytes_=r.bytes, bad_sectors=r.bad_sectors, with_log=r.mcap_part is not None)
+    finally:
+        led.close()
+
+
 def test_download_verified_with_mcap(emu, tmp_path):
     d = emu(12345)
     out = tmp_path / "out"
@@ -26,11 +39,15 @@ def test_download_verified_with_mcap(emu, tmp_path):
     r = run_download(_job(d, out, metadata={"station": {"clock_offset_s": "2.5", "station_id": "s1"}}))
     assert r.ok, r.reason
     assert r.sha256 == want and r.bytes == d.data_file.stat().st_size and r.bad_sectors == 0
-    assert sorted(os.listdir(out)) == ["12345_1.cwa", "12345_1.mcap"]
-    assert hashlib.sha256((out / "12345_1.cwa").read_bytes()).hexdigest() == want
+    # the download never gives a file its final name: the ledger's completion does
+    assert sorted(os.listdir(out)) == ["AX3-12345_1.cwa.part", "AX3-12345_1.unverified.mcap"]
+    _complete(r, out)
+    assert sorted(n for n in os.listdir(out) if not n.startswith("stillpoint-ledger")) == \
+        ["AX3-12345_1.cwa", "AX3-12345_1.mcap"]
+    assert hashlib.sha256((out / "AX3-12345_1.cwa").read_bytes()).hexdigest() == want
     # the MCAP is complete and readable by the mcap package, with the station's metadata
     from mcap.reader import make_reader
-    with open(out / "12345_1.mcap", "rb") as f:
+    with open(out / "AX3-12345_1.mcap", "rb") as f:
         reader = make_reader(f)
         meta = {m.name: m.metadata for m in reader.iter_metadata()}
         topics = {ch.topic for _, ch, _ in reader.iter_messages()}
@@ -41,10 +58,10 @@ def test_download_verified_with_mcap(emu, tmp_path):
 
 def test_existing_copy_is_never_overwritten(emu, tmp_path):
     d = emu(12345)
-    (tmp_path / "12345_1.cwa").write_bytes(b"keep me")
+    (tmp_path / "AX3-12345_1.cwa").write_bytes(b"keep me")
     r = run_download(_job(d, tmp_path))
     assert not r.ok and "already exists" in r.reason
-    assert (tmp_path / "12345_1.cwa").read_bytes() == b"keep me"
+    assert (tmp_path / "AX3-12345_1.cwa").read_bytes() == b"keep me"
 
 
 def test_unplug_then_resume_from_verified_prefix(emu, tmp_path):
@@ -52,7 +69,7 @@ def test_unplug_then_resume_from_verified_prefix(emu, tmp_path):
     job = _job(d, tmp_path, chunk_bytes=64 * 1024)
     r = run_download(job)
     assert not r.ok and "unplugged" in r.reason
-    part = tmp_path / "12345_1.cwa.part"
+    part = tmp_path / "AX3-12345_1.cwa.part"
     kept = part.stat().st_size
     assert 0 < kept < r.size
     end = time.monotonic() + 5
@@ -62,32 +79,75 @@ def test_unplug_then_resume_from_verified_prefix(emu, tmp_path):
     r2 = run_download(job)
     assert r2.ok, r2.reason
     assert r2.resumed_from == kept // 512 * 512 and r2.resumed_from > 0
-    assert hashlib.sha256((tmp_path / "12345_1.cwa").read_bytes()).hexdigest() == \
+    _complete(r2, tmp_path)
+    assert hashlib.sha256((tmp_path / "AX3-12345_1.cwa").read_bytes()).hexdigest() == \
         hashlib.sha256(d.data_file.read_bytes()).hexdigest()
 
 
 def test_resume_with_a_differing_prefix_starts_over_and_keeps_it(emu, tmp_path):
     d = emu(12345)
-    (tmp_path / "12345_1.cwa.part").write_bytes(b"MD" + b"\x01" * 4094)
+    (tmp_path / "AX3-12345_1.cwa.part").write_bytes(b"MD" + b"\x01" * 4094)
     r = run_download(_job(d, tmp_path))
     assert r.ok and r.resumed_from == 0
-    asides = [p for p in os.listdir(tmp_path) if p.startswith("12345_1.cwa.part.")]
+    asides = [p for p in os.listdir(tmp_path) if p.startswith("AX3-12345_1.cwa.part.")]
     assert len(asides) == 1  # the old partial copy is set aside, not deleted
 
 
 @pytest.mark.parametrize("fault, reason", [
     ("short-read", "short read"),
     ("io-error", "Input/output error"),
-    ("bit-flip", "verification failed"),
-    ("change-between-reads", "verification failed"),
+    ("change-between-reads", "the device's data changed between the copy and the verification"),
 ])
 def test_read_faults_keep_partial_and_never_finalise(emu, tmp_path, fault, reason):
     d = emu(12345, faults=(fault,))
     r = run_download(_job(d, tmp_path))
     assert not r.ok and reason in r.reason
+    assert r.changed == (fault == "change-between-reads")  # never cleared automatically
     names = os.listdir(tmp_path)
-    assert "12345_1.cwa" not in names and "12345_1.mcap" not in names
-    assert "12345_1.cwa.part" in names and (tmp_path / "12345_1.cwa.part").stat().st_size > 0
+    assert "AX3-12345_1.cwa" not in names and "AX3-12345_1.mcap" not in names
+    assert "AX3-12345_1.cwa.part" in names and (tmp_path / "AX3-12345_1.cwa.part").stat().st_size > 0
+
+
+def test_a_misread_range_is_read_again_and_patched(emu, tmp_path):
+    """One bit flipped in the copy read (a transient read error): the differing range is read
+    again, two reads agree, the copy's damaged sector fails its checks and the agreed one passes:
+    the copy is patched, byte-identical to the device, and its corrected log rebuilt."""
+    d = emu(12345, faults=("bit-flip",))
+    want = d.data_file.read_bytes()
+    r = run_download(_job(d, tmp_path, chunk_bytes=64 * 1024))
+    assert r.ok, r.reason
+    assert (r.reread_ranges, r.patched_ranges, r.bad_sectors) == (1, 1, 0)
+    assert r.sha256 == hashlib.sha256(want).hexdigest()
+    assert (tmp_path / "AX3-12345_1.cwa.part").read_bytes() == want
+    _complete(r, tmp_path)
+    assert (tmp_path / "AX3-12345_1.cwa").read_bytes() == want
+    assert (tmp_path / "AX3-12345_1.mcap").exists()
+
+
+def test_a_change_with_valid_sectors_is_not_a_misread(emu, tmp_path, monkeypatch):
+    """Two reads agree on bytes other than the copy's, but the copy's sector was a valid one: the
+    device's data changed (a device writes whole, valid sectors); nothing is patched."""
+    import stillpoint.engine.station.download as dl
+    d = emu(12345)
+    good = d.data_file.read_bytes()
+    # the device now holds another valid recording's sector 20 (a rewrite, not damage)
+    other = bytearray(good)
+    s20 = 1024 + 20 * 512
+    other[s20:s20 + 512] = good[s20 + 512:s20 + 1024]
+    real = dl.open_data_file
+    calls = {"n": 0}
+
+    def later_reads_see_other(path, *, verify=False, faults=(), control=None):
+        f = real(path, verify=verify, faults=faults, control=control)
+        if verify:  # the verification read and the re-reads see the rewritten device
+            calls["n"] += 1
+            d.data_file.write_bytes(bytes(other))
+        return f
+
+    monkeypatch.setattr(dl, "open_data_file", later_reads_see_other)
+    r = run_download(_job(d, tmp_path, pipeline=False))
+    assert not r.ok and r.changed and "complete sector in both reads" in r.reason
+    assert (tmp_path / "AX3-12345_1.cwa.part").read_bytes() == good  # the copy is not patched
 
 
 def test_session_mismatch_with_header_is_refused(emu, tmp_path):
@@ -96,7 +156,7 @@ def test_session_mismatch_with_header_is_refused(emu, tmp_path):
     job.session_id = 2  # what SESSION said; the header says 1
     r = run_download(job)
     assert not r.ok and "session mismatch" in r.reason
-    assert not (tmp_path / "12345_2.cwa").exists()
+    assert not (tmp_path / "AX3-12345_2.cwa").exists()
 
 
 def test_missing_output_folder_is_a_clear_error(emu, tmp_path):
@@ -133,6 +193,6 @@ def test_disk_full_stops_keeps_partial_and_touches_nothing(emu, tmp_path, monkey
     r = run_download(_job(d, tmp_path, chunk_bytes=64 * 1024))
     monkeypatch.undo()
     assert not r.ok and "no space left on device" in r.reason and "partial copy is kept" in r.reason
-    assert (tmp_path / "12345_1.cwa.part").stat().st_size == 2 * 64 * 1024
-    assert not (tmp_path / "12345_1.cwa").exists()
+    assert (tmp_path / "AX3-12345_1.cwa.part").stat().st_size == 2 * 64 * 1024
+    assert not (tmp_path / "AX3-12345_1.cwa").exists()
     assert hashlib.sha256(d.data_file.read_bytes()).hexdigest() == before and d.clears == []

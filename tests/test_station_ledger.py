@@ -85,15 +85,21 @@ def _verified(d, out, lg):
     dl = lg.download_started(d.device_id, d.session_id)
     r = run_download(DownloadJob(d.device_id, d.session_id, str(d.data_file), str(out), pipeline=False))
     assert r.ok, r.reason
-    lg.download_verified(dl, bytes_=r.bytes, sha256=r.sha256, bad_sectors=r.bad_sectors,
-                         cwa_path=r.cwa_path, mcap_path="")
+    from stillpoint.engine.station.completion import complete
+    complete(lg, dl, cwa_path=r.cwa_path, mcap_path=None, sha256=r.sha256, bytes_=r.bytes,
+             bad_sectors=r.bad_sectors, with_log=False)
     return r
 
 
 def _wait(d):
-    def w():
-        return str(d.data_file) if d.data_file.exists() else (_ for _ in ()).throw(
-            DeviceError(d.device_id, "the drive did not come back"))
+    def w(timeout_s=5.0):
+        import time
+        end = time.monotonic() + timeout_s
+        while not d.data_file.exists():  # the drive comes back after COMMIT/FORMAT
+            if time.monotonic() > end:
+                raise DeviceError(d.device_id, "the drive did not come back")
+            time.sleep(0.02)
+        return str(d.data_file)
     return w
 
 
@@ -124,7 +130,7 @@ def test_clear_refused_when_the_file_grew(emu, tmp_path):
     with open(d.data_file, "ab") as f:
         f.write(b"\0" * 512)
     with AxClient.open(f"axemu://{d.serial}") as c:
-        with pytest.raises(ClearRefused, match="bytes, the verified download"):
+        with pytest.raises(ClearRefused, match="is not the verified copy"):
             clear_verified(c, lg, 12345, 1, d.data_file, _wait(d))
     assert d.clears == []
 

@@ -1,23 +1,33 @@
-"""One verified download: the device's data file -> ``<out>/<device>_<session>.cwa`` plus the
-corrected ``<out>/<device>_<session>.mcap``, written while the copy runs.
+"""One download, up to a verified copy: the device's data file -> ``<out>/<stem>.cwa.part`` plus
+the corrected ``<out>/<stem>.unverified.mcap``, written while the copy runs (names: ``names``).
 
 ``run_download(job, progress=None, cancel=None) -> DownloadResult`` (never raises for a device or
-output fault: the result says what went wrong). Steps:
+output fault: the result says what went wrong). It never gives a file its final name: the station
+does that in the same step as the ledger write (``completion``), so a download is complete only
+when the ledger says so. Steps:
 
 1. The data file's size in the directory entry and its header (device id and session must be the
    job's: they were read from the USB serial, ``ID``, ``SESSION`` and the volume label).
-2. The copy: large chunks to ``<stem>.cwa.part`` with a running SHA-256; every chunk's sectors
-   are checked (``cwa_decode.classify``: checksum, tag, length...) and bad ones counted (they do
-   not block). A ``.cwa.part`` from an interrupted download of the same device and session is
-   resumed: its whole sectors are compared with the device's (a cache-bypassing read) and the
-   copy continues after them; a prefix that differs is set aside (never deleted) and the copy
-   starts over.
-3. Meanwhile the online pipeline (``engine.run.process_file``, mode "online", the same operators
-   as ``process --mode online``) follows the growing ``.cwa.part`` on a thread and writes
-   ``<stem>.mcap.part``.
-4. Verification, all of: bytes copied = size at start = size in the directory entry now; the copy
-   fsynced; a second read of the device file that bypasses the OS cache gives the same SHA-256.
-   Only then are the ``.cwa`` and the ``.mcap`` finalised (atomic rename, folder fsync).
+2. The copy: large chunks to ``<stem>.cwa.part`` (opened without following a link, refused if it
+   is not a plain file of its own) with a running SHA-256 and one hash per ``CHECK_BYTES`` range;
+   every chunk's sectors are checked (``cwa_decode.classify``) and bad ones counted (they do not
+   block). A ``.cwa.part`` left by an interrupted download is compared with the device (a
+   cache-bypassing read) and only the prefix that equals the device is reused; if the partial
+   copy holds bytes the device does not, it is set aside whole (``.part.<UTC>``, never deleted)
+   and the new partial copy starts from its verified prefix.
+3. Meanwhile the online pipeline (``engine.run.process_file``, mode "online") follows the growing
+   copy on a thread and writes ``<stem>.unverified.mcap``.
+4. Verification: bytes copied = size at start = size in the directory entry now; a second read of
+   the device that bypasses the OS cache, hashed per range. A range whose hashes differ is read
+   again (up to ``REREADS`` more times) until two reads agree. If they agree with the copy, the
+   copy stands. If they agree on other bytes, the copy was misread only when every sector that
+   differs failed its sector checks in the copy and passes them in the agreed bytes (a read error
+   damages a sector; a device that writes writes whole, valid sectors): those ranges of the copy
+   are patched. Any other difference means the device's data changed between the reads: the
+   result is ``changed`` and the device must not be cleared. After a patch the corrected log is
+   rebuilt from the patched copy.
+5. A final copy that is already there and has no ledger row (a station killed between its rename
+   and its ledger write, in older versions) is adopted when it equals the device, range by range.
 
 Any failure leaves the partial files in place and the device untouched.
 """
@@ -27,6 +37,7 @@ from __future__ import annotations
 import errno
 import hashlib
 import os
+import stat
 import threading
 import time
 from dataclasses import asdict, dataclass, field
@@ -37,13 +48,22 @@ import numpy as np
 
 from stillpoint.drivers import constants as C
 from stillpoint.drivers.ax.volume import open_data_file
-from stillpoint.drivers.outputs import describe_os_error, fsync_folder
+from stillpoint.drivers.outputs import describe_os_error
+
+from . import names
 
 CHUNK_BYTES = 1 << 20  # 1 MiB reads (2048 sectors)
+CHECK_BYTES = 64 * 1024  # the verification compares (and re-reads) the file in ranges this long
+REREADS = 2  # more reads of a range whose copy and verification reads differ
+_OPEN_NOFOLLOW = os.O_NOFOLLOW | getattr(os, "O_CLOEXEC", 0)
 
 
 class DownloadAborted(Exception):
     """The copy failed or was cancelled: the pipeline following the copy stops."""
+
+
+class DataChanged(DownloadAborted):
+    """The device's data differs between reads in a way a read error does not explain."""
 
 
 @dataclass
@@ -63,7 +83,7 @@ class DownloadJob:
 
     @property
     def stem(self) -> str:
-        return f"{self.device_id}_{self.session_id}"
+        return names.stem(self.device_type, self.device_id, self.session_id)
 
 
 @dataclass
@@ -75,11 +95,17 @@ class DownloadResult:
     sha256: Optional[str] = None
     bad_sectors: int = 0
     resumed_from: int = 0
-    cwa_path: Optional[str] = None
-    mcap_path: Optional[str] = None
-    cwa_part: Optional[str] = None
+    cwa_path: Optional[str] = None  # the final name the station gives the raw copy
+    mcap_path: Optional[str] = None  # the final name of the corrected log
+    cwa_part: Optional[str] = None  # where the raw copy is now (None: already at cwa_path)
+    mcap_part: Optional[str] = None  # where the corrected log is now (None: no pipeline)
+    set_aside: Optional[str] = None  # an earlier partial copy that differed from the device
+    reread_ranges: int = 0  # ranges read again because the copy and the verification differed
+    patched_ranges: int = 0  # ranges of the copy replaced by bytes two later reads agreed on
+    changed: bool = False  # the device's data changed between reads: never clear it
+    adopted: bool = False  # the final copy was already there and equals the device
     copy_s: float = 0.0
-    mcap_after_copy_s: Optional[float] = None  # last byte copied -> MCAP final (after verification)
+    mcap_after_copy_s: Optional[float] = None  # last byte copied -> MCAP ready (after verification)
     pipeline_after_copy_s: Optional[float] = None  # last byte copied -> MCAP written and closed
     verify_s: float = 0.0
     summary: Optional[dict] = None
@@ -88,18 +114,60 @@ class DownloadResult:
         return asdict(self)
 
 
-def _bad_sectors(buf: bytes, offset: int) -> int:
-    """Count data sectors in ``buf`` (starting at file ``offset``) that fail the sector checks."""
-    from stillpoint.drivers.cwa_decode import EMPTY, ERASED, classify
+class RangeHashes:
+    """One hash per ``unit`` bytes of a stream fed in pieces of any length."""
+
+    def __init__(self, unit: int = CHECK_BYTES):
+        self.unit = unit
+        self.digests: list[bytes] = []
+        self._h = None
+        self._fill = 0
+
+    def update(self, b) -> None:
+        mv = memoryview(b)
+        while len(mv):
+            if self._h is None:
+                self._h, self._fill = hashlib.blake2b(digest_size=16), 0
+            k = min(self.unit - self._fill, len(mv))
+            self._h.update(mv[:k])
+            self._fill += k
+            mv = mv[k:]
+            if self._fill == self.unit:
+                self.digests.append(self._h.digest())
+                self._h = None
+
+    def finish(self) -> list[bytes]:
+        if self._h is not None:
+            self.digests.append(self._h.digest())
+            self._h = None
+        return self.digests
+
+
+def _range_hash(b: bytes) -> bytes:
+    return hashlib.blake2b(b, digest_size=16).digest()
+
+
+def _sector_reasons(buf: bytes, offset: int) -> tuple[int, np.ndarray]:
+    """(first data sector's file offset, reason code per whole data sector) of ``buf`` read at
+    file ``offset`` (the header is not a data sector)."""
+    from stillpoint.drivers.cwa_decode import classify
     from stillpoint.drivers.cwa_layout import SECTOR_DTYPE
     skip = max(0, C.CWA_HEADER_BYTES - offset)
     data = buf[skip:]
     k = len(data) // C.CWA_SECTOR_BYTES
     if k <= 0:
-        return 0
-    sec = np.frombuffer(data, SECTOR_DTYPE, count=k)
-    r = classify(sec)
-    return int(np.count_nonzero((r != 0) & (r != ERASED) & (r != EMPTY)))
+        return offset + skip, np.zeros(0, np.uint8)
+    return offset + skip, classify(np.frombuffer(data, SECTOR_DTYPE, count=k))
+
+
+def _bad(reasons: np.ndarray) -> np.ndarray:
+    from stillpoint.drivers.cwa_decode import EMPTY, ERASED
+    return (reasons != 0) & (reasons != ERASED) & (reasons != EMPTY)
+
+
+def _bad_sectors(buf: bytes, offset: int) -> int:
+    """Count data sectors in ``buf`` (starting at file ``offset``) that fail the sector checks."""
+    return int(np.count_nonzero(_bad(_sector_reasons(buf, offset)[1])))
 
 
 def _check_header(path: Path, job: DownloadJob) -> None:
@@ -122,35 +190,75 @@ def _check_header(path: Path, job: DownloadJob) -> None:
 
 
 def _set_aside(p: Path) -> Path:
-    stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
-    aside = p.with_name(f"{p.name}.{stamp}")
-    n = 1
-    while aside.exists():
-        aside = p.with_name(f"{p.name}.{stamp}-{n}")
-        n += 1
-    os.replace(p, aside)
+    aside = names.set_aside_name(p)
+    os.rename(p, aside)
     return aside
 
 
-def _hash_prefix(fobj, n: int, chunk: int) -> "hashlib._Hash":
-    h = hashlib.sha256()
-    left = n
-    while left > 0:
-        b = fobj.read(min(chunk, left))
+def _open_part(part: Path) -> int:
+    """The partial copy, created if missing, never through a link; refused unless it is a plain
+    file with no other name (a planted hard link would receive the download)."""
+    fd = os.open(part, os.O_RDWR | os.O_CREAT | _OPEN_NOFOLLOW, 0o644)
+    st = os.fstat(fd)
+    if not stat.S_ISREG(st.st_mode) or st.st_nlink != 1:
+        os.close(fd)
+        raise OSError(errno.EPERM, "not a plain file of its own (it has another name)")
+    return fd
+
+
+def _lock(fd: int) -> bool:
+    import fcntl
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        return False
+    return True
+
+
+def _pread_all(fd: int, n: int, off: int) -> bytes:
+    parts = []
+    while n > 0:
+        b = os.pread(fd, n, off)
         if not b:
             break
-        h.update(b)
-        left -= len(b)
-    if left:
-        raise EOFError(f"ended {left} bytes early")
-    return h
+        parts.append(b)
+        n -= len(b)
+        off += len(b)
+    return b"".join(parts)
+
+
+def _write_all(fd: int, b) -> None:
+    mv = memoryview(b)
+    while mv:
+        n = os.write(fd, mv)
+        mv = mv[n:]
+
+
+def _common_prefix(fd: int, data: Path, n: int, chunk: int) -> int:
+    """How many leading bytes of the partial copy (``fd``) equal the device's (read bypassing the
+    cache), looking at the first ``n``."""
+    dev = open_data_file(data, verify=True)
+    try:
+        off = 0
+        while off < n:
+            want = min(chunk, n - off)
+            a = _pread_all(fd, want, off)
+            b = dev.read(want)
+            if a != b:
+                k = min(len(a), len(b))
+                same = np.frombuffer(a[:k], np.uint8) == np.frombuffer(b[:k], np.uint8)
+                return off + (int(np.argmin(same)) if not same.all() else k)
+            off += want
+        return n
+    finally:
+        dev.close()
 
 
 class _Pipeline:
     """The online pipeline following the growing copy on a thread."""
 
-    def __init__(self, part: Path, mcap_part: Path, job: DownloadJob):
-        self.part, self.mcap_part, self.job = part, mcap_part, job
+    def __init__(self, part: Path, log: Path, job: DownloadJob):
+        self.part, self.log, self.job = part, log, job
         self.done = threading.Event()
         self.failed: Optional[str] = None
         self.summary: Optional[dict] = None
@@ -164,12 +272,8 @@ class _Pipeline:
         return self.done.is_set()
 
     def _run(self) -> None:
-        from stillpoint.engine.run import RunSettings, process_file
         try:
-            s = RunSettings.from_dict(dict(self.job.settings, mode="online"))
-            self.summary = process_file(self.part, self.mcap_part, s, metadata=self.job.metadata,
-                                        source_options={"follow": True, "follow_done": self.copy_done,
-                                                        "follow_idle_s": 1e9})
+            self.summary = run_pipeline(self.part, self.log, self.job, follow=self.copy_done)
         except DownloadAborted:
             self.error = "aborted"
         except BaseException as e:  # noqa: BLE001 - reported in the result, never a traceback
@@ -177,21 +281,145 @@ class _Pipeline:
         self.finished_at = time.monotonic()
 
 
+def run_pipeline(raw: Path, log: Path, job: DownloadJob, follow=None, progress=None) -> dict:
+    """The online pipeline on ``raw`` (following it while ``follow()`` is false) into ``log``."""
+    from stillpoint.engine.run import RunSettings, process_file
+    s = RunSettings.from_dict(dict(job.settings, mode="online"))
+    opts = {"follow": True, "follow_done": follow, "follow_idle_s": 1e9} if follow else None
+    return process_file(raw, log, s, metadata=job.metadata, source_options=opts,
+                        progress=progress)
+
+
+def _clear_stale_log(log: Path) -> None:
+    """The corrected log of an earlier attempt is derived data, rebuilt from the raw copy: an
+    unfinished one is removed (the caller holds the partial copy's lock)."""
+    for p in (log, Path(str(log) + names.PART)):
+        try:
+            os.unlink(p)
+        except FileNotFoundError:
+            pass
+
+
+def _resolve_ranges(fd: int, job: DownloadJob, size: int, copy_d: list, ver_d: list,
+                    res: DownloadResult) -> None:
+    """Read again the ranges whose copy and verification hashes differ (see module docstring,
+    step 4); patch the copy where two reads agree on bytes that show the copy was misread.
+    Raises ``DataChanged`` or ``DownloadAborted``."""
+    diff = [i for i, (a, b) in enumerate(zip(copy_d, ver_d)) if a != b]
+    if not diff:
+        return
+    res.reread_ranges = len(diff)
+    dev = open_data_file(job.data_file, verify=True, faults=job.faults, control=job.control)
+    try:
+        for i in diff:
+            off = i * CHECK_BYTES
+            n = min(CHECK_BYTES, size - off)
+            copy_b = _pread_all(fd, n, off)
+            seen = [copy_d[i], ver_d[i]]
+            agreed = None
+            for _ in range(REREADS):
+                dev.seek(off)
+                b = dev.read(n)
+                h = _range_hash(b)
+                if h in seen:
+                    agreed = b
+                    break
+                seen.append(h)
+            if agreed is None:
+                raise DataChanged(f"the device gives different bytes on every read of bytes "
+                                  f"{off}-{off + n} ({2 + REREADS} reads)")
+            if agreed == copy_b:
+                continue  # the verification read was the misread one
+            why = _why_not_a_misread(copy_b, agreed, off)
+            if why:
+                raise DataChanged(f"the device's data changed between the copy and the "
+                                  f"verification read ({why})")
+            os.pwrite(fd, agreed, off)
+            res.bad_sectors += _bad_sectors(agreed, off) - _bad_sectors(copy_b, off)
+            res.patched_ranges += 1
+    finally:
+        dev.close()
+
+
+def _why_not_a_misread(copy_b: bytes, agreed: bytes, off: int) -> Optional[str]:
+    """None when every byte that differs lies in a data sector that failed its checks in the copy
+    and passes them in the agreed bytes; else what shows the data changed."""
+    a = np.frombuffer(copy_b, np.uint8)
+    b = np.frombuffer(agreed, np.uint8)
+    where = np.flatnonzero(a != b) + off
+    if len(where) and where[0] < C.CWA_HEADER_BYTES:
+        return "the header differs"
+    first, ra = _sector_reasons(copy_b, off)
+    _, rb = _sector_reasons(agreed, off)
+    for s in np.unique((where - first) // C.CWA_SECTOR_BYTES):
+        if s >= len(ra):
+            return "bytes after the last whole sector differ"
+        sector = (first - C.CWA_HEADER_BYTES) // C.CWA_SECTOR_BYTES + int(s)
+        if not _bad(ra[s:s + 1])[0]:
+            return f"data sector {sector} is a complete sector in both reads"
+        if _bad(rb[s:s + 1])[0]:
+            return f"data sector {sector} fails its checks in both versions"
+    return None
+
+
+def _hash_file(fd: int, size: int, chunk: int) -> str:
+    h = hashlib.sha256()
+    off = 0
+    while off < size:
+        b = _pread_all(fd, min(chunk, size - off), off)
+        if not b:
+            break
+        h.update(b)
+        off += len(b)
+    return h.hexdigest()
+
+
+def _adopt(final: Path, size0: int, job: DownloadJob, res: DownloadResult, progress) -> DownloadResult:
+    """A final copy with no verified ledger row: adopted when it equals the device, else refused."""
+    try:
+        fd = os.open(final, os.O_RDONLY | _OPEN_NOFOLLOW)
+    except OSError as e:
+        res.reason = f"{final} already exists and cannot be read ({describe_os_error(e)}); nothing " \
+                     "is overwritten"
+        return res
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode) or st.st_size != size0 or \
+                _common_prefix(fd, Path(job.data_file), size0, job.chunk_bytes) != size0:
+            res.reason = (f"{final} already exists and is not a copy of the device's data "
+                          f"({st.st_size} bytes, the device {size0}); nothing is overwritten")
+            return res
+        res.sha256 = _hash_file(fd, size0, job.chunk_bytes)
+        res.bytes = size0
+        res.bad_sectors = sum(_bad_sectors(_pread_all(fd, min(job.chunk_bytes, size0 - o), o), o)
+                              for o in range(0, size0, job.chunk_bytes))
+    finally:
+        os.close(fd)
+    res.adopted, res.cwa_part = True, None
+    log = names.log_unverified(job.out_dir, job.stem)
+    if job.pipeline and not os.path.lexists(res.mcap_path):
+        _clear_stale_log(log)
+        res.summary = run_pipeline(final, log, job,
+                                   progress=lambda *a: progress("finishing", size0, size0))
+        res.mcap_part = str(log)
+    elif os.path.lexists(res.mcap_path):
+        res.mcap_part = None
+    res.ok = True
+    return res
+
+
 def run_download(job: DownloadJob, progress: Optional[Callable[[str, int, int], None]] = None,
                  cancel: Optional[threading.Event] = None) -> DownloadResult:
     """See the module docstring. ``progress(phase, done_bytes, total_bytes)``."""
     out = Path(job.out_dir)
     data = Path(job.data_file)
-    part = out / f"{job.stem}.cwa.part"
-    final = out / f"{job.stem}.cwa"
-    mcap_part = out / f"{job.stem}.mcap.part"
-    mcap_final = out / f"{job.stem}.mcap"
-    res = DownloadResult(ok=False, cwa_part=str(part))
+    part = names.raw_part(out, job.stem)
+    final = names.raw_copy(out, job.stem)
+    log = names.log_unverified(out, job.stem)
+    res = DownloadResult(ok=False, cwa_part=str(part), cwa_path=str(final),
+                         mcap_path=str(names.log_final(out, job.stem)))
     progress = progress or (lambda *a: None)
     cancel = cancel or threading.Event()
-    if final.exists():
-        return DownloadResult(ok=False, reason=f"{final} already exists (a verified copy of this "
-                                               "session); nothing is overwritten", cwa_path=str(final))
     # ---------------------------------------------------------------- 1. size and header
     try:
         size0 = os.stat(data).st_size
@@ -203,16 +431,22 @@ def run_download(job: DownloadJob, progress: Optional[Callable[[str, int, int], 
         res.reason = str(getattr(e, "reason", e))
         return res
     res.size = size0
+    if os.path.lexists(final):
+        try:
+            return _adopt(final, size0, job, res, progress)
+        except Exception as e:  # noqa: BLE001 - one line in the result
+            res.ok = False
+            res.reason = f"{final} already exists and could not be compared with the device: " \
+                         f"{describe_os_error(e) if isinstance(e, OSError) else e}"
+            return res
     # ---------------------------------------------------------------- 2. open the copy (resume?)
-    import fcntl
     try:
-        fd = os.open(part, os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), 0o644)
+        fd = _open_part(part)
     except OSError as e:
-        res.reason = f"cannot create {part}: {describe_os_error(e)}"
+        what = "is a link" if e.errno == errno.ELOOP else describe_os_error(e)
+        res.reason = f"cannot create {part}: {what}; nothing is written to it"
         return res
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError:
+    if not _lock(fd):
         os.close(fd)
         res.reason = f"{part} is being written by another download"
         return res
@@ -220,42 +454,43 @@ def run_download(job: DownloadJob, progress: Optional[Callable[[str, int, int], 
     src = None
     try:
         have = os.fstat(fd).st_size
-        start = min(have, size0) // C.CWA_SECTOR_BYTES * C.CWA_SECTOR_BYTES
-        sha = hashlib.sha256()
-        if start >= C.CWA_HEADER_BYTES:
-            with open(part, "rb") as mine:
-                h_mine = _hash_prefix(mine, start, job.chunk_bytes)
-            dev = open_data_file(data, verify=True)
-            try:
-                h_dev = _hash_prefix(dev, start, job.chunk_bytes)
-            finally:
-                dev.close()
-            if h_mine.digest() == h_dev.digest():
-                sha = h_mine
-                res.resumed_from = start
-            else:
-                start = 0
-        else:
+        same = _common_prefix(fd, data, min(have, size0), job.chunk_bytes) if have else 0
+        start = same // C.CWA_SECTOR_BYTES * C.CWA_SECTOR_BYTES
+        if start < C.CWA_HEADER_BYTES:
             start = 0
-        if start == 0 and have > 0:
+        if same < have:  # the partial copy holds bytes the device does not: keep it whole
+            aside = _set_aside(part)
+            res.set_aside = str(aside)
+            new = _open_part(part)
+            if not _lock(new):
+                os.close(new)
+                raise DownloadAborted(f"{part} is being written by another download")
+            with open(aside, "rb") as old:
+                left = start
+                while left > 0:
+                    b = old.read(min(job.chunk_bytes, left))
+                    if not b:
+                        break
+                    _write_all(new, b)
+                    left -= len(b)
             os.close(fd)
-            _set_aside(part)
-            fd = os.open(part, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o644)
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            fd = new
         os.ftruncate(fd, start)
         os.lseek(fd, start, os.SEEK_SET)
-        if start:  # bad sectors of the kept prefix count too
-            with open(part, "rb") as mine:
-                off = 0
-                while off < start:
-                    b = mine.read(min(job.chunk_bytes, start - off))
-                    res.bad_sectors += _bad_sectors(b, off)
-                    off += len(b)
+        res.resumed_from = start
+        sha = hashlib.sha256()
+        ranges = RangeHashes()
+        off = 0
+        while off < start:  # the kept prefix: its hashes and bad sectors count too
+            b = _pread_all(fd, min(job.chunk_bytes, start - off), off)
+            sha.update(b)
+            ranges.update(b)
+            res.bad_sectors += _bad_sectors(b, off)
+            off += len(b)
         # ---------------------------------------------------------------- 3. copy + pipeline
         if job.pipeline:
-            if mcap_part.exists() and mcap_part.stat().st_size > 0:
-                _set_aside(mcap_part)
-            pipe = _Pipeline(part, mcap_part, job)
+            _clear_stale_log(log)
+            pipe = _Pipeline(part, log, job)
         src = open_data_file(data, faults=job.faults, control=job.control)
         src.seek(start)
         pos = start
@@ -267,11 +502,9 @@ def run_download(job: DownloadJob, progress: Optional[Callable[[str, int, int], 
             b = src.read(min(job.chunk_bytes, size0 - pos))
             if not b:
                 break
-            mv = memoryview(b)
-            while mv:
-                n = os.write(fd, mv)
-                mv = mv[n:]
+            _write_all(fd, b)
             sha.update(b)
+            ranges.update(b)
             res.bad_sectors += _bad_sectors(b, pos)
             pos += len(b)
             res.bytes = pos
@@ -301,6 +534,7 @@ def run_download(job: DownloadJob, progress: Optional[Callable[[str, int, int], 
                                   f"{size_now} bytes)")
         os.fsync(fd)
         res.sha256 = sha.hexdigest()
+        copy_d = ranges.finish()
         if pipe is not None:
             if pipe.finished_at is None and not pipe.thread.is_alive():
                 pipe.thread.start()
@@ -309,8 +543,8 @@ def run_download(job: DownloadJob, progress: Optional[Callable[[str, int, int], 
         progress("verify", 0, size0)
         ver = open_data_file(data, verify=True, faults=job.faults, control=job.control)
         t_ver = time.monotonic()
+        vranges = RangeHashes()
         try:
-            h2 = hashlib.sha256()
             got = 0
             while True:
                 if job.throttle_bps:  # the second read comes from the device too
@@ -322,16 +556,28 @@ def run_download(job: DownloadJob, progress: Optional[Callable[[str, int, int], 
                 b = ver.read(job.chunk_bytes)
                 if not b:
                     break
-                h2.update(b)
+                vranges.update(b)
                 got += len(b)
                 progress("verify", got, size0)
         finally:
             ver.close()
+        ver_d = vranges.finish()
+        if got != size0:
+            raise DownloadAborted(f"verification failed: the second read of {data} gave {got} "
+                                  f"bytes, the copy has {size0}; the copy is kept as {part.name}")
+        try:
+            _resolve_ranges(fd, job, size0, copy_d, ver_d, res)
+        except DataChanged as e:
+            res.changed = True
+            raise DataChanged(f"verification failed: {e}; the copy is kept as {part.name} and "
+                              "the device is not cleared") from None
+        except DownloadAborted as e:
+            raise DownloadAborted(f"verification failed: {e}; the copy is kept as "
+                                  f"{part.name}") from None
+        if res.patched_ranges:
+            os.fsync(fd)
+            res.sha256 = _hash_file(fd, size0, job.chunk_bytes)
         res.verify_s = time.monotonic() - t_ver
-        if got != size0 or h2.hexdigest() != res.sha256:
-            raise DownloadAborted(f"verification failed: the second read of {data} differs from "
-                                  f"the copy ({got} bytes, SHA-256 {h2.hexdigest()[:12]} vs "
-                                  f"{res.sha256[:12]}); the copy is kept as {part.name}")
         # ---------------------------------------------------------------- pipeline result
         if pipe is not None:
             while pipe.thread.is_alive():
@@ -342,17 +588,13 @@ def run_download(job: DownloadJob, progress: Optional[Callable[[str, int, int], 
             if pipe.error:
                 raise DownloadAborted(f"the correction pipeline failed: {pipe.error}")
             res.summary = pipe.summary
-            res.pipeline_after_copy_s = max(0.0, pipe.finished_at - t_last)
-        # ---------------------------------------------------------------- finalise
-        os.fsync(fd)
-        os.replace(part, final)
-        fsync_folder(out)
-        res.cwa_path = str(final)
-        if pipe is not None:
-            os.replace(mcap_part, mcap_final)
-            fsync_folder(out)
-            res.mcap_path = str(mcap_final)
+            if res.patched_ranges:  # the log followed the misread copy: rebuilt from the patched one
+                res.summary = run_pipeline(part, log, job,
+                                           progress=lambda *a: progress("finishing", pos, size0))
+            res.pipeline_after_copy_s = max(0.0, time.monotonic() - t_last)
+            res.mcap_part = str(log)
             res.mcap_after_copy_s = time.monotonic() - t_last
+        os.fsync(fd)
         res.ok = True
         return res
     except DownloadAborted as e:
@@ -362,6 +604,8 @@ def run_download(job: DownloadJob, progress: Optional[Callable[[str, int, int], 
             res.reason = f"cannot write {part}: {describe_os_error(e)}; the partial copy is kept"
         elif e.errno in (errno.ENODEV, errno.ENOENT, errno.ENXIO):
             res.reason = f"device unplugged during the copy ({describe_os_error(e)}); the partial copy is kept"
+        elif e.errno == errno.ELOOP or (e.errno == errno.EPERM and "its own" in str(e)):
+            res.reason = f"cannot create {part}: it is a link; nothing is written to it"
         else:
             res.reason = f"reading {data} failed: {describe_os_error(e)}; the partial copy is kept"
     finally:

@@ -24,8 +24,10 @@ from stillpoint.drivers.errors import StillpointError
 
 from .clearing import clear_verified
 from .configure import clock_offset_s, configure_device
+from . import names
+from .completion import CompletionError, complete, resolve_sent_clear
 from .download import DownloadJob
-from .ledger import Ledger, host_timezone, station_id
+from .ledger import Ledger, host_timezone, kill_point, station_id
 from .profile import StudyProfile
 from .worker import DownloadWorker
 
@@ -171,12 +173,14 @@ class DeviceFlow:
         self.session = session
         self.info = f"fw {ident.firmware}, battery {batt.percent} %, clock {offset:+.1f} s"
         data_file = att.data_file
+        for line in resolve_sent_clear(self.ledger, att.device_id, data_file):
+            self.info += f"; {line}"
         size = os.stat(data_file).st_size
         self.total_bytes = size
         if size <= C.AX_EMPTY_DATA_BYTES:
             self._set("empty", "no data on the device")
         else:
-            rec = self.ledger.verified_download(att.device_id, session)
+            rec = self.ledger.verified_download(att.device_id, session, device_type=att.device_type)
             if rec is not None and rec.bytes == size:
                 self.done_bytes = size
                 self._set("verified", f"already downloaded: {Path(rec.cwa_path).name}")
@@ -185,6 +189,13 @@ class DeviceFlow:
         configure = opts.configure_after and opts.profile is not None
         if configure and self.state in ("verified", "empty"):
             opts.profile.check_device(ident.device_type)  # refused before the device is touched
+        changed = self.ledger.data_changed(att.device_id, session, att.device_type) \
+            if opts.clear_after_verify and self.state == "verified" else None
+        if changed is not None:
+            raise DeviceError(att.device_id, f"not cleared: the device's data changed between two "
+                                             f"reads in download {changed.id} of this session "
+                                             "(its copy is kept); check the device, then clear it by "
+                                             "hand (`stillpoint device clear`)")
         if opts.clear_after_verify and self.state == "verified":
             # the same byte rule whether this run downloaded it or the ledger says it was
             # ("already downloaded"): copy, device and ledger must agree before the erase
@@ -208,10 +219,12 @@ class DeviceFlow:
     def _download(self, data_file: Path, session: int, offset: float, battery: int) -> None:
         att, opts = self.att, self.opts
         out = Path(opts.out_dir)
-        stem = f"{att.device_id}_{session}"
+        stem = names.stem(att.device_type, att.device_id, session)
         dl_id = self.ledger.download_started(att.device_id, session, clock_offset_s=offset,
-                                             battery_pct=battery, cwa_path=str(out / f"{stem}.cwa"),
-                                             mcap_path=str(out / f"{stem}.mcap"))
+                                             battery_pct=battery,
+                                             cwa_path=str(names.raw_copy(out, stem)),
+                                             mcap_path=str(names.log_final(out, stem)),
+                                             device_type=att.device_type)
         meta = {"station": {"station_id": station_id(), "host_time_zone": host_timezone(),
                             "clock_offset_s": f"{offset:.3f}",
                             "clock_offset_vs_utc_s": f"{offset + time.localtime().tm_gmtoff:.3f}",
@@ -230,6 +243,7 @@ class DeviceFlow:
         self.worker = w = DownloadWorker(job, stall_s=opts.stall_s, inline=opts.inline).start()
         t0 = time.monotonic()
         phase = "copy"
+        copying = False
         while not w.finished:
             if self.cancel.is_set():
                 w.cancel()
@@ -239,6 +253,9 @@ class DeviceFlow:
                 raise DeviceError(att.device_id, "stopped by the user; the partial copy is kept")
             ph, self.done_bytes, total = w.poll(0.2)
             self.total_bytes = total or self.total_bytes
+            if ph == "copy" and self.done_bytes and not copying:
+                copying = True
+                kill_point("download:copying")
             if ph == "copy":
                 el = time.monotonic() - t0
                 self.mbps = self.done_bytes / el / 1e6 if el > 0 else None
@@ -248,14 +265,28 @@ class DeviceFlow:
             self.on_change(self)
         r = self.result = w.result
         if not r.ok:
-            self.ledger.download_failed(dl_id, r.reason, r.bytes)
+            self.ledger.download_failed(dl_id, r.reason, r.bytes,
+                                        state="changed" if r.changed else "error")
             raise DeviceError(att.device_id, r.reason + (" (resumes when the same device and "
                                                          "session come back)"
                                                          if "unplugged" in (r.reason or "") else ""))
-        self.ledger.download_verified(dl_id, bytes_=r.bytes, sha256=r.sha256, bad_sectors=r.bad_sectors,
-                                      cwa_path=r.cwa_path, mcap_path=r.mcap_path,
-                                      summary={"calibration": (r.summary or {}).get("calibration"),
-                                               "samples": (r.summary or {}).get("samples")})
+        # the ledger completes the download: row 'completing', the renames, row 'verified'
+        try:
+            with_log = r.mcap_part is not None or (r.adopted and os.path.lexists(r.mcap_path))
+            complete(self.ledger, dl_id, cwa_path=r.cwa_path,
+                     mcap_path=r.mcap_path if with_log else None,
+                     sha256=r.sha256, bytes_=r.bytes, bad_sectors=r.bad_sectors,
+                     summary={"calibration": (r.summary or {}).get("calibration"),
+                              "samples": (r.summary or {}).get("samples")},
+                     with_log=with_log,
+                     reason=("adopted: the final copy was already there and equals the device"
+                             if r.adopted else None))
+        except (CompletionError, OSError) as e:
+            why = str(e) if isinstance(e, CompletionError) else f"{e.filename}: {e.strerror or e}"
+            self.ledger.download_failed(dl_id, why, r.bytes)
+            raise DeviceError(att.device_id, why) from None
+        if not with_log:
+            r.mcap_path = None
         cal = (r.summary or {}).get("calibration") or {}
         self.info = (f"{r.bytes / 1e6:.1f} MB, {r.bad_sectors} bad sectors, calibration "
                      f"{cal.get('status', '-')}"

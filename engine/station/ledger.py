@@ -7,7 +7,17 @@ per state change, so a crash at any moment leaves it consistent. The clear rule
 (``clearing``) asks it for a verified download of the exact device, session and hash.
 
 A second station on the same folder is refused: the station holds an exclusive ``flock`` on
-``.stillpoint-station.lock`` for its lifetime (``acquire_station_lock``).
+``.stillpoint-station.lock`` for its lifetime (``acquire_station_lock``). A ledger, journal or
+lock path that is a symbolic link is refused (the ledger would be written where it points).
+
+A download row goes ``downloading`` -> ``completing`` (the copy's size and SHA-256 recorded, its
+files not yet renamed) -> ``verified`` (renamed: ``completion``), or ``error`` / ``changed`` (the
+device's data changed between reads: never cleared automatically). ``completion.reconcile``
+resolves the rows a killed station left in between.
+
+``kill_point(step)``: a station started with ``STILLPOINT_KILL_AT=<step>`` in its environment kills
+itself (SIGKILL) at that step, for the kill trials (``tools/kill_station.py``); the steps are the
+ledger writes and the renames between them (``KILL_STEPS``).
 """
 
 from __future__ import annotations
@@ -25,6 +35,19 @@ from stillpoint.drivers.errors import StillpointError
 
 LEDGER_NAME = "stillpoint-ledger.sqlite"
 LOCK_NAME = ".stillpoint-station.lock"
+KILL_ENV = "STILLPOINT_KILL_AT"
+# every step a kill trial can stop the station at, in the order a device meets them
+KILL_STEPS = ("event:identifying", "download:started", "event:downloading", "download:copying",
+              "event:verifying", "download:completing", "completion:raw-renamed",
+              "completion:renamed", "download:verified", "event:verified", "event:clearing",
+              "clear:sent", "clear:result", "event:cleared")
+
+
+def kill_point(step: str) -> None:
+    """SIGKILL this process if the environment names ``step`` (kill trials only)."""
+    if os.environ.get(KILL_ENV) == step:
+        import signal
+        os.kill(os.getpid(), signal.SIGKILL)
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS devices (
@@ -58,6 +81,17 @@ def _add_clear_columns(db) -> None:
     for name, kind in _CLEAR_COLUMNS:
         if name not in have:
             db.execute(f"ALTER TABLE clears ADD COLUMN {name} {kind}")
+    # downloads gained the device type (an AX3 and an AX6 may share an id); older rows: NULL
+    have = {r[1] for r in db.execute("PRAGMA table_info(downloads)").fetchall()}
+    if "device_type" not in have:
+        db.execute("ALTER TABLE downloads ADD COLUMN device_type TEXT")
+
+
+def _refuse_links(folder: Path) -> None:
+    for name in (LEDGER_NAME, LEDGER_NAME + "-wal", LEDGER_NAME + "-shm", LOCK_NAME):
+        if os.path.islink(folder / name):
+            raise LedgerError(f"{folder / name}: is a symbolic link; the ledger is only written "
+                              "in the output folder itself (remove the link)")
 
 
 class LedgerError(StillpointError):
@@ -92,8 +126,9 @@ def acquire_station_lock(folder) -> int:
     """Hold the folder's station lock (returns the fd; close it to release)."""
     import fcntl
     p = Path(folder) / LOCK_NAME
+    _refuse_links(Path(folder))
     try:
-        fd = os.open(p, os.O_RDWR | os.O_CREAT, 0o644)
+        fd = os.open(p, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o644)
     except OSError as e:
         raise LedgerError(f"{folder}: cannot create the station lock: {e.strerror}") from None
     try:
@@ -120,6 +155,7 @@ class Ledger:
         import threading
         self.folder = Path(folder)
         self.path = self.folder / LEDGER_NAME
+        _refuse_links(self.folder)
         try:
             self.db = sqlite3.connect(self.path, timeout=10.0, isolation_level=None,
                                       check_same_thread=False)
@@ -172,6 +208,7 @@ class Ledger:
     def event(self, device_id, serial, state: str, reason: Optional[str] = None) -> None:
         self._tx("INSERT INTO events(time, device_id, serial, state, reason) VALUES (?,?,?,?,?)",
                  (time.time(), device_id, serial, state, reason))
+        kill_point(f"event:{state}")
 
     def device_seen(self, device_id: int, device_type: str, serial: str, firmware, slot) -> None:
         now = time.time()
@@ -181,32 +218,54 @@ class Ledger:
                  (device_id, device_type, serial, firmware, slot, now, now))
 
     def download_started(self, device_id: int, session_id: int, *, clock_offset_s=None,
-                         battery_pct=None, cwa_path=None, mcap_path=None) -> int:
-        return self._tx(
+                         battery_pct=None, cwa_path=None, mcap_path=None,
+                         device_type: Optional[str] = None) -> int:
+        i = self._tx(
             "INSERT INTO downloads(device_id, session_id, state, started, clock_offset_s, host_tz, "
-            "station_id, battery_pct, cwa_path, mcap_path) VALUES (?,?,?,?,?,?,?,?,?,?)",
+            "station_id, battery_pct, cwa_path, mcap_path, device_type) "
+            "VALUES (?,?,?,?,?,?,?,?,?,?,?)",
             (device_id, session_id, "downloading", time.time(), clock_offset_s, host_timezone(),
-             station_id(), battery_pct, cwa_path, mcap_path))
+             station_id(), battery_pct, cwa_path, mcap_path, device_type))
+        kill_point("download:started")
+        return i
 
-    def download_failed(self, download_id: int, reason: str, bytes_=None) -> None:
-        self._tx("UPDATE downloads SET state='error', verified=0, reason=?, bytes=?, finished=? "
-                 "WHERE id=?", (reason, bytes_, time.time(), download_id))
+    def download_failed(self, download_id: int, reason: str, bytes_=None, *,
+                        state: str = "error") -> None:
+        """``state``: ``error``, or ``changed`` when the device's data changed between reads."""
+        self._tx("UPDATE downloads SET state=?, verified=0, reason=?, bytes=?, finished=? "
+                 "WHERE id=?", (state, reason, bytes_, time.time(), download_id))
+
+    def download_completing(self, download_id: int, *, bytes_: int, sha256: str,
+                            bad_sectors: int, cwa_path: str, mcap_path: Optional[str],
+                            summary: Optional[dict] = None) -> None:
+        """The copy is verified (size and SHA-256 recorded), its files not yet renamed."""
+        self._tx("UPDATE downloads SET state='completing', verified=0, bytes=?, sha256=?, "
+                 "bad_sectors=?, cwa_path=?, mcap_path=?, summary=?, reason=NULL WHERE id=?",
+                 (bytes_, sha256, bad_sectors, cwa_path, mcap_path,
+                  json.dumps(summary, default=str) if summary else None, download_id))
+        kill_point("download:completing")
 
     def download_verified(self, download_id: int, *, bytes_: int, sha256: str, bad_sectors: int,
-                          cwa_path: str, mcap_path: str, summary: Optional[dict] = None) -> None:
+                          cwa_path: str, mcap_path: str, summary: Optional[dict] = None,
+                          reason: Optional[str] = None) -> None:
         self._tx("UPDATE downloads SET state='verified', verified=1, bytes=?, sha256=?, "
-                 "bad_sectors=?, cwa_path=?, mcap_path=?, finished=?, summary=?, reason=NULL "
-                 "WHERE id=?", (bytes_, sha256, bad_sectors, cwa_path, mcap_path, time.time(),
-                                json.dumps(summary, default=str) if summary else None, download_id))
+                 "bad_sectors=?, cwa_path=?, mcap_path=?, finished=?, "
+                 "summary=COALESCE(?, summary), reason=? WHERE id=?",
+                 (bytes_, sha256, bad_sectors, cwa_path, mcap_path, time.time(),
+                  json.dumps(summary, default=str) if summary else None, reason, download_id))
+        kill_point("download:verified")
 
     def clear_attempt(self, device_id: int, session_id: int, download_id: int, sha256: str,
                       erase: Optional[str] = None) -> int:
-        return self._tx("INSERT INTO clears(device_id, session_id, download_id, sha256, time, result, "
-                        "erase) VALUES (?,?,?,?,?,?,?)", (device_id, session_id, download_id, sha256,
-                                                          time.time(), "sent", erase))
+        i = self._tx("INSERT INTO clears(device_id, session_id, download_id, sha256, time, result, "
+                     "erase) VALUES (?,?,?,?,?,?,?)", (device_id, session_id, download_id, sha256,
+                                                       time.time(), "sent", erase))
+        kill_point("clear:sent")
+        return i
 
     def clear_result(self, clear_id: int, result: str, reason: Optional[str] = None,
                      readback: Optional[str] = None) -> None:
+        kill_point("clear:result")  # before the write: the clear is done, the row still 'sent'
         self._tx("UPDATE clears SET result=?, reason=?, readback=? WHERE id=?",
                  (result, reason, readback, clear_id))
 
@@ -224,11 +283,15 @@ class Ledger:
     _COLS = "id, device_id, session_id, state, bytes, sha256, verified, cwa_path, mcap_path, reason"
 
     def verified_download(self, device_id: int, session_id: int,
-                          sha256: Optional[str] = None) -> Optional[DownloadRecord]:
-        """The latest verified download of this device and session (and hash, if given) whose
-        raw copy is still where the ledger says."""
+                          sha256: Optional[str] = None,
+                          device_type: Optional[str] = None) -> Optional[DownloadRecord]:
+        """The latest verified download of this device and session (and hash, and device type,
+        if given: rows older than the type column match any type) whose raw copy is still
+        where the ledger says."""
         rows = self._q(f"SELECT {self._COLS} FROM downloads WHERE device_id=? AND session_id=? "
-                       "AND verified=1 AND state='verified' ORDER BY id DESC", (device_id, session_id))
+                       "AND verified=1 AND state='verified' AND (? IS NULL OR device_type IS NULL "
+                       "OR device_type=?) ORDER BY id DESC",
+                       (device_id, session_id, device_type, device_type))
         for r in rows:
             rec = self._rec(r)
             if sha256 is not None and rec.sha256 != sha256:
@@ -247,6 +310,23 @@ class Ledger:
             if rec.cwa_path and os.path.isfile(rec.cwa_path):
                 return rec
         return None
+
+    def data_changed(self, device_id: int, session_id: int,
+                     device_type: Optional[str] = None) -> Optional[DownloadRecord]:
+        """The latest download of this device and session whose data changed between reads."""
+        rows = self._q(f"SELECT {self._COLS} FROM downloads WHERE device_id=? AND session_id=? "
+                       "AND state='changed' AND (? IS NULL OR device_type IS NULL OR device_type=?) "
+                       "ORDER BY id DESC LIMIT 1", (device_id, session_id, device_type, device_type))
+        return self._rec(rows[0]) if rows else None
+
+    def downloads_in(self, state: str) -> list[DownloadRecord]:
+        return [self._rec(r) for r in self._q(f"SELECT {self._COLS} FROM downloads WHERE state=? "
+                                              "ORDER BY id", (state,))]
+
+    def sent_clears(self, device_id: int) -> list[tuple]:
+        """(clear id, session, download id, SHA-256) of this device's clears left at ``sent``."""
+        return self._q("SELECT id, session_id, download_id, sha256 FROM clears WHERE device_id=? "
+                       "AND result='sent' ORDER BY id", (device_id,))
 
     def downloads(self, device_id: Optional[int] = None) -> list[DownloadRecord]:
         if device_id is None:

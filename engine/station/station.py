@@ -50,10 +50,14 @@ class Station:
         self.backend = backend
         self.poll_s = poll_s
         self.ledger = Ledger(folder)
+        from .completion import reconcile  # what a killed station left between two states
+        self.reconciled = reconcile(self.ledger)
         self.flows: dict[str, DeviceFlow] = {}
         self.detached: set[str] = set()
         self.out = out or sys.stdout
         self.tty = self.out.isatty() if tty is None else tty
+        for line in self.reconciled:
+            print(f"ledger: {line}", file=self.out, flush=True)
         self.inbox = inbox
         self._printed: dict[str, tuple] = {}
         self._drawn = 0

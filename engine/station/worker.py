@@ -6,6 +6,13 @@ and cancels it with a bound (``stall_s`` without progress -> terminate, then kil
 (phase, done bytes, total bytes) and, when finished, ``result`` is set (a ``DownloadResult``;
 a stalled or crashed worker gives ``ok=False`` with the reason). ``inline=True`` runs the
 download on a thread of this process instead (tests; no hang protection).
+
+A worker never outlives its station: on Linux it asks the kernel for SIGKILL when its parent
+dies (``prctl(PR_SET_PDEATHSIG)``), and everywhere it watches a pipe whose only writing end the
+station holds: end of file means the station is gone, and the worker ends at once. Either way its
+partial copy stays and resumes; the worker never gives a file its final name (the station does,
+with the ledger: ``completion``). (The kernel's signal follows the thread that started the
+worker; the station's flow thread waits for its worker, so it never ends first.)
 """
 
 from __future__ import annotations
@@ -23,9 +30,35 @@ from .download import DownloadJob, DownloadResult, run_download
 _CTX = mp.get_context("spawn")  # a fresh interpreter: no inherited threads or emulator state
 
 
-def _main(job: DownloadJob, q) -> None:
+def _die_with_parent(parent_pid: int, lifeline) -> None:
+    """End this process when the station ends (module docstring)."""
+    import os
+    import sys
+    if sys.platform.startswith("linux"):
+        try:
+            import ctypes
+            import signal
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(1, int(signal.SIGKILL), 0, 0, 0)  # PR_SET_PDEATHSIG = 1 (linux/prctl.h)
+        except (OSError, AttributeError):
+            pass
+    if os.getppid() != parent_pid:  # the station died before the request took effect
+        os._exit(1)
+
+    def watch():
+        try:
+            lifeline.recv()  # the station never sends: this returns only at end of file
+        except (EOFError, OSError):
+            pass
+        os._exit(1)
+    threading.Thread(target=watch, daemon=True, name="lifeline").start()
+
+
+def _main(job: DownloadJob, q, parent_pid: int = 0, lifeline=None) -> None:
     import signal
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the station decides when a download stops
+    if lifeline is not None:
+        _die_with_parent(parent_pid, lifeline)
     last = [0.0]
 
     def progress(phase, done, total):
@@ -56,6 +89,7 @@ class DownloadWorker:
         self._q = _CTX.Queue() if not inline else queue.Queue()
         self._proc = None
         self._thread = None
+        self._lifeline = None  # the writing end of the pipe the worker watches
         self.started_at = time.monotonic()
 
     def start(self) -> "DownloadWorker":
@@ -68,9 +102,12 @@ class DownloadWorker:
             self._thread = threading.Thread(target=run, daemon=True, name=f"download-{self.job.stem}")
             self._thread.start()
         else:
-            self._proc = _CTX.Process(target=_main, args=(self.job, self._q), daemon=True,
-                                      name=f"stillpoint-download-{self.job.stem}")
+            import os
+            reader, self._lifeline = _CTX.Pipe(duplex=False)
+            self._proc = _CTX.Process(target=_main, args=(self.job, self._q, os.getpid(), reader),
+                                      daemon=True, name=f"stillpoint-download-{self.job.stem}")
             self._proc.start()
+            reader.close()  # only the worker holds the reading end
         return self
 
     @property
@@ -113,9 +150,10 @@ class DownloadWorker:
         return self.phase, self.done, self.total
 
     def _fail(self, reason: str) -> None:
+        from . import names
         self.cancel()
         self.result = DownloadResult(ok=False, reason=reason, bytes=self.done,
-                                     cwa_part=f"{self.job.out_dir}/{self.job.stem}.cwa.part")
+                                     cwa_part=str(names.raw_part(self.job.out_dir, self.job.stem)))
 
     def cancel(self, grace_s: float = 2.0) -> None:
         """Stop the download within ``grace_s`` (+ a kill)."""
@@ -126,10 +164,16 @@ class DownloadWorker:
             if self._proc.is_alive():
                 self._proc.kill()
                 self._proc.join(1.0)
+        if self._lifeline is not None:
+            self._lifeline.close()
+            self._lifeline = None
 
     def _reap(self) -> None:
         if self._proc is not None:
             self._proc.join(5.0)
+        if self._lifeline is not None:
+            self._lifeline.close()
+            self._lifeline = None
 
     def wait(self, poll_s: float = 0.1) -> DownloadResult:
         while self.result is None:

@@ -239,29 +239,79 @@ def mutate_mcap(data: bytes, r, others=()) -> bytes:
     return _mutate_mcap_messages(data, r)
 
 
+# JSON values of the wrong type or range for a settings key (a number as text, NaN, ...)
+HOSTILE_JSON = ("48", "nan", "", None, True, [], {}, [1], -1, 0, 1e308, -1e308, 2**70, "x" * 70,
+                "brotli", 0.5)
+
+
+def _reorder_raw(msgs: list, r) -> list:
+    """Raw messages out of time order: two /raw/accel payloads swapped, all of them reversed, or
+    one moved (the log times stay where they were, as a damaged or hand-edited log might hold)."""
+    raw = [j for j, (_s, ch, _m) in enumerate(msgs) if ch.topic == "/raw/accel"]
+    if len(raw) < 2:
+        return [m.data for _s, _c, m in msgs]
+    payloads = [m.data for _s, _c, m in msgs]
+    kind = int(r.integers(0, 3))
+    if kind == 0:
+        a, b = r.choice(raw, 2, replace=False).tolist()
+        payloads[a], payloads[b] = payloads[b], payloads[a]
+    elif kind == 1:
+        for j, k in zip(raw, reversed(raw)):
+            payloads[j] = msgs[k][2].data
+    else:
+        a, b = r.choice(raw, 2, replace=False).tolist()
+        moved = [payloads[j] for j in raw]
+        x = moved.pop(raw.index(a))
+        moved.insert(raw.index(b), x)
+        for j, p in zip(raw, moved):
+            payloads[j] = p
+    return payloads
+
+
+def _settings_value(md: dict, r) -> None:
+    """One value of a ``settings`` record replaced by one of the wrong type or range."""
+    import json
+    try:
+        d = json.loads(md.get("json", ""))
+    except ValueError:
+        return
+    if not isinstance(d, dict) or not d:
+        return
+    k = list(d)[int(r.integers(0, len(d)))]
+    d[k] = HOSTILE_JSON[int(r.integers(0, len(HOSTILE_JSON)))]
+    md["json"] = json.dumps(d)
+
+
 def _mutate_mcap_messages(data: bytes, r) -> bytes:
-    """Rewrite the MCAP with valid CRCs after mutating message payloads / metadata values."""
+    """Rewrite the MCAP with valid CRCs after mutating message payloads / metadata values, the
+    order of the raw messages, or the type of a settings value."""
     from mcap.reader import make_reader
     from mcap.writer import CompressionType, Writer
     f = io.BytesIO(data)
     reader = make_reader(f)
     msgs = list(reader.iter_messages(log_time_order=False))
     meta = [(m.name, dict(m.metadata)) for m in reader.iter_metadata()]
+    kind = r.random()
+    payloads = _reorder_raw(msgs, r) if kind < 0.15 else [m.data for _s, _c, m in msgs]
+    if 0.15 <= kind < 0.3:
+        for name, md in meta:
+            if name == "settings":
+                _settings_value(md, r)
     out = io.BytesIO()
     w = Writer(out, compression=CompressionType.NONE)
     w.start()
     ids: dict = {}
-    targets = set(r.integers(0, max(1, len(msgs)), int(r.integers(1, 4))).tolist())
+    targets = set(r.integers(0, max(1, len(msgs)), int(r.integers(1, 4))).tolist()) if kind >= 0.3 else set()
     for j, (sch, ch, m) in enumerate(msgs):
         if ch.id not in ids:
             sid = w.register_schema(sch.name, sch.encoding, sch.data) if sch else 0
             ids[ch.id] = w.register_channel(ch.topic, ch.message_encoding, sid, dict(ch.metadata))
-        payload = m.data
+        payload = payloads[j]
         if j in targets:
             payload = mutate_bytes(payload, r) if payload else payload
         w.add_message(ids[ch.id], m.log_time, payload, m.publish_time)
     for name, md in meta:
-        if md and r.random() < 0.3:
+        if md and kind >= 0.3 and r.random() < 0.3:
             k = list(md)[int(r.integers(0, len(md)))]
             v = md[k].encode()
             md[k] = mutate_bytes(v, r).decode("utf-8", "replace") if v else "x"
@@ -288,7 +338,9 @@ def read_recording(path: Path) -> None:
 
 
 def read_mcap(path: Path) -> None:
-    """Every MCAP read path: replay source, export decoding of every topic, recover's walk."""
+    """Every MCAP read path: replay source, export decoding of every topic, recover's walk, and
+    (when the raw stream reads) the replay itself: the engine run on the logged stream with the
+    logged settings, as ``stillpoint replay`` does."""
     from stillpoint.drivers.mcap_replay import McapRawSource
     from stillpoint.engine.mcap.export import _rows
     from stillpoint.engine.mcap.reading import iter_messages, walk_records
@@ -297,6 +349,7 @@ def read_mcap(path: Path) -> None:
             for b in src:
                 b.accel_g()
                 b.unit_of_sample()
+            logged = dict(src.settings or {})
     finally:
         with open(path, "rb") as f:
             for _ in walk_records(f):
@@ -305,6 +358,14 @@ def read_mcap(path: Path) -> None:
         if topic in ("/corrected/accel", "/raw/accel", "/raw/gyro", "/metrics/epoch", "/temperature",
                      "/calibration", "/qc"):
             _rows(topic, msg.data, msg.log_time, path, i)
+    from stillpoint.engine.run import RunSettings, process_file
+    logged.setdefault("view_hz", 0.0)  # as tools/commands/replay.py
+    out = path.with_name(path.stem + ".replay.mcap")
+    try:
+        process_file(path, out, RunSettings.from_dict(logged))
+    finally:
+        for p in path.parent.glob(path.stem + ".replay*"):
+            p.unlink()
 
 
 READERS = {"cwa": read_recording, "bin": read_recording, "gz": read_recording, "mcap": read_mcap}

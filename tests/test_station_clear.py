@@ -8,6 +8,7 @@ import hashlib
 import io
 import shutil
 import sqlite3
+import time
 
 import pytest
 
@@ -46,10 +47,14 @@ def _ledger(tmp_path) -> Ledger:
     return Ledger(tmp_path / "out")
 
 
-def wait_for(d):
+def wait_for(d, timeout_s: float = 10.0):
+    """The emulated drive's data file once the drive is back (as the flow's wait_volume)."""
     def w():
-        if not d.data_file.exists():
-            raise DeviceError(d.device_id, "the drive did not come back")
+        end = time.monotonic() + timeout_s
+        while not d.data_file.exists():
+            if time.monotonic() > end:
+                raise DeviceError(d.device_id, "the drive did not come back")
+            time.sleep(0.02)
         return str(d.data_file)
     return w
 
@@ -131,7 +136,9 @@ def test_configure_refuses_a_device_holding_data(emu, tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "still holds data" in err[0]
     assert _sha(d.data_file) == before
-    assert main(["device", "configure", "10001", "--profile", str(prof), "--allow-data"]) == 2
+    with pytest.raises(SystemExit) as e:  # the option that appended over old data is gone
+        main(["device", "configure", "10001", "--profile", str(prof), "--allow-data"])
+    assert e.value.code == 2
 
 
 # ----------------------------------------------------------------------------- the byte rule
@@ -193,3 +200,101 @@ def test_old_ledger_gains_the_clear_columns(tmp_path):
     cid = lg.clear_attempt(7, 2, 2, "cd", erase="FORMAT QC")
     lg.clear_result(cid, "ok", None, "1024 bytes")
     assert lg.clears()[-1] == (7, 2, 2, "cd", "ok", None, "FORMAT QC", "1024 bytes")
+
+
+# ----------------------------------------------------------------------------- identity as written
+def _v50(header: bytes) -> bytes:
+    """The header as AX3 firmware V50 writes it: low 16 bits of the id, upper word erased."""
+    b = bytearray(header)
+    b[11:13] = b"\xff\xff"
+    return bytes(b)
+
+
+def test_header_identity_as_each_firmware_writes_it():
+    from stillpoint.drivers.ax.identity import header_names_device
+    from stillpoint.drivers.cwa_layout import build_header
+    ax3 = parse_header(_v50(build_header(hardware_type=0x00, device_id=123456, session_id=1,
+                                         rate_code=74, firmware=50)))
+    assert ax3["device_id"] == 123456 & 0xFFFF  # what a plain reading of the id gives
+    assert header_names_device(ax3, 123456, "AX3")
+    assert not header_names_device(ax3, 123456, "AX6")
+    assert not header_names_device(ax3, 123457, "AX3")
+    ax6 = parse_header(build_header(hardware_type=0x64, device_id=123456, session_id=1,
+                                    rate_code=74, firmware=56))
+    assert header_names_device(ax6, 123456, "AX6")
+    assert not header_names_device(ax6, 123456 & 0xFFFF, "AX6")
+    ax6_erased_upper = parse_header(_v50(build_header(hardware_type=0x64, device_id=123456,
+                                                      session_id=1, rate_code=74, firmware=56)))
+    assert not header_names_device(ax6_erased_upper, 123456, "AX6")  # the AX6 writes both words
+
+
+def test_ax3_with_a_wide_id_is_downloaded_and_cleared(emu, tmp_path):
+    """An AX3 with id > 65535 whose header holds only the low 16 bits (firmware V50): the station
+    downloads it, the clear rule accepts it, and the erase happens."""
+    d = emu(123456)
+    data = bytearray(d.data_file.read_bytes())
+    data[:1024] = _v50(bytes(data[:1024]))
+    d.data_file.write_bytes(bytes(data))
+    sha = hashlib.sha256(bytes(data)).hexdigest()
+    out = tmp_path / "out"
+    out.mkdir()
+    rc, flows = _run_station(out, clear_after_verify=True)
+    f = flows[123456]
+    assert rc == 0 and f.state == "cleared", f.reason
+    assert [c[2] for c in d.clears] == [sha]
+    lg = Ledger(out)
+    rec = [r for r in lg.downloads() if r.verified][-1]
+    assert rec.sha256 == sha and _sha(__import__("pathlib").Path(rec.cwa_path)) == sha
+
+
+# ----------------------------------------------------------------------------- the campaign's recipes
+def _one_line_error(capsys) -> str:
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    return err[0]
+
+
+def test_truncated_copy_then_verify_and_clear_are_refused(emu, tmp_path, capsys):
+    """Recipe: download, truncate the raw copy to 1024 bytes, then `device verify` and `device
+    clear`: verify reports the copy no longer matches, clear is refused, the device keeps its data."""
+    from stillpoint.tools.cli import main
+    d = emu(10001)
+    before = _sha(d.data_file)
+    out = tmp_path / "out"
+    out.mkdir()
+    assert main(["device", "download", "10001", "-o", str(out)]) == 0
+    capsys.readouterr()
+    [copy] = list(out.glob("*.cwa"))
+    with open(copy, "r+b") as f:
+        f.truncate(1024)
+    assert main(["device", "verify", "10001", "-o", str(out)]) == 2
+    line = _one_line_error(capsys)
+    assert f"the raw copy {copy} (1024 bytes" in line and "differs from the ledger's" in line
+    assert main(["device", "clear", "10001", "-o", str(out)]) == 2
+    line = _one_line_error(capsys)
+    assert "not cleared: the raw copy" in line
+    assert d.clears == [] and _sha(d.data_file) == before
+
+
+def test_device_bit_flipped_after_download_is_not_cleared_by_the_station(emu, tmp_path, capsys):
+    """Recipe: download, flip one bit of the device's file (same size), then `station --once
+    --clear-after-verify`: the "already downloaded" path goes through the byte rule and the
+    device is not cleared; `device verify` names the device file as the one that differs."""
+    from stillpoint.tools.cli import main
+    d = emu(10001)
+    out = tmp_path / "out"
+    out.mkdir()
+    assert main(["device", "download", "10001", "-o", str(out)]) == 0
+    with open(d.data_file, "r+b") as f:
+        f.seek(20000)
+        b = f.read(1)
+        f.seek(20000)
+        f.write(bytes([b[0] ^ 0x02]))
+    flipped = _sha(d.data_file)
+    capsys.readouterr()
+    assert main(["station", str(out), "--once", "--clear-after-verify", "--plain"]) == 2
+    text = capsys.readouterr()
+    assert "not cleared: the device's data file" in text.out + text.err
+    assert d.clears == [] and _sha(d.data_file) == flipped
+    assert main(["device", "verify", "10001", "-o", str(out)]) == 2
+    assert "the device file" in _one_line_error(capsys)

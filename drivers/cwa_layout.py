@@ -247,8 +247,12 @@ def parse_header(buf: bytes, tz_s: int = 0) -> dict:
 def build_header(*, hardware_type: int, device_id: int, session_id: int, rate_code: int,
                  firmware: int, sensor_config: int = 0x00, logging_start: int = TS_ALWAYS,
                  logging_end: int = TS_NEVER, last_change: int = 0,
-                 metadata: Optional[dict] = None) -> bytes:
-    """Encode a 1024-byte header (inverse of parse_header for the fields a writer sets)."""
+                 metadata: Optional[dict] = None, upper_id_word: bool = True) -> bytes:
+    """Encode a 1024-byte header (inverse of parse_header for the fields a writer sets).
+
+    ``upper_id_word=False`` writes the id as AX3 firmware V50 does: only its low 16 bits at
+    offset 5, bytes 11-12 left 0xFFFF (Firmware/AX3/Firmware/src/Logger.c 444-448); the AX6
+    writes both words (Firmware/AX6/Firmware/src/Logger.c 538-540)."""
     if not 0 <= device_id <= 0xFFFFFFFF:
         raise ValueError(f"device id must fit 32 bits, got {device_id}")
     b = bytearray(b"\xff" * C.CWA_HEADER_BYTES)
@@ -257,7 +261,8 @@ def build_header(*, hardware_type: int, device_id: int, session_id: int, rate_co
     b[4] = hardware_type
     b[5:7] = (device_id & 0xFFFF).to_bytes(2, "little")
     b[7:11] = int(session_id).to_bytes(4, "little")
-    b[11:13] = (device_id >> 16).to_bytes(2, "little")
+    if upper_id_word:
+        b[11:13] = (device_id >> 16).to_bytes(2, "little")
     b[13:17] = int(logging_start).to_bytes(4, "little")
     b[17:21] = int(logging_end).to_bytes(4, "little")
     b[21:25] = (0).to_bytes(4, "little")

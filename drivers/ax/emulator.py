@@ -2,15 +2,20 @@
 
 ``EmulatedDevice(root, device_id, kind="AX3", ...)`` has
 
-* a drive: the folder ``<root>/media/<label>`` (label ``AX317_<id>`` / ``AX664_<id>``) holding a
-  ``CWA-DATA.CWA`` written by the project's simulator (engine/sim) with the device's id and
-  session; ``COMMIT``/``CLEAR DATA``/``FORMAT QC`` eject the drive (the folder moves away), write
-  it, and re-insert it after ``remount_s`` (delayed activation, usb-protocols.md A5);
-* the serial command set of usb-protocols.md A5 (case-insensitive prefix keywords, CR-terminated
-  input, LF ignored, 127 characters kept, CR LF output, ``ERROR:`` lines), a drifting real-time
-  clock (``clock_ppm``), a charging battery, ``STREAM`` paced at 100 Hz and stopped by any line;
+* a drive: the folder ``<root>/media/<label>`` (label ``AX317_<id>`` / ``AX664_<id>``, longer ids
+  ``AX3_<7 digits>``) holding a ``CWA-DATA.CWA`` written by the project's simulator (engine/sim)
+  with the device's id and session, its header laid out as the firmware writes it (an AX3 keeps
+  only the low 16 bits of the id); ``COMMIT``/``CLEAR DATA``/``FORMAT`` drop the drive (the folder
+  moves aside), act on it and re-present it after ``remount_s`` per countdown second (delayed
+  activation); ``FORMAT`` removes every file and rebuilds the label;
+* the firmware's command interpreter (``firmware_shell``): every reply as the AX3/AX6 firmware
+  source prints it, its line editor (CR ends a line, LF ignored, BS/DEL edit, 127 characters kept,
+  optional echo) with its static input buffer, a drifting real-time clock (``clock_ppm``), a
+  charging battery, ``STREAM`` paced at 100 Hz and stopped by any line, which is then executed;
+  the RAM settings are reloaded at every plug-in, as the firmware does at boot (defaults, the
+  drive's ``SETTINGS.INI``, then the data file's header);
 * a serial port: in-process through the ``axemu://<serial>`` pyserial URL (``emulator_url``), or a
-  pseudo-terminal (``serve_pty()``) that any program opens as a real serial port;
+  pseudo-terminal (``plug(pty=True)``) that any program opens as a real serial port;
 * a registry entry (``registry``) so discovery in any process finds it while it is plugged in.
 
 Faults (kebab-case names, ``FAULTS``) make it misbehave the way a real device or cable can. Those
@@ -18,11 +23,16 @@ that concern reading the drive (``unplug-mid-copy``, ``short-read``, ``io-error`
 ``bit-flip``, ``change-between-reads``) are applied by the emulated volume's file layer
 (``volume.open_data_file``), which signals the device through ``<root>/control/``; the rest are
 applied here.
+
+The folder ``root`` can be used again: leftovers of an earlier run (a drive moved aside, a
+half-written simulation, stale control signals) are put back or removed on start and on
+``shutdown``.
 """
 
 from __future__ import annotations
 
 import datetime as _dt
+import hashlib
 import os
 import shutil
 import threading
@@ -33,8 +43,11 @@ from typing import Optional
 import numpy as np
 
 from .. import constants as C
-from ..cwa_layout import TS_ALWAYS, TS_NEVER, build_header, pack_timestamp
+from . import firmware_text as T
 from . import registry
+from .firmware_shell import (ACTION_DELETE, ACTION_FORMAT_QUICK, ACTION_FORMAT_WIPE,
+                             ACTION_REMOUNT, CONFIG_LOCK, FORMAT_CWA_UNPACKED, LOG_VALUE_BATTERY,
+                             LOG_VALUE_RESTART, FirmwareShell)
 
 FAULTS = {
     "unplug-mid-copy": "the cable is pulled while the data file is being copied (re-plugged after a few s)",
@@ -53,28 +66,21 @@ FAULTS = {
     "stream-left-running": "the device is streaming its preview when the host opens the port",
 }
 READ_FAULTS = ("unplug-mid-copy", "short-read", "io-error", "hang", "bit-flip", "change-between-reads")
+FAULT_LOCK_CODE = 4321  # the lock code the ``locked`` fault sets (LOCK 4321; UNLOCK 4321 lifts it)
+INPUT_BUFFER = 128  # SERIAL_BUFFER_SIZE (Flux.AX3/src/Utils/Util.c 46)
+RESTARTS_AT_START, BATTERY_HEALTH_AT_START = 3, 12  # the emulated unit's program-memory counters
 
 EMULATORS: dict[str, "EmulatedDevice"] = {}  # serial -> device, for the axemu:// URL handler
-_HW = {"AX3": ("CWA", "17", 50, 0x17), "AX6": ("AX6", "64", 56, 0x64)}  # [USB] A1/A5 examples
 
 
 def serial_number(kind: str, device_id: int) -> str:
-    """USB serial: ``CWA17_<id>`` (AX3) / ``AX664_<id>`` (AX6), 5 digits up to 99999."""
-    prefix = "CWA17_" if kind == "AX3" else "AX664_"
-    return prefix + (f"{device_id:05d}" if device_id <= 99999 else f"{device_id:07d}")
+    """USB serial ``CWA17_<id>`` / ``AX664_<id>`` (``firmware_text.serial_number``)."""
+    return T.serial_number(kind, device_id)
 
 
 def volume_label(kind: str, device_id: int) -> str:
-    """MSD label ``AX317_<5 digits>`` (``AX3_<7 digits>`` for longer ids) [USB] A1."""
-    if kind == "AX3":
-        return f"AX317_{device_id:05d}" if device_id <= 99999 else f"AX3_{device_id:07d}"
-    return f"AX664_{device_id:05d}" if device_id <= 99999 else f"AX6_{device_id:07d}"
-
-
-def _fmt(t: Optional[_dt.datetime], raw: Optional[str] = None) -> str:
-    if raw is not None:
-        return raw
-    return t.strftime("%Y/%m/%d,%H:%M:%S")
+    """Volume label ``AX317_<id>`` / ``AX3_<7 digits>`` (``firmware_text.volume_label``)."""
+    return T.volume_label(kind, device_id)
 
 
 class EmulatedDevice:
@@ -87,14 +93,18 @@ class EmulatedDevice:
                  stream_hz: float = C.AX_STREAM_HZ, recording: Optional[Path] = None,
                  read_bps: Optional[float] = None):
         self.kind = kind.upper()
-        if self.kind not in _HW:
+        if self.kind not in ("AX3", "AX6"):
             raise ValueError(f"kind must be AX3 or AX6, not {kind!r}")
         bad = [f for f in faults if f not in FAULTS]
         if bad:
             raise ValueError(f"unknown fault {bad[0]!r}; known: {', '.join(FAULTS)}")
+        if not 0 <= int(device_id) <= T.U32:
+            raise ValueError(f"device id must fit 32 bits, got {device_id}")
         self.root = Path(root)
-        self.device_id = int(device_id)
-        self.session_id = int(session_id)
+        self.device_id = int(device_id)  # the id the USB serial was made from (at the last boot)
+        self.rom_device_id = int(device_id)  # the id in program memory (DEVICE n changes it)
+        self._initial_session = int(session_id) & T.U32
+        self._label = volume_label(self.kind, self.device_id)
         self.days, self.hz, self.seed = days, hz, seed
         self.faults = set(faults)
         self.remount_s, self.replug_s = remount_s, replug_s
@@ -106,19 +116,23 @@ class EmulatedDevice:
         self._clock_base_dev = self._host_local(self._clock_base_host) + clock_offset_s
         self._battery0 = battery_pct
         self._attached_at = time.monotonic()
-        self.settings = {"rate": 74, "gyro": 0 if self.kind == "AX3" else 2000, "hibernate": "0",
-                         "stop": "-1", "maxsamples": 0, "debug": 0, "led": -1,
-                         "annotate": [" " * 32] * 14}
-        self._raw_line = ""
-        self.locked = "locked" in self.faults
+        # what the firmware keeps in program memory across restarts
+        self.config: dict[int, int] = {}  # SettingsSetConfigValue: lock code, ECC, fractional
+        self.log_values = {LOG_VALUE_RESTART: RESTARTS_AT_START, LOG_VALUE_BATTERY: BATTERY_HEALTH_AT_START}
+        self.log_entries: list[tuple] = []  # (status, packed time, text), newest first
         self.plugged = False
-        self.mounted = False
+        self.mounted = False  # the host sees the drive folder at ``volume``
+        self.disk_mounted = True  # the firmware presents its medium (status.diskMounted)
         self.streaming = False
         self.events: list[str] = []
         self.clears: list[tuple] = []  # (device id, header session, SHA-256 of the file) per erase  # what happened (for tests and the emulate command's log)
         self._out = bytearray()
         self._cv = threading.Condition()
-        self._line = bytearray()
+        self._lock = threading.RLock()  # one command or action at a time, as on the device
+        self._inbuf = bytearray(INPUT_BUFFER)  # the firmware's static line buffer
+        self._inlen = 0
+        self._pending: Optional[threading.Timer] = None  # the delayed action (one at a time)
+        self._timers: list[threading.Timer] = []
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self.pty_path: Optional[str] = None
@@ -129,7 +143,10 @@ class EmulatedDevice:
         self.control.mkdir(parents=True, exist_ok=True)
         self.media.mkdir(parents=True, exist_ok=True)
         self._recording = recording
+        self._clean_leftovers()
+        self.shell = FirmwareShell(self)
         self._make_drive()
+        self._boot()
 
     # ------------------------------------------------------------------ identity and drive
     @property
@@ -138,7 +155,8 @@ class EmulatedDevice:
 
     @property
     def label(self) -> str:
-        return volume_label(self.kind, self.device_id)
+        """The drive's volume label (FORMAT rebuilds it from the device id)."""
+        return self._label
 
     @property
     def volume(self) -> Path:
@@ -147,6 +165,32 @@ class EmulatedDevice:
     @property
     def data_file(self) -> Path:
         return self.volume / C.AX_DATA_FILE
+
+    @property
+    def session_id(self) -> int:
+        """The session in the firmware's RAM (what ``SESSION`` answers)."""
+        return self.shell.s.session
+
+    @session_id.setter
+    def session_id(self, value: int) -> None:
+        self.shell.s.session = int(value) & T.U32
+
+    @property
+    def locked(self) -> bool:
+        return self.shell.lock_code != 0
+
+    @locked.setter
+    def locked(self, value: bool) -> None:
+        self.shell.lock_code = (self.shell.lock_code or FAULT_LOCK_CODE) if value else 0
+
+    @property
+    def settings(self) -> dict:
+        """The RAM settings as text: rate code, gyro, start/stop as the firmware prints them,
+        max samples, debug, the 14 annotation slots (as ``ANNOTATEnn`` shows them)."""
+        s = self.shell.s
+        return {"rate": s.rate, "gyro": s.gyro, "hibernate": T.rtc_to_string(s.start),
+                "stop": T.rtc_to_string(s.stop), "maxsamples": s.maxsamples, "debug": s.debug,
+                "annotate": ["".join(" " if c < 32 else chr(c) for c in a) for a in s.annotation]}
 
     def _ejected(self) -> Path:
         return self.root / f".ejected-{self.label}"
@@ -162,6 +206,31 @@ class EmulatedDevice:
             self.mounted = True
             self.events.append("mounted by the host")
 
+    def drive_dir(self) -> Path:
+        """Where the drive's files are now: mounted, present but unmounted, or dropped."""
+        for p in (self.volume, self._unmounted(), self._ejected()):
+            if p.is_dir():
+                return p
+        self._ejected().mkdir(parents=True)
+        return self._ejected()
+
+    def _clean_leftovers(self) -> None:
+        """Put back the drive an earlier run left aside, remove half-written simulations, stale
+        control signals and the leftovers of other labels."""
+        for p in self.root.glob(".sim-*"):
+            p.unlink(missing_ok=True)
+        for p in self.control.iterdir():
+            if p.is_file():
+                p.unlink(missing_ok=True)
+        for prefix in (".unmounted-", ".ejected-"):
+            for p in sorted(self.root.glob(prefix + "*")):
+                if p.name == prefix + self.label and p.is_dir() and not self.volume.exists():
+                    os.replace(p, self.volume)
+                elif p.is_dir():
+                    shutil.rmtree(p, ignore_errors=True)
+                else:
+                    p.unlink(missing_ok=True)
+
     def _make_drive(self) -> None:
         self.volume.mkdir(parents=True, exist_ok=True)
         if self.data_file.exists():
@@ -169,39 +238,24 @@ class EmulatedDevice:
         if self._recording is not None:
             shutil.copyfile(self._recording, self.data_file)
             return
+        # the recording the device made with its SETTINGS.INI (DATAMODE=20: AX3 unpacked)
+        self.shell.initialize()
+        self.shell.run_settings_file()
+        packed = None
+        if self.kind == "AX3" and self.shell.s.data_mode & 0x0F == FORMAT_CWA_UNPACKED:
+            packed = False
         from stillpoint.engine.sim.record import simulate_recording
         tmp = self.root / f".sim-{self.label}.cwa"
         simulate_recording(tmp, device=self.kind.lower(), days=self.days, hz=self.hz, seed=self.seed,
-                           truth_path=False, device_id=self.device_id, session_id=self.session_id,
-                           effects="default", gyro_range_dps=2000.0 if self.kind == "AX6" else None)
+                           truth_path=False, device_id=self.device_id, session_id=self._initial_session,
+                           effects="default", gyro_range_dps=2000.0 if self.kind == "AX6" else None,
+                           packed=packed)
+        with open(tmp, "r+b") as f:  # the identity bytes as this firmware writes them
+            f.seek(4)
+            f.write(bytes([self.shell.header()[4]]))
+            f.seek(11)
+            f.write(b"\xff\xff" if self.kind == "AX3" else (self.device_id >> 16).to_bytes(2, "little"))
         os.replace(tmp, self.data_file)
-
-    def _header(self) -> bytes:
-        hw = _HW[self.kind][3]
-        s = self.settings
-        start = self._dev_time_field(s["hibernate"], TS_ALWAYS)
-        stop = self._dev_time_field(s["stop"], TS_NEVER)
-        sensor = 0x00
-        if self.kind == "AX6" and s["gyro"]:
-            sensor = {2000: 2, 1000: 3, 500: 4, 250: 5, 125: 6}.get(int(s["gyro"]), 2)
-        h = bytearray(build_header(hardware_type=hw, device_id=self.device_id, session_id=self.session_id,
-                                   rate_code=int(s["rate"]), firmware=_HW[self.kind][2],
-                                   sensor_config=sensor, logging_start=start, logging_end=stop,
-                                   last_change=pack_timestamp(int(self._device_epoch()))))
-        h[26] = int(s["debug"]) & 0xFF
-        h[64:512] = "".join(s["annotate"]).encode("latin-1")[:448].ljust(448, b" ")
-        return bytes(h)
-
-    def _dev_time_field(self, value: str, default: int) -> int:
-        if value == "0":
-            return TS_ALWAYS
-        if value.startswith("-"):
-            return TS_NEVER
-        from .protocol import parse_time
-        t = parse_time(value)
-        if t is None:
-            return default
-        return pack_timestamp(int(t.replace(tzinfo=_dt.timezone.utc).timestamp()))
 
     # ------------------------------------------------------------------ clock and battery
     @staticmethod
@@ -217,24 +271,63 @@ class EmulatedDevice:
     def device_now(self) -> _dt.datetime:
         return _dt.datetime(1970, 1, 1) + _dt.timedelta(seconds=self._device_epoch())
 
+    def rtc_now(self) -> int:
+        return T.datetime_to_packed(self.device_now())
+
+    def rtc_now_ms(self) -> tuple[int, int]:
+        t = self.device_now()
+        return T.datetime_to_packed(t), t.microsecond // 1000
+
+    def set_rtc(self, packed: int) -> None:
+        """``RtcWrite``; an all-ones date (``TIME -...``) is echoed but not modelled: the clock
+        keeps running."""
+        if packed == T.U32:
+            return
+        self._clock_base_host = time.time()
+        self._clock_base_dev = (T.packed_to_datetime(packed) - _dt.datetime(1970, 1, 1)).total_seconds()
+
     def battery(self) -> tuple[int, int, int]:
         pct = min(100.0, self._battery0 + (time.monotonic() - self._attached_at) / 60.0)
         mv = int(3500 + 7 * pct)
         return int(mv * 1024 / 6000), mv, int(pct)
 
+    def battery_reading(self) -> tuple[int, int, int, bool]:
+        adc, mv, pct = self.battery()
+        return adc, mv, pct, pct >= 100
+
+    def accel_sample(self) -> tuple:
+        return 0, 0, 256, ((0, 0, 0) if self.kind == "AX6" else None)
+
+    def pause(self, seconds: float) -> None:
+        time.sleep(seconds)
+
     # ------------------------------------------------------------------ plug / unplug
+    def _boot(self) -> None:
+        """The firmware starts: RAM settings from defaults, SETTINGS.INI and the header."""
+        with self._lock:
+            self.shell.boot()
+            if "locked" in self.faults:
+                self.shell.lock_code = FAULT_LOCK_CODE
+            self.device_id = self.rom_device_id & 0xFFFF if self.rom_device_id >> 16 == 0xFFFF \
+                else self.rom_device_id
+
     def plug(self, pty: Optional[bool] = None) -> None:
-        """Attach to the host: the drive mounts, the port appears, the registry lists it."""
+        """Attach to the host: the firmware boots, the drive mounts, the port appears, the
+        registry lists it."""
         if pty is not None:
             self._use_pty = pty
-        if self._ejected().exists() and not self.volume.exists():
-            os.replace(self._ejected(), self.volume)
-        self.mounted = self.volume.exists()
-        self.plugged = True
-        self._attached_at = time.monotonic()
-        self._line.clear()
-        with self._cv:
-            self._out.clear()
+        with self._lock:
+            self._boot()
+            # an "initial lock" (ILOCK) keeps the drive unmounted until UNLOCK (Settings.c 283-291)
+            self.disk_mounted = self.config.get(CONFIG_LOCK, 0xFFFF) in (0, 0xFFFF)
+            if self._ejected().exists() and not self.volume.exists() and self.disk_mounted:
+                os.replace(self._ejected(), self.volume)
+            self.mounted = self.volume.exists()
+            self.plugged = True
+            self._attached_at = time.monotonic()
+            self._inlen = 0
+            with self._cv:
+                self._out.clear()
         EMULATORS[self.serial] = self
         if self._use_pty:
             self._open_pty()
@@ -255,32 +348,58 @@ class EmulatedDevice:
             "unmounted": str(self._unmounted())})
 
     def unplug(self) -> None:
-        """Pull the cable: the port and the drive vanish (the drive folder moves aside)."""
-        self.plugged = False
-        self.streaming = False
-        registry.unregister(self.serial)
-        EMULATORS.pop(self.serial, None)
-        if self.volume.exists():
-            os.replace(self.volume, self._ejected())
-        elif self._unmounted().exists():
-            os.replace(self._unmounted(), self._ejected())
-        self.mounted = False
+        """Pull the cable: the port and the drive vanish (the drive folder moves aside); the
+        device restarts into logging mode (its restart counter counts it)."""
+        with self._lock:
+            self._cancel_pending()
+            was = self.plugged
+            self.plugged = False
+            self.streaming = False
+            registry.unregister(self.serial)
+            EMULATORS.pop(self.serial, None)
+            self._set_aside()
+            self.mounted = False
+            if was:
+                self.log_values[LOG_VALUE_RESTART] += 1  # RunLogging (AX3 main.c 509)
         self._close_pty()
         with self._cv:
             self._cv.notify_all()
         self.events.append("unplugged")
 
+    def _set_aside(self) -> None:
+        if self.volume.exists():
+            os.replace(self.volume, self._ejected())
+        elif self._unmounted().exists():
+            os.replace(self._unmounted(), self._ejected())
+
     def shutdown(self) -> None:
+        """Stop the device and leave its drive in ``media/<label>`` for the next run."""
         self._stop.set()
         if self.plugged:
             self.unplug()
+        with self._lock:
+            self._cancel_pending()
+            for t in self._timers:
+                t.cancel()
         for t in self._threads:
             t.join(timeout=2)
+        with self._lock:
+            for p in (self._ejected(), self._unmounted()):
+                if p.is_dir() and not self.volume.exists():
+                    os.replace(p, self.volume)
+        self._clean_leftovers()
 
     def _spawn(self, fn, name) -> None:
         t = threading.Thread(target=fn, name=name, daemon=True)
         t.start()
         self._threads.append(t)
+
+    def _later(self, seconds: float, fn) -> threading.Timer:
+        t = threading.Timer(seconds, fn)
+        t.daemon = True
+        self._timers = [x for x in self._timers if x.is_alive()] + [t]
+        t.start()
+        return t
 
     def _watch_control(self) -> None:
         """Signals from the emulated volume's file layer (see ``volume``)."""
@@ -295,7 +414,7 @@ class EmulatedDevice:
                     if sig == "unplug" and self.plugged:
                         self.faults.discard("unplug-mid-copy")
                         self.unplug()
-                        threading.Timer(self.replug_s, self._replug).start()
+                        self._later(self.replug_s, self._replug)
                     elif sig == "swap":
                         self._swap()
                     elif sig == "mount":
@@ -311,7 +430,9 @@ class EmulatedDevice:
         self.unplug()
         self.faults.discard("swap-before-clear")
         self.device_id += 50000
-        self.session_id += 1
+        self.rom_device_id = self.device_id
+        self._initial_session += 1
+        self._label = volume_label(self.kind, self.device_id)
         self._recording = None
         self._make_drive()
         self.plug()
@@ -319,21 +440,42 @@ class EmulatedDevice:
 
     # ------------------------------------------------------------------ serial byte stream
     def host_write(self, data: bytes) -> None:
-        """Bytes from the host: CR ends a line, LF ignored, BS/DEL edit, 127 kept."""
+        """Bytes from the host, edited as ``_user_gets`` does (Flux.AX3/src/Utils/Util.c 56-102):
+        CR ends a line, LF ignored, BS/DEL edit, NUL dropped, 127 characters kept; with ECHO 1
+        the characters are echoed."""
         if not self.plugged:
             raise OSError(5, "device unplugged")
+        buf = self._inbuf
         for b in data:
+            echo = self.shell.echo
+            if b == 0:
+                continue
             if b == 0x0D:
-                line = self._line.decode("ascii", "replace")
-                self._line.clear()
-                self._on_line(line)
+                if echo:
+                    self.say(b"\r")
+                buf[self._inlen] = 0
+                line = bytes(buf[:self._inlen]).decode("latin-1")
+                beyond = bytes(buf[self._inlen + 1:]).decode("latin-1")
+                self._inlen = 0
+                if echo:
+                    self.say(b"\n")
+                self._on_line(line, beyond)
+            elif b in (0x08, 0x7F):
+                if self._inlen > 0:
+                    if echo:
+                        self.say(b"\x08 \x08")
+                    self._inlen -= 1
+                    buf[self._inlen] = 0
             elif b == 0x0A:
                 continue
-            elif b in (0x08, 0x7F):
-                if self._line:
-                    self._line.pop()
-            elif len(self._line) < C.AX_MAX_LINE:
-                self._line.append(b)
+            elif self._inlen + 1 < INPUT_BUFFER:
+                if echo:
+                    self.say(bytes([b]))
+                buf[self._inlen] = b
+                self._inlen += 1
+                buf[self._inlen] = 0
+            elif echo:
+                self.say(b"\x07")
 
     def host_read(self, n: int, timeout: Optional[float]) -> bytes:
         end = None if timeout is None else time.monotonic() + timeout
@@ -353,11 +495,13 @@ class EmulatedDevice:
         with self._cv:
             return len(self._out)
 
-    def _say(self, *lines: str) -> None:
+    def say(self, data: bytes) -> None:
         with self._cv:
-            for line in lines:
-                self._out += line.encode("ascii", "replace") + b"\r\n"
+            self._out += data
             self._cv.notify_all()
+
+    def _say(self, *lines: str) -> None:
+        self.say(b"".join(line.encode("ascii", "replace") + b"\r\n" for line in lines))
 
     # ------------------------------------------------------------------ pseudo-terminal
     def _open_pty(self) -> None:
@@ -402,230 +546,107 @@ class EmulatedDevice:
                 return
 
     # ------------------------------------------------------------------ commands
-    def _on_line(self, line: str) -> None:
-        if self.streaming:  # any CR-terminated line stops the stream [USB] A6
+    def _on_line(self, line: str, beyond: str = "") -> None:
+        """A line from the host: a running stream stops and the line is then executed (AX3
+        main.c 291-297)."""
+        with self._lock:
             self.streaming = False
-            return
-        line = line.strip()
-        if not line:
-            return
-        up = line.upper()
-        self._raw_line = line
-        for kw, fn in self._table():
-            if up.startswith(kw):
-                arg = line[len(kw) + 1:] if len(line) > len(kw) else None
-                try:
-                    fn(arg)
-                except Exception as e:  # a malformed argument: the firmware answers ERROR
-                    self._say(f"ERROR: {e}")
+            self.shell.command(line, beyond)
+
+    # ------------------------------------------------------------------ delayed activation
+    def delay_action(self, flags: int, countdown: int) -> None:
+        """``status.actionFlags``/``actionCountdown``: with ACTION_REMOUNT the drive is dropped
+        now; the action runs ``countdown`` ticks later (``remount_s`` each). A new delayed action
+        replaces a pending one, as the firmware's single countdown does."""
+        with self._lock:
+            if flags & ACTION_REMOUNT:
+                self.disk_mounted = False
+                self._set_aside()
+                self.mounted = False
+            self._cancel_pending()
+            self._pending = self._later(self.remount_s * countdown, lambda: self._finish(flags))
+
+    def _cancel_pending(self) -> None:
+        if self._pending is not None:
+            self._pending.cancel()
+            self._pending = None
+
+    def _finish(self, flags: int) -> None:
+        with self._lock:
+            self._pending = None
+            if not self.plugged or self._stop.is_set():
                 return
-        self._say(f"ERROR: Unknown command: {line}")
+            if self.run_action(flags):
+                self._later(0.0, self._restart)
 
-    def _table(self):
-        return (("ID", self._c_id), ("TIME", self._c_time), ("SAMPLE", self._c_sample),
-                ("SESSION", self._c_session), ("RATE", self._c_rate), ("HIBERNATE", self._c_hibernate),
-                ("STOP", self._c_stop), ("STATUS", self._c_status), ("STREAM", self._c_stream),
-                ("MAXSAMPLES", self._c_maxsamples), ("DEBUG", self._c_debug),
-                ("ANNOTATE", self._c_annotate), ("LED", self._c_led), ("COMMIT", self._c_commit),
-                ("CLEAR", self._c_clear), ("FORMAT", self._c_format), ("ECHO", self._c_echo),
-                ("LOG", self._c_log), ("AT", lambda a: self._say("OK")))
+    def run_action(self, flags: int) -> bool:
+        """``SettingsAction`` now, on the drive wherever it is; erased recordings are noted in
+        ``clears`` (device id, the header's session, SHA-256)."""
+        with self._lock:
+            if flags & (ACTION_DELETE | ACTION_FORMAT_QUICK | ACTION_FORMAT_WIPE):
+                f = self.drive_dir() / C.AX_DATA_FILE
+                if f.is_file():
+                    data = f.read_bytes()
+                    self.clears.append((self.device_id, int.from_bytes(data[7:11], "little"),
+                                        hashlib.sha256(data).hexdigest()))
+                self.events.append("cleared" if flags & ACTION_DELETE else
+                                   "wiped" if flags & ACTION_FORMAT_WIPE else "formatted")
+            return self.shell.action(flags)
 
-    def _refuse_if_locked(self) -> bool:
-        if self.locked:
-            self._say("ERROR: Locked.")
-        return self.locked
-
-    def _c_id(self, arg):
-        t, hw, fw, _ = _HW[self.kind]
-        dev = self.device_id + (1 if "id-mismatch" in self.faults else 0)
-        self._say(f"ID={t},{hw},{fw},{dev},{self.session_id}")
-
-    def _c_time(self, arg):
-        if arg:
-            if self._refuse_if_locked():
+    def set_mounted(self, value: bool) -> None:
+        """``status.diskMounted`` (ACTION_REMOUNT, ``MOUNT 0|1``): the drive is presented to the
+        host or dropped."""
+        with self._lock:
+            if not value:
+                self.disk_mounted = False
+                self._set_aside()
+                self.mounted = False
                 return
-            from .protocol import parse_time
-            try:
-                t = parse_time(arg)
-            except ValueError:
-                t = None
-            if t is None:
-                self._say("ERROR: Problem parsing time.")
+            self.disk_mounted = True
+            if not self.plugged or not self._ejected().exists():
                 return
-            self._clock_base_host = time.time()
-            self._clock_base_dev = (t - _dt.datetime(1970, 1, 1)).total_seconds()
-        self._say("$TIME=" + _fmt(self.device_now()))
-
-    def _c_sample(self, arg):
-        n = int(arg) if arg and arg.strip() else 0
-        out = []
-        if n in (0, 1):
-            adc, mv, pct = self.battery()
-            out.append(f"$BATT={adc},{mv},mV,{pct},{1 if pct >= 100 else 0}")
-        if n in (0, 2):
-            out.append("$LDR=512,512")
-        if n in (0, 3):
-            out.append("$TEMP=400,231,0.1dC")
-        if n in (0, 4):
-            t = self.device_now()
-            out.append("$TIME=" + t.strftime("%Y/%m/%d,%H:%M:%S") + f".{t.microsecond // 1000:03d}")
-        if n in (0, 5):
-            out.append("$ACCEL=0,0,256")
-            out.append("$GYRO=0,0,0" if self.kind == "AX6" else "$GYRO=")
-        self._say(*out)
-
-    def _c_session(self, arg):
-        if arg and arg.strip():
-            if self._refuse_if_locked():
-                return
-            self.session_id = int(arg)
-        s = self.session_id + (1 if "session-mismatch" in self.faults else 0)
-        self._say(f"SESSION={s}")
-
-    def _c_rate(self, arg):
-        if arg and arg.strip():
-            if self._refuse_if_locked():
-                return
-            parts = [int(x) for x in arg.replace(" ", "").split(",") if x]
-            self.settings["rate"] = parts[0]
-            if self.kind == "AX6":
-                self.settings["gyro"] = parts[1] if len(parts) > 1 else 0  # omitted: gyro off
-        code = self.settings["rate"]
-        hz = int(C.cwa_rate_hz(code))
-        tail = f",{self.settings['gyro']}" if self.kind == "AX6" else ""
-        self._say(f"RATE={code},{hz}{tail}")
-
-    def _time_setting(self, key, arg, name):
-        if arg and arg.strip():
-            if self._refuse_if_locked():
-                return
-            a = arg.strip()
-            if a == "0" or a.startswith("-"):
-                self.settings[key] = "0" if a == "0" else "-1"
-            else:
-                from .protocol import parse_time
-                t = parse_time(a)
-                self.settings[key] = _fmt(t)
-        self._say(f"{name}={self.settings[key]}")
-
-    def _c_hibernate(self, arg):
-        self._time_setting("hibernate", arg, "HIBERNATE")
-
-    def _c_stop(self, arg):
-        self._time_setting("stop", arg, "STOP")
-
-    def _c_status(self, arg):
-        self._say("TEST=0000", "BATTHEALTH=12", "FTL=0,0,20,2,0", "CHECKSUM=0000", "RESTART=3",
-                  "NAND=0000", "NANDID=2c,68,04,4a,a9,00,1")
-
-    def _c_echo(self, arg):
-        self._say("ECHO=0")
-
-    def _c_log(self, arg):
-        self._say(f"LOG,1,0x0001,{_fmt(self.device_now())},attached", "OK")
-
-    def _int_setting(self, key, arg, name):
-        if arg and arg.strip():
-            if self._refuse_if_locked():
-                return
-            self.settings[key] = int(arg)
-        self._say(f"{name}={self.settings[key]}")
-
-    def _c_maxsamples(self, arg):
-        self._int_setting("maxsamples", arg, "MAXSAMPLES")
-
-    def _c_debug(self, arg):
-        self._int_setting("debug", arg, "DEBUG")
-
-    def _c_led(self, arg):
-        if arg and arg.strip():
-            self.settings["led"] = int(arg)
-        self._say(f"LED={self.settings['led']}")
-
-    def _c_annotate(self, arg):
-        # the keyword is ANNOTATEnn: the two digits follow it directly, the value after one
-        # separator character (ANNOTATE03=text)
-        raw = self._raw_line[len("ANNOTATE"):]
-        if len(raw) < 2 or not raw[:2].isdigit() or int(raw[:2]) > 13:
-            self._say(f"ERROR: Unknown command: {self._raw_line}")
-            return
-        slot = int(raw[:2])
-        if len(raw) > 2:
-            if self._refuse_if_locked():
-                return
-            text = "".join(c if c >= " " else " " for c in raw[3:])
-            self.settings["annotate"][slot] = text[:32].ljust(32)
-        self._say(f"ANNOTATE{slot:02d}={self.settings['annotate'][slot]}")
-
-    def _delayed(self, what: str, action) -> None:
-        """Delayed activation: eject, act, re-insert after ``remount_s``, then ``COMMIT``."""
-        mounted = self.mounted
-        if mounted:
-            self._say(f"{what}: Delayed activation.")
-            os.replace(self.volume, self._ejected())
-            self.mounted = False
-
-        def finish():
-            target = self._ejected() if mounted else (
-                self._unmounted() if self._unmounted().exists() else self.volume)
-            if what in ("CLEAR", "FORMAT"):  # what was on the device when it was erased (tests
-                import hashlib  # check it): device id, the file header's session, SHA-256
-                data = (target / C.AX_DATA_FILE).read_bytes()
-                self.clears.append((self.device_id, int.from_bytes(data[7:11], "little"),
-                                    hashlib.sha256(data).hexdigest()))
-            action(target / C.AX_DATA_FILE)
-            if "commit-no-remount" in self.faults:  # the reply comes, the drive never does
-                self.events.append(f"{what.lower()} done; drive not re-inserted")
-                self._say("COMMIT")
-                return
-            if mounted and self.plugged and "no-automount" in self.faults:
+            if "commit-no-remount" in self.faults:  # the reply came; the drive never does
+                self.events.append("drive not re-inserted")
+            elif "no-automount" in self.faults:
                 os.replace(self._ejected(), self._unmounted())  # back, but nothing mounts it
-            elif mounted and self.plugged:
+            else:
                 os.replace(self._ejected(), self.volume)
                 self.mounted = True
-            self._say("COMMIT")
-            if what == "CLEAR":
-                self.events.append("cleared")
-            elif what == "FORMAT":
-                self._say("FORMAT: Complete.")
 
-        threading.Timer(self.remount_s if mounted else 0.0, finish).start()
+    def format_drive(self, wipe: bool, label: str) -> bool:
+        """``FsFtlFormat``: a new empty filesystem labelled ``label`` (every file removed)."""
+        with self._lock:
+            where = self.drive_dir()
+            for p in where.iterdir():
+                if p.is_dir() and not p.is_symlink():
+                    shutil.rmtree(p)
+                else:
+                    p.unlink()
+            if label != self._label:
+                kind = [self.volume, self._unmounted(), self._ejected()].index(where)
+                self._label = label
+                os.replace(where, [self.volume, self._unmounted(), self._ejected()][kind])
+            return True
 
-    def _write_header(self, path: Path) -> None:
-        with open(path, "r+b") as f:
-            f.write(self._header())
-            f.flush()
-            os.fsync(f.fileno())
+    def destroy_drive(self) -> None:
+        """``FtlDestroy`` (FORMAT D): every block erased; the drive holds no files."""
+        with self._lock:
+            for p in self.drive_dir().iterdir():
+                if p.is_dir() and not p.is_symlink():
+                    shutil.rmtree(p)
+                else:
+                    p.unlink()
+            self.events.append("destroyed")
 
-    def _recreate(self, path: Path) -> None:
-        with open(path, "wb") as f:
-            f.write(self._header())
-            f.flush()
-            os.fsync(f.fileno())
+    def _restart(self) -> None:
+        """RESET: the device restarts; the port and the drive drop and come back."""
+        if self.plugged and not self._stop.is_set():
+            self.unplug()
+            self.log_values[LOG_VALUE_RESTART] -= 1  # a reset while attached does not log
+            self._later(self.replug_s, self._replug)
 
-    def _c_commit(self, arg):
-        if self._refuse_if_locked():
-            return
-        self._delayed("COMMIT", self._write_header)
-
-    def _c_clear(self, arg):
-        if not arg or not arg.strip().upper().startswith("DATA"):
-            self._say(f"ERROR: Unknown command: CLEAR {arg or ''}".rstrip())
-            return
-        if self._refuse_if_locked():
-            return
-        self._delayed("CLEAR", self._recreate)
-
-    def _c_format(self, arg):
-        a = (arg or "").strip().upper()
-        if a not in ("QC", "WC", "Q", "W"):
-            self._say("ERROR: Must specify 'FORMAT Q' or 'FORMAT W'")
-            return
-        if self._refuse_if_locked():
-            return
-        self._delayed("FORMAT", self._recreate)
-
-    def _c_stream(self, arg):
+    # ------------------------------------------------------------------ stream
+    def start_stream(self) -> None:
         self._start_stream()
 
     def _start_stream(self) -> None:
@@ -642,8 +663,12 @@ class EmulatedDevice:
             vals = list(a)
             if self.kind == "AX6":
                 vals += list(np.rint(rng.normal(0, 20, 3)).astype(int))
-            self._say(",".join(str(int(v)) for v in vals))
+            with self._lock:
+                if not self.streaming:
+                    break
+                self._say(",".join(str(int(v)) for v in vals))
             nxt += period
             if nxt < time.monotonic() - 2 * period:  # more than two intervals behind: resync
                 nxt = time.monotonic()
             time.sleep(max(0.0, nxt - time.monotonic()))
+

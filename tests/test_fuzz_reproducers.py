@@ -232,3 +232,197 @@ def test_damaged_mcap_fields_are_typed_errors(name, what, cmd, tmp_path):
         return
     assert_one_line_error(rc, err, name)
     assert what in err
+
+
+# ----------------------------------------------------------------------------- fuzz3 reproducers
+# The reliability campaign's reproducers live next to the real recordings (README there):
+# STILLPOINT_REAL_DATA/../fuzz3. As with the real recordings: when the variable is set, a missing
+# file fails; unset, these tests skip with the reason shown.
+@pytest.fixture(scope="session")
+def fuzz3(real_data_dir):
+    d = real_data_dir.parent / "fuzz3"
+
+    def get(name: str) -> Path:
+        p = d / name
+        if not p.is_file():
+            pytest.fail(f"reproducer {name} missing from {d}")
+        return p
+
+    return get
+
+
+def _whole_read(path, **opts):
+    """Samples (times, counts, segments) and QC of a whole read, or the typed error's text."""
+    try:
+        with open_recording(path, **opts) as src:
+            blocks = list(src)
+    except StillpointError as e:
+        return f"{type(e).__name__}: {e}"
+    cat = np.concatenate
+    t = cat([b.time_ns for b in blocks]).tolist() if blocks else []
+    a = cat([b.accel for b in blocks]).tolist() if blocks else []
+    seg = [b.segment for b in blocks for _ in range(b.n)]
+    q = src.qc
+    return t, a, seg, (q.total, q.valid, q.skipped, q.segments), [(e.index, e.reason) for e in q.events]
+
+
+@pytest.mark.parametrize("name, samples, segments", [
+    ("geneactiv_batch_pages_data_vs_error.bin", 300, 1),
+    # page 11's Page Time '2013-05-30T10:12:54:500' was refused or read depending on its batch
+    ("geneactiv_batch_pages_3531_vs_3231.bin", 3531, 5),
+])
+def test_geneactiv_damaged_file_reads_the_same_at_every_batch_size(fuzz3, name, samples, segments):
+    path = fuzz3(name)
+    ref = _whole_read(path)
+    assert not isinstance(ref, str), ref
+    assert len(ref[0]) == samples and ref[3][3] == segments
+    pages = ref[3][0]
+    for batch in range(1, pages + 2):
+        assert _whole_read(path, batch_pages=batch) == ref, f"batch_pages={batch}"
+    for batch in (1, 2, 3, 256):  # follow mode (a download read while it grows) as well
+        assert _whole_read(path, batch_pages=batch, follow=True, follow_done=lambda: True,
+                           follow_idle_s=0) == ref, f"follow, batch_pages={batch}"
+
+
+def _no_warnings_read(path):
+    import warnings
+    with warnings.catch_warnings(record=True) as caught, np.errstate(all="warn"):
+        warnings.simplefilter("always")
+        with open_recording(path) as src:
+            for b in src:
+                b.accel_g()
+    assert not caught, [str(w.message) for w in caught]
+    return src
+
+
+def test_geneactiv_lux_inf_is_a_qc_event(fuzz3, tmp_path):
+    path = fuzz3("geneactiv_lux_inf.bin")
+    src = _no_warnings_read(path)
+    ev = [e for e in src.qc.events if e.reason == "header_value"]
+    assert len(ev) == 1 and "Lux inf" in ev[0].detail and "light in lux unavailable" in ev[0].detail
+    assert src.info.header["lux"] is None and src.qc.valid == 3
+    rc, out, err = cli("export", path, "-o", tmp_path / "x.csv")
+    assert rc == 0 and "1 QC event" in out, out + err
+    assert "Warning" not in err and "Traceback" not in err, err
+    rc, out, err = cli("inspect", "--json", path)
+    assert rc == 0 and "header_value" in out and "Lux inf" in out, err
+
+
+@pytest.mark.parametrize("line, what", [
+    (b"Lux:nan", "Lux nan"), (b"Lux:-800", "Lux -800"), (b"Lux:0", "Lux 0"),
+    (b"Volts:0", "Volts 0"), (b"Volts:-inf", "Volts -inf"), (b"Volts:abc", "Volts 'abc' is not a number"),
+    (b"Volts:", "Volts missing"),
+])
+def test_geneactiv_header_value_that_blanks_the_light_is_a_qc_event(fuzz3, tmp_path, line, what):
+    data = fuzz3("geneactiv_lux_inf.bin").read_bytes().replace(b"Lux:inf", b"Lux:800")
+    key = line.split(b":")[0] + b":"
+    i = data.index(b"\n" + key) + 1
+    j = data.index(b"\n", i)
+    cr = b"\r" if data[j - 1:j] == b"\r" else b""
+    p = tmp_path / "v.bin"
+    p.write_bytes(data[:i] + line + cr + data[j:])
+    src = _no_warnings_read(p)
+    ev = [e for e in src.qc.events if e.reason == "header_value"]
+    assert len(ev) == 1 and what in ev[0].detail, [e.detail for e in src.qc.events]
+    assert src.qc.valid == 3  # the pages are still read
+
+
+def test_geneactiv_good_light_calibration_logs_nothing(fuzz3, tmp_path):
+    p = tmp_path / "good.bin"
+    p.write_bytes(fuzz3("geneactiv_lux_inf.bin").read_bytes().replace(b"Lux:inf", b"Lux:800"))
+    src = _no_warnings_read(p)
+    assert src.qc.events == [] and src.info.header["lux"] == 800.0
+
+
+MCAP_COMMANDS = {"inspect": [], "replay": ["-o", "{tmp}/r.mcap"], "calibrate": [],
+                 "discrepancy": ["-o", "{tmp}/d", "--no-plots"]}
+
+
+@pytest.mark.parametrize("name", ["raw_accel_reversed.mcap", "raw_accel_two_messages_swapped.mcap"])
+@pytest.mark.parametrize("cmd", list(MCAP_COMMANDS))
+def test_raw_messages_out_of_order_are_one_typed_line(fuzz3, tmp_path, name, cmd):
+    extra = [a.format(tmp=tmp_path) for a in MCAP_COMMANDS[cmd]]
+    rc, out, err = cli(cmd, fuzz3(name), *extra)
+    assert_one_line_error(rc, err, name)
+    assert "out of order" in err and "/raw/accel, message 1" in err, err
+    assert not (tmp_path / "r.mcap").exists()
+
+
+def test_raw_messages_in_order_still_replay(fuzz3, tmp_path):
+    """The same log with its messages in their order replays (the check refuses only disorder)."""
+    from stillpoint.drivers.mcap_replay import McapRawSource
+    fixed = _rewrite(fuzz3("raw_accel_two_messages_swapped.mcap"), tmp_path / "fixed.mcap",
+                     swap_raw=(0, 1))
+    with McapRawSource(fixed) as src:
+        n = sum(b.n for b in src)
+    assert n > 0
+    rc, out, err = cli("replay", fixed, "-o", tmp_path / "r.mcap")
+    assert rc == 0, err
+
+
+def _rewrite(src_path, out_path, *, settings=None, swap_raw=None):
+    """A copy of a log with its ``settings`` record changed (key -> value) or two /raw/accel
+    payloads swapped back."""
+    import json
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+    with open(src_path, "rb") as f:
+        r = make_reader(f)
+        msgs = list(r.iter_messages(log_time_order=False))
+        meta = [(m.name, dict(m.metadata)) for m in r.iter_metadata()]
+    payloads = [m.data for _s, _c, m in msgs]
+    if swap_raw:
+        raw = [j for j, (_s, ch, _m) in enumerate(msgs) if ch.topic == "/raw/accel"]
+        a, b = raw[swap_raw[0]], raw[swap_raw[1]]
+        payloads[a], payloads[b] = payloads[b], payloads[a]
+    with open(out_path, "wb") as f:
+        w = Writer(f)
+        w.start()
+        ids = {}
+        for (sch, ch, m), data in zip(msgs, payloads):
+            if ch.id not in ids:
+                sid = w.register_schema(sch.name, sch.encoding, sch.data) if sch else 0
+                ids[ch.id] = w.register_channel(ch.topic, ch.message_encoding, sid, dict(ch.metadata))
+            w.add_message(ids[ch.id], m.log_time, data, m.publish_time)
+        for name, md in meta:
+            if name == "settings" and settings:
+                d = json.loads(md["json"])
+                d.update(settings)
+                md["json"] = json.dumps(d)
+            w.add_metadata(name, md)
+        w.finish()
+    return out_path
+
+
+def test_settings_value_of_the_wrong_type_is_one_typed_line(fuzz3, tmp_path):
+    name = "settings_first_hours_string.mcap"
+    for cmd in ("replay", "inspect", "calibrate"):
+        extra = ["-o", tmp_path / "r.mcap"] if cmd == "replay" else []
+        rc, out, err = cli(cmd, fuzz3(name), *extra)
+        assert_one_line_error(rc, err, name)
+        assert "first_hours is '48'" in err, err
+
+
+@pytest.mark.parametrize("key, value", [
+    ("first_hours", "nan"), ("first_hours", float("nan")), ("zstd_level", "nan"),
+    ("compression", "brotli"), ("chunk_size", 2**70), ("bfen_band_hz", [1]), ("calibrate", "no"),
+    ("mode", None), ("max_block_s", 1e308), ("epoch_s", -5), ("prior", {"offset": "x"}),
+    ("view_hz", float("inf")), ("timezone", 5),
+])
+def test_every_settings_value_is_checked_when_read(fuzz3, tmp_path, key, value):
+    from stillpoint.drivers.mcap_replay import McapRawSource
+    from stillpoint.engine.mcap.reading import McapReadError
+    good = _rewrite(fuzz3("settings_first_hours_string.mcap"), tmp_path / "good.mcap",
+                    settings={"first_hours": 72.0})
+    McapRawSource(good).close()  # the record as logged, first_hours repaired, is accepted
+    bad = _rewrite(good, tmp_path / "bad.mcap", settings={key: value})
+    with pytest.raises(McapReadError, match=f"settings metadata: .*{key}"):
+        McapRawSource(bad)
+
+
+def test_settings_as_every_run_logs_them_are_accepted():
+    from stillpoint.engine.run import RunSettings, settings_problem
+    for s in (RunSettings(), RunSettings(mode="online", compression="lz4", chunk_s=30.0,
+                                         timezone="Europe/London", view_hz=0.0,
+                                         corrected_quantum_g=0.0, ggir_compatible=True)):
+        assert settings_problem(s.to_dict()) is None

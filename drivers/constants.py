@@ -179,6 +179,29 @@ AX_FORBIDDEN_COMMANDS = ("WRITEL", "READRAW", "WRITERAW", "ERASERAW", "FILEBLOCK
 AX_EMPTY_DATA_BYTES = 1024  # [USB] A7 step 3: axconfig: a data file > 1024 bytes still holds data
 AX_LOCKED_ECHO_S = 0.5  # [USB] A5 / conformance spec §1: after "ERROR: Locked." a setter prints
 #                         "<KEY>=<old>" at once (Settings.c); wait this long for it
+# Battery percentage from the raw ADC when the device reports 0 % (older firmware does not compute
+# it): OmApi src/omapi-status.c 131-205 (libomapi @ 158e46b, AdcBattToPercentStatus, used by
+# OmGetBatteryLevel when parts[4] is 0): 12 counts of charging current off, <= 614 -> 0 %, > 708 ->
+# 100 %, a two-piece fit between (above 666: 150 * (adc - 538) >> 8; else 375 * (adc - 614) >> 8).
+AX_BATT_ADC_CHARGE_COMPENSATION = 12
+AX_BATT_ADC_ZERO = 614
+AX_BATT_ADC_FULL = 708
+AX_BATT_ADC_FIT = ((666, 150, 538, 8), (614, 375, 614, 8))  # (above, scale, offset, shift)
+
+
+def ax_battery_pct_from_adc(adc: int) -> int:
+    """The battery percentage OmApi models from the raw ADC reading (see the constants above)."""
+    v = adc - AX_BATT_ADC_CHARGE_COMPENSATION if adc > AX_BATT_ADC_CHARGE_COMPENSATION else adc
+    if v > AX_BATT_ADC_FULL:
+        return 100
+    if v < AX_BATT_ADC_ZERO:
+        return 0
+    for above, scale, offset, shift in AX_BATT_ADC_FIT:
+        if v > above:
+            return (scale * (v - offset)) >> shift
+    return 0
+
+
 AX_STREAM_STOP_S = 5.0  # [USB] A6: OmApi gives up flushing a running stream after 5 s
 
 # ----------------------------------------------------------------------------- AX3/AX6 data file identity

@@ -205,3 +205,15 @@ def test_format_error_line_is_an_error():
                                       b"ERROR: Problem during quick format\r\n"})
     with pytest.raises(DeviceCommandError, match="Problem during quick format"):
         AxClient(port, "t").erase("quick")
+
+
+@pytest.mark.parametrize("reply, pct", [
+    (b"$BATT=697,4083,mV,100,1\r\n", 100),  # the device's own percentage is kept
+    (b"$BATT=697,4083,mV,57,0\r\n", 57),
+    (b"$BATT=690,4040,mV,0,0\r\n", 82),  # 0 %: modelled from the ADC as OmApi does (678: 150*140>>8)
+    (b"$BATT=640,3750,mV,0,0\r\n", 20),  # 628: 375*14>>8
+    (b"$BATT=730,4270,mV,0,1\r\n", 100),
+    (b"$BATT=600,3500,mV,0,0\r\n", 0),
+])
+def test_battery_percentage_from_the_adc_when_reported_as_zero(reply, pct):
+    assert AxClient(ScriptedPort({"SAMPLE 1": reply}), "t").battery().percent == pct

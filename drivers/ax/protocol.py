@@ -222,9 +222,14 @@ class AxClient:
         return t
 
     def battery(self) -> Battery:
+        """``SAMPLE 1``; a device that reports 0 % (older firmware does not compute it) gets the
+        percentage OmApi models from the raw ADC (``constants.ax_battery_pct_from_adc``)."""
         v = self._value("SAMPLE 1", "$BATT").split(",")
         try:
-            return Battery(int(v[1]), int(v[3]), v[4].strip() == "1")
+            pct = int(v[3])
+            if pct == 0:
+                pct = C.ax_battery_pct_from_adc(int(v[0]))
+            return Battery(int(v[1]), pct, v[4].strip() == "1")
         except (IndexError, ValueError):
             raise DeviceError(self.name, f"cannot parse the battery reply {v}") from None
 

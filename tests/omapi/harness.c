@@ -18,14 +18,18 @@
  *             (OmDevice.cs 432-479), DEBUG, SetInterval = OmSetDelays + OmCommit (OmDevice.cs
  *             550-567); then each setting read back through OmApi and from the data file's header.
  *
- * Output: one line per call, "<phase> <call> rc=<n> [key=value ...] unread=<bytes>", where rc is
- * OmApi's return code (0 or a value >= 0 is success, negative an OM_E_* code), values contain no
- * spaces (strings escaped: \r, \n, \\, \xNN for anything else outside printable ASCII and for
- * space), and unread holds the bytes still waiting on the port once the call has returned (the
- * harness takes them off the port so that each call is judged on its own). After OmCommit, whose
- * reply OmApi takes from the first of the firmware's two lines ("COMMIT: Delayed activation."),
- * the harness first waits (at most 10 s) for the second ("COMMIT", printed once the drive is back)
- * and reports it as late=. Exit status 0 once every phase has run, 2 on bad arguments or set-up.
+ * Output: one line per call, "<phase> <call> rc=<n> [key=value ...] unread=<bytes>", where rc is 0
+ * when the call succeeded (OmApi returned a value >= 0, printed as value= where it is one) and
+ * otherwise OmApi's negative OM_E_* code; values contain no spaces (strings escaped: \r, \n, \\,
+ * \xNN for space and anything else outside printable ASCII); unread holds the bytes still waiting
+ * on the port once the call has returned (the harness takes them off the port so that each call
+ * is judged on its own). After OmCommit, whose reply OmApi takes from the first of the firmware's
+ * two lines ("COMMIT: Delayed activation."), the harness first waits (at most 10 s) for the
+ * second ("COMMIT", printed once the drive is back) and reports it as late=. A "header" line is
+ * the harness reading the data file's header fields itself. DEBUG is sent through OmCommand as
+ * OmDevice.SetDebug does (OmDevice.cs 603-608), but with the response buffer's real size (OMGui
+ * passes a new StringBuilder's Length, 0, so no line can match and OmCommand waits out its 2 s).
+ * Exit status 0 once every phase has run, 2 on bad arguments or set-up.
  */
 
 #define _DEFAULT_SOURCE
@@ -461,6 +465,8 @@ static void record_phase(int id, unsigned int session, const char *metadata, int
     rc = OmGetDelays(id, &t, &t2); begin("recorded", "OmGetDelays", rc); add_time("start", t); add_time("stop", t2); finish();
     rc = OmCommand(id, "\r\nDEBUG\r\n", response, sizeof(response), "DEBUG=", 2000, parts, 4);
     begin("recorded", "OmCommand(DEBUG)", rc); add(" value=%d", parts[1] != NULL ? atoi(parts[1]) : -1); finish();
+    t = 0;
+    rc = OmGetLastConfigTime(id, &t); begin("recorded", "OmGetLastConfigTime", rc); add_time("time", t); finish();
     file_readback("recorded", id);
 }
 

@@ -111,7 +111,7 @@ def _link(link: Path, target: Path) -> None:
 
 def _usb_device(sysfs: Path, name: str, vid: str, pid: str, serial: str, tty: str = None,
                 disk: str = None, major_minor: tuple = (8, 16), partitioned: bool = True,
-                medium: bool = True) -> Path:
+                medium: bool = True, diskseq: int = None) -> Path:
     """One USB device as the kernel lays it out: the device folder, a CDC interface with its tty,
     a mass-storage interface with its SCSI disk (and partition), and the class symlinks."""
     dev = sysfs / PCI / "1-1" / name
@@ -131,11 +131,16 @@ def _usb_device(sysfs: Path, name: str, vid: str, pid: str, serial: str, tty: st
         major, minor = major_minor
         _w(d / "dev", f"{major}:{minor}")
         _w(d / "size", "999424" if medium else "0")
+        if diskseq is not None:
+            _w(d / "diskseq", str(diskseq))
         if partitioned and medium:
             _w(d / f"{disk}1" / "dev", f"{major}:{minor + 1}")
             _w(d / f"{disk}1" / "size", "999360")
             _w(d / f"{disk}1" / "partition", "1")
         _link(sysfs / "block" / disk, d)
+        _link(sysfs / "class/block" / disk, d)
+        if partitioned and medium:
+            _link(sysfs / "class/block" / f"{disk}1", d / f"{disk}1")
     return dev
 
 
@@ -300,3 +305,18 @@ def test_a_manual_volume_overrides_the_usb_pairing(tmp_path):
                                               volume=str(elsewhere))}
     assert list(found) == [42] and found[42].volume == str(elsewhere)
     assert found[42].paired_by == "manual"
+
+
+def test_the_stations_own_mount_of_an_old_medium_is_stale(tmp_path):
+    """After a COMMIT the kernel keeps the station's mount on the old filesystem: once the disk's
+    diskseq differs from the one recorded at mount time, the drive is present but not mounted."""
+    sysfs, station = tmp_path / "sys", tmp_path / "station-mnt"
+    _usb_device(sysfs, "1-1.2", "04d8", "0057", "CWA17_12345", "ttyACM0", "sdb", (8, 16), diskseq=9)
+    mnt = _drive(station, "sdb1")
+    (tmp_path / "mountinfo").write_text(f"40 22 8:17 / {mnt} rw - vfat /dev/sdb1 rw\n")
+    usb = LinuxUsb(str(sysfs), str(tmp_path / "mountinfo"), str(tmp_path / "dev"), str(station))
+    (station / ".sdb1.diskseq").write_text("9")  # mounted on this medium
+    assert discover(LinuxBackend(usb))[0].volume == str(mnt)
+    (station / ".sdb1.diskseq").write_text("7")  # mounted on the medium before the COMMIT
+    a = discover(LinuxBackend(usb))[0]
+    assert a.volume is None and a.block_device == str(tmp_path / "dev/sdb1")

@@ -46,12 +46,27 @@ def test_udisksctl_first():
     mount_block_device("/dev/sdb1", run=run, which=lambda n: "/usr/bin/" + n, euid=1000)
 
 
-def test_as_root_without_udisks_mounts_into_the_station_folder(tmp_path):
+def test_as_root_without_udisks_mounts_into_the_station_folder(tmp_path, monkeypatch):
+    sysfs = tmp_path / "sys"
+    disk = sysfs / "devices/pci0000:00/usb1/1-1/1-1.2/1-1.2:1.2/host6/block/sdc"
+    (disk / "sdc1").mkdir(parents=True)
+    (disk / "diskseq").write_text("12\n")
+    (sysfs / "class/block").mkdir(parents=True)
+    (sysfs / "class/block/sdc1").symlink_to(disk / "sdc1")
+    mnt = tmp_path / "mnt"
     run = Runner((0, ""))
-    mount_block_device("/dev/sdc1", run=run, which=lambda n: None, euid=0, mount_dir=str(tmp_path))
+    mount_block_device("/dev/sdc1", run=run, which=lambda n: None, euid=0, mount_dir=str(mnt),
+                       sys_root=str(sysfs))
     assert run.cmds == [["mount", "-t", "vfat", "-o", "nosuid,nodev,noexec", "/dev/sdc1",
-                         str(tmp_path / "sdc1")]]
-    assert (tmp_path / "sdc1").is_dir()
+                         str(mnt / "sdc1")]]
+    assert (mnt / "sdc1").is_dir()
+    assert (mnt / ".sdc1.diskseq").read_text() == "12"  # the medium it was mounted on
+    # the station's mount of the medium before a COMMIT is detached before mounting again
+    monkeypatch.setattr("stillpoint.drivers.ax.mount.os.path.ismount", lambda p: p == str(mnt / "sdc1"))
+    run = Runner((0, ""), (0, ""))
+    mount_block_device("/dev/sdc1", run=run, which=lambda n: None, euid=0, mount_dir=str(mnt),
+                       sys_root=str(sysfs))
+    assert run.cmds[0] == ["umount", "-l", str(mnt / "sdc1")] and run.cmds[1][0] == "mount"
 
 
 def test_what_cannot_be_mounted_is_one_line_naming_the_device(tmp_path):

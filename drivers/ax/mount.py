@@ -23,7 +23,14 @@ How: ``udisksctl mount --block-device DEV --no-user-interaction`` when udisks2 i
 mounts under ``/media/<user>/<label>`` like a desktop and cleans up the mounts of media that went
 away; over SSH polkit must allow it: a rule granting ``org.freedesktop.udisks2.filesystem-mount``
 to the station's user), else, as root, ``mount -t vfat -o nosuid,nodev,noexec`` into a folder the
-station owns (``STATION_MOUNT_DIR/<device name>``). Otherwise one line says what to set up. macOS
+station owns (``STATION_MOUNT_DIR/<device name>``). Otherwise one line says what to set up.
+
+A mount the station made itself outlives the medium: after the next COMMIT the kernel keeps it on
+the old filesystem, and nothing (no udisks) cleans it up. So the station writes the disk's
+``diskseq`` (``/sys/block/<disk>/diskseq``, which the kernel increments on every media change,
+Linux 5.15 and later) beside the mount, discovery treats its mount as stale once the number
+differs (``usb_linux``), and the next mount first detaches the old one (``umount -l``). On older
+kernels there is no ``diskseq``, and such a stale mount is not recognised. macOS
 mounts a re-presented drive itself; ``mount_macos`` (``diskutil mount``) is there for a drive
 that was unmounted by hand. Windows assigns drive letters itself and has no remount step.
 """
@@ -56,9 +63,28 @@ def _run(cmd: list[str]) -> tuple[int, str]:
     return r.returncode, ((r.stderr or "") + (r.stdout or "")).strip()
 
 
+def sequence_record(mount_dir: str, name: str) -> str:
+    """The file that holds the disk sequence number of the station's mount of ``name``."""
+    return os.path.join(mount_dir, f".{name}.diskseq")
+
+
+def disk_sequence(device: str, sys_root: str = "/sys") -> Optional[str]:
+    """The ``diskseq`` of the disk holding ``device`` (a partition's is its disk's); None on
+    kernels without it."""
+    real = os.path.realpath(os.path.join(sys_root, "class", "block", os.path.basename(device)))
+    for d in (real, os.path.dirname(real)):
+        try:
+            with open(os.path.join(d, "diskseq")) as f:
+                return f.read().strip() or None
+        except OSError:
+            continue
+    return None
+
+
 def mount_block_device(device: Optional[str], *, run: Callable[[list], tuple] = _run,
                        which: Callable[[str], Optional[str]] = shutil.which,
-                       euid: Optional[int] = None, mount_dir: str = STATION_MOUNT_DIR) -> None:
+                       euid: Optional[int] = None, mount_dir: str = STATION_MOUNT_DIR,
+                       sys_root: str = "/sys") -> None:
     """Mount a Linux block device (``/dev/sdb1``) that holds an AX drive; raises ``MountError``
     naming the device and what to set up."""
     if not device:
@@ -75,8 +101,20 @@ def mount_block_device(device: Optional[str], *, run: Callable[[list], tuple] = 
             os.makedirs(target, mode=0o700, exist_ok=True)
         except OSError as e:
             raise MountError(device, f"cannot create the mount folder {target}: {e.strerror or e}")
+        if os.path.ismount(target):  # the station's own mount of the medium before the COMMIT
+            run(["umount", "-l", target])
+        seq = disk_sequence(device, sys_root)
         rc, msg = run(["mount", "-t", "vfat", "-o", "nosuid,nodev,noexec", device, target])
         if rc == 0:
+            record = sequence_record(mount_dir, os.path.basename(device))
+            try:
+                if seq:
+                    with open(record, "w") as f:
+                        f.write(seq)
+                elif os.path.exists(record):
+                    os.unlink(record)
+            except OSError:
+                pass  # only the stale-mount check needs it
             return
         tried.append(f"mount: {msg.splitlines()[-1] if msg else f'exit {rc}'}")
     if not tried:

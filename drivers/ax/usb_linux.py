@@ -13,8 +13,12 @@ mounted. OmApi's Linux finder (``omapi-devicefinder-linux.c`` 170, 235-251) pair
 same USB parent with libudev but assumes ``/media/<label>``; we read the files directly (no
 libudev dependency).
 
-Every path is relative to ``sys_root`` / ``mountinfo`` / ``dev_root``, so tests build a fake
-tree. Only plain file reads: nothing here opens a device.
+A mount the station made itself (``mount``, as root) whose disk has changed medium since (its
+``diskseq`` differs from the one recorded at mount time) is stale: the drive is reported present
+but not mounted, so that it is mounted again.
+
+Every path is relative to ``sys_root`` / ``mountinfo`` / ``dev_root`` / ``station_mounts``, so
+tests build a fake tree. Only plain file reads: nothing here opens a device.
 """
 
 from __future__ import annotations
@@ -25,6 +29,7 @@ from pathlib import Path
 from typing import Optional
 
 from .. import constants as C
+from .mount import STATION_MOUNT_DIR, sequence_record
 
 
 @dataclass
@@ -91,10 +96,19 @@ class LinuxUsb:
     """Reads the USB devices, ttys, disks and mounts of one (possibly fake) Linux system."""
 
     def __init__(self, sys_root: str = "/sys", mountinfo: str = "/proc/self/mountinfo",
-                 dev_root: str = "/dev"):
+                 dev_root: str = "/dev", station_mounts: str = STATION_MOUNT_DIR):
         self.sys = Path(sys_root)
         self.mountinfo = Path(mountinfo)
         self.dev = Path(dev_root)
+        self.station_mounts = station_mounts
+
+    def _stale(self, mount: Optional[str], name: str, disk: Path) -> bool:
+        """The station's own mount of a medium the disk no longer holds."""
+        if not mount or not _under(mount, self.station_mounts):
+            return False
+        recorded = _read(Path(sequence_record(self.station_mounts, name)))
+        now = _read(disk / "diskseq")
+        return bool(recorded and now and recorded != now)
 
     def _labels(self) -> dict[str, str]:
         d = self.dev / "disk" / "by-label"
@@ -173,5 +187,7 @@ class LinuxUsb:
                 num = _read(fs / "dev")
                 if not num or _read(fs / "size") == "0":  # no medium (ejected by a COMMIT)
                     continue
-                d.drives.append(UsbDrive(str(self.dev / fs.name), num, mounts.get(num),
-                                         labels.get(fs.name)))
+                mount = mounts.get(num)
+                if self._stale(mount, fs.name, rp):
+                    mount = None
+                d.drives.append(UsbDrive(str(self.dev / fs.name), num, mount, labels.get(fs.name)))

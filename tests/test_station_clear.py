@@ -298,3 +298,28 @@ def test_device_bit_flipped_after_download_is_not_cleared_by_the_station(emu, tm
     assert d.clears == [] and _sha(d.data_file) == flipped
     assert main(["device", "verify", "10001", "-o", str(out)]) == 2
     assert "the device file" in _one_line_error(capsys)
+
+
+def test_station_refuses_a_profile_for_another_type_before_clearing(emu, tmp_path):
+    """The profile is for AX6s (gyro on): an AX3 is downloaded but neither cleared nor configured."""
+    d = emu(10001)
+    prof_path = tmp_path / "ax6.toml"
+    prof_path.write_text('[device]\nrate_hz = 100\ngyro_dps = 500\n')
+    out = tmp_path / "out"
+    out.mkdir()
+    rc, flows = _run_station(out, load_profile(prof_path), clear_after_verify=True,
+                             configure_after=True)
+    f = flows[10001]
+    assert rc == 2 and f.state == "error" and "cannot configure an AX3" in f.reason
+    assert d.clears == [] and d.data_file.stat().st_size > 1024
+
+
+def test_station_erase_option_wipes(emu, tmp_path):
+    from stillpoint.tools.cli import main
+    d = emu(10001)
+    out = tmp_path / "out"
+    assert main(["station", str(out), "--once", "--clear-after-verify", "--erase", "wipe",
+                 "--plain"]) == 0
+    assert len(d.clears) == 1
+    lg = Ledger(out)
+    assert lg.clears()[-1][4] == "ok" and lg.clears()[-1][6] == "FORMAT WC"

@@ -320,3 +320,17 @@ def test_the_stations_own_mount_of_an_old_medium_is_stale(tmp_path):
     (station / ".sdb1.diskseq").write_text("7")  # mounted on the medium before the COMMIT
     a = discover(LinuxBackend(usb))[0]
     assert a.volume is None and a.block_device == str(tmp_path / "dev/sdb1")
+
+
+def test_an_enumeration_command_runs_at_most_once_per_refresh(tmp_path, monkeypatch):
+    """PowerShell / system_profiler are not started on every poll of a drive."""
+    from stillpoint.drivers.ax import discovery as D
+    counter = tmp_path / "runs"
+    cmd = ["sh", "-c", f"echo run >> {counter}; wc -l < {counter}"]
+    monkeypatch.setattr(D, "ENUMERATION_REFRESH_S", 3600.0)
+    assert D._run_text(cmd).strip() == "1"
+    assert D._run_text(cmd).strip() == "1"  # the answer reused
+    monkeypatch.setattr(D, "ENUMERATION_REFRESH_S", 0.0)
+    assert D._run_text(cmd).strip() == "2"
+    with pytest.raises(OSError, match="exited 3"):
+        D._run_text(["sh", "-c", "exit 3"])

@@ -40,6 +40,7 @@ from .errors import DeviceError
 _LABEL_RE = re.compile(r"^(AX[36])[0-9A-Fa-f]{0,2}_0*(\d+)$")
 _SERIAL_ID_RE = re.compile(r"(\d+)\s*$")
 ENUMERATION_TIMEOUT_S = 20.0  # one PowerShell / system_profiler call (a cold CIM start takes seconds)
+ENUMERATION_REFRESH_S = 2.0  # reuse an enumeration command's answer this long
 
 
 @dataclass
@@ -178,11 +179,23 @@ def _pyserial_ports() -> list:
         return []
 
 
+_OUTPUTS: dict = {}  # command -> (monotonic time, stdout): the last answer of each command
+
+
 def _run_text(cmd: list[str]) -> str:
-    """stdout of an enumeration command; an OSError or a non-zero exit raise ``OSError``."""
+    """stdout of an enumeration command; an OSError or a non-zero exit raise ``OSError``. An
+    answer younger than ``ENUMERATION_REFRESH_S`` is reused: the station asks for the drives
+    every pass and, while it waits for a drive, ten times a second, and a PowerShell or
+    system_profiler start costs about a second of CPU."""
+    import time
+    key = tuple(cmd)
+    hit = _OUTPUTS.get(key)
+    if hit is not None and time.monotonic() - hit[0] < ENUMERATION_REFRESH_S:
+        return hit[1]
     r = subprocess.run(cmd, capture_output=True, text=True, timeout=ENUMERATION_TIMEOUT_S)
     if r.returncode != 0:
         raise OSError(f"{cmd[0]} exited {r.returncode}: {(r.stderr or '').strip()[:200]}")
+    _OUTPUTS[key] = (time.monotonic(), r.stdout)
     return r.stdout
 
 

@@ -39,7 +39,8 @@ from stillpoint.drivers.cwa_layout import parse_header
 
 REPO = Path(__file__).resolve().parents[1]
 OUR_SOURCES = ("tests/omapi/harness.c", "tests/omapi/finder.c", "tests/omapi/finder.h")
-VENDOR_SOURCES = tuple(f"src/omapi-{m}.c" for m in ("main", "internal", "status", "settings", "download", "reader"))
+VENDOR_SOURCES = tuple(f"src/omapi-{m}.c"
+                       for m in ("main", "internal", "status", "settings", "download", "reader"))
 VENDOR_HEADERS = ("include/omapi.h", "src/omapi-internal.h")
 CFLAGS = ("-O1", "-w", "-pthread")
 HARNESS_TIMEOUT_S = 60  # a run takes ~6 s; a silent device costs OmApi 2 s per command
@@ -212,10 +213,12 @@ def run(request, harness, tmp_path_factory) -> Run:
                                       env={k: v for k, v in os.environ.items() if k != "OMDEBUG"})
             except subprocess.TimeoutExpired as e:
                 out = e.stdout.decode() if isinstance(e.stdout, bytes) else (e.stdout or "")
-                pytest.fail(f"{kind}: the OmApi harness did not finish in {HARNESS_TIMEOUT_S} s; it printed:\n{out}")
+                pytest.fail(f"{kind}: the OmApi harness did not finish in {HARNESS_TIMEOUT_S} s; "
+                            f"it printed:\n{out}")
             r.calls, r.lines = parse_lines(proc.stdout)
             r.stderr = proc.stderr
-            assert proc.returncode == 0, f"{kind}: harness exit {proc.returncode}\n{proc.stdout}\n{proc.stderr}"
+            assert proc.returncode == 0, (
+                f"{kind}: harness exit {proc.returncode}\n{proc.stdout}\n{proc.stderr}")
             r.pending_at_end = (pty_queued(emu.pty_path), emu.pending())
             r.after = emulator_state(emu)
             r.download = destination.read_bytes() if destination.exists() else b""
@@ -357,7 +360,8 @@ def test_omgui_record_settings_read_back(run):
     # the commit stamps the header's last-change time with the device clock (AX3 Logger.c 438)
     changed = run.call("recorded", "OmGetLastConfigTime")["time"]
     assert changed == omapi_time(run.after["last_change"])
-    assert dt.datetime.fromisoformat(synced["time"]) <= dt.datetime.fromisoformat(changed) <= run.after["time"]
+    changed_at = dt.datetime.fromisoformat(changed)
+    assert dt.datetime.fromisoformat(synced["time"]) <= changed_at <= run.after["time"]
     # the header the commit wrote, through OmApi's reader
     meta = run.call("recorded", "OmReaderMetadata")
     assert (meta["session"], meta["metadata"]) == (str(dev.record_session), dev.metadata)

@@ -265,7 +265,8 @@ static void read_phase(int id)
     rc = OmGetDelays(id, &t, &t2); begin("read", "OmGetDelays", rc);
     add_time("start", t); add_time("stop", t2); finish();
     session = 0;
-    rc = OmGetSessionId(id, &session); begin("read", "OmGetSessionId", rc); add(" session=%u", session); finish();
+    rc = OmGetSessionId(id, &session); begin("read", "OmGetSessionId", rc); add(" session=%u", session);
+    finish();
     rc = OmSelfTest(id); begin("read", "OmSelfTest", rc); add(" value=%d", rc); finish();
     a = -1;
     rc = OmGetMaxSamples(id, &a); begin("read", "OmGetMaxSamples", rc); add(" value=%d", a); finish();
@@ -277,12 +278,15 @@ static void read_phase(int id)
     a = b = c = 0;
     rc = OmGetAccelerometer(id, &a, &b, &c); begin("read", "OmGetAccelerometer", rc);
     add(" x=%d y=%d z=%d", a, b, c); finish();
-    rc = OmSetLed(id, OM_LED_MAGENTA); begin("read", "OmSetLed", rc); add(" led=%d", OM_LED_MAGENTA); finish();
-    rc = OmSetLed(id, OM_LED_AUTO); begin("read", "OmSetLed(auto)", rc); add(" led=%d", OM_LED_AUTO); finish();
+    rc = OmSetLed(id, OM_LED_MAGENTA); begin("read", "OmSetLed", rc); add(" led=%d", OM_LED_MAGENTA);
+    finish();
+    rc = OmSetLed(id, OM_LED_AUTO); begin("read", "OmSetLed(auto)", rc); add(" led=%d", OM_LED_AUTO);
+    finish();
     rc = OmGetDataFileSize(id); begin("read", "OmGetDataFileSize", rc); add(" size=%d", rc); finish();
     { int bs = 0, off = 0, nb = 0; t = t2 = 0;
       rc = OmGetDataRange(id, &bs, &off, &nb, &t, &t2); begin("read", "OmGetDataRange", rc);
-      add(" block=%d offset=%d blocks=%d", bs, off, nb); add_time("first", t); add_time("last", t2); finish(); }
+      add(" block=%d offset=%d blocks=%d", bs, off, nb); add_time("first", t); add_time("last", t2);
+      finish(); }
 }
 
 static void download_phase(int id, const char *destination)
@@ -309,7 +313,10 @@ static void download_phase(int id, const char *destination)
    the offsets of the CWA header (openmovement Docs/ax3/cwa.h). OmApi's OM_READER_HEADER_PACKET
    cannot be used for this: it declares the times as OM_DATETIME, an unsigned long, which is 8 bytes
    on 64-bit Linux, so every field after byte 13 is misplaced there. */
-static unsigned int le32(const unsigned char *b) { return b[0] | b[1] << 8 | b[2] << 16 | (unsigned int)b[3] << 24; }
+static unsigned int le32(const unsigned char *b)
+{
+    return b[0] | b[1] << 8 | b[2] << 16 | (unsigned int)b[3] << 24;
+}
 
 static void header_fields(const char *phase)
 {
@@ -385,16 +392,20 @@ static void clear_phase(int id)
     rc = OmSetDelays(id, OM_DATETIME_INFINITE, OM_DATETIME_INFINITE); begin("clear", "OmSetDelays", rc);
     add_time("start", OM_DATETIME_INFINITE); add_time("stop", OM_DATETIME_INFINITE); finish();
     rc = OmSetAccelConfig(id, OM_ACCEL_DEFAULT_RATE, OM_ACCEL_DEFAULT_RANGE);
-    begin("clear", "OmSetAccelConfig", rc); add(" rate=%d range=%d", OM_ACCEL_DEFAULT_RATE, OM_ACCEL_DEFAULT_RANGE); finish();
+    begin("clear", "OmSetAccelConfig", rc);
+    add(" rate=%d range=%d", OM_ACCEL_DEFAULT_RATE, OM_ACCEL_DEFAULT_RANGE); finish();
     erase_or_commit("clear", "OmEraseDataAndCommit(QUICKFORMAT)", id, OM_ERASE_QUICKFORMAT);
 
     /* read back: the settings through OmApi, then what the data file holds */
-    rc = OmGetSessionId(id, &session); begin("cleared", "OmGetSessionId", rc); add(" session=%u", session); finish();
-    rc = OmGetDelays(id, &t, &t2); begin("cleared", "OmGetDelays", rc); add_time("start", t); add_time("stop", t2); finish();
+    rc = OmGetSessionId(id, &session); begin("cleared", "OmGetSessionId", rc); add(" session=%u", session);
+    finish();
+    rc = OmGetDelays(id, &t, &t2); begin("cleared", "OmGetDelays", rc); add_time("start", t);
+    add_time("stop", t2); finish();
     rc = OmGetAccelConfig(id, &a, &b); begin("cleared", "OmGetAccelConfig", rc);
     add(" rate=%d range=%d gyro=%d", a, b & 0xffff, b >> 16); finish();
     text[0] = '\0';
-    rc = OmGetMetadata(id, text); begin("cleared", "OmGetMetadata", rc); add_string("metadata", text); finish();
+    rc = OmGetMetadata(id, text); begin("cleared", "OmGetMetadata", rc); add_string("metadata", text);
+    finish();
     file_readback("cleared", id);
 }
 
@@ -437,7 +448,8 @@ static void record_phase(int id, unsigned int session, const char *metadata, int
     char command[32];
     time_t now = time(NULL);
 
-    rc = OmSetSessionId(id, session); begin("record", "OmSetSessionId", rc); add(" session=%u", session); finish();
+    rc = OmSetSessionId(id, session); begin("record", "OmSetSessionId", rc); add(" session=%u", session);
+    finish();
     rc = OmSetMetadata(id, metadata, (int)strlen(metadata)); begin("record", "OmSetMetadata", rc);
     add_string("metadata", metadata); finish();
     rc = OmSetMaxSamples(id, 0); begin("record", "OmSetMaxSamples", rc); add(" value=0"); finish();
@@ -447,7 +459,8 @@ static void record_phase(int id, unsigned int session, const char *metadata, int
     /* OmDevice.SetDebug: OmCommand("DEBUG n", expected "DEBUG=") */
     snprintf(command, sizeof(command), "\r\nDEBUG %d\r\n", debug);
     rc = OmCommand(id, command, response, sizeof(response), "DEBUG=", 2000, parts, 4);
-    begin("record", "OmCommand(DEBUG)", rc); add(" value=%d", parts[1] != NULL ? atoi(parts[1]) : -1); finish();
+    begin("record", "OmCommand(DEBUG)", rc); add(" value=%d", parts[1] != NULL ? atoi(parts[1]) : -1);
+    finish();
     start = local_after(now, 3600);
     stop = local_after(now, 2 * 86400);
     rc = OmSetDelays(id, start, stop); begin("record", "OmSetDelays", rc);
@@ -455,18 +468,23 @@ static void record_phase(int id, unsigned int session, const char *metadata, int
     erase_or_commit("record", "OmCommit", id, OM_ERASE_NONE);
 
     /* read back every setting through OmApi, then from the data file's header */
-    rc = OmGetSessionId(id, &got_session); begin("recorded", "OmGetSessionId", rc); add(" session=%u", got_session); finish();
+    rc = OmGetSessionId(id, &got_session); begin("recorded", "OmGetSessionId", rc);
+    add(" session=%u", got_session); finish();
     text[0] = '\0';
-    rc = OmGetMetadata(id, text); begin("recorded", "OmGetMetadata", rc); add_string("metadata", text); finish();
+    rc = OmGetMetadata(id, text); begin("recorded", "OmGetMetadata", rc); add_string("metadata", text);
+    finish();
     rc = OmGetMaxSamples(id, &a); begin("recorded", "OmGetMaxSamples", rc); add(" value=%d", a); finish();
     a = 0;
     rc = OmGetAccelConfig(id, &a, &b); begin("recorded", "OmGetAccelConfig", rc);
     add(" rate=%d range=%d gyro=%d", a, b & 0xffff, b >> 16); finish();
-    rc = OmGetDelays(id, &t, &t2); begin("recorded", "OmGetDelays", rc); add_time("start", t); add_time("stop", t2); finish();
+    rc = OmGetDelays(id, &t, &t2); begin("recorded", "OmGetDelays", rc); add_time("start", t);
+    add_time("stop", t2); finish();
     rc = OmCommand(id, "\r\nDEBUG\r\n", response, sizeof(response), "DEBUG=", 2000, parts, 4);
-    begin("recorded", "OmCommand(DEBUG)", rc); add(" value=%d", parts[1] != NULL ? atoi(parts[1]) : -1); finish();
+    begin("recorded", "OmCommand(DEBUG)", rc); add(" value=%d", parts[1] != NULL ? atoi(parts[1]) : -1);
+    finish();
     t = 0;
-    rc = OmGetLastConfigTime(id, &t); begin("recorded", "OmGetLastConfigTime", rc); add_time("time", t); finish();
+    rc = OmGetLastConfigTime(id, &t); begin("recorded", "OmGetLastConfigTime", rc); add_time("time", t);
+    finish();
     file_readback("recorded", id);
 }
 
@@ -475,7 +493,8 @@ int main(int argc, char *argv[])
     int id, rc;
 
     if (argc != 11) {
-        fprintf(stderr, "usage: harness SERIAL PORT VOLUME DOWNLOAD SESSION METADATA RATE RANGE GYRO DEBUG\n");
+        fprintf(stderr, "usage: harness SERIAL PORT VOLUME DOWNLOAD SESSION METADATA RATE RANGE GYRO "
+                        "DEBUG\n");
         return 2;
     }
     setvbuf(stdout, NULL, _IOLBF, 0);

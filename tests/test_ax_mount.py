@@ -132,3 +132,20 @@ def test_station_completes_on_a_device_whose_drive_is_not_mounted_again(emu, tmp
     from stillpoint.drivers.cwa_layout import parse_header
     h = parse_header(d.data_file.read_bytes()[:1024])
     assert (h["session_id"], h["sample_rate_hz"]) == (2, 50.0)
+
+
+class NoLetter(Unmountable):
+    """Windows: the device's disk is there but has no drive letter (nothing the station can mount)."""
+
+    def drives(self):
+        return [DriveInfo(None, None, "k", None, hint="give \\\\.\\PHYSICALDRIVE4 a drive letter in "
+                                                      "Disk Management")]
+
+
+def test_wait_volume_says_why_a_present_drive_never_appeared(tmp_path):
+    b = NoLetter(tmp_path)
+    from stillpoint.drivers.ax.discovery import discover
+    flow = DeviceFlow(discover(b)[0], StationOptions(str(tmp_path)), ledger=None, backend=b)
+    with pytest.raises(DeviceError, match=r"did not come back within 0.3 s .*present but not mounted "
+                                          r"\(give \\\\\.\\PHYSICALDRIVE4 a drive letter"):
+        flow.wait_volume(0.3)

@@ -141,6 +141,8 @@ class DeviceFlow:
                                   f"{limit:g} s (after COMMIT/CLEAR or enumeration"
                                   + (f"; the station mounted {mounted} but no {C.AX_DATA_FILE} "
                                      "appeared" if mounted else "")
+                                  + (f"; {a.problem}" if a is not None and a.problem and not mounted
+                                     and not a.problem.startswith("no drive found") else "")
                                   + "); unplug and re-plug the device")
             time.sleep(0.1)
 

@@ -2,7 +2,8 @@
 
 Each running emulated device writes ``<runtime>/devices/<serial>.json`` (what a USB host would
 enumerate: serial number, manufacturer, VID:PID, the serial port, the folder its drive is
-mounted under, the dock slot) and removes it when unplugged. ``<runtime>`` is
+mounted under, the folder that is its drive while present but not mounted, the dock slot) and
+removes it when unplugged. ``<runtime>`` is
 ``$STILLPOINT_RUNTIME_DIR``, else ``$XDG_RUNTIME_DIR/stillpoint``, else ``/tmp/stillpoint-<uid>``.
 """
 

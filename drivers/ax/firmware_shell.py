@@ -97,6 +97,7 @@ class FirmwareShell:
                           data_mode=FORMAT_SINGLE_FILE | (FORMAT_CWA_UNPACKED if self.kind == "AX6"
                                                           else FORMAT_CWA_PACKED))
         self.led = -1
+        self.echo = 0  # commEcho starts 0 at every reset (Flux.AX3/src/Utils/Util.c 45)
         self.lock_code = 0
         code = dev.config.get(CONFIG_LOCK, 0xFFFF)
         if code not in (0, 0xFFFF):  # "initial lock": locked, and the drive starts unmounted

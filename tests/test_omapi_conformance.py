@@ -143,6 +143,7 @@ class Run:
     after: dict = field(default_factory=dict)
     download: bytes = b""
     data_after: bytes = b""
+    files_after: list = field(default_factory=list)  # the drive's root after the last phase
     pending_at_end: tuple = (0, 0)  # (bytes queued on the pty, bytes the emulator has not sent)
 
     def call(self, phase: str, name: str) -> dict:
@@ -201,6 +202,7 @@ def run(request, harness, tmp_path_factory) -> Run:
         r = Run(kind, dev, emu)
         try:
             emu.plug(pty=True)
+            (emu.volume / "NOTES.TXT").write_text("a file a user left on the drive\r\n")
             r.before = emulator_state(emu)
             data = emu.data_file.read_bytes()
             r.before.update(size=len(data), sha256=hashlib.sha256(data).hexdigest())
@@ -223,6 +225,7 @@ def run(request, harness, tmp_path_factory) -> Run:
             r.after = emulator_state(emu)
             r.download = destination.read_bytes() if destination.exists() else b""
             r.data_after = emu.data_file.read_bytes()
+            r.files_after = sorted(p.name for p in emu.volume.iterdir())
         finally:
             emu.shutdown()
     return r
@@ -329,6 +332,9 @@ def test_omgui_clear_leaves_a_header_that_never_records(run):
     accel = run.call("cleared", "OmGetAccelConfig")
     assert (accel["rate"], accel["range"]) == ("100", "8")  # OM_ACCEL_DEFAULT_RATE/RANGE (omapi.h)
     assert run.call("cleared", "OmGetMetadata")["metadata"] == ""
+    # FORMAT makes a new filesystem (AX3 Settings.c 387, FsFtlFormat): no other file survives; the record
+    # phase after it adds none
+    assert run.files_after == [C.AX_DATA_FILE]
     # the data file holds only a header, and that header says "never record", session 0
     assert int(run.call("cleared", "OmGetDataFileSize")["size"]) == C.CWA_HEADER_BYTES
     assert run.call("cleared", "OmGetDataRange")["blocks"] == "0"

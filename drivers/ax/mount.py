@@ -63,6 +63,12 @@ def _run(cmd: list[str]) -> tuple[int, str]:
     return r.returncode, ((r.stderr or "") + (r.stdout or "")).strip()
 
 
+def _one_line(msg: str, limit: int = 200) -> str:
+    """A tool's error output as one line (``mount`` adds a second line pointing at dmesg)."""
+    return " ".join(line.strip() for line in (msg or "").splitlines()
+                    if line.strip() and "dmesg(1)" not in line)[:limit]
+
+
 def sequence_record(mount_dir: str, name: str) -> str:
     """The file that holds the disk sequence number of the station's mount of ``name``."""
     return os.path.join(mount_dir, f".{name}.diskseq")
@@ -94,7 +100,7 @@ def mount_block_device(device: Optional[str], *, run: Callable[[list], tuple] = 
         rc, msg = run(["udisksctl", "mount", "--block-device", device, "--no-user-interaction"])
         if rc == 0 or "AlreadyMounted" in msg:
             return
-        tried.append(f"udisksctl: {msg.splitlines()[-1] if msg else f'exit {rc}'}")
+        tried.append(f"udisksctl: {_one_line(msg) or f'exit {rc}'}")
     if (os.geteuid() if euid is None else euid) == 0:
         target = os.path.join(mount_dir, os.path.basename(device))
         try:
@@ -116,7 +122,7 @@ def mount_block_device(device: Optional[str], *, run: Callable[[list], tuple] = 
             except OSError:
                 pass  # only the stale-mount check needs it
             return
-        tried.append(f"mount: {msg.splitlines()[-1] if msg else f'exit {rc}'}")
+        tried.append(f"mount: {_one_line(msg).removeprefix('mount: ') or f'exit {rc}'}")
     if not tried:
         raise MountError(device, "the drive is present but not mounted, and this station cannot "
                                  "mount it (no udisksctl, not root): install udisks2 (and allow "
@@ -133,7 +139,7 @@ def mount_macos(device: Optional[str], *, run: Callable[[list], tuple] = _run) -
     node = device if device.startswith("/dev/") else f"/dev/{device}"
     rc, msg = run(["diskutil", "mount", node])
     if rc != 0:
-        raise MountError(device, f"diskutil could not mount it ({msg.splitlines()[-1] if msg else rc})")
+        raise MountError(device, f"diskutil could not mount it ({_one_line(msg) or rc})")
 
 
 def remount(att, backend) -> None:

@@ -8,7 +8,8 @@ Subcommands live in ``tools/commands/<name>.py``; each module defines
     def run(args) -> int: ...             # exit code
 
 and is found automatically. Any ``StillpointError`` (bad input) becomes exit code 2 with one line
-on stderr; a ``KeyboardInterrupt`` exits 130.
+on stderr, and so does a bad argument (``CommandLineParser``; numbers are checked by the types in
+``commands/_numbers.py``); a ``KeyboardInterrupt`` exits 130.
 """
 
 from __future__ import annotations
@@ -46,8 +47,17 @@ def _only_requested(argv) -> "str | None":
     return None
 
 
+class CommandLineParser(argparse.ArgumentParser):
+    """argparse with one-line errors: ``stillpoint CMD: error: argument --rate: ...`` and exit
+    code 2, without the usage block (``stillpoint CMD --help`` still shows it). Subcommand
+    parsers are of the same class (argparse makes them with the parent's class)."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {' '.join(message.split())}\n")
+
+
 def build_parser(only=None) -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = CommandLineParser(
         prog="stillpoint",
         description="Streaming engine for raw wearable-accelerometer data (AX3/AX6 .cwa, GENEActiv .bin).")
     import stillpoint
@@ -146,6 +156,8 @@ def main(argv=None) -> int:
     try:
         parser = build_parser(_only_requested(argv))
         args = parser.parse_args(argv)
+    except SystemExit as e:  # --help, --version, or a bad argument (one line already printed)
+        return e.code if isinstance(e.code, int) else (0 if e.code is None else 2)
     except (KeyboardInterrupt, ImportError) as e:
         if isinstance(e, ImportError) and not sigints:
             raise

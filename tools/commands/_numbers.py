@@ -1,6 +1,12 @@
 """Numeric command-line options checked at parse time: finite and within a plausible range, so
-``--epoch-s 1e12`` or ``--days nan`` is refused with a clear message before any work (argparse
-exit code 2), never handed to the engine."""
+``--epoch-s 1e12`` or ``--days nan`` is refused with one line (``stillpoint CMD: error:
+argument --days: ...``, exit code 2) before any work, never handed to the engine.
+
+Every number a command line takes is parsed by a type made here (``number``, ``number_or``,
+``number_list``, ``number_pair``); ``tests/test_cli_numbers.py`` walks the whole parser and
+fails for an option parsed with a bare ``int``/``float``/no type, and tries every bad value
+against every option. Each type carries its bounds (``lo``, ``hi``, ``integer``, ``lo_open``)
+so that test can compute the values just outside them."""
 
 from __future__ import annotations
 
@@ -11,7 +17,8 @@ import math
 def number(lo: float, hi: float, *, integer: bool = False, lo_open: bool = False, unit: str = ""):
     """An argparse ``type``: a finite number in [lo, hi] (or (lo, hi] with ``lo_open``)."""
     u = f" {unit}" if unit else ""
-    span = f"{'(' if lo_open else '['}{lo:g}, {hi:g}]{u}"
+    shown = (lambda v: f"{v:d}") if integer else (lambda v: f"{v:g}")
+    span = f"{'(' if lo_open else '['}{shown(lo)}, {shown(hi)}]{u}"
 
     def parse(text: str):
         try:
@@ -26,6 +33,60 @@ def number(lo: float, hi: float, *, integer: bool = False, lo_open: bool = False
         return v
 
     parse.__name__ = "integer" if integer else "number"
+    parse.lo, parse.hi, parse.integer, parse.lo_open, parse.unit = lo, hi, integer, lo_open, unit
+    return parse
+
+
+def number_or(word: str, num):
+    """An argparse ``type``: the word ``word`` (any case; returned as given in lower case) or a
+    number checked by ``num`` (a ``number(...)`` type)."""
+
+    def parse(text: str):
+        if text.strip().lower() == word:
+            return word
+        try:
+            return num(text)
+        except argparse.ArgumentTypeError as e:
+            raise argparse.ArgumentTypeError(f"{e} (or '{word}')") from None
+
+    parse.__name__ = num.__name__
+    parse.lo, parse.hi, parse.integer, parse.lo_open = num.lo, num.hi, num.integer, num.lo_open
+    parse.unit, parse.word = num.unit, word
+    return parse
+
+
+def number_list(num, *, increasing: bool = False, what: str = "numbers"):
+    """An argparse ``type``: comma-separated numbers, each checked by ``num``; a tuple."""
+
+    def parse(text: str):
+        items = [x.strip() for x in str(text).split(",") if x.strip()]
+        if not items:
+            raise argparse.ArgumentTypeError(f"{text!r}: give {what}, e.g. 40,100,400")
+        vals = tuple(num(x) for x in items)
+        if increasing and any(b <= a for a, b in zip(vals, vals[1:])):
+            raise argparse.ArgumentTypeError(f"{text!r}: the values must increase")
+        return vals
+
+    parse.__name__ = "list"
+    parse.lo, parse.hi, parse.integer, parse.lo_open, parse.unit = (
+        num.lo, num.hi, num.integer, num.lo_open, num.unit)
+    parse.separator = ","
+    return parse
+
+
+def number_pair(num, *, separator: str = ":", form: str = "A:B"):
+    """An argparse ``type``: two numbers ``A<separator>B``, each checked by ``num``; a tuple."""
+
+    def parse(text: str):
+        parts = str(text).split(separator)
+        if len(parts) != 2:
+            raise argparse.ArgumentTypeError(f"{text!r}: expected {form}")
+        return num(parts[0]), num(parts[1])
+
+    parse.__name__ = "pair"
+    parse.lo, parse.hi, parse.integer, parse.lo_open, parse.unit = (
+        num.lo, num.hi, num.integer, num.lo_open, num.unit)
+    parse.separator = separator
     return parse
 
 
@@ -35,3 +96,8 @@ SECONDS_DAY = number(0, 86_400, lo_open=True, unit="s")
 EPOCH_S = number(0.01, 86_400, unit="s")
 RATE_HZ = number(1, 5000, unit="Hz")
 SEED = number(0, 2**32 - 1, integer=True)
+DAYS = number(0, 366, lo_open=True, unit="days")  # a simulated or emulated recording's length
+DEVICE_ID = number(0, 2**32 - 1, integer=True)  # the .cwa header holds a 32-bit id (cwa_layout)
+WORKERS = number(1, 1024, integer=True)
+MB_PER_S = number(0, 10_000, lo_open=True, unit="MB/s")
+SECONDS_YEAR = number(0, 366 * 86_400, lo_open=True, unit="s")

@@ -7,6 +7,8 @@ import json
 import sys
 from pathlib import Path
 
+from ._numbers import DEVICE_ID, number, number_pair
+
 
 def add_arguments(p) -> None:
     g = p.add_argument_group("scenarios sixface / infant")
@@ -15,18 +17,22 @@ def add_arguments(p) -> None:
                         "calibration session; infant: an infant ankle recording with kicks")
     g.add_argument("--sensor-errors", choices=("table2", "none"), default="table2",
                    help="sixface/infant: Table-2-like offset/gain/noise drawn from --seed, or none")
-    g.add_argument("--cross-axis", type=float, default=0.0,
+    g.add_argument("--cross-axis", type=number(0, 1), default=0.0,
                    help="sixface/infant: maximum |cross-axis term| of the drawn errors (default 0)")
-    g.add_argument("--hold-s", type=float, default=10.0, help="sixface: seconds per face")
+    g.add_argument("--hold-s", type=number(0, 3600, lo_open=True, unit="s"), default=10.0,
+                   help="sixface: seconds per face")
     g.add_argument("--order", default=None, help="sixface: face order, e.g. +x,-x,+y,-y,+z,-z "
                                                  "(default random; repeats allowed)")
-    g.add_argument("--minutes", type=float, default=20.0, help="infant: recording length")
+    g.add_argument("--minutes", type=number(0, 31 * 1440, lo_open=True, unit="min"), default=20.0,
+                   help="infant: recording length")
     g.add_argument("--sleep", action="append", default=[], metavar="START_MIN:LEN_MIN",
+                   type=number_pair(number(0, 31 * 1440, unit="min"), form="START_MIN:LEN_MIN"),
                    help="infant: a sleep block (repeatable)")
     g.add_argument("--controls", action="store_true",
                    help="infant: add negative controls (perpendicular-only, no-rotation, rhythmic)")
-    g.add_argument("--skew-ppm", type=float, default=0.0, help="infant: device clock skew")
-    g.add_argument("--device-id", type=int, default=None, help="sixface/infant: device serial")
+    g.add_argument("--skew-ppm", type=number(-100_000, 100_000, unit="ppm"), default=0.0,
+                   help="infant: device clock skew")
+    g.add_argument("--device-id", type=DEVICE_ID, default=None, help="sixface/infant: device serial")
 
 
 def run(args) -> int:
@@ -56,13 +62,7 @@ def run(args) -> int:
                 f"{hz:g} Hz, faces {','.join(s.settings['order'])}; truth {res['truth']}")
     else:
         from stillpoint.engine.sim.infant import make_infant, write_infant
-        sleep = []
-        for b in args.sleep:
-            try:
-                a, ln = (float(x) for x in b.split(":"))
-            except ValueError:
-                raise ModelError(f"--sleep {b!r}: expected START_MIN:LEN_MIN") from None
-            sleep.append((a, ln))
+        sleep = list(args.sleep)  # (start, length) pairs checked when parsed
         sim = make_infant(minutes=args.minutes, fs=hz, seed=args.seed, errors=errors,
                           sleep_blocks=sleep, controls=args.controls, clock_skew_ppm=args.skew_ppm)
         res = write_infant(out, sim, device=args.device, device_id=dev_id, range_g=range_g,

@@ -4,7 +4,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ._numbers import SECONDS_DAY, number, number_list
 from ._runopts import OptionError
+
+ENMO_BANDS = number_list(number(0, 10_000, lo_open=True, unit="mg"), increasing=True,
+                         what="increasing mg values")
 
 
 def add_timezone_argument(p) -> None:
@@ -23,27 +27,18 @@ def add_table_arguments(p, *, with_switch: bool = True) -> None:
     g.add_argument("--nonwear", choices=("2013", "2023"), default="2023",
                    help="GGIR nonwear rule: 2023 (default; flags the whole 60-min window) or 2013 "
                         "(centred window, flags the 15-min window)")
-    g.add_argument("--valid-day-hours", type=float, default=16.0,
+    g.add_argument("--valid-day-hours", type=number(0, 25, lo_open=True, unit="h"), default=16.0,
                    help="a valid day has at least this many hours of clean wear (default 16)")
-    g.add_argument("--enmo-bands", default="40,100,400", metavar="MG,MG,...",
+    g.add_argument("--enmo-bands", type=ENMO_BANDS, default="40,100,400", metavar="MG,MG,...",
                    help="ENMO band edges in mg for minutes per band (default 40,100,400; the second "
                         "edge is the MVPA threshold)")
-    g.add_argument("--mvpa-bout-s", type=float, default=60.0,
+    g.add_argument("--mvpa-bout-s", type=SECONDS_DAY, default=60.0,
                    help="MVPA counts runs of at least this many seconds (default 60)")
 
 
 def table_settings(args, mcap_out: Path):
     from stillpoint.engine.tables import TablesSettings, table_paths
-    try:
-        bands = tuple(float(x) for x in str(args.enmo_bands).split(",") if x.strip())
-    except ValueError:
-        raise OptionError(f"--enmo-bands {args.enmo_bands!r}: give numbers like 40,100,400") from None
-    if not bands or any(b <= 0 for b in bands) or list(bands) != sorted(bands):
-        raise OptionError("--enmo-bands: positive increasing mg values, e.g. 40,100,400")
-    if args.valid_day_hours <= 0 or args.valid_day_hours > 25:
-        raise OptionError("--valid-day-hours must be in (0, 25]")
-    if args.mvpa_bout_s <= 0:
-        raise OptionError("--mvpa-bout-s must be positive")
+    bands = tuple(args.enmo_bands)  # the three options are checked when parsed (_numbers)
     ep, dp = table_paths(mcap_out)
     return TablesSettings(ep, dp, nonwear_version=args.nonwear, valid_day_hours=args.valid_day_hours,
                           enmo_bands_mg=bands, mvpa_bout_s=args.mvpa_bout_s)

@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 import sys
 
-from ._numbers import RATE_HZ, SECONDS_DAY, number
+from ._numbers import RATE_HZ, SECONDS_DAY, number, number_or
 from stillpoint.drivers.outputs import atomic_output, check_distinct_outputs, check_output_path
 from stillpoint.engine.jsonsafe import jsonable
 
@@ -40,7 +40,7 @@ def add_arguments(p) -> None:
                         "+-600 s search, trimmed fit with CIs, halt/step detection, temperature term")
     p.add_argument("--interpolation", choices=("previous", "linear", "cubic"), default="previous",
                    help="resampling of OTHER (default previous: keeps amplitudes, as the paper)")
-    p.add_argument("--rate", default="30",
+    p.add_argument("--rate", type=number_or("native", RATE_HZ), default="30",
                    help="common rate, Hz (default 30, the paper's), or 'native': the reference's "
                         "own rate (sub-sample lags at the native rate; slower)")
     p.add_argument("--out-rate", type=RATE_HZ, default=None,
@@ -91,7 +91,7 @@ def run(args) -> int:
     from stillpoint.engine.alignment.operator import AlignConfig, run_alignment
 
     config = AlignConfig(method=args.method,
-                         rate=None if str(args.rate).lower() == "native" else float(args.rate),
+                         rate=None if args.rate == "native" else args.rate,
                          block_s=None if args.block_minutes is None else args.block_minutes * 60.0,
                          max_lag_s=args.max_lag_s, block_time=args.block_time,
                          min_blocks=args.min_blocks, temperature=not args.no_temperature,

@@ -18,6 +18,7 @@ import json
 import sys
 from pathlib import Path
 
+from ._numbers import WORKERS, number
 from ._runopts import OptionError, add_setting_arguments, settings_overrides
 
 NAME = "cohort"
@@ -34,11 +35,11 @@ def _exec_arguments(p) -> None:
                    help="local: a Dask LocalCluster on this machine (default; a process pool when "
                         "Dask is not installed); processes: a process pool; serial: one file after "
                         "another in this process; or a Dask scheduler address (tcp://host:8786)")
-    g.add_argument("-j", "--jobs", type=int, default=None,
+    g.add_argument("-j", "--jobs", type=WORKERS, default=None,
                    help="worker processes for local/processes (default: the cores available)")
     g.add_argument("--memory-limit", default="auto",
                    help="LocalCluster memory limit per worker, e.g. 4GB (default: memory / workers)")
-    g.add_argument("--max-in-flight", type=int, default=None,
+    g.add_argument("--max-in-flight", type=number(1, 1_000_000, integer=True), default=None,
                    help="jobs submitted at a time (default: twice the worker slots)")
     g.add_argument("--strict", action="store_true", help="exit 1 when any file failed")
     g.add_argument("-q", "--quiet", action="store_true", help="no progress and no failure lines")

@@ -311,11 +311,22 @@ def export_mcap(path, out, topics):
     return _export(path, out, topics)
 
 
+_KIND = {"cwa": "an AX3/AX6 .cwa", "geneactiv": "a GENEActiv .bin"}
+
+
 def export_recording(path, out, *, time_format: str = "iso", timezone=None, compress: bool = False,
                      topics=None, table_options: Optional[dict] = None) -> dict:
     """Export a recording to CSV or NPZ (see the module docstring). Returns a small report."""
     out = Path(out)
     fmt = sniff_format(path)
+    if topics and fmt != "mcap":
+        raise StillpointError(f"{path}: --topic selects the topics of a stillpoint MCAP log; this "
+                              f"input is {_KIND.get(fmt, fmt)} recording, whose export has no "
+                              "topics (leave --topic out)")
+    if topics and out.name.lower().endswith(".epochs.csv.gz"):
+        raise StillpointError(f"{out}: --topic does not apply to the epoch and day tables (they are "
+                              "made from the log's epoch topics); leave it out, or export a topic "
+                              "to .csv/.npz")
     if fmt == "mcap" and out.name.lower().endswith(".epochs.csv.gz"):
         from stillpoint.engine.tables import tables_from_mcap
         result = tables_from_mcap(path, out, timezone=timezone, **(table_options or {}))

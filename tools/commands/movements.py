@@ -8,6 +8,8 @@ import csv
 import json
 from pathlib import Path
 
+from ._numbers import number
+
 NAME = "movements"
 HELP = "count infant leg movements per leg (AX6 ankle recordings), with static calibration"
 DESCRIPTION = (HELP + ". FILE is the left leg, RIGHT_FILE the right; legs are processed "
@@ -34,7 +36,8 @@ def add_arguments(p) -> None:
     p.add_argument("--filter", choices=("none", "2tap", "lowpass8"), default="none",
                    help="none (HBCD release), 2tap = the reference's 'first-order 8 Hz FIR' "
                         "(really a 2-sample average), lowpass8 = a real zero-phase 8 Hz low-pass")
-    p.add_argument("--resample", type=float, default=None, metavar="HZ",
+    p.add_argument("--resample", type=number(0, 5000, lo_open=True, unit="Hz"), default=None,
+                   metavar="HZ",
                    help="resample onto a uniform grid first (the HBCD release also reports 20 Hz)")
     p.add_argument("--accel-only", action="store_true",
                    help="AX3/GENEActiv: run without the gyro gate (NOT VALIDATED)")

@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from ._numbers import number
+
 NAME = "static-calibrate"
 HELP = "estimate offset, gain, misalignment and noise per axis from a six-orientation recording"
 DESCRIPTION = (HELP + ". The user puts the device on a level surface on each of its six faces "
@@ -21,7 +23,8 @@ def add_arguments(p) -> None:
     p.add_argument("--allow-nan", action="store_true",
                    help="reference mode: reproduce the reference code's NaNs for missing faces "
                         "instead of failing")
-    p.add_argument("--window-s", type=int, default=None, help="search window length (default 5 s)")
+    p.add_argument("--window-s", type=number(1, 3600, integer=True, unit="s"), default=None,
+                   help="search window length (default 5 s)")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.add_argument("-o", "--output", type=Path, help="write the calibration JSON here "
                                                      "(for `movements --calibration`)")

@@ -21,6 +21,7 @@ import datetime as dt
 import fcntl
 import hashlib
 import os
+import re
 import shutil
 import struct
 import subprocess
@@ -125,6 +126,8 @@ def harness() -> Path:
            "-o", str(tmp), str(REPO / "tests/omapi/harness.c"), str(REPO / "tests/omapi/finder.c"),
            *[str(vendor / n) for n in VENDOR_SOURCES]]
     built = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    if built.returncode != 0 and re.search(r"fatal error: (stdio|stdlib|string)\.h", built.stderr):
+        missing("gcc has no C library headers (libc6-dev)")
     assert built.returncode == 0, f"building the OmApi harness failed:\n{built.stderr}"
     os.replace(tmp, exe)
     return exe

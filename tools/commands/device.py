@@ -10,6 +10,8 @@ from pathlib import Path
 from stillpoint.drivers import constants as C
 from stillpoint.drivers.errors import StillpointError
 
+from ._numbers import DAYS, DEVICE_ID, MB_PER_S, SECONDS_DAY, SECONDS_YEAR, number
+
 NAME = "device"
 HELP = "act on one attached AX3/AX6 (download, verify, clear, configure, sync-time, stream) or emulate devices"
 
@@ -27,7 +29,8 @@ def add_arguments(p) -> None:
 
     s = dev("download", "verified download + corrected MCAP into OUTDIR (the device is not cleared)")
     s.add_argument("-o", "--output", type=Path, required=True, help="output folder (holds the ledger)")
-    s.add_argument("--stall-s", type=float, default=30.0, help="stop a download without progress this long")
+    s.add_argument("--stall-s", type=SECONDS_DAY, default=30.0,
+                   help="stop a download without progress this long")
     s = dev("verify", "re-read the device (bypassing the cache) and the raw copy on disk and compare "
                       "both with the ledger's verified download")
     s.add_argument("-o", "--output", type=Path, required=True, help="the station output folder")
@@ -43,22 +46,24 @@ def add_arguments(p) -> None:
     dev("sync-time", "set the device clock to host local time (as OMGui does) and read it back")
     s = dev("stream", "log the STREAM preview (irregular, not analysis data) to MCAP")
     s.add_argument("-o", "--output", type=Path, required=True, help="preview MCAP")
-    s.add_argument("--seconds", type=float, default=10.0)
+    s.add_argument("--seconds", type=SECONDS_DAY, default=10.0)
     s = sub.add_parser("emulate", help="run emulated AX3/AX6 devices until Ctrl-C",
                        description="Run emulated devices (pseudo-terminal serial ports, a folder as "
                                    "each drive, a simulated recording) that `stillpoint devices` and "
                                    "`stillpoint station` in another terminal find with no flags.")
-    s.add_argument("--count", type=int, default=3)
-    s.add_argument("--days", type=float, default=1.0, help="simulated recording length per device")
-    s.add_argument("--ax6", type=int, default=0, help="how many of them are AX6")
+    s.add_argument("--count", type=number(1, 100, integer=True), default=3)
+    s.add_argument("--days", type=DAYS, default=1.0, help="simulated recording length per device")
+    s.add_argument("--ax6", type=number(0, 100, integer=True), default=0,
+                   help="how many of them are AX6")
     s.add_argument("--faults", default="", help="NAME[:DEVICE],... (DEVICE: 1-based index or id; "
                                                 "none: every device). Names: see --list-faults")
     s.add_argument("--list-faults", action="store_true")
     s.add_argument("--dir", type=Path, default=None, help="where the emulated drives live")
-    s.add_argument("--first-id", type=int, default=10001)
-    s.add_argument("--read-mbps", type=float, default=None,
+    s.add_argument("--first-id", type=DEVICE_ID, default=10001)
+    s.add_argument("--read-mbps", type=MB_PER_S, default=None,
                    help="emulate the drive's USB read speed in MB/s (full speed is ~1.2); default unlimited")
-    s.add_argument("--seconds", type=float, default=None, help="stop after this long (default: Ctrl-C)")
+    s.add_argument("--seconds", type=SECONDS_YEAR, default=None,
+                   help="stop after this long (default: Ctrl-C)")
 
 
 class _Err(StillpointError):
@@ -271,8 +276,9 @@ def _emulate(args) -> int:
         return 0
     if args.count < 1 or args.ax6 < 0 or args.ax6 > args.count:
         raise _Err("--count must be >= 1 and --ax6 between 0 and --count")
-    if args.days <= 0:
-        raise _Err("--days must be positive")
+    if args.first_id + args.count - 1 > DEVICE_ID.hi:
+        raise _Err(f"--first-id {args.first_id} with --count {args.count}: device ids must fit "
+                   f"32 bits (at most {DEVICE_ID.hi})")
     ids = [args.first_id + i for i in range(args.count)]
     faults = _parse_faults(args.faults, ids)
     root = args.dir or (registry.runtime_dir() / "emulated")

@@ -7,6 +7,8 @@ import sys
 import threading
 from pathlib import Path
 
+from ._numbers import SECONDS_DAY
+
 NAME = "station"
 HELP = "watch for AX3/AX6 devices: verified download + corrected MCAP, clear only after verification, configure"
 
@@ -24,7 +26,7 @@ def add_arguments(p) -> None:
     p.add_argument("--inbox", type=Path, default=None,
                    help="also ingest .bin/.cwa files dropped in this folder (GENEActiv extractions)")
     p.add_argument("--once", action="store_true", help="handle the devices attached now, then exit")
-    p.add_argument("--stall-s", type=float, default=30.0,
+    p.add_argument("--stall-s", type=SECONDS_DAY, default=30.0,
                    help="stop a download that makes no progress for this long (hung read)")
     p.add_argument("--plain", action="store_true", help="plain lines even on a terminal")
     p.add_argument("--static-from-store", nargs="?", const="", default=None, metavar="DIR",

@@ -334,3 +334,12 @@ def test_an_enumeration_command_runs_at_most_once_per_refresh(tmp_path, monkeypa
     assert D._run_text(cmd).strip() == "2"
     with pytest.raises(OSError, match="exited 3"):
         D._run_text(["sh", "-c", "exit 3"])
+
+
+@pytest.mark.parametrize("platform,kind", [("win32", WindowsBackend), ("darwin", MacBackend)])
+def test_each_system_gets_its_own_enumeration(monkeypatch, platform, kind):
+    from stillpoint.drivers.ax import discovery as D
+    monkeypatch.setattr(D.sys, "platform", platform)
+    assert isinstance(D.SystemBackend(), kind)
+    monkeypatch.setattr(D.sys, "platform", "freebsd14")
+    assert isinstance(D.SystemBackend(), D.LabelBackend)  # no USB topology known: labels

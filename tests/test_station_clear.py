@@ -325,3 +325,18 @@ def test_station_erase_option_wipes(emu, tmp_path):
     assert len(d.clears) == 1
     lg = Ledger(out)
     assert lg.clears()[-1][4] == "ok" and lg.clears()[-1][6] == "FORMAT WC"
+
+
+def test_a_verified_ax6_does_not_clear_an_ax3_with_the_same_id(emu, tmp_path):
+    ax6 = emu(10001, "AX6", plug=False)
+    lg = _ledger(tmp_path)
+    copy = tmp_path / "out" / "AX6-10001_1.cwa"
+    shutil.copyfile(ax6.data_file, copy)
+    dl = lg.download_started(10001, 1, device_type="AX6")
+    lg.download_verified(dl, bytes_=copy.stat().st_size, sha256=_sha(copy), bad_sectors=0,
+                         cwa_path=str(copy), mcap_path="")
+    ax3 = emu(10001, "AX3")
+    with AxClient.open(f"axemu://{ax3.serial}") as c:
+        with pytest.raises(ClearRefused, match="no verified download"):
+            clear_verified(c, lg, 10001, 1, ax3.data_file, wait_for(ax3), device_type="AX3")
+    assert ax3.clears == []

@@ -122,7 +122,7 @@ def clear_verified(client, ledger, device_id: int, session_id: int, data_file, w
     if erase not in C.AX_ERASE_COMMANDS:
         raise ClearRefused(device_id, f"not cleared: erase must be one of "
                                       f"{', '.join(C.AX_ERASE_COMMANDS)}, not {erase!r}")
-    rec = ledger.verified_download(device_id, session_id)
+    rec = ledger.verified_download(device_id, session_id, device_type=device_type)
     if rec is None:
         raise ClearRefused(device_id, f"not cleared: the ledger holds no verified download of "
                                       f"session {session_id}")

@@ -220,7 +220,7 @@ def _verify(att, ledger) -> int:
     with AxClient.open(att.port, str(att.device_id)) as client:
         client.stream_stop()
         session = client.session()
-    rec = ledger.verified_download(att.device_id, session)
+    rec = ledger.verified_download(att.device_id, session, device_type=att.device_type)
     if rec is None:
         raise _Err(f"device {att.device_id}: the ledger {ledger.path} holds no verified download of "
                    f"session {session}")

@@ -45,8 +45,9 @@ from ..engine.blocks import (PER_SAMPLE_BUTTON, PER_SAMPLE_LIGHT_RAW, Block, Dev
                              QCReport)
 from .byteio import (FollowingReader, check_recording_path, is_gzip, open_bytes, read_exact,
                      stream_damage)
-from .constants import (GNA_GAIN_MAX, GNA_HEX_PER_SAMPLE, GNA_LIGHT_SHIFT, GNA_OFFSET_MAX,
-                        GNA_PAGE_MARKER, GNA_RATE_85_7, GNA_SAMPLES_PER_PAGE, NS_TIME_RANGE_MS,
+from .constants import (GNA_GAIN_MAX, GNA_HEX_PER_SAMPLE, GNA_LIGHT_CAL_RANGE, GNA_LIGHT_SHIFT,
+                        GNA_OFFSET_MAX, GNA_PAGE_MARKER, GNA_RATE_85_7, GNA_SAMPLES_PER_PAGE,
+                        NS_TIME_RANGE_MS,
                         PLAUSIBLE_BATTERY_V, PLAUSIBLE_RATE_HZ, PLAUSIBLE_TEMPERATURE_C,
                         PLAUSIBLE_TIME_NS, PLAUSIBLE_YEARS, gna_rate_hz)
 from .errors import (CorruptRecordingError, TruncatedRecordingError,
@@ -950,8 +951,8 @@ def _read_header(f, path: Path) -> tuple[GeneactivHeader, bytes]:
 
 def _light_calibration(hdr: GeneactivHeader) -> tuple[Optional[float], Optional[float], list]:
     """(Volts, Lux, faults) of the header's Calibration Data. Light in lux is raw * Lux / Volts
-    ([GNA] §5), so each must be a positive finite number; otherwise both are None (the light in lux
-    is blank) and ``faults`` says which value and why (logged as a QC event by the reader)."""
+    ([GNA] §5), so each must be a number within GNA_LIGHT_CAL_RANGE; otherwise both are None (the
+    light in lux is blank) and ``faults`` says which value and why (logged as a QC event by the reader)."""
     values = {}
     for key in ("Volts", "Lux"):
         text = hdr.get(key, "Calibration Data")
@@ -960,11 +961,12 @@ def _light_calibration(hdr: GeneactivHeader) -> tuple[Optional[float], Optional[
         except (ValueError, IndexError, AttributeError):
             why = "missing" if text in (None, "") else f"{text!r} is not a number"
             return None, None, [f"Calibration Data: {key} {why}; light in lux unavailable"]
-    bad = [k for k, v in values.items() if not (np.isfinite(v) and v > 0)]
+    lo, hi = GNA_LIGHT_CAL_RANGE
+    bad = [k for k, v in values.items() if not lo <= v <= hi]  # NaN is not within either
     if bad:
         k = bad[0]
-        return None, None, [f"Calibration Data: {k} {values[k]:g} is not a positive finite number; "
-                            "light in lux unavailable"]
+        return None, None, [f"Calibration Data: {k} {values[k]:g} is not a light calibration "
+                            f"({lo:g}..{hi:g}); light in lux unavailable"]
     return values["Volts"], values["Lux"], []
 
 

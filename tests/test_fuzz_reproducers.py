@@ -312,6 +312,7 @@ def test_geneactiv_lux_inf_is_a_qc_event(fuzz3, tmp_path):
     (b"Lux:nan", "Lux nan"), (b"Lux:-800", "Lux -800"), (b"Lux:0", "Lux 0"),
     (b"Volts:0", "Volts 0"), (b"Volts:-inf", "Volts -inf"), (b"Volts:abc", "Volts 'abc' is not a number"),
     (b"Volts:", "Volts missing"),
+    (b"Volts:1e-308", "Volts 1e-308"), (b"Lux:1e-308", "Lux 1e-308"),  # lux overflow / underflow
 ])
 def test_geneactiv_header_value_that_blanks_the_light_is_a_qc_event(fuzz3, tmp_path, line, what):
     data = fuzz3("geneactiv_lux_inf.bin").read_bytes().replace(b"Lux:inf", b"Lux:800")

@@ -326,14 +326,13 @@ SUFFIX = {"cwa": ".cwa", "bin": ".bin", "gz": ".gz", "mcap": ".mcap"}
 
 # ----------------------------------------------------------------------------- reading
 def read_recording(path: Path) -> None:
-    """What ``inspect``/``export`` do with a recording: a full pass over every Block."""
+    """What ``inspect``/``export`` do with a recording: a full pass over every Block, each turned
+    into export's per-sample columns (g, dps, degC, lux with the header's light calibration)."""
     from stillpoint.drivers import open_recording
+    from stillpoint.tools.commands.export import block_columns
     with open_recording(path) as src:
         for b in src:
-            b.accel_g()
-            b.unit_of_sample()
-            if b.gyro is not None:
-                b.gyro_dps()
+            block_columns(b, src.info)
         src.qc.as_dict()
 
 

@@ -173,7 +173,6 @@ AX_CONFIGURE_RETRIES = 3  # [USB] A7 step 11: each step retried up to 3 times, 1
 AX_STREAM_HZ = 100.0  # [USB] A6: at most one line per 1/100 s of RTC time
 AX_STREAM_COUNTS_PER_G_AX3 = 256.0  # [USB] A6: AX3 g = value / 256
 AX_STREAM_COUNTS_PER_G_AX6 = 4096.0  # [USB] A6: AX6 accel / 4096 at the default +-8 g (open question)
-AX_GYRO_RANGES_DPS = (125, 250, 500, 1000, 2000)  # [USB] A5: RATE gyroRange (125 OmApi only)
 AX_DATETIME_NEVER = "-1"  # [USB] A4: "-1" = never / infinitely late
 AX_DATETIME_ALWAYS = "0"  # [USB] A4: "0" = always / infinitely early
 # [USB] A5 closing note: factory / destructive commands the host never sends
@@ -224,34 +223,44 @@ CWA_UPPER_ID_UNSET = 0xFFFF
 # [OMGUI] openmovementproject/openmovement Software/OM/omgui (the vendor's desktop UI)
 # [AXCFG] openmovementproject/openmovement-axconfig @ 5c85e6f5382a19a5e32e092a30f410dd2747b500
 # (restated with the lines quoted in ../shared/specs/ax-firmware-conformance.md §2.3)
-AX_RATE_LIMITS_HZ = {
-    # AX3 records packed (DATAMODE 18, the firmware default) under stillpoint; packed below 12.5 Hz
-    # is refused: [OMGUI] DateRangeForm.cs 818-830 "not supported by firmware in packed mode" (< 12 Hz
-    # packed); [AXCFG] src/js/ax3device.mjs 711-718 "minimum rate of 12.5Hz in packed mode."
-    "AX3": (12.5, 3200.0),
-    # AX6: the IMU set-up has no 3200 Hz case ([FW] Firmware/AX6/Firmware/src/IMU-BMI160.c 193-266,
-    # "default: settingCheck = 0"); [OMGUI] DateRangeForm.cs 818-830 "not supported by device"
-    # (> 1600 Hz); [AXCFG] ax3device.mjs 711-718 "maximum rate of 1600Hz."
-    "AX6": (6.25, 1600.0),
-}
-# Gyro full-scale ranges the AX6 IMU accepts: [FW] IMU-BMI160.c 193-266, `switch(imu_gyro_range)`
-# cases 125, 250, 500, 1000, 2000 (others: settingCheck = 0). The AX3 has no gyroscope.
-AX_GYRO_DEVICE_TYPES = ("AX6",)
-# With the gyro on, the AX6 needs at least 25 Hz: [FW] IMU-BMI160.c 193-266, rate cases 1-13 (up
-# to 12.5 Hz) `if(imu_gyro_range != 0) settingCheck = 0;`; [OMGUI] DateRangeForm.cs 818-830 "not
-# supported with gyro"; [AXCFG] ax3device.mjs 711-718 "minimum rate of 25Hz with the gyroscope".
-AX_GYRO_MIN_RATE_HZ = 25.0
-# Session id: the header field is u32, but the vendor's UI stops at 2^31 - 1: [OMGUI]
-# DateRangeForm.Designer.cs `numericUpDownSessionID.Maximum = 2147483647`.
-AX_SESSION_MAX = 2**31 - 1
-# Annotation: 14 slots of 32 characters: [FW] Firmware/AX3/Firmware/src/Settings.c, ANNOTATEnn
-# (`nn >= 14` -> "ERROR: Invalid annotation id N", each slot printed as 32 characters; the
-# conformance spec §1, ANNOTATEnn row).
-AX_ANNOTATION_SLOTS = 14
-AX_ANNOTATION_SLOT_CHARS = 32
-# Start/stop times a device can hold: the packed timestamp's year is 6 bits from 2000 ([CWA] §3);
-# [OMGUI] DateRangeForm.Designer.cs date pickers `MinDate = 2000-03-01`, `MaxDate = 2063-12-31`.
-AX_TIME_YEARS = (2000, 2063)
+#
+# The device rule table: one row per rule, a value per device type, and its source.
+#   rule              AX3             AX6                              source
+AX_DEVICE_RULES = (
+    ("rate_hz", (12.5, 3200.0), (6.25, 1600.0),
+     # AX3 records packed (DATAMODE 18, the firmware default; stillpoint never sets another) and
+     # packed below 12.5 Hz is refused: [OMGUI] DateRangeForm.cs 818-830 "not supported by
+     # firmware in packed mode"; [AXCFG] src/js/ax3device.mjs 711-718 "minimum rate of 12.5Hz in
+     # packed mode.". AX6: the IMU set-up has no 3200 Hz case ([FW] Firmware/AX6/Firmware/src/
+     # IMU-BMI160.c 193-266, "default: settingCheck = 0"); [OMGUI] DateRangeForm.cs 818-830 "not
+     # supported by device" (> 1600 Hz); [AXCFG] ax3device.mjs 711-718 "maximum rate of 1600Hz."
+     "DateRangeForm.cs 818-830; ax3device.mjs 711-718; IMU-BMI160.c 193-266"),
+    ("gyro_dps", (), (125, 250, 500, 1000, 2000),
+     # the AX3 has no gyroscope; the AX6 IMU accepts these full-scale ranges: [FW] IMU-BMI160.c
+     # 193-266, `switch(imu_gyro_range)` cases 125..2000, any other: settingCheck = 0
+     "IMU-BMI160.c 193-266"),
+    ("gyro_min_rate_hz", None, 25.0,
+     # [FW] IMU-BMI160.c 193-266, rate cases 1-13 (up to 12.5 Hz): `if(imu_gyro_range != 0)
+     # settingCheck = 0;`; [OMGUI] DateRangeForm.cs 818-830 "not supported with gyro"; [AXCFG]
+     # ax3device.mjs 711-718 "minimum rate of 25Hz with the gyroscope enabled."
+     "IMU-BMI160.c 193-266; DateRangeForm.cs 818-830; ax3device.mjs 711-718"),
+    ("session_max", 2**31 - 1, 2**31 - 1,
+     # the header field is u32 (the firmware wraps at 2^32), the vendor's UI stops at 2^31 - 1:
+     # [OMGUI] DateRangeForm.Designer.cs `numericUpDownSessionID.Maximum = 2147483647`
+     "DateRangeForm.Designer.cs numericUpDownSessionID.Maximum"),
+    ("annotation", (14, 32), (14, 32),
+     # slots x characters: [FW] Firmware/AX3/Firmware/src/Settings.c ANNOTATEnn (`nn >= 14` ->
+     # "ERROR: Invalid annotation id N"; each slot printed as 32 characters; conformance spec §1)
+     "Settings.c ANNOTATEnn"),
+    ("years", (2000, 2063), (2000, 2063),
+     # start/stop a device can hold: the packed timestamp's year is 6 bits from 2000 ([CWA] §3);
+     # [OMGUI] DateRangeForm.Designer.cs date pickers MinDate 2000-03-01, MaxDate 2063-12-31
+     "cwa-format.md §3; DateRangeForm.Designer.cs MaxDate"),
+)
+AX_RULES = {kind: {row[0]: row[1 + k] for row in AX_DEVICE_RULES}
+            for k, kind in enumerate(("AX3", "AX6"))}  # AX_RULES["AX6"]["rate_hz"] == (6.25, 1600.0)
+AX_GYRO_DEVICE_TYPES = tuple(k for k, r in AX_RULES.items() if r["gyro_dps"])
+AX_SESSION_MAX = AX_RULES["AX3"]["session_max"]
 # "Never record": the firmware logs only while start < stop ([FW] Firmware/AX3/Firmware/src/main.c
 # 516-529, RunLogging: start >= stop -> no logging). The vendor's clear sets HIBERNATE -1, STOP -1
 # and SESSION 0 before erasing ([OMGUI] Software/OM/omapinet/OmDevice.cs 610-625, "Never log").

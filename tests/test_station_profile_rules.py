@@ -1,5 +1,5 @@
 """Study profiles refuse what a device cannot record, at load, before any device is touched
-(the rules: drivers/constants.py AX_RATE_LIMITS_HZ and the rows after it)."""
+(the rules: the device rule table, drivers/constants.py AX_DEVICE_RULES)."""
 
 from __future__ import annotations
 

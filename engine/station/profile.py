@@ -22,8 +22,8 @@ defaults. Read with ``tomllib`` (Python 3.11+; on 3.10 the ``tomli`` package if 
     erase = "quick"          # "quick" (FORMAT QC) or "wipe" (FORMAT WC)
 
 Every value is checked when the profile loads, before any device is touched, against what the
-device types it may meet can record (``constants.AX_RATE_LIMITS_HZ`` and the rows after it, each
-citing the firmware or vendor source): an AX3 (packed) records 12.5-3200 Hz, an AX6 6.25-1600 Hz
+device types it may meet can record (``constants.AX_DEVICE_RULES``: one row per rule, each citing
+the firmware or vendor source): an AX3 (packed) records 12.5-3200 Hz, an AX6 6.25-1600 Hz
 and with the gyro on at least 25 Hz; only an AX6 has a gyro. A profile without ``type`` must fit
 both types, unless it turns the gyro on (then it is for AX6s). Unknown keys are refused (a
 misspelt key would otherwise be ignored in silence).
@@ -51,6 +51,8 @@ _DEVICE_KEYS = ("type", "rate_hz", "range_g", "gyro_dps", "start", "stop", "sess
 _STATION_KEYS = ("clear_after_verify", "configure_after", "erase")
 _TABLES = ("device", "metadata", "station")
 _SESSION_RE = re.compile(r"^[0-9]+$")
+# the years every device type can hold (start/stop times are checked before the type is known)
+_YEARS = (max(r["years"][0] for r in C.AX_RULES.values()), min(r["years"][1] for r in C.AX_RULES.values()))
 
 
 def _toml_load(path: Path) -> dict:
@@ -109,7 +111,7 @@ class StudyProfile:
             return (self.device_type,)
         if self.gyro_dps:
             return C.AX_GYRO_DEVICE_TYPES
-        return tuple(C.AX_RATE_LIMITS_HZ)
+        return tuple(C.AX_RULES)
 
     def check_device(self, device_type: str) -> None:
         """Refuse (``ProfileError``) settings a device of ``device_type`` cannot record."""
@@ -117,27 +119,28 @@ class StudyProfile:
             why = (f"gyro_dps = {self.gyro_dps} needs an AX6" if self.gyro_dps and device_type not in
                    C.AX_GYRO_DEVICE_TYPES else f"it is for {' and '.join(self.device_types)} devices")
             raise self._err(f"cannot configure an {device_type}: {why}")
-        lo, hi = C.AX_RATE_LIMITS_HZ[device_type]
+        rules = C.AX_RULES[device_type]
+        lo, hi = rules["rate_hz"]
         if not lo <= self.rate_hz <= hi:
-            others = [k for k in C.AX_RATE_LIMITS_HZ if k != device_type
-                      and C.AX_RATE_LIMITS_HZ[k][0] <= self.rate_hz <= C.AX_RATE_LIMITS_HZ[k][1]]
+            others = [k for k, r in C.AX_RULES.items() if k != device_type
+                      and r["rate_hz"][0] <= self.rate_hz <= r["rate_hz"][1]]
             hint = (f'; a profile for {others[0]}s only says type = "{others[0]}"'
                     if others and self.device_type is None else "")
             raise self._err(f"rate_hz = {self.rate_hz:g} is not recordable by an {device_type} "
                             f"({lo:g}-{hi:g} Hz" + (", packed" if device_type == "AX3" else "") + ")"
                             + hint)
         if self.gyro_dps:
-            if device_type not in C.AX_GYRO_DEVICE_TYPES:
+            if not rules["gyro_dps"]:
                 raise self._err(f"gyro_dps = {self.gyro_dps}: an {device_type} has no gyroscope")
-            if self.rate_hz < C.AX_GYRO_MIN_RATE_HZ:
+            if self.gyro_dps not in rules["gyro_dps"]:
+                raise self._err(f"gyro_dps must be 0 or one of {rules['gyro_dps']}, not {self.gyro_dps}")
+            if self.rate_hz < rules["gyro_min_rate_hz"]:
                 raise self._err(f"rate_hz = {self.rate_hz:g} with gyro_dps = {self.gyro_dps}: the "
-                                f"gyroscope needs at least {C.AX_GYRO_MIN_RATE_HZ:g} Hz")
+                                f"gyroscope needs at least {rules['gyro_min_rate_hz']:g} Hz")
 
     def check(self) -> None:
         """Every value, against every device type the profile may meet."""
         self.rate_code  # noqa: B018 - validates rate and range
-        if self.gyro_dps and self.gyro_dps not in C.AX_GYRO_RANGES_DPS:
-            raise self._err(f"gyro_dps must be 0 or one of {C.AX_GYRO_RANGES_DPS}, not {self.gyro_dps}")
         for kind in self.device_types:
             self.check_device(kind)
         if self.session not in ("increment", "keep"):
@@ -180,7 +183,7 @@ class StudyProfile:
     def annotation_slots(self) -> list[str]:
         """The metadata as a URL-encoded ``key=value&...`` string cut into 14 slots of 32."""
         from urllib.parse import urlencode
-        n, w = C.AX_ANNOTATION_SLOTS, C.AX_ANNOTATION_SLOT_CHARS
+        n, w = min(C.AX_RULES[k]["annotation"] for k in self.device_types)
         text = urlencode({str(k): str(v) for k, v in self.metadata.items()})
         if len(text) > n * w:
             raise self._err(f"metadata is {len(text)} characters URL-encoded; the device holds "
@@ -207,10 +210,10 @@ def _when(text: str, base: _dt.datetime, path, what: str = "time") -> _dt.dateti
     except (OverflowError, ValueError) as e:
         if m:
             raise ProfileError(f"{where}: {what} {text!r} is beyond the year "
-                               f"{C.AX_TIME_YEARS[1]} a device can hold") from None
+                               f"{_YEARS[1]} a device can hold") from None
         raise ProfileError(f"{where}: {what} {text[:60]!r} is neither '+<n>m/h/d' nor an ISO "
                            "date-time") from None
-    lo, hi = C.AX_TIME_YEARS
+    lo, hi = _YEARS
     if not lo <= t.year <= hi:
         raise ProfileError(f"{where}: {what} {t:%Y-%m-%d %H:%M} is outside the years {lo}-{hi} a "
                            "device can hold")
@@ -253,7 +256,7 @@ def load_profile(path) -> StudyProfile:
                                f"{type(v).__name__}")
     num, whole, text, flag = (int, float), (int,), (str,), (bool,)
     kind = _typed(dev, "type", None, text + (type(None),), '"AX3" or "AX6"', p, "device")
-    if kind is not None and kind.upper() not in C.AX_RATE_LIMITS_HZ:
+    if kind is not None and kind.upper() not in C.AX_RULES:
         raise ProfileError(f'{p}: [device] type must be "AX3" or "AX6", not {kind[:40]!r}')
     session = _typed(dev, "session", "increment", text + whole, "'increment', 'keep' or a number",
                      p, "device")

@@ -11,10 +11,12 @@ Line references without a file are to AX3/Firmware/src/Settings.c at commit 144e
 digitalinteraction/openmovement. Parsing and printing rules live in ``firmware_text``.
 
 The shell touches the device only through a few calls: ``say`` (bytes to the host), the clock
-(``rtc_now``, ``rtc_now_ms``, ``set_rtc``), ``battery``, ``accel_sample``, ``drive_dir`` (the
-drive's folder, mounted or not), ``mounted``, ``delay_action`` (delayed activation),
-``start_stream``, ``set_mounted``, ``restart`` and the values the device keeps in program memory
-(``config``, ``log_values``, ``log_entries``, ``rom_device_id``).
+(``rtc_now``, ``rtc_now_ms``, ``set_rtc``), ``battery_reading``, ``accel_sample``, ``pause``,
+``drive_dir`` (the drive's folder, mounted or not), ``disk_mounted`` (the firmware's
+``status.diskMounted``), ``delay_action`` and ``run_action`` (delayed or immediate activation),
+``format_drive``, ``destroy_drive``, ``start_stream``, ``set_mounted``, ``faults`` and the values
+the device keeps in program memory (``config``, ``log_values``, ``log_entries``,
+``rom_device_id``).
 """
 
 from __future__ import annotations
@@ -415,7 +417,7 @@ class FirmwareShell:
     def _delayed_or_now(self, flags, countdown, what) -> None:
         """Delayed activation when mounted (the drive is dropped; the action runs after the
         countdown and re-presents it), else the action at once."""
-        if self.dev.mounted:
+        if self.dev.disk_mounted:
             self.dev.delay_action(flags | ACTION_REMOUNT, countdown)
             self.say(f"{what}: Delayed activation.\r\n")
         else:
@@ -432,7 +434,7 @@ class FirmwareShell:
             self.initialize()
             flags = ACTION_FORMAT_WIPE | ACTION_CREATE
         if flags:
-            if self.dev.mounted:
+            if self.dev.disk_mounted:
                 self._delayed_or_now(flags, 2, "CLEAR")
             else:
                 self.dev.run_action(flags)
@@ -505,7 +507,7 @@ class FirmwareShell:
                 self.say("ERROR: Locked.\r\n")
             else:
                 self.dev.set_mounted(bool(value))
-        self.say(f"MOUNT={1 if self.dev.mounted else 0}\r\n")
+        self.say(f"MOUNT={1 if self.dev.disk_mounted else 0}\r\n")
 
     def _led(self, line, at, locked, beyond):  # 1143-1152 (char ledOverride)
         if at(3) != "\0":
@@ -532,7 +534,7 @@ class FirmwareShell:
                      "+'C' for COMMIT.\r\n")
 
     def _logfile(self, line, at, locked, beyond):  # 1194-1217
-        if not self.dev.mounted:
+        if not self.dev.disk_mounted:
             if locked:
                 self.say("ERROR: Locked.\r\n")
             elif at(7) != "\0":
@@ -602,7 +604,7 @@ class FirmwareShell:
         if self.lock_code:
             code = self.dev.config.get(CONFIG_LOCK, 0xFFFF)
             self.lock_code = 0
-            if code not in (0, 0xFFFF) and not self.dev.mounted:  # initially locked: mount now
+            if code not in (0, 0xFFFF) and not self.dev.disk_mounted:  # initially locked: mount now
                 self.dev.set_mounted(True)
         self.say("LOCK=0\r\n")
 

@@ -257,8 +257,10 @@ class McapRawSource:
         if group:
             yield joined()
         # a gyro-less tail (should not happen in a complete log): yield accel only
-        for _i, raw, _n in pending_raw:
-            yield block_from_message(raw, None)
+        for i, raw, _n in pending_raw:
+            b = block_from_message(raw, None)
+            order = _check_order(order, b, path, i)
+            yield b
         qc_meta = self.metadata.get("summary")
         if qc_meta and "qc" in qc_meta:
             q = loads_json(path, None, "summary", qc_meta["qc"], what="metadata")

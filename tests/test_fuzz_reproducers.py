@@ -427,3 +427,28 @@ def test_settings_as_every_run_logs_them_are_accepted():
                                          timezone="Europe/London", view_hz=0.0,
                                          corrected_quantum_g=0.0, ggir_compatible=True)):
         assert settings_problem(s.to_dict()) is None
+
+
+def test_raw_order_rule_covers_times_and_segments(fuzz3, tmp_path):
+    """Sample numbers in order but times (or segments) going back are refused too."""
+    import dataclasses
+    from stillpoint.drivers.mcap_replay import McapRawSource, _check_order
+    from stillpoint.engine.mcap.reading import McapReadError
+    fixed = _rewrite(fuzz3("raw_accel_two_messages_swapped.mcap"), tmp_path / "fixed.mcap",
+                     swap_raw=(0, 1))
+    with McapRawSource(fixed) as src:
+        whole = next(iter(src))
+    half = whole.n // 2
+    a, b = whole.slice(0, half), whole.slice(half, whole.n)  # two consecutive pieces
+    state = _check_order(None, a, fixed, 0)
+    assert _check_order(state, b, fixed, 1)[1] == b.first_sample + b.n  # in order: accepted
+    if b.segment == a.segment:
+        back = dataclasses.replace(b, time_ns=b.time_ns - (b.time_ns[0] - a.time_ns[0]) - 1)
+        with pytest.raises(McapReadError, match="before the previous message's last"):
+            _check_order(state, back, fixed, 1)
+    with pytest.raises(McapReadError, match="segment -1 after segment"):
+        _check_order(state, dataclasses.replace(b, segment=-1), fixed, 1)
+    inside = a.time_ns.copy()
+    inside[[5, 6]] = inside[[6, 5]]
+    with pytest.raises(McapReadError, match="time goes back .* after sample 5"):
+        _check_order(None, dataclasses.replace(a, time_ns=inside), fixed, 0)

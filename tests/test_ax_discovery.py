@@ -11,10 +11,9 @@ from types import SimpleNamespace
 
 import pytest
 
-from stillpoint.drivers.ax.discovery import (EmulatedBackend, LinuxBackend, MacBackend, PortInfo,
-                                             WindowsBackend, discover, is_ax_port, label_device,
-                                             parse_mountinfo)
-from stillpoint.drivers.ax.errors import DeviceError
+from stillpoint.drivers.ax.discovery import (EmulatedBackend, LinuxBackend, MacBackend,
+                                             OverrideError, PortInfo, WindowsBackend, discover,
+                                             is_ax_port, label_device, parse_mountinfo)
 from stillpoint.drivers.ax.usb_linux import LinuxUsb
 from stillpoint.drivers.ax.usb_windows import serial_of_pnp_id
 
@@ -282,19 +281,19 @@ def test_macos_without_usb_topology_falls_back_to_labels(tmp_path):
 # ----------------------------------------------------------------------------- manual overrides
 def test_overrides_that_name_nothing_are_errors(tmp_path, runtime, capsys):
     b = FakeBackend([PortInfo("/dev/ttyACM0", "CWA17_12345", MANUF, 0x04D8, 0x0057, "1-1.2")], [])
-    with pytest.raises(DeviceError, match="/dev/nonexistent: --port: no such serial port"):
+    with pytest.raises(OverrideError, match="^--port /dev/nonexistent: no such serial port$"):
         discover(b, port="/dev/nonexistent")
-    with pytest.raises(DeviceError, match="not an attached USB serial port"):
+    with pytest.raises(OverrideError, match="not an attached USB serial port"):
         discover(b, port=str(tmp_path))  # exists, but is no enumerated port
-    with pytest.raises(DeviceError, match="--volume: no such folder"):
+    with pytest.raises(OverrideError, match="--volume .*nope: no such folder"):
         discover(b, volume=str(tmp_path / "nope"))
-    with pytest.raises(DeviceError, match="holds no CWA-DATA.CWA"):
+    with pytest.raises(OverrideError, match="holds no CWA-DATA.CWA"):
         discover(b, volume=str(tmp_path))
     # the command line: one line, exit code 2
     from stillpoint.tools.cli import main
     assert main(["devices", "--port", "/dev/nonexistent"]) == 2
     err = capsys.readouterr().err
-    assert "/dev/nonexistent: --port: no such serial port" in err
+    assert "--port /dev/nonexistent: no such serial port" in err
     assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
 
 

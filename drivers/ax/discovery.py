@@ -35,6 +35,7 @@ from typing import Callable, Iterable, Optional
 
 from .. import constants as C
 from . import registry
+from ..errors import StillpointError
 from .errors import DeviceError
 
 _LABEL_RE = re.compile(r"^(AX[36])[0-9A-Fa-f]{0,2}_0*(\d+)$")
@@ -402,22 +403,27 @@ def _has_data(d: DriveInfo) -> bool:
     return bool(d.files) and os.path.isfile(os.path.join(d.files, C.AX_DATA_FILE))
 
 
+class OverrideError(StillpointError):
+    """A ``--port`` / ``--volume`` override that names nothing usable."""
+
+
 def _check_overrides(ports: list[PortInfo], port: Optional[str], volume: Optional[str]) -> None:
     if volume is not None:
         if not os.path.isdir(volume):
-            raise DeviceError(volume, "--volume: no such folder")
+            raise OverrideError(f"--volume {volume}: no such folder")
         if not os.path.isfile(os.path.join(volume, C.AX_DATA_FILE)):
-            raise DeviceError(volume, f"--volume: the folder holds no {C.AX_DATA_FILE}")
+            raise OverrideError(f"--volume {volume}: the folder holds no {C.AX_DATA_FILE}")
     if port is None:
         return
     p = next((p for p in ports if p.device == port), None)
     if p is None:
         if "://" not in port and not os.path.exists(port):
-            raise DeviceError(port, "--port: no such serial port")
-        raise DeviceError(port, "--port: not an attached USB serial port of an AX3/AX6 (VID:PID "
-                                "04D8:0057 with a serial number CWA.../AX6...)")
+            raise OverrideError(f"--port {port}: no such serial port")
+        raise OverrideError(f"--port {port}: not an attached USB serial port of an AX3/AX6 (VID:PID "
+                            "04D8:0057 with a serial number CWA.../AX6...)")
     if device_id_of_serial(p.serial_number or "") is None:
-        raise DeviceError(port, f"--port: its USB serial number {p.serial_number!r} names no device id")
+        raise OverrideError(f"--port {port}: its USB serial number {p.serial_number!r} names no "
+                            "device id")
 
 
 def _pair(p: PortInfo, dev_id: int, drives: list[DriveInfo], label_drives: dict[int, list[DriveInfo]]):
@@ -431,7 +437,7 @@ def _pair(p: PortInfo, dev_id: int, drives: list[DriveInfo], label_drives: dict[
 def discover(backend=None, *, port: Optional[str] = None, volume: Optional[str] = None) -> list[Attached]:
     """Every attached AX3/AX6 (ports that pass the checks, paired with their drive). ``port`` /
     ``volume``: manual overrides (a port not enumerated as an AX, a drive mounted elsewhere); an
-    override naming nothing usable raises ``DeviceError``."""
+    override naming nothing usable raises ``OverrideError``."""
     backend = backend or CombinedBackend()
     drives = drives_of(backend)
     ports = backend.ports()

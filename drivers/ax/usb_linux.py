@@ -182,7 +182,10 @@ class LinuxUsb:
             if labels is None:
                 labels = self._labels()
             rp = Path(real)
-            parts = sorted(p for p in rp.iterdir() if (p / "partition").is_file()) if rp.is_dir() else []
+            try:
+                parts = sorted(p for p in rp.iterdir() if (p / "partition").is_file())
+            except OSError:  # the disk went away meanwhile
+                continue
             for fs in parts or [rp]:  # a disk without a partition table holds the filesystem itself
                 num = _read(fs / "dev")
                 if not num or _read(fs / "size") == "0":  # no medium (ejected by a COMMIT)

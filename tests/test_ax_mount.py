@@ -151,3 +151,16 @@ def test_wait_volume_says_why_a_present_drive_never_appeared(tmp_path):
     with pytest.raises(DeviceError, match=r"did not come back within 0.3 s .*present but not mounted "
                                           r"\(give \\\\\.\\PHYSICALDRIVE4 a drive letter"):
         flow.wait_volume(0.3)
+
+
+def test_device_commands_complete_on_a_device_whose_drive_is_not_mounted_again(emu, tmp_path, capsys):
+    from stillpoint.tools.cli import main
+    d = emu(10001, faults=("no-automount",))
+    out = tmp_path / "out"
+    out.mkdir()
+    prof = tmp_path / "study.toml"
+    prof.write_text(PROFILE)
+    assert main(["device", "download", "10001", "-o", str(out)]) == 0
+    assert main(["device", "clear", "10001", "-o", str(out)]) == 0, capsys.readouterr().err
+    assert main(["device", "configure", "10001", "--profile", str(prof)]) == 0, capsys.readouterr().err
+    assert d.events.count("mounted by the host") == 2 and len(d.clears) == 1

@@ -90,7 +90,7 @@ def test_invalid_dates_are_stored_as_the_firmware_stores_them(emu):
 
 
 def test_format_prints_complete_before_commit_and_removes_every_file(emu):
-    """S3 1153-1186 and SettingsAction 367-409: FORMAT drops the drive, formats it (every file
+    """S3 1153-1186 and SettingsAction 350-412: FORMAT drops the drive, formats it (every file
     gone), prints FORMAT: Complete., then (with C) writes the data file and prints COMMIT."""
     d = emu(12345)
     (d.volume / "SETTINGS.INI").write_text("DATAMODE=20\r\n")
@@ -109,7 +109,7 @@ def test_format_prints_complete_before_commit_and_removes_every_file(emu):
 
 
 def test_format_rebuilds_the_label_from_the_device_id(emu):
-    """S3 351-382: FORMAT writes the label from the id in program memory; DEVICE n (S3 794-804)
+    """S3 352-382: FORMAT writes the label from the id in program memory; DEVICE n (S3 794-804)
     changes that id, the USB serial follows at the next start (usb_descriptors.c 527-557)."""
     d = emu(12345)
     assert _say(d, "DEVICE 54321") == "DEVICE=54321,54321\r\n"
@@ -179,7 +179,7 @@ def test_settings_are_reloaded_from_the_header_at_every_start(emu):
 
 
 def test_without_a_data_file_the_session_is_ten_thousand_times_the_id_plus_restarts(emu):
-    """S3 225-229: session = 10000 x id + restart count % 10000 when no header overrides it; the
+    """S3 246-247: session = 10000 x id + restart count % 10000 when no header overrides it; the
     restart counter counts each start into logging mode (M3 509, i.e. each unplug)."""
     d = emu(12345)
     restarts = int(_say(d, "STATUS 5").split("=")[1])

@@ -318,7 +318,7 @@ class EmulatedDevice:
             self._use_pty = pty
         with self._lock:
             self._boot()
-            # an "initial lock" (ILOCK) keeps the drive unmounted until UNLOCK (Settings.c 283-291)
+            # an "initial lock" (ILOCK) keeps the drive unmounted until UNLOCK (Settings.c 285-294)
             self.disk_mounted = self.config.get(CONFIG_LOCK, 0xFFFF) in (0, 0xFFFF)
             if self._ejected().exists() and not self.volume.exists() and self.disk_mounted:
                 os.replace(self._ejected(), self.volume)

@@ -4,7 +4,7 @@
 answers each input line as ``SettingsCommand`` prints it (AX3/Firmware/src/Settings.c 437-1393;
 the AX6 differs in ``ID`` and ``RATE``, AX6/Firmware/src/Settings.c 451, 729-753). ``boot()`` is
 ``SettingsInitialize`` + ``SETTINGS.INI`` + ``LoggerReadMetadata`` (AX3 main.c 221-232);
-``action()`` is ``SettingsAction`` (Settings.c 331-433); ``header()`` is ``LoggerWriteMetadata``
+``action()`` is ``SettingsAction`` (Settings.c 341-433); ``header()`` is ``LoggerWriteMetadata``
 (AX3 Logger.c 395-471, AX6 Logger.c 485-580).
 
 Line references without a file are to AX3/Firmware/src/Settings.c at commit 144ef13 (FW V50) of
@@ -45,7 +45,7 @@ ACCEL_DEFAULT_RATE = 0x4A  # Flux.AX3/include/Peripherals/Accel.h 39: ACCEL_RATE
 DEFAULT_DEBUGGING = 0  # AX3/Firmware/src/HardwareProfile.h 66
 # firmware versions and the header's hardware byte as each firmware writes them
 SOFTWARE_VERSION = {"AX3": 50, "AX6": 56}  # AX3 HardwareProfile.h 39; AX6 HardwareProfile.h 73
-HARDWARE_VERSION = {"AX3": 0x17, "AX6": 0x64}  # AX3 HardwareProfile.h 33; AX6 HardwareProfile.h 69
+HARDWARE_VERSION = T.HARDWARE_VERSION
 HEADER_HARDWARE_BYTE = {"AX3": 0x00, "AX6": 0x64}  # AX3 Logger.c 447 (performClear); AX6 Logger.c 537
 # AX6 Logger.c 549-558: gyro range -> header byte 35
 GYRO_SENSOR_CONFIG = {4000: 1, 2000: 2, 1000: 3, 500: 4, 250: 5, 125: 6, 62: 7}
@@ -89,10 +89,10 @@ class FirmwareShell:
 
     # ------------------------------------------------------------------ boot
     def initialize(self) -> None:
-        """``SettingsInitialize`` (Settings.c 216-300)."""
+        """``SettingsInitialize`` (Settings.c 233-316)."""
         dev = self.dev
         dev_id = dev.rom_device_id
-        dev_id = dev_id & 0xFFFF if dev_id >> 16 == 0xFFFF else dev_id  # SettingsGetDeviceId (80-93)
+        dev_id = dev_id & 0xFFFF if dev_id >> 16 == 0xFFFF else dev_id  # SettingsGetDeviceId (79-93)
         session = (10000 * dev_id) & T.U32 if dev_id != T.DEVICEID_UNSET else 0
         session = (session + dev.log_values[LOG_VALUE_RESTART] % 10000) & T.U32
         self.s = Settings(device_id=dev_id, session=session,
@@ -117,7 +117,7 @@ class FirmwareShell:
         self.read_metadata()
 
     def run_settings_file(self) -> None:
-        """``SettingsReadFile(SETTINGS_FILE)`` (Settings.c 303-322): each line (``FSfgets`` of at
+        """``SettingsReadFile(SETTINGS_FILE)`` (Settings.c 320-337): each line (``FSfgets`` of at
         most 63 characters, line end included) run as a batch command."""
         ini = self.dev.drive_dir() / SETTINGS_FILE
         if not ini.is_file():
@@ -189,7 +189,7 @@ class FirmwareShell:
         return True
 
     def action(self, flags: int) -> bool:
-        """``SettingsAction`` (Settings.c 331-433): delete, format, create, in that order, each
+        """``SettingsAction`` (Settings.c 341-433): delete, format, create, in that order, each
         printing as the firmware does. Returns True if the device restarts."""
         root = self.dev.drive_dir()
         if flags & ACTION_DELETE:
@@ -203,7 +203,7 @@ class FirmwareShell:
             root = self.dev.drive_dir()
             if ok:
                 self.say("FORMAT: Complete.\r\n")
-            else:  # Settings.c 389-392: FsFtlFormat/FSInit failed
+            else:  # Settings.c 391-398: FsFtlFormat/FSInit failed
                 wipe = "wipe/" if flags & ACTION_FORMAT_WIPE else "plain-"
                 self.say(f"ERROR: Problem during {wipe}format (0x80. 'status 3' for NAND health), "
                          "failed: MNT\r\n")
@@ -211,7 +211,7 @@ class FirmwareShell:
             if self.write_metadata(root):
                 self.say("COMMIT\r\n")
             else:
-                self.say("ERROR: Problem during commit\n")  # LF only (Settings.c 406)
+                self.say("ERROR: Problem during commit\n")  # LF only (Settings.c 411)
         if flags & ACTION_REMOUNT:
             self.dev.set_mounted(True)
         return bool(flags & ACTION_RESTART)
@@ -457,7 +457,7 @@ class FirmwareShell:
                 self.s.device_id = new
                 self.dev.rom_device_id = new
         rom = self.dev.rom_device_id
-        rom = rom & 0xFFFF if rom >> 16 == 0xFFFF else rom  # SettingsGetDeviceId (Settings.c 80-93)
+        rom = rom & 0xFFFF if rom >> 16 == 0xFFFF else rom  # SettingsGetDeviceId (Settings.c 79-93)
         self.say(f"DEVICE={self.s.device_id},{rom}\r\n")
 
     def _annotate(self, line, at, locked, beyond):  # 805-841

@@ -140,16 +140,17 @@ def datetime_to_packed(t: _dt.datetime) -> int:
 
 def accel_frequency_for_rate(rate: int) -> int:
     """``ACCEL_FREQUENCY_FOR_RATE`` (Flux.AX3/include/Peripherals/Accel.h 72), integer Hz:
-    3200 / 2^(15 - (rate & 0x0F)); codes below 10 Hz print 0..6 (``RATE=112,0``)."""
+    3200 // 2^(15 - (rate & 0x0F)), truncated: 6.25 Hz prints 6, low nibble 0 prints 0 (``RATE=112,0``)."""
     return 3200 // (1 << (15 - (rate & 0x0F)))
 
 
 # ----------------------------------------------------------------------------- identity strings
-_PREFIX = {"AX3": ("CWA", "AX3", 0x17), "AX6": ("AX6", "AX6", 0x64)}
-# AX3: serial "CWA" + HARDWARE_VERSION (AX3/Firmware/src/usb_descriptors.c 425), label "AX3"
-# (Settings.c 354-356), HARDWARE_SELECT 0x17 (AX3/Firmware/src/HardwareProfile.h 33).
-# AX6: serial/label "AX6" + 0x64 (AX6/Firmware/src/usb_descriptors.c 363, Settings.c 345-347,
-# HardwareProfile.h HARDWARE_SELECT 0x64).
+# HARDWARE_SELECT: AX3/Firmware/src/HardwareProfile.h 36 (0x17), AX6/Firmware/src/HardwareProfile.h
+# 69 (0x64); printed by ID in hex, part of the USB serial and the volume label.
+HARDWARE_VERSION = {"AX3": 0x17, "AX6": 0x64}
+# serial prefix (AX3/Firmware/src/usb_descriptors.c 425; AX6 usb_descriptors.c 363) and label
+# prefix (AX3 Settings.c 354-356; AX6 Settings.c 345-347)
+_PREFIX = {"AX3": ("CWA", "AX3", HARDWARE_VERSION["AX3"]), "AX6": ("AX6", "AX6", HARDWARE_VERSION["AX6"])}
 DEVICEID_UNSET = 0xFFFF  # AX3/Firmware/src/Settings.h 164
 
 
@@ -165,7 +166,7 @@ def serial_number(kind: str, device_id: int) -> str:
 
 
 def volume_label(kind: str, device_id: int) -> str:
-    """Volume label written by FORMAT (AX3/Firmware/src/Settings.c 351-382): ``AX317_`` + 5
+    """Volume label written by FORMAT (AX3/Firmware/src/Settings.c 352-382): ``AX317_`` + 5
     digits; above 99999 ``AX3_`` + the low 7 digits; an unset id -> ``AX317______``."""
     _, t, hw = _PREFIX[kind]
     if device_id == DEVICEID_UNSET:

@@ -19,6 +19,13 @@ its start. A device such as
 plain file in its place. So is a file the running command reads (``protect_inputs``: the command
 line registers its inputs), and two outputs of one command that are the same file
 (``check_distinct_outputs``).
+
+Links are never followed for the folder's entries (the folder itself may be a link): a
+destination that is a symbolic link is refused (the rename would replace the link, and the user
+named the link, not its target), the ``.part`` file is created with
+``O_CREAT | O_EXCL | O_NOFOLLOW`` so a planted ``.part`` link or hard link never receives a
+byte, and the rename that completes an output checks that the ``.part`` name still holds the
+file that was written.
 """
 
 from __future__ import annotations
@@ -40,6 +47,9 @@ except ImportError:  # pragma: no cover
     fcntl = None  # type: ignore[assignment]
 
 PART_SUFFIX = ".part"
+_CLOEXEC = getattr(os, "O_CLOEXEC", 0)
+_NOFOLLOW = getattr(os, "O_NOFOLLOW", 0)
+_NEW_PART = os.O_RDWR | os.O_CREAT | os.O_EXCL | _NOFOLLOW | _CLOEXEC  # never an existing file
 
 
 class OutputError(StillpointError, OSError):
@@ -109,9 +119,9 @@ def check_distinct_outputs(outputs: dict) -> None:
 
 def check_output_path(path, *, what: str = "output") -> Path:
     """Refuse, before any work, an output that cannot be written: the folder is missing or
-    not a folder or not writable, the path is a folder or a device, pipe or socket (links
-    followed), or the name cannot be encoded for the file system. Returns the path as a
-    ``Path``."""
+    not a folder or not writable, the path (or its ``.part`` name) is a symbolic link, the path
+    is a folder or a device, pipe or socket, or the name cannot be encoded for the file system.
+    Returns the path as a ``Path``."""
     p = Path(path)
     try:
         os.fsencode(p.name)
@@ -130,8 +140,24 @@ def check_output_path(path, *, what: str = "output") -> Path:
     source = None if st is None else _INPUTS.get((st.st_dev, st.st_ino))
     if source is not None:
         raise OutputError(path, f"{what} would overwrite the input {source}")
+    if os.path.islink(p):
+        where = "a missing file" if mode is None else (
+            "a folder" if stat.S_ISDIR(mode) else not_a_file(mode) or "a file")
+        raise OutputError(path, f"{what} path is a symbolic link (to {where}, "
+                                f"{os.readlink(p)!r}); outputs never follow links: remove the "
+                                "link or name its target")
     if mode is not None and stat.S_ISDIR(mode):
         raise OutputError(path, f"{what} path is a folder")
+    part = partial_path(p)
+    try:
+        part_mode = os.lstat(part).st_mode
+    except OSError:
+        part_mode = None
+    if part_mode is not None and not stat.S_ISREG(part_mode):
+        what_part = "a symbolic link" if stat.S_ISLNK(part_mode) else (
+            "a folder" if stat.S_ISDIR(part_mode) else not_a_file(part_mode) or "not a file")
+        raise OutputError(part, f"is {what_part}, not a partial {what} of stillpoint; outputs "
+                                "never follow links: remove it and run again")
     kind = None if mode is None else not_a_file(mode)
     if kind:
         raise OutputError(path, f"{what} path is {kind}, not a file (outputs are written "
@@ -183,47 +209,79 @@ class AtomicOutput:
         self.part = partial_path(self.path)
         self.set_aside: Optional[Path] = None
         self.committed = False
-        try:
-            fd = os.open(self.part, os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), 0o644)
-        except OSError as e:
-            raise OutputError(self.part, f"cannot create: {describe_os_error(e)}") from None
-        fd = self._lock(fd)
-        try:
-            os.ftruncate(fd, 0)
-        except OSError as e:
-            os.close(fd)
-            raise OutputError(self.part, f"cannot write: {describe_os_error(e)}") from None
+        fd = self._create()
+        self._ident = _identity(os.fstat(fd))
         self.fd = fd
         self.file = (os.fdopen(fd, "wb", buffering=0, closefd=False) if binary else
                      open(fd, "w", encoding="utf-8", newline="", closefd=False))
 
-    def _lock(self, fd: int) -> int:
-        if fcntl is None:
-            return fd
+    def _busy(self) -> OutputError:
+        return OutputError(self.path, "another stillpoint run is writing this output "
+                                      f"({self.part.name} is locked)")
+
+    def _new_part(self) -> int:
+        """A new, empty ``.part`` file (O_EXCL: never a file or link that was there), locked."""
         try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            os.close(fd)
-            raise OutputError(self.path, "another stillpoint run is writing this output "
-                                         f"({self.part.name} is locked)") from None
-        if os.fstat(fd).st_size > 0:  # left by a killed run: keep it under a new name
-            stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime(os.fstat(fd).st_mtime))
-            aside = self.part.with_name(f"{self.part.name}.{stamp}")
-            n = 1
-            while aside.exists():
-                aside = self.part.with_name(f"{self.part.name}.{stamp}-{n}")
-                n += 1
-            os.rename(self.part, aside)
-            self.set_aside = aside
-            os.close(fd)
-            fd = os.open(self.part, os.O_RDWR | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0),
-                         0o644)
+            fd = os.open(self.part, _NEW_PART, 0o644)
+        except FileExistsError:
+            raise
+        except OSError as e:
+            raise OutputError(self.part, f"cannot create: {describe_os_error(e)}") from None
+        if fcntl is not None:
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except OSError:  # pragma: no cover - a racing writer won the new name
                 os.close(fd)
-                raise OutputError(self.path, "another stillpoint run is writing this output") from None
+                raise self._busy() from None
         return fd
+
+    def _create(self) -> int:
+        try:
+            return self._new_part()
+        except FileExistsError:
+            pass
+        # a .part is there: another run's (locked), a killed run's (kept under a new name), an
+        # empty leftover (removed), or something that is not our file (refused, left alone)
+        try:
+            st = os.lstat(self.part)
+        except FileNotFoundError:  # gone meanwhile
+            st = None
+        if st is not None and not stat.S_ISREG(st.st_mode):
+            what = "a symbolic link" if stat.S_ISLNK(st.st_mode) else (
+                "a folder" if stat.S_ISDIR(st.st_mode) else not_a_file(st.st_mode) or "not a file")
+            raise OutputError(self.part, f"is {what}, not a partial output of stillpoint; outputs "
+                                         "never follow links: remove it and run again")
+        if st is not None:
+            try:
+                fd = os.open(self.part, os.O_RDONLY | _NOFOLLOW | _CLOEXEC)
+            except FileNotFoundError:
+                fd = None
+            except OSError as e:
+                raise OutputError(self.part, f"cannot open: {describe_os_error(e)}") from None
+            if fd is not None:
+                try:
+                    if _identity(os.fstat(fd)) != _identity(st):
+                        raise self._busy()  # replaced between the two looks: someone is at work
+                    if fcntl is not None:
+                        try:
+                            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                        except OSError:
+                            raise self._busy() from None
+                    if st.st_size > 0 or st.st_nlink > 1:  # a killed run's: keep it
+                        self.set_aside = _free_name(self.part, st.st_mtime)
+                        os.rename(self.part, self.set_aside)
+                    else:  # an empty leftover
+                        os.unlink(self.part)
+                except OSError as e:
+                    if isinstance(e, OutputError):
+                        raise
+                    raise OutputError(self.part, f"cannot set aside: {describe_os_error(e)}") from None
+                finally:
+                    os.close(fd)  # the lock on the old file ends; the new name is ours by O_EXCL
+        try:
+            return self._new_part()
+        except FileExistsError:
+            raise self._busy() from None
 
     def commit(self) -> Path:
         """Flush and fsync the partial file, rename it onto the final name, fsync the folder."""
@@ -235,6 +293,14 @@ class AtomicOutput:
             raise OutputError(self.part, f"cannot finish writing: {describe_os_error(e)}; "
                                          "the partial file is kept") from None
         self.file.close()
+        try:
+            now = _identity(os.lstat(self.part))
+        except OSError:
+            now = None
+        if now != self._ident:
+            self.abandon(remove_if_empty=False)
+            raise OutputError(self.part, "was replaced while it was written (not the file "
+                                         f"stillpoint wrote); {self.path} is not changed")
         os.replace(self.part, self.path)
         fsync_folder(self.path.parent)
         os.close(self.fd)  # releases the lock after the rename: no window for a second writer
@@ -263,6 +329,21 @@ class AtomicOutput:
         os.close(self.fd)
         self.fd = -1
         return None if (empty and remove_if_empty) else self.part
+
+
+def _identity(st) -> tuple:
+    return (st.st_dev, st.st_ino)
+
+
+def _free_name(part: Path, when: float) -> Path:
+    """``<name>.part.<UTC time>[-n]`` beside ``part``, not taken by anything (links included)."""
+    stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime(when))
+    aside = part.with_name(f"{part.name}.{stamp}")
+    n = 1
+    while os.path.lexists(aside):
+        aside = part.with_name(f"{part.name}.{stamp}-{n}")
+        n += 1
+    return aside
 
 
 @contextmanager

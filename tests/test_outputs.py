@@ -151,3 +151,78 @@ def test_two_outputs_of_one_command_may_not_be_one_file(tmp_path):
     with pytest.raises(OutputError, match="the summary and the MCAP output are the same file"):
         check_distinct_outputs({"MCAP output": tmp_path / "a.mcap",
                                 "summary": tmp_path / "x" / ".." / "a.mcap"})
+
+
+# ---------------------------------------------------------------------------- links never followed
+def _outside(tmp_path):
+    secret = tmp_path / "elsewhere" / "precious.txt"
+    secret.parent.mkdir()
+    secret.write_bytes(b"precious")
+    out = tmp_path / "out"
+    out.mkdir()
+    return secret, out
+
+
+def test_a_destination_that_is_a_symlink_is_refused(tmp_path):
+    secret, out = _outside(tmp_path)
+    for target in (secret, tmp_path / "elsewhere" / "missing.txt"):
+        link = out / "a.csv"
+        link.symlink_to(target)
+        with pytest.raises(OutputError, match="symbolic link") as e:
+            AtomicOutput(link)
+        assert str(link) in str(e.value)
+        assert not partial_path(link).exists() and link.is_symlink()
+        link.unlink()
+    assert secret.read_bytes() == b"precious"
+    assert not (tmp_path / "elsewhere" / "missing.txt").exists()
+
+
+@pytest.mark.parametrize("dangling", [False, True])
+def test_a_planted_part_link_never_receives_a_byte(tmp_path, dangling):
+    secret, out = _outside(tmp_path)
+    target = (tmp_path / "elsewhere" / "created.txt") if dangling else secret
+    partial_path(out / "a.bin").symlink_to(target)
+    for attempt in (lambda: check_output_path(out / "a.bin"), lambda: AtomicOutput(out / "a.bin")):
+        with pytest.raises(OutputError, match="symbolic link") as e:
+            attempt()
+        assert str(partial_path(out / "a.bin")) in str(e.value)
+    assert secret.read_bytes() == b"precious" and not (tmp_path / "elsewhere" / "created.txt").exists()
+    assert partial_path(out / "a.bin").is_symlink() and not (out / "a.bin").exists()
+
+
+@pytest.mark.parametrize("content", [b"", b"half a run"])
+def test_a_part_hard_linked_elsewhere_is_never_written_through(tmp_path, content):
+    secret, out = _outside(tmp_path)
+    secret.write_bytes(content)
+    os.link(secret, partial_path(out / "a.bin"))
+    with atomic_output(out / "a.bin") as f:
+        f.write(b"new output")
+    assert (out / "a.bin").read_bytes() == b"new output"
+    assert secret.read_bytes() == content  # the other name's file is untouched
+
+
+def test_a_part_replaced_while_written_is_not_renamed_into_place(tmp_path):
+    out = tmp_path / "a.bin"
+    out.write_bytes(b"previous")
+    w = AtomicOutput(out)
+    w.file.write(b"ours")
+    os.rename(w.part, tmp_path / "moved")
+    (tmp_path / "planted").write_bytes(b"not ours")
+    os.symlink(tmp_path / "planted", w.part)
+    with pytest.raises(OutputError, match="replaced while it was written"):
+        w.commit()
+    assert out.read_bytes() == b"previous" and (tmp_path / "moved").read_bytes() == b"ours"
+    assert (tmp_path / "planted").read_bytes() == b"not ours"
+
+
+def test_a_symlinked_destination_is_one_line_exit_2_on_the_command_line(tmp_path, capsys):
+    from stillpoint.engine.sim.record import simulate_recording
+    from stillpoint.tools.cli import main
+    secret, out = _outside(tmp_path)
+    rec = tmp_path / "r.cwa"
+    simulate_recording(rec, device="ax3", days=0.002, truth_path=False)
+    (out / "x.csv").symlink_to(secret)
+    assert main(["export", str(rec), "-o", str(out / "x.csv")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "symbolic link" in err[0] and str(out / "x.csv") in err[0]
+    assert secret.read_bytes() == b"precious"

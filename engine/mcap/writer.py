@@ -109,7 +109,8 @@ class _WriterCore:
             self._f = None
             self._fd = target
         elif isinstance(target, (list, tuple)):  # ("fd-path", path): open an existing file
-            self._f = open(os.open(target[1], os.O_WRONLY | getattr(os, "O_CLOEXEC", 0)), "wb",
+            self._f = open(os.open(target[1], os.O_WRONLY | getattr(os, "O_CLOEXEC", 0)
+                                   | getattr(os, "O_NOFOLLOW", 0)), "wb",
                            buffering=0)
             self._fd = self._f.fileno()
         else:

@@ -6,9 +6,10 @@ them, counted by outcome.
     python -m tools.fuzz --save-dir fuzz-out      # keep every input that broke a reader
 
 Outcomes: ``ok`` (read to the end), ``typed`` (a ``StillpointError``: one clear line, exit 2 in the
-CLI), ``untyped`` (any other exception: a bug), ``hang`` (over ``--timeout`` s, counted as a bug).
+CLI), ``untyped`` (any other exception: a bug), ``hang`` (over ``--timeout`` s, counted as a bug),
+``mismatch`` (a .bin read one page per batch differs from the default read: a bug).
 ``ok`` inputs that raised a Python warning are also counted under ``warning``. The goal is 0
-untyped and 0 hang. Deterministic: the same seed gives the same inputs.
+untyped, 0 hang and 0 mismatch. Deterministic: the same seed gives the same inputs.
 
 Inputs are small seeds (written by the project's own writers, plus the damaged files of
 tests/data/fuzz) with one to a few mutations: bit flips, interesting bytes and integers, cuts,
@@ -51,6 +52,10 @@ HOSTILE_VALUES = (b"", b"0", b"-1", b"nan", b"inf", b"-inf", b"1e999", b"1e-308"
 
 class Hang(Exception):
     pass
+
+
+class Mismatch(Exception):
+    """A reader gave another result at another batch size (a bug, as an untyped error is)."""
 
 
 # ----------------------------------------------------------------------------- seeds
@@ -367,7 +372,41 @@ def read_mcap(path: Path) -> None:
             p.unlink()
 
 
-READERS = {"cwa": read_recording, "bin": read_recording, "gz": read_recording, "mcap": read_mcap}
+def _whole_read(path: Path, **opts):
+    """(digest of every sample's time, counts and segment, QC counts and events) of a read, or
+    the typed error it raised."""
+    import hashlib
+    from stillpoint.drivers import open_recording
+    from stillpoint.drivers.errors import StillpointError
+    from stillpoint.tools.commands.export import block_columns
+    h = [hashlib.sha256() for _ in range(3)]  # one per field: block boundaries do not matter
+    try:
+        with open_recording(path, **opts) as src:
+            for b in src:
+                block_columns(b, src.info)
+                for hf, a in zip(h, (b.time_ns, b.accel, np.full(b.n, b.segment, np.int64))):
+                    hf.update(np.ascontiguousarray(a).tobytes())
+        q = src.qc
+        return ([hf.hexdigest() for hf in h], (q.total, q.valid, q.skipped, q.segments),
+                [(e.index, e.reason, e.detail) for e in q.events])
+    except StillpointError as e:
+        return e
+
+
+def read_bin_every_batch(path: Path) -> None:
+    """A .bin read as ``read_recording`` does, and again one page per batch: the two must agree
+    (samples, times, segments, QC), or both raise the same typed error."""
+    ref, one = _whole_read(path), _whole_read(path, batch_pages=1)
+    same = (type(ref) is type(one)) if isinstance(ref, Exception) else (ref == one)
+    if not same:
+        what = lambda r: type(r).__name__ if isinstance(r, Exception) else f"{r[1]}"  # noqa: E731
+        raise Mismatch(f"batch_pages=1 gives {what(one)}, the default {what(ref)}")
+    if isinstance(ref, Exception):
+        raise ref
+
+
+READERS = {"cwa": read_recording, "bin": read_bin_every_batch, "gz": read_recording,
+           "mcap": read_mcap}
 
 
 def classify(fmt: str, path: Path, timeout_s: float) -> tuple[str, str]:
@@ -389,6 +428,8 @@ def classify(fmt: str, path: Path, timeout_s: float) -> tuple[str, str]:
         return "typed", ""
     except Hang:
         return "hang", f"over {timeout_s} s"
+    except Mismatch as e:
+        return "mismatch", str(e)
     except Exception as e:
         tb = traceback.extract_tb(e.__traceback__)
         where = next((f"{Path(fr.filename).name}:{fr.lineno}" for fr in reversed(tb)
@@ -428,7 +469,7 @@ def run(formats=FORMATS, count: int = 100_000, seed: int = 0, timeout_s: float =
                 path.write_bytes(data)
                 outcome, detail = classify(fmt, path, timeout_s)
                 counts[outcome] += 1
-                if outcome in ("untyped", "hang", "warning"):
+                if outcome in ("untyped", "hang", "warning", "mismatch"):
                     kinds[detail.split(":")[0] if outcome == "warning" else detail[:160]] += 1
                     if save_dir is not None and outcome != "warning":
                         save_dir.mkdir(parents=True, exist_ok=True)
@@ -475,12 +516,13 @@ def main(argv=None) -> int:
     res = run(formats, args.count, args.seed, args.timeout, args.save_dir, progress=progress)
     total_bad = 0
     print(f"fuzz: seed {args.seed}, {args.count:,} inputs per format, {time.monotonic() - t0:.0f} s")
-    print(f"{'format':<6} {'inputs':>8} {'ok':>8} {'warning':>8} {'typed':>8} {'untyped':>8} {'hang':>6}")
+    print(f"{'format':<6} {'inputs':>8} {'ok':>8} {'warning':>8} {'typed':>8} {'untyped':>8} {'hang':>6}"
+          f" {'mismatch':>8}")
     for fmt, d in res.items():
         c = d["counts"]
         print(f"{fmt:<6} {d['inputs']:>8,} {c['ok']:>8,} {c['warning']:>8,} {c['typed']:>8,} "
-              f"{c['untyped']:>8,} {c['hang']:>6,}")
-        total_bad += c["untyped"] + c["hang"]
+              f"{c['untyped']:>8,} {c['hang']:>6,} {c['mismatch']:>8,}")
+        total_bad += c["untyped"] + c["hang"] + c["mismatch"]
     for fmt, d in res.items():
         for kind, k in d["kinds"].most_common(20):
             print(f"  {fmt} x{k}: {kind}")

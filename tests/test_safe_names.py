@@ -115,3 +115,27 @@ def test_cohort_summary_cells_are_never_formulas(tmp_path):
     negative = [v for r in rows for k, v in r.items() if k.startswith("offset_") and v.startswith("-")]
     assert all(float(v) < 0 for v in negative)
 
+
+
+def test_exported_message_text_is_never_a_formula(tmp_path):
+    """A /qc message of a (hostile or damaged) log exported as CSV: text, not a formula."""
+    from mcap.writer import Writer
+
+    from stillpoint.tools.cli import main
+    log = tmp_path / "hostile.mcap"
+    with open(log, "wb") as f:
+        w = Writer(f)
+        w.start()
+        w.add_metadata("device", {"device_type": "AX3", "device_id": "1"})
+        sid = w.register_schema("qc", "jsonschema", b"{}")
+        cid = w.register_channel("/qc", "json", sid)
+        for i, text in enumerate(['=HYPERLINK("http://evil","x")', "+cmd|' /C calc'!A0",
+                                  '{"reason": "ok"}']):
+            w.add_message(cid, log_time=i, publish_time=i, data=text.encode(), sequence=i)
+        w.finish()
+    out = tmp_path / "qc.csv"
+    assert main(["export", str(log), "-o", str(out), "--topic", "/qc"]) == 0
+    with open(out, newline="", encoding="utf-8") as f:
+        cells = [r["json"] for r in csv.DictReader(f)]
+    assert len(cells) == 3 and cells[2].startswith("{")
+    assert cells[0].startswith("'=") and cells[1].startswith("'+")

@@ -31,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 from stillpoint.drivers.errors import StillpointError
+from stillpoint.drivers.names import csv_cell
 from stillpoint.drivers.outputs import atomic_output, check_output_path
 
 from .reading import McapReadError, check_raw_message, decode, iter_messages, text
@@ -104,8 +105,9 @@ def _iso(t: np.ndarray) -> np.ndarray:
 
 
 def _fmt(col: np.ndarray) -> np.ndarray:
-    if col.dtype == object:
-        return np.array([json.dumps(s) if ("," in s or '"' in s) else s for s in col])
+    if col.dtype == object:  # message text: a cell a spreadsheet never reads as a formula
+        return np.array([json.dumps(s) if ("," in s or '"' in s) else s
+                         for s in map(csv_cell, col)])
     if col.dtype.kind in "iu":
         return col.astype(str)
     return np.char.mod("%.9g", col)

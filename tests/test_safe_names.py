@@ -139,3 +139,20 @@ def test_exported_message_text_is_never_a_formula(tmp_path):
         cells = [r["json"] for r in csv.DictReader(f)]
     assert len(cells) == 3 and cells[2].startswith("{")
     assert cells[0].startswith("'=") and cells[1].startswith("'+")
+
+
+def test_calibration_store_files_of_hostile_keys_stay_in_the_store(tmp_path):
+    """A GENEActiv key carries the header's serial: its store file is one bounded name; a file
+    an earlier version named for an odd key is still found."""
+    from stillpoint.engine.calibration.store import (CalibrationStore, _earlier_file_name,
+                                                     device_file_name)
+    for key in ("GENEActiv-../../x", "GENEActiv-" + "a" * 400, "GENEActiv-..", "AX3-39434"):
+        name = device_file_name(key)
+        assert "/" not in name and ".." not in name and len(name) <= 64 + len(".json")
+    assert device_file_name("AX3-39434") == "AX3-39434.json"
+    store = CalibrationStore(tmp_path)
+    store.dir.mkdir(parents=True)
+    old = store.dir / _earlier_file_name("GENEActiv-..x")
+    old.write_text("{}")
+    assert old.name != device_file_name("GENEActiv-..x")
+    assert store._path("GENEActiv-..x") == old

@@ -58,7 +58,15 @@ def _now_iso() -> str:
 
 
 def device_file_name(device_key: str) -> str:
-    """A safe file name for a device key (hash suffix when characters had to be replaced)."""
+    """The store file of a device key: ``drivers.names.safe_name_part`` (a GENEActiv key holds
+    the header's free-text serial), ``AX3-39434`` -> ``AX3-39434.json``."""
+    from stillpoint.drivers.names import safe_name_part
+    return safe_name_part(device_key, fallback="device") + ".json"
+
+
+def _earlier_file_name(device_key: str) -> str:
+    """The name earlier versions gave a key with characters outside ``A-Za-z0-9._-`` (such a
+    store file is still found)."""
     safe = re.sub(r"[^A-Za-z0-9._-]", "_", device_key).strip(".") or "device"
     if safe != device_key:
         safe += "-" + hashlib.sha1(device_key.encode()).hexdigest()[:8]
@@ -95,7 +103,12 @@ class CalibrationStore:
 
     # ------------------------------------------------------------------ files
     def _path(self, device_key: str) -> Path:
-        return self.dir / device_file_name(device_key)
+        p = self.dir / device_file_name(device_key)
+        if not p.exists():
+            earlier = self.dir / _earlier_file_name(device_key)
+            if earlier != p and "/" not in earlier.name and earlier.exists():
+                return earlier
+        return p
 
     def check(self) -> None:
         """Refuse, before any work, a store that cannot be used (root or folder is a file, or

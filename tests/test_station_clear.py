@@ -340,3 +340,18 @@ def test_a_verified_ax6_does_not_clear_an_ax3_with_the_same_id(emu, tmp_path):
         with pytest.raises(ClearRefused, match="no verified download"):
             clear_verified(c, lg, 10001, 1, ax3.data_file, wait_for(ax3), device_type="AX3")
     assert ax3.clears == []
+
+
+def test_increment_counts_from_the_erased_session_on_a_later_run(emu, tmp_path):
+    """Run 1 clears (the device is left at session 0); run 2 finds it empty and configures it:
+    "increment" gives the erased session + 1, not 1."""
+    d = emu(10001, session_id=41)
+    out = tmp_path / "out"
+    out.mkdir()
+    rc, flows = _run_station(out, clear_after_verify=True)
+    assert rc == 0 and flows[10001].state == "cleared" and d.session_id == 0
+    prof_path = tmp_path / "study.toml"
+    prof_path.write_text('[device]\nrate_hz = 50\nsession = "increment"\n')
+    rc, flows = _run_station(out, load_profile(prof_path), configure_after=True)
+    assert rc == 0 and flows[10001].state == "configured", flows[10001].reason
+    assert _header(d)["session_id"] == 42

@@ -116,6 +116,13 @@ def set_never_log(client) -> None:
             raise DeviceError(client.name, f"{key} {value} reads back {got!r}")
 
 
+def session_before_clear(ledger, device_id: int, session_now: int) -> int:
+    """The session a profile's "increment" counts from: a clear leaves the device at session 0,
+    so the larger of the device's session and the one its last completed clear erased."""
+    erased = [c[1] for c in ledger.clears() if c[0] == device_id and c[4] == "ok"]
+    return max([session_now] + erased)
+
+
 def clear_verified(client, ledger, device_id: int, session_id: int, data_file, wait_volume,
                    *, device_type: Optional[str] = None, erase: str = "quick") -> int:
     """Erase the device if (and only if) the rule holds; returns the clear's ledger id."""

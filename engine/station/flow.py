@@ -22,7 +22,7 @@ from stillpoint.drivers.ax.errors import DeviceError, IdentityMismatch
 from stillpoint.drivers.ax.protocol import AxClient
 from stillpoint.drivers.errors import StillpointError
 
-from .clearing import clear_verified
+from .clearing import clear_verified, session_before_clear
 from .configure import clock_offset_s, configure_device
 from . import names
 from .completion import CompletionError, complete, resolve_sent_clear
@@ -209,7 +209,9 @@ class DeviceFlow:
             self._set("configuring")
             try:
                 settings, warnings = configure_device(client, opts.profile, data_file=self.att.data_file,
-                                                      wait_volume=self.wait_volume, session_now=session)
+                                                      wait_volume=self.wait_volume,
+                                                      session_now=session_before_clear(
+                                                          self.ledger, att.device_id, session))
             except DeviceError as e:
                 self.ledger.configured(att.device_id, None, {}, "error", e.reason)
                 raise

@@ -123,9 +123,8 @@ def run(args) -> int:
             if args.output:
                 from stillpoint.engine.station.ledger import Ledger
                 ledger = Ledger(args.output)
-                # a clear sets SESSION 0: "increment" counts from the session it erased
-                session_now = max([session_now] + [c[1] for c in ledger.clears()
-                                                   if c[0] == att.device_id and c[4] == "ok"])
+                from stillpoint.engine.station.clearing import session_before_clear
+                session_now = session_before_clear(ledger, att.device_id, session_now)
             flow_wait = _volume_waiter(att)
             settings, warnings = cfg.configure_device(client, prof, data_file=att.data_file,
                                                       wait_volume=flow_wait, session_now=session_now)

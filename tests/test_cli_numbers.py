@@ -161,3 +161,15 @@ def test_export_topic_is_refused_for_a_recording(tmp_path, capsys):
     assert len(err) == 1 and "--topic" in err[0] and str(rec) in err[0]
     assert not out.exists() and not (tmp_path / "x.csv.part").exists()
     assert main(["export", str(rec), "-o", str(out)]) == 0 and out.stat().st_size > 0
+
+
+@pytest.mark.parametrize("effect", ["corrupt_sectors:indices=x", "corrupt_sectors:indices=1;nan",
+                                    "corrupt_sectors:count=nan", "corrupt_sectors:count=1e300",
+                                    "corrupt_sectors:count=-1", "halts:count=2.5",
+                                    "offset:x=nan", "offset:x=1e400"])
+def test_numbers_inside_effect_options_are_one_line(effect, tmp_path, capsys):
+    out = tmp_path / "x.cwa"
+    assert main(["simulate", "-o", str(out), "--days", "0.01", "--effect", effect]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("stillpoint simulate: error: ") and "effect" in err[0]
+    assert not out.exists()

@@ -655,6 +655,18 @@ def _convert(value: str, unit: str, effect: str, key: str) -> float:
     return x * table[u]
 
 
+def _whole(value: str, effect: str, key: str, limit: int = 10**7) -> int:
+    """A count or index of an ``--effect`` option: a whole number in [0, limit]."""
+    try:
+        x = float(value)
+    except ValueError:
+        x = float("nan")
+    if not (0 <= x <= limit and x == int(x)):
+        raise ModelError(f"--effect {effect}: {key}={value.strip()!r} is not a whole number in "
+                         f"[0, {limit}]")
+    return int(x)
+
+
 def _unit_key(name: str) -> str:
     """The per-axis key suffix of an effect (x_<suffix>), or '' if it has none."""
     for p in EFFECTS[name]["params"]:
@@ -685,7 +697,7 @@ def parse_effect_option(text: str) -> tuple[str, dict]:
             event[key] = _convert(v, "s", name, key)
             continue
         if name == "corrupt_sectors" and k == "indices":
-            params["indices"] = [int(s) for s in v.replace(";", " ").split()]
+            params["indices"] = [_whole(s, name, k) for s in v.replace(";", " ").split()]
             continue
         if name == "quantisation" and k == "mode":
             params["mode"] = v.strip()
@@ -705,7 +717,7 @@ def parse_effect_option(text: str) -> tuple[str, dict]:
                                  f"{', '.join(specs) or '(none)'}")
         spec = specs[key]
         if spec.key == "count":
-            params[key] = int(float(v))
+            params[key] = _whole(v, name, key)
         else:
             params[key] = _convert(v, spec.unit, name, key)
     if event:

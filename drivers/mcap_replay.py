@@ -194,6 +194,32 @@ class McapRawSource:
                                     record="metadata 'settings'")
         self.qc = QCReport(unit="sector" if self.info.device_type.startswith("AX") else "page")
 
+    def logged_calibration(self):
+        """The ``calibration`` metadata record (the estimate the logged run applied) as a
+        CalibrationEstimate, checked: an estimate the run applied must hold usable coefficients
+        (engine/calibration/validate.py), any other only its status and reason. An identity
+        estimate when the log has none. A damaged record is a typed error naming it."""
+        from stillpoint.engine.calibration.estimate import CalibrationEstimate
+        from stillpoint.engine.calibration.validate import validate_estimate
+        from stillpoint.engine.run import APPLIED_STATUSES
+        from .errors import StillpointError
+        cal = self.metadata.get("calibration") or {}
+        if "json" not in cal:
+            return CalibrationEstimate.identity("no calibration record")
+        d = loads_json(self.path, None, "calibration", cal["json"], what="metadata")
+        where = "metadata 'calibration'"
+        if not isinstance(d, dict) or not isinstance(d.get("status", ""), str) \
+                or not isinstance(d.get("reason", ""), str):
+            raise McapReadError(self.path, "calibration metadata: not an estimate (a JSON object "
+                                           "with a text status and reason)", record=where)
+        if d.get("status") not in APPLIED_STATUSES:
+            return CalibrationEstimate(status=d.get("status", "identity"),
+                                       reason=d.get("reason", "no calibration applied"))
+        try:
+            return validate_estimate(d, "calibration metadata")
+        except StillpointError as e:
+            raise McapReadError(self.path, str(e), record=where) from None
+
     def __enter__(self):
         return self
 

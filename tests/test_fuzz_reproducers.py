@@ -361,9 +361,9 @@ def test_raw_messages_in_order_still_replay(fuzz3, tmp_path):
     assert rc == 0, err
 
 
-def _rewrite(src_path, out_path, *, settings=None, swap_raw=None):
-    """A copy of a log with its ``settings`` record changed (key -> value) or two /raw/accel
-    payloads swapped back."""
+def _rewrite(src_path, out_path, *, settings=None, swap_raw=None, calibration=None):
+    """A copy of a log with its ``settings`` or ``calibration`` record changed (key -> value) or
+    two /raw/accel payloads swapped back."""
     import json
     from mcap.reader import make_reader
     from mcap.writer import Writer
@@ -386,9 +386,10 @@ def _rewrite(src_path, out_path, *, settings=None, swap_raw=None):
                 ids[ch.id] = w.register_channel(ch.topic, ch.message_encoding, sid, dict(ch.metadata))
             w.add_message(ids[ch.id], m.log_time, data, m.publish_time)
         for name, md in meta:
-            if name == "settings" and settings:
+            change = {"settings": settings, "calibration": calibration}.get(name)
+            if change:
                 d = json.loads(md["json"])
-                d.update(settings)
+                d.update(change)
                 md["json"] = json.dumps(d)
             w.add_metadata(name, md)
         w.finish()
@@ -452,3 +453,20 @@ def test_raw_order_rule_covers_times_and_segments(fuzz3, tmp_path):
     inside[[5, 6]] = inside[[6, 5]]
     with pytest.raises(McapReadError, match="time goes back .* after sample 5"):
         _check_order(None, dataclasses.replace(a, time_ns=inside), fixed, 0)
+
+
+@pytest.mark.parametrize("change, what", [
+    ({"status": "ok", "scale": ["1", 1, 1]}, "scale"),
+    ({"status": "ok", "offset": [float("nan"), 0, 0]}, "offset"),
+    ({"status": "ok", "scale": [1, 1]}, "scale"),
+    ({"status": 3}, "not an estimate"),
+])
+def test_calibration_record_is_checked_when_tables_are_made_from_a_log(fuzz3, tmp_path, change, what):
+    good = _rewrite(fuzz3("settings_first_hours_string.mcap"), tmp_path / "good.mcap",
+                    settings={"first_hours": 72.0})
+    rc, out, err = cli("export", good, "-o", tmp_path / "g.epochs.csv.gz")
+    assert rc == 0, err
+    bad = _rewrite(good, tmp_path / "bad.mcap", calibration=change)
+    rc, out, err = cli("export", bad, "-o", tmp_path / "b.epochs.csv.gz")
+    assert_one_line_error(rc, err, "bad.mcap")
+    assert "metadata 'calibration'" in err and what in err, err

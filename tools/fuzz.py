@@ -354,6 +354,7 @@ def read_mcap(path: Path) -> None:
                 b.accel_g()
                 b.unit_of_sample()
             logged = dict(src.settings or {})
+            src.logged_calibration()  # as tables from a log read it
     finally:
         with open(path, "rb") as f:
             for _ in walk_records(f):

@@ -12,7 +12,6 @@ converted with the header's zone).
 
 from __future__ import annotations
 
-import json
 import os
 import tempfile
 from pathlib import Path
@@ -117,9 +116,7 @@ def _batch_tables(mcap, settings, ts) -> dict:
 
     src = McapRawSource(mcap)
     try:
-        cal = src.metadata.get("calibration") or {}
-        est = (CalibrationEstimate.from_dict(json.loads(cal["json"])) if "json" in cal
-               else CalibrationEstimate.identity("no calibration record"))
+        est = src.logged_calibration()  # checked: a damaged record is one typed line
         applied = est.status in APPLIED_STATUSES and settings.calibrate
         initial = est if applied else CalibrationEstimate.identity(est.reason)
         initial.effective_from_ns = None

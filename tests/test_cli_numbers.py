@@ -173,3 +173,18 @@ def test_numbers_inside_effect_options_are_one_line(effect, tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("stillpoint simulate: error: ") and "effect" in err[0]
     assert not out.exists()
+
+
+@pytest.mark.parametrize("action", [("cohort", "run", "r.cwa", "-o", "co"), ("cohort", "retry", "co",
+                                                                            "--class", "all")])
+@pytest.mark.parametrize("bad", ["nan", "inf", "-1", "0", "1e300", "4XB", ""])
+def test_memory_limit_is_checked_when_parsed(action, bad, capsys):
+    assert main([*action, f"--memory-limit={bad}"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "argument --memory-limit" in err[0], err
+
+
+def test_memory_limit_values():
+    from stillpoint.tools.commands._numbers import memory_size
+    assert memory_size("auto") == "auto" and memory_size("0.5") == 0.5
+    assert memory_size("4GB") == 4 * 10**9 and memory_size("500 MiB") == 500 * 2**20

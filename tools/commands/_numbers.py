@@ -90,6 +90,35 @@ def number_pair(num, *, separator: str = ":", form: str = "A:B"):
     return parse
 
 
+_BYTE_UNITS = {"": 1, "b": 1, "kb": 10**3, "mb": 10**6, "gb": 10**9, "tb": 10**12,
+               "kib": 2**10, "mib": 2**20, "gib": 2**30, "tib": 2**40}
+
+
+def memory_size(text: str):
+    """An argparse ``type`` for a memory limit: ``auto``, a fraction of the machine's memory
+    (a number in (0, 1]), or a size (``4GB``, ``500 MiB``, ``4e9`` bytes) up to 1 PB. Returns
+    ``"auto"``, the fraction (float) or the number of bytes (int)."""
+    import re
+    t = str(text).strip().lower()
+    if t == "auto":
+        return "auto"
+    m = re.fullmatch(r"([0-9.eE+-]+)\s*([a-z]*)", t)
+    try:
+        v = float(m.group(1)) if m else float("nan")
+    except ValueError:
+        v = float("nan")
+    unit = m.group(2) if m else ""
+    if not math.isfinite(v) or unit not in _BYTE_UNITS:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a memory size (auto, 0.5, 4GB, 500MiB)")
+    if not unit and 0 < v <= 1:
+        return v
+    n = v * _BYTE_UNITS[unit]
+    if not 1 < n <= 10**15:
+        raise argparse.ArgumentTypeError(f"{text!r} is outside (1 byte, 1 PB] (or a fraction in "
+                                         "(0, 1] of the memory)")
+    return int(n)
+
+
 HOURS = number(0, 8760, lo_open=True, unit="h")  # up to a year of data
 MG = number(0, 1000, lo_open=True, unit="mg")
 SECONDS_DAY = number(0, 86_400, lo_open=True, unit="s")

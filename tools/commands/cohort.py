@@ -18,7 +18,7 @@ import json
 import sys
 from pathlib import Path
 
-from ._numbers import WORKERS, number
+from ._numbers import WORKERS, memory_size, number
 from ._runopts import OptionError, add_setting_arguments, settings_overrides
 
 NAME = "cohort"
@@ -37,7 +37,7 @@ def _exec_arguments(p) -> None:
                         "another in this process; or a Dask scheduler address (tcp://host:8786)")
     g.add_argument("-j", "--jobs", type=WORKERS, default=None,
                    help="worker processes for local/processes (default: the cores available)")
-    g.add_argument("--memory-limit", default="auto",
+    g.add_argument("--memory-limit", type=memory_size, default="auto",
                    help="LocalCluster memory limit per worker, e.g. 4GB (default: memory / workers)")
     g.add_argument("--max-in-flight", type=number(1, 1_000_000, integer=True), default=None,
                    help="jobs submitted at a time (default: twice the worker slots)")

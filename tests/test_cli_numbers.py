@@ -184,6 +184,14 @@ def test_memory_limit_is_checked_when_parsed(action, bad, capsys):
     assert len(err) == 1 and "argument --memory-limit" in err[0], err
 
 
+@pytest.mark.parametrize("bad", ["1e308/2", "2/2", "-1/2", "1/0", "0/9999999", "a/b", "1", "1/2/3",
+                                 "99999999999999999999999/999999999999999999999999", "²/3"])
+def test_shard_is_checked_when_parsed(bad, capsys):
+    assert main(["cohort", "run", "r.cwa", "-o", "co", f"--shard={bad}"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "argument --shard" in err[0], err
+
+
 def test_memory_limit_values():
     from stillpoint.tools.commands._numbers import memory_size
     assert memory_size("auto") == "auto" and memory_size("0.5") == 0.5

@@ -119,6 +119,23 @@ def memory_size(text: str):
     return int(n)
 
 
+MAX_SHARDS = 1_000_000
+
+
+def shard(text: str) -> str:
+    """An argparse ``type`` for ``--shard K/N``: whole numbers, 0 <= K < N <= MAX_SHARDS.
+    Returns the text (the cohort parses it again)."""
+    parts = str(text).split("/")
+    ok = len(parts) == 2 and all(p.strip().isascii() and p.strip().isdigit() and len(p.strip()) <= 7
+                                 for p in parts)
+    if not ok:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected K/N with whole numbers, e.g. 0/4")
+    k, n = (int(p) for p in parts)
+    if not (1 <= n <= MAX_SHARDS and 0 <= k < n):
+        raise argparse.ArgumentTypeError(f"{text}: need 0 <= K < N <= {MAX_SHARDS}")
+    return text
+
+
 HOURS = number(0, 8760, lo_open=True, unit="h")  # up to a year of data
 MG = number(0, 1000, lo_open=True, unit="mg")
 SECONDS_DAY = number(0, 86_400, lo_open=True, unit="s")

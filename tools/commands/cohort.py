@@ -18,7 +18,7 @@ import json
 import sys
 from pathlib import Path
 
-from ._numbers import WORKERS, memory_size, number
+from ._numbers import WORKERS, memory_size, number, shard
 from ._runopts import OptionError, add_setting_arguments, settings_overrides
 
 NAME = "cohort"
@@ -53,7 +53,7 @@ def add_arguments(p) -> None:
     r.add_argument("inputs", nargs="+", help="recordings, folders (searched recursively for "
                    ".cwa/.cwa.gz/.bin/.bin.gz) or manifest CSVs (a 'path' column)")
     r.add_argument("-o", "--output", type=Path, required=True, help="the cohort folder")
-    r.add_argument("--shard", metavar="K/N", help="process only shard K of N (0-based; for job "
+    r.add_argument("--shard", type=shard, metavar="K/N", help="process only shard K of N (0-based; for job "
                    "arrays: --shard $SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT); no collation")
     _exec_arguments(r)
     from ._tableopts import add_timezone_argument

@@ -226,3 +226,28 @@ def test_a_symlinked_destination_is_one_line_exit_2_on_the_command_line(tmp_path
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "symbolic link" in err[0] and str(out / "x.csv") in err[0]
     assert secret.read_bytes() == b"precious"
+
+
+def test_a_planted_cohort_lock_link_is_not_followed(tmp_path):
+    """The per-file lock of a cohort folder is opened with O_NOFOLLOW: a link planted in its
+    place never creates or opens a file elsewhere."""
+    import csv
+    import shutil
+
+    from stillpoint.engine.sim.record import simulate_recording
+    from stillpoint.tools.cli import main
+    rec = tmp_path / "r.cwa"
+    simulate_recording(rec, device="ax3", days=0.002, truth_path=False)
+    co = tmp_path / "co"
+    argv = ["cohort", "run", str(rec), "-o", str(co), "--scheduler", "serial", "-q"]
+    assert main(argv) == 0
+    with open(co / "manifest.csv", newline="") as f:
+        final = co / next(csv.DictReader(f))["folder"]
+    lock = final.with_name("." + final.name + ".lock")
+    shutil.rmtree(final)
+    lock.unlink()
+    outside = tmp_path / "elsewhere" / "created.lock"
+    outside.parent.mkdir()
+    lock.symlink_to(outside)
+    main(argv)
+    assert not outside.exists() and lock.is_symlink()

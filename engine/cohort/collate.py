@@ -211,7 +211,7 @@ def _lock_held(lock: Path) -> bool:
     except ImportError:  # pragma: no cover
         return False
     try:
-        fd = os.open(lock, os.O_RDONLY)
+        fd = os.open(lock, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0))
     except OSError:
         return False
     try:

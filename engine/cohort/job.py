@@ -96,7 +96,8 @@ def paths(outdir, folder: str) -> tuple[Path, Path, Path]:
 
 @contextmanager
 def _locked(lock: Path):
-    fd = os.open(lock, os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), 0o644)
+    fd = os.open(lock, os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0)
+                 | getattr(os, "O_NOFOLLOW", 0), 0o644)  # a planted link is not followed
     try:
         if fcntl is not None:
             fcntl.flock(fd, fcntl.LOCK_EX)

@@ -41,7 +41,10 @@ def _say(d, text: str, end: str = "\r\n", timeout_s: float = 10.0) -> str:
     got = ""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
-        chunk = d.host_read(1 << 20, 0.2).decode("latin-1")
+        try:
+            chunk = d.host_read(1 << 20, 0.2).decode("latin-1")
+        except OSError:  # the device went away (RESET)
+            return got
         got += chunk
         if not chunk and got.endswith(end):
             return got
@@ -242,3 +245,33 @@ def test_device_emulate_runs_twice_on_its_default_folder(runtime, capsys):
     leftovers = [p for p in (runtime / "emulated").rglob(".*")]
     assert leftovers == []
     assert (runtime / "emulated" / "10001" / "media" / "AX317_10001" / C.AX_DATA_FILE).is_file()
+
+
+def test_an_initial_lock_keeps_the_drive_away_until_unlock(emu):
+    """S3 285-294: an ILOCK code in program memory locks the device at start and keeps its drive
+    unmounted; UNLOCK with the code mounts it (S3 1303-1328); LOCK reports 1 + 2 (S3 1272-1276)."""
+    d = emu(12345)
+    assert _say(d, "ILOCK 1234") == "ILOCK=1\r\n"
+    d.unplug()
+    d.plug()
+    assert not d.volume.exists() and d.locked
+    assert _say(d, "LOCK") == "LOCK=3\r\n"
+    assert _say(d, "SESSION 9") == "ERROR: Locked.\r\nSESSION=1\r\n"
+    assert _say(d, "UNLOCK 1111") == "ERROR: Locked.\r\n"
+    assert _say(d, "UNLOCK 1234") == "LOCK=0\r\n"
+    assert d.volume.is_dir() and d.data_file.is_file()
+    assert _say(d, "LOCK") == "LOCK=2\r\n"
+
+
+def test_reset_restarts_the_device(emu):
+    """S3 1368-1374: RESET, OK, and 1-2 s later the device restarts (the port and drive drop and
+    come back); the RAM settings are those of a fresh start."""
+    d = emu(12345, replug_s=0.1)
+    assert _say(d, "SESSION 77") == "SESSION=77\r\n"
+    assert _say(d, "RESET") == "RESET\r\nOK\r\n"
+    end = time.monotonic() + 10
+    while d.events.count("plugged") < 2:
+        assert time.monotonic() < end, d.events
+        time.sleep(0.05)
+    assert "unplugged" in d.events and d.volume.is_dir()
+    assert _say(d, "SESSION") == "SESSION=1\r\n"  # from the header again

@@ -156,3 +156,15 @@ def test_calibration_store_files_of_hostile_keys_stay_in_the_store(tmp_path):
     old.write_text("{}")
     assert old.name != device_file_name("GENEActiv-..x")
     assert store._path("GENEActiv-..x") == old
+
+
+def test_calibration_store_lock_link_is_not_followed(tmp_path):
+    from stillpoint.engine.calibration.store import CalibrationStoreError, _locked
+    store_file = tmp_path / "AX3-1.json"
+    outside = tmp_path / "elsewhere" / "created.lock"
+    outside.parent.mkdir()
+    (tmp_path / "AX3-1.json.lock").symlink_to(outside)
+    with pytest.raises(CalibrationStoreError, match="symbolic link"):
+        with _locked(store_file):
+            pass
+    assert not outside.exists()

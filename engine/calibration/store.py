@@ -81,10 +81,12 @@ def _locked(path: Path):
     except ImportError:  # pragma: no cover - non-POSIX: atomic rename still protects the file
         yield
         return
-    try:
-        f = open(lock, "a")
+    try:  # a planted link is not followed (O_NOFOLLOW)
+        f = os.fdopen(os.open(lock, os.O_WRONLY | os.O_APPEND | os.O_CREAT | os.O_CLOEXEC
+                              | getattr(os, "O_NOFOLLOW", 0), 0o644), "a")
     except OSError as e:
-        why = "is a folder" if lock.is_dir() else (e.strerror or str(e))
+        why = "is a folder" if lock.is_dir() else (
+            "is a symbolic link" if lock.is_symlink() else (e.strerror or str(e)))
         raise CalibrationStoreError(f"{lock}: cannot use the store's lock file: {why}") from None
     with f:
         fcntl.flock(f, fcntl.LOCK_EX)

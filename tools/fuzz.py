@@ -15,9 +15,11 @@ Inputs are small seeds (written by the project's own writers, plus the damaged f
 tests/data/fuzz) with one to a few mutations: bit flips, interesting bytes and integers, cuts,
 deleted / duplicated / inserted spans, splices of two seeds; structure-aware variants fix the
 .cwa sector checksum after a change (so the decoder, not the checksum test, sees it), replace a
-GENEActiv ``key:value`` with a hostile value, or mutate one MCAP message / metadata value and
-rewrite the file with valid CRCs (so the decoders, not the CRC test, see it). The in-process smoke
-test (tests/test_fuzz_smoke.py) runs a few thousand of these per format in CI.
+GENEActiv ``key:value`` with a hostile value, or mutate one MCAP message / metadata value, put
+the raw messages out of order or give a settings value the wrong type, and rewrite the file with
+valid CRCs (so the decoders, not the CRC test, see it). Each .bin is also read one page per batch
+(the result must not change), each readable MCAP is also replayed. The in-process smoke test
+(tests/test_fuzz_smoke.py) runs a few thousand of these per format in CI.
 """
 
 from __future__ import annotations

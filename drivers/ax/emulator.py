@@ -124,6 +124,7 @@ class EmulatedDevice:
         self.mounted = False  # the host sees the drive folder at ``volume``
         self.disk_mounted = True  # the firmware presents its medium (status.diskMounted)
         self.streaming = False
+        self._streamer = False  # a stream thread is running
         self.events: list[str] = []
         self.clears: list[tuple] = []  # (device id, header session, SHA-256 of the file) per erase  # what happened (for tests and the emulate command's log)
         self._out = bytearray()
@@ -650,21 +651,26 @@ class EmulatedDevice:
         self._start_stream()
 
     def _start_stream(self) -> None:
-        self.streaming = True
-        self._spawn(self._stream_loop, f"stream-{self.serial}")
+        with self._lock:  # one stream at a time, as the firmware has one status.stream
+            self.streaming = True
+            if not self._streamer:
+                self._streamer = True
+                self._threads = [t for t in self._threads if t.is_alive()]
+                self._spawn(self._stream_loop, f"stream-{self.serial}")
 
     def _stream_loop(self) -> None:
         rng = np.random.default_rng(self.device_id)
         period = 1.0 / self.stream_hz
         nxt = time.monotonic()
         scale = C.AX_STREAM_COUNTS_PER_G_AX3 if self.kind == "AX3" else C.AX_STREAM_COUNTS_PER_G_AX6
-        while self.streaming and self.plugged and not self._stop.is_set():
+        while True:
             a = np.rint((np.array([0.02, -0.05, 1.0]) + rng.normal(0, 0.01, 3)) * scale).astype(int)
             vals = list(a)
             if self.kind == "AX6":
                 vals += list(np.rint(rng.normal(0, 20, 3)).astype(int))
             with self._lock:
-                if not self.streaming:
+                if not (self.streaming and self.plugged) or self._stop.is_set():
+                    self._streamer = False
                     break
                 self._say(",".join(str(int(v)) for v in vals))
             nxt += period

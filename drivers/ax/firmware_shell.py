@@ -41,7 +41,8 @@ CONFIG_LOCK, CONFIG_ECC, CONFIG_FRACTIONAL = 0, 1, 2  # Settings.h 152-154
 CONFIG_ECC_DEFAULT, CONFIG_FRACTIONAL_DEFAULT = 1, 1  # Settings.h 89-90
 LOG_VALUE_RESTART, LOG_VALUE_BATTERY = 0, 1  # Settings.h 139-140
 ANNOTATION_COUNT, ANNOTATION_SIZE = 14, 32  # Settings.h 45-46
-ACCEL_DEFAULT_RATE = 0x4A  # Flux.AX3/include/Peripherals/Accel.h 39: ACCEL_RATE_100 | ACCEL_RANGE_8G
+ACCEL_DEFAULT_RATE = 0x4A  # Flux.AX3/include/Peripherals/Accel.h 39: ACCEL_RATE_100 | ACCEL_RANGE_8G (the AX6
+# takes it from the unpublished Flux tree, AX6 Settings.c 238; assumed the same)
 DEFAULT_DEBUGGING = 0  # AX3/Firmware/src/HardwareProfile.h 66
 # firmware versions and the header's hardware byte as each firmware writes them
 SOFTWARE_VERSION = {"AX3": 50, "AX6": 56}  # AX3 HardwareProfile.h 39; AX6 HardwareProfile.h 73

@@ -120,6 +120,12 @@ ROWS = [
     ("AX3", b"FORMATQC\r", b"ERROR: Must specify 'FORMAT Q' for quick or 'FORMAT W' for wipe, +'C' for COMMIT.\r\n",
      "S3 1156: the letter must be at line[7]"),
     ("AX3", b"LOGFILE x\r", b"ERROR: Cannot while attached and mounted.\r\n", "S3 1194-1216"),
+    # ---- the AX6 shares the command code apart from ID and RATE (S6 428-)
+    ("AX6", b"STATUS 3\r", b"FTL=0,0,20,2,0,0\r\n", "S6 531-554: one line per STATUS n"),
+    ("AX6", b"SESSION -1\r", b"SESSION=4294967295\r\n", "S6 713-720; U 106-116"),
+    ("AX6", b"HIBERNATE 2024/02/30,00:00:00\r", b"HIBERNATE=0\r\n", "S6 673-681; R 456: invalid day -> 0"),
+    ("AX6", b"FORMAT QC\r", b"FORMAT: Delayed activation.\r\nFORMAT: Complete.\r\nCOMMIT\r\n",
+     "S6 1168-1196; SettingsAction 388, 398"),
 ]
 
 

@@ -334,8 +334,8 @@ class EmulatedDevice:
             self._open_pty()
         if "stream-left-running" in self.faults:
             self._start_stream()
-        if not any(t.name == f"ctl-{self.serial}" and t.is_alive() for t in self._threads):
-            self._spawn(self._watch_control, f"ctl-{self.serial}")
+        if not any(t.name == f"ctl-{id(self)}" and t.is_alive() for t in self._threads):
+            self._spawn(self._watch_control, f"ctl-{id(self)}")  # one watcher, whatever the serial
         self._register()
         self.events.append("plugged")
 

@@ -168,3 +168,51 @@ def test_pipeline_finishing_after_the_last_read_is_not_a_stall(tmp_path):
     w._q.put(("progress", "copy", 50, 100))  # the same count again: no progress
     w.poll()
     assert w.result is not None and "stalled" in w.result.reason
+
+
+_ORPHAN_SCRIPT = """
+import os, sys, time
+from pathlib import Path
+from stillpoint.drivers.ax.emulator import EmulatedDevice
+from stillpoint.engine.station.download import DownloadJob
+from stillpoint.engine.station.worker import DownloadWorker
+if __name__ == "__main__":
+    w = Path(sys.argv[1])
+    d = EmulatedDevice(w / "dev", 12345, faults=("hang",), days=0.01)
+    d.plug()
+    (w / "out").mkdir()
+    job = DownloadJob(12345, 1, str(d.data_file), str(w / "out"), faults=("hang",),
+                      control=str(d.control), pipeline=False)
+    wk = DownloadWorker(job).start()
+    while not (w / "out" / "AX3-12345_1.cwa.part").exists():
+        time.sleep(0.05)
+    (w / "pid").write_text(str(wk._proc.pid))
+    os._exit(0)  # the station dies without stopping its worker
+"""
+
+
+def test_a_worker_never_outlives_its_station(tmp_path, runtime):
+    """A station that dies (here: exits without a word to its worker, whose read hangs) takes its
+    download worker with it: nothing renames or writes after the station is gone."""
+    import subprocess
+    import sys
+    import time
+    script = tmp_path / "station.py"
+    script.write_text(_ORPHAN_SCRIPT)
+    subprocess.run([sys.executable, str(script), str(tmp_path)], timeout=60, check=True,
+                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    pid = int((tmp_path / "pid").read_text())
+
+    def alive():
+        try:
+            with open(f"/proc/{pid}/stat") as f:
+                return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+        except OSError:
+            return False
+    end = time.monotonic() + 2.0
+    while alive() and time.monotonic() < end:
+        time.sleep(0.05)
+    still = alive()
+    if still:
+        os.kill(pid, 9)
+    assert not still, "the download worker outlived its station"

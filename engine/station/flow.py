@@ -257,7 +257,7 @@ class DeviceFlow:
                 raise DeviceError(att.device_id, "stopped by the user; the partial copy is kept")
             ph, self.done_bytes, total = w.poll(0.2)
             self.total_bytes = total or self.total_bytes
-            if ph == "copy" and self.done_bytes and not copying:
+            if self.done_bytes and not copying:  # the worker is under way
                 copying = True
                 kill_point("download:copying")
             if ph == "copy":

@@ -69,3 +69,27 @@ def set_aside_name(part: Path, when: float | None = None) -> Path:
         aside = part.with_name(f"{part.name}.{stamp}-{n}")
         n += 1
     return aside
+
+
+# every name a download or the ledger leaves in the output folder, with what it is
+KINDS = (
+    ("ledger", re.compile(r"^stillpoint-ledger\.sqlite(-wal|-shm|-journal)?$")),
+    ("station lock", re.compile(r"^\.stillpoint-station\.lock$")),
+    ("set aside", SET_ASIDE_RE),
+    ("partial copy", re.compile(r"^(?!.*\.part\.)(?P<stem>.+)\.cwa\.part$")),
+    ("unverified log, being written", re.compile(r"^(?!.*\.part\.)(?P<stem>.+)\.unverified\.mcap\.part$")),
+    ("unverified log", re.compile(r"^(?P<stem>.+)\.unverified\.mcap$")),
+    ("raw copy", re.compile(r"^(?!.*\.part)(?P<stem>.+)\.cwa$")),
+    ("corrected log", re.compile(r"^(?!.*\.part)(?P<stem>.+)\.mcap$")),
+)
+
+
+def kind_of(name: str):
+    """Which documented pattern ``name`` follows (``KINDS``), or None (a doubled ``.part.part``
+    follows none)."""
+    if ".part.part" in name:
+        return None
+    for kind, rx in KINDS:
+        if rx.match(name):
+            return kind
+    return None

@@ -186,3 +186,49 @@ def test_live_table_on_a_terminal(emu, tmp_path, capsys):
     rows = {r["id"]: r["state"] for r in json.loads(capsys.readouterr().out)}
     assert rows[10001] == "verified"
     assert rows[10002].startswith("has data (last download failed: reading")
+
+
+def test_clean_lists_and_removes_only_superseded_partial_files(emu, tmp_path, capsys):
+    emu(10001)
+    out = tmp_path / "out"
+    out.mkdir()
+    assert main(["device", "download", "10001", "-o", str(out)]) == 0
+    copy = (out / "AX3-10001_1.cwa").read_bytes()
+    stamp = "20260101T000000Z"
+    plant = {f"AX3-10001_1.cwa.part.{stamp}": copy[:4096],  # a prefix: superseded
+             f"AX3-10001_1.cwa.part.{stamp}-1": b"MD" + b"\x07" * 4094,  # other bytes: kept
+             f"AX3-10001_1.unverified.mcap.part.{stamp}": b"x",  # a derived log: superseded
+             f"AX3-99_1.cwa.part.{stamp}": copy[:512]}  # no verified copy: kept
+    for n, b in plant.items():
+        (out / n).write_bytes(b)
+    capsys.readouterr()
+    assert main(["clean", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "2 superseded, 2 kept; nothing removed" in text
+    assert all((out / n).exists() for n in plant)
+    (out / "AX3-10001_1.cwa").write_bytes(copy[:-512])  # the verified copy damaged: nothing goes
+    assert main(["clean", str(out), "--delete"]) == 0
+    assert "0 file(s) removed" in capsys.readouterr().out and all((out / n).exists() for n in plant)
+    (out / "AX3-10001_1.cwa").write_bytes(copy)
+    assert main(["clean", str(out), "--delete"]) == 0
+    assert "2 file(s) removed" in capsys.readouterr().out
+    assert sorted(n for n in plant if (out / n).exists()) == [f"AX3-10001_1.cwa.part.{stamp}-1",
+                                                               f"AX3-99_1.cwa.part.{stamp}"]
+    assert main(["clean", str(tmp_path)]) == 2  # no ledger there: one line, nothing removed
+    assert "no station ledger" in capsys.readouterr().err
+
+
+def test_an_ax3_and_an_ax6_with_the_same_id_and_session_both_download(emu, tmp_path, capsys):
+    from stillpoint.drivers.ax.emulator import EmulatedDevice
+    a = emu(10001)
+    b = EmulatedDevice(tmp_path / "ax6", 10001, "AX6", days=0.01, remount_s=0.05, slot="emu-2")
+    try:
+        b.plug()
+        out = tmp_path / "out"
+        out.mkdir()
+        assert main(["station", str(out), "--once", "--clear-after-verify", "--plain"]) == 0, \
+            capsys.readouterr()
+        assert (out / "AX3-10001_1.cwa").read_bytes() != (out / "AX6-10001_1.cwa").read_bytes()
+        assert len(a.clears) == 1 and len(b.clears) == 1
+    finally:
+        b.shutdown()

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import hashlib
+import os
 import sqlite3
 
 import pytest
@@ -146,3 +148,116 @@ def test_clear_refused_for_another_session(emu, tmp_path):
         with pytest.raises(ClearRefused, match="session is now 2"):
             clear_verified(c, lg, 12345, 1, d.data_file, _wait(d))
     assert d.clears == []
+
+
+# ---------------------------------------------------------------------- completion and restarts
+def _part_ready(d, out):
+    """A verified download result whose files are still unnamed (what a worker hands back)."""
+    r = run_download(DownloadJob(d.device_id, d.session_id, str(d.data_file), str(out), pipeline=False))
+    assert r.ok, r.reason
+    return r
+
+
+@pytest.mark.parametrize("left", ["part", "final", "neither"])
+def test_a_download_left_completing_is_reconciled(emu, tmp_path, left):
+    from stillpoint.engine.station.completion import reconcile
+    d = emu(12345)
+    lg = Ledger(tmp_path)
+    r = _part_ready(d, tmp_path)
+    dl = lg.download_started(12345, 1, cwa_path=r.cwa_path)
+    lg.download_completing(dl, bytes_=r.bytes, sha256=r.sha256, bad_sectors=0, cwa_path=r.cwa_path,
+                           mcap_path=None)
+    part, final = tmp_path / "AX3-12345_1.cwa.part", tmp_path / "AX3-12345_1.cwa"
+    if left == "final":  # killed between the rename and the 'verified' row
+        os.link(part, final)
+        os.unlink(part)
+    elif left == "neither":
+        os.unlink(part)
+    lines = reconcile(lg)
+    rec = lg.downloads()[-1]
+    if left == "neither":
+        assert rec.state == "error" and "downloaded again" in rec.reason and len(lines) == 1
+    else:
+        assert rec.state == "verified" and rec.verified and lines
+        assert final.read_bytes() == d.data_file.read_bytes() and not part.exists()
+        assert lg.verified_download(12345, 1, device_type="AX3").id == dl
+
+
+def test_a_download_left_downloading_becomes_an_error_that_resumes(emu, tmp_path):
+    from stillpoint.engine.station.completion import reconcile
+    lg = Ledger(tmp_path)
+    dl = lg.download_started(12345, 1)
+    reconcile(lg)
+    rec = lg.downloads()[-1]
+    assert rec.id == dl and rec.state == "error" and "resumes" in rec.reason
+
+
+def test_a_final_copy_without_a_ledger_row_is_adopted_only_if_it_is_the_device(emu, tmp_path):
+    d = emu(12345)
+    final = tmp_path / "AX3-12345_1.cwa"
+    final.write_bytes(d.data_file.read_bytes())
+    r = run_download(DownloadJob(12345, 1, str(d.data_file), str(tmp_path), pipeline=False))
+    assert r.ok and r.adopted and r.cwa_part is None
+    assert r.sha256 == hashlib.sha256(d.data_file.read_bytes()).hexdigest()
+    other = bytearray(d.data_file.read_bytes())
+    other[5000] ^= 1
+    final.write_bytes(bytes(other))
+    r = run_download(DownloadJob(12345, 1, str(d.data_file), str(tmp_path), pipeline=False))
+    assert not r.ok and "not a copy of the device's data" in r.reason
+    assert final.read_bytes() == bytes(other)  # nothing is overwritten
+
+
+def test_a_clear_left_sent_is_settled_from_the_device(emu, tmp_path):
+    from stillpoint.engine.station.completion import resolve_sent_clear
+    d = emu(12345)
+    lg = Ledger(tmp_path)
+    r = _verified(d, tmp_path, lg)
+    c1 = lg.clear_attempt(12345, 1, 1, r.sha256)  # killed before the erase took effect
+    assert "not cleared" in resolve_sent_clear(lg, 12345, d.data_file)[0]
+    c2 = lg.clear_attempt(12345, 1, 1, r.sha256)  # killed after it
+    with open(d.data_file, "r+b") as f:
+        f.truncate(1024)
+    assert "only a header" in resolve_sent_clear(lg, 12345, d.data_file)[0]
+    assert [c[4] for c in lg.clears()] == ["error", "ok"] and c1 < c2
+    assert lg.sent_clears(12345) == []
+
+
+# ---------------------------------------------------------------------- links in the output folder
+def test_a_planted_part_link_never_receives_the_download(emu, tmp_path):
+    d = emu(12345)
+    out = tmp_path / "out"
+    out.mkdir()
+    victim = tmp_path / "victim"
+    victim.write_bytes(b"precious")
+    (out / "AX3-12345_1.cwa.part").symlink_to(victim)
+    r = run_download(DownloadJob(12345, 1, str(d.data_file), str(out), pipeline=False))
+    assert not r.ok and "link" in r.reason
+    os.unlink(out / "AX3-12345_1.cwa.part")
+    os.link(victim, out / "AX3-12345_1.cwa.part")  # a hard link: another name of the same file
+    r = run_download(DownloadJob(12345, 1, str(d.data_file), str(out), pipeline=False))
+    assert not r.ok and "link" in r.reason
+    assert victim.read_bytes() == b"precious"
+
+
+def test_a_planted_final_link_is_not_adopted_or_written(emu, tmp_path):
+    d = emu(12345)
+    out = tmp_path / "out"
+    out.mkdir()
+    victim = tmp_path / "victim"
+    victim.write_bytes(d.data_file.read_bytes())  # even the same bytes: a link is not a copy
+    (out / "AX3-12345_1.cwa").symlink_to(victim)
+    r = run_download(DownloadJob(12345, 1, str(d.data_file), str(out), pipeline=False))
+    assert not r.ok and "already exists" in r.reason
+    assert (out / "AX3-12345_1.cwa").is_symlink()
+
+
+def test_a_ledger_that_is_a_link_is_refused(tmp_path):
+    elsewhere = tmp_path / "elsewhere.sqlite"
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "stillpoint-ledger.sqlite").symlink_to(elsewhere)
+    with pytest.raises(LedgerError, match="symbolic link"):
+        Ledger(out)
+    with pytest.raises(LedgerError, match="symbolic link"):
+        acquire_station_lock(out)
+    assert not elsewhere.exists()

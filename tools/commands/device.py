@@ -155,6 +155,9 @@ def _with_ledger(args, att) -> int:
     import os
     fd = acquire_station_lock(out)
     ledger = Ledger(out)
+    from stillpoint.engine.station.completion import reconcile
+    for line in reconcile(ledger):  # what a killed station or download left between two states
+        print(f"ledger: {line}", file=sys.stderr)
     try:
         if args.action == "download":
             opts = StationOptions(str(out), stall_s=args.stall_s)

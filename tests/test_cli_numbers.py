@@ -196,3 +196,17 @@ def test_memory_limit_values():
     from stillpoint.tools.commands._numbers import memory_size
     assert memory_size("auto") == "auto" and memory_size("0.5") == 0.5
     assert memory_size("4GB") == 4 * 10**9 and memory_size("500 MiB") == 500 * 2**20
+
+
+@pytest.mark.parametrize("extra", [["--order", "+x,-x"], ["--hold-s", "5"], ["--minutes", "3"],
+                                   ["--sleep", "1:1"], ["--controls"], ["--skew-ppm", "5"],
+                                   ["--device-id", "7"], ["--cross-axis", "0.01"],
+                                   ["--sensor-errors", "none"], ["--pair-hz", "50"],
+                                   ["--pair-effect", "noise"], ["--pair-output", "b.cwa"],
+                                   ["--pair-device", "ax6"]])
+def test_simulate_refuses_an_option_the_run_would_ignore(extra, tmp_path, capsys):
+    out = tmp_path / "x.cwa"
+    assert main(["simulate", "-o", str(out), "--days", "0.01", *extra]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and extra[0] in err[0] and "ignored" in err[0], err
+    assert not out.exists()

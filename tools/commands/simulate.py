@@ -75,10 +75,33 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     _static_scenarios.add_arguments(p)
 
 
+# options that only one kind of run reads: option -> (its default, the runs that read it)
+_ONLY_FOR = {
+    "order": (None, ("sixface",)), "hold_s": (10.0, ("sixface",)),
+    "minutes": (20.0, ("infant",)), "sleep": ([], ("infant",)), "controls": (False, ("infant",)),
+    "skew_ppm": (0.0, ("infant",)), "device_id": (None, ("sixface", "infant")),
+    "cross_axis": (0.0, ("sixface", "infant")), "sensor_errors": ("table2", ("sixface", "infant")),
+    "pair_output": (None, ("pair",)), "pair_device": (None, ("pair",)),
+    "pair_hz": (None, ("pair",)), "pair_effect": ([], ("pair",)),
+}
+
+
+def _check_ignored(args) -> None:
+    """Refuse an option the requested run would not read (it was silently ignored)."""
+    from stillpoint.engine.sim.model import ModelError
+    runs = {getattr(args, "scenario", "free-living")} | ({"pair"} if getattr(args, "pair", None) else set())
+    for name, (default, used_by) in _ONLY_FOR.items():
+        if getattr(args, name, default) != default and not runs & set(used_by):
+            need = " or ".join("--pair SITE" if u == "pair" else f"--scenario {u}" for u in used_by)
+            raise ModelError(f"--{name.replace('_', '-')} applies with {need} only; it would be "
+                             "ignored here")
+
+
 def run(args) -> int:
     from stillpoint.engine.sim.model import ModelError, parse_effect_option
     from stillpoint.engine.sim.record import build_model, simulate_pair, simulate_recording
 
+    _check_ignored(args)
     if getattr(args, "scenario", "free-living") != "free-living":
         from . import _static_scenarios
         return _static_scenarios.run(args)

@@ -210,3 +210,10 @@ def test_simulate_refuses_an_option_the_run_would_ignore(extra, tmp_path, capsys
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and extra[0] in err[0] and "ignored" in err[0], err
     assert not out.exists()
+
+
+def test_calibrate_store_dir_without_store_is_refused(tmp_path, capsys):
+    assert main(["calibrate", str(tmp_path / "r.cwa"), "--store-dir", str(tmp_path / "st")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--store-dir" in err[0] and "--store" in err[0]
+    assert not (tmp_path / "st").exists()

@@ -221,6 +221,9 @@ def run(args) -> int:
         raise StillpointError("--first-hours and --chunk-hours must be positive")
     if args.jobs < 1:
         raise StillpointError("--jobs must be at least 1")
+    if args.store_dir is not None and not args.store:
+        raise StillpointError("--store-dir names the store --store records in; give --store too "
+                              "(it would be ignored here)")
     files = list(args.file)
     many = len(files) > 1
     base = dict(first_hours=args.first_hours, chunk_hours=args.chunk_hours,

@@ -196,3 +196,20 @@ def test_disk_full_stops_keeps_partial_and_touches_nothing(emu, tmp_path, monkey
     assert (tmp_path / "AX3-12345_1.cwa.part").stat().st_size == 2 * 64 * 1024
     assert not (tmp_path / "AX3-12345_1.cwa").exists()
     assert hashlib.sha256(d.data_file.read_bytes()).hexdigest() == before and d.clears == []
+
+
+def test_a_rerun_reuses_only_the_verified_prefix_of_a_damaged_partial_copy(emu, tmp_path):
+    """A partial copy left by a failed run with one damaged byte in the middle: the next run keeps
+    the bytes before the damage (compared with the device), sets the old copy aside whole, and
+    copies the rest from the device again."""
+    d = emu(12345)
+    good = d.data_file.read_bytes()
+    bad = bytearray(good)
+    at = 1024 + 40 * 512 + 77
+    bad[at] ^= 0x10
+    (tmp_path / "AX3-12345_1.cwa.part").write_bytes(bytes(bad))
+    r = run_download(_job(d, tmp_path, pipeline=False))
+    assert r.ok, r.reason
+    assert r.resumed_from == (at // 512) * 512 and r.reread_ranges == 0
+    assert (tmp_path / "AX3-12345_1.cwa.part").read_bytes() == good
+    assert r.set_aside and open(r.set_aside, "rb").read() == bytes(bad)  # kept, never deleted

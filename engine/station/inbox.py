@@ -7,9 +7,9 @@ been stable for ``stable_s``: a raw copy ``<out>/<device>_<stem>.<ext>`` with it
 through ``.part``, fsynced, renamed), the online pipeline's MCAP beside it, and a ledger download
 record. ``<device>`` (the header's free-text serial) and ``<stem>`` pass through
 ``drivers.names.safe_name_part``: a serial such as ``../x`` or ``/tmp/x`` names a file inside
-``<out>``, never a path. Completeness is checked from the reader's QC: a page count that disagrees with the header,
-sequence gaps, a last page cut inside its data line make the record ``error`` (the outputs are kept,
-not marked verified). Each file is ingested once (its SHA-256 is remembered in the ledger).
+``<out>``, never a path. Completeness is checked from the reader's QC: a page count that
+disagrees with the header, sequence gaps, a last page cut inside its data line make the record
+``error`` (the outputs are kept, not marked verified). Each file is ingested once (its SHA-256 is remembered in the ledger).
 """
 
 from __future__ import annotations

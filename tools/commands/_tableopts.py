@@ -5,7 +5,6 @@ from __future__ import annotations
 from pathlib import Path
 
 from ._numbers import SECONDS_DAY, number, number_list
-from ._runopts import OptionError
 
 ENMO_BANDS = number_list(number(0, 10_000, lo_open=True, unit="mg"), increasing=True,
                          what="increasing mg values")

@@ -47,9 +47,8 @@ from .byteio import (FollowingReader, check_recording_path, is_gzip, open_bytes,
                      stream_damage)
 from .constants import (GNA_GAIN_MAX, GNA_HEX_PER_SAMPLE, GNA_LIGHT_CAL_RANGE, GNA_LIGHT_SHIFT,
                         GNA_OFFSET_MAX, GNA_PAGE_MARKER, GNA_RATE_85_7, GNA_SAMPLES_PER_PAGE,
-                        NS_TIME_RANGE_MS,
-                        PLAUSIBLE_BATTERY_V, PLAUSIBLE_RATE_HZ, PLAUSIBLE_TEMPERATURE_C,
-                        PLAUSIBLE_TIME_NS, PLAUSIBLE_YEARS, gna_rate_hz)
+                        NS_TIME_RANGE_MS, PLAUSIBLE_BATTERY_V, PLAUSIBLE_RATE_HZ,
+                        PLAUSIBLE_TEMPERATURE_C, PLAUSIBLE_TIME_NS, PLAUSIBLE_YEARS, gna_rate_hz)
 from .errors import (CorruptRecordingError, TruncatedRecordingError,
                      UnsupportedFormatError)
 from .geneactiv_header import (CALIBRATION_KEYS, SUBJECT_KEYS, TRIAL_KEYS, GeneactivHeader,
@@ -952,7 +951,8 @@ def _read_header(f, path: Path) -> tuple[GeneactivHeader, bytes]:
 def _light_calibration(hdr: GeneactivHeader) -> tuple[Optional[float], Optional[float], list]:
     """(Volts, Lux, faults) of the header's Calibration Data. Light in lux is raw * Lux / Volts
     ([GNA] §5), so each must be a number within GNA_LIGHT_CAL_RANGE; otherwise both are None (the
-    light in lux is blank) and ``faults`` says which value and why (logged as a QC event by the reader)."""
+    light in lux is blank) and ``faults`` says which value and why (the reader logs each as a
+    ``header_value`` QC event)."""
     values = {}
     for key in ("Volts", "Lux"):
         text = hdr.get(key, "Calibration Data")

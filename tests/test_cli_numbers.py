@@ -56,7 +56,14 @@ def _outside(t) -> list[str]:
     """Values just outside a type's range, and the wrong kind of number."""
     lo, hi = t.lo, t.hi
     vals = [repr(hi * 2 + 1), repr(-(abs(lo) + 1) * 1000)]
-    vals.append(repr(lo) if t.lo_open else repr(lo - 1 if t.integer else lo - max(abs(lo), 1) * 1e-3))
+    if t.lo_open:
+        vals.append(repr(lo))
+    elif t.integer:
+        vals.append(repr(lo - 1))
+    else:
+        vals.append(repr(lo / 2 if lo > 0 else lo - max(abs(lo), 1) * 1e-3))
+    if lo > 0:
+        vals.append("1e-300")  # a tiny positive number where the range starts above 0
     if t.integer:
         vals += ["1.5", "1e3"]
     return vals
@@ -99,7 +106,7 @@ def test_a_bad_number_is_one_line_and_exit_2_before_any_work(path, option, bad, 
                                      for p, a in NUMERIC])
 def test_the_range_ends_are_accepted(path, a):
     t = a.type
-    ends = [t.hi] + ([] if t.lo_open else [t.lo])
+    ends = [t.hi] + ([] if t.lo_open else [t.lo]) + ([0] if getattr(t, "or_zero", False) else [])
     for v in ends:
         text = str(int(v)) if t.integer else repr(float(v))
         if getattr(t, "separator", None) == ",":

@@ -14,8 +14,10 @@ import argparse
 import math
 
 
-def number(lo: float, hi: float, *, integer: bool = False, lo_open: bool = False, unit: str = ""):
-    """An argparse ``type``: a finite number in [lo, hi] (or (lo, hi] with ``lo_open``)."""
+def number(lo: float, hi: float, *, integer: bool = False, lo_open: bool = False, unit: str = "",
+           or_zero: bool = False):
+    """An argparse ``type``: a finite number in [lo, hi] (or (lo, hi] with ``lo_open``), or
+    exactly 0 with ``or_zero`` (an option whose 0 means "off")."""
     u = f" {unit}" if unit else ""
     shown = (lambda v: f"{v:d}") if integer else (lambda v: f"{v:g}")
     span = f"{'(' if lo_open else '['}{shown(lo)}, {shown(hi)}]{u}"
@@ -28,12 +30,15 @@ def number(lo: float, hi: float, *, integer: bool = False, lo_open: bool = False
                 f"{text!r} is not {'an integer' if integer else 'a number'}") from None
         if not math.isfinite(v):
             raise argparse.ArgumentTypeError(f"{text!r} is not a finite number")
+        if or_zero and v == 0:
+            return v
         if v < lo or v > hi or (lo_open and v == lo):
-            raise argparse.ArgumentTypeError(f"{text} is outside {span}")
+            raise argparse.ArgumentTypeError(f"{text} is outside {span}{' (or 0)' if or_zero else ''}")
         return v
 
     parse.__name__ = "integer" if integer else "number"
     parse.lo, parse.hi, parse.integer, parse.lo_open, parse.unit = lo, hi, integer, lo_open, unit
+    parse.or_zero = or_zero
     return parse
 
 
@@ -145,5 +150,5 @@ SEED = number(0, 2**32 - 1, integer=True)
 DAYS = number(0, 366, lo_open=True, unit="days")  # a simulated or emulated recording's length
 DEVICE_ID = number(0, 2**32 - 1, integer=True)  # the .cwa header holds a 32-bit id (cwa_layout)
 WORKERS = number(1, 1024, integer=True)
-MB_PER_S = number(0, 10_000, lo_open=True, unit="MB/s")
+MB_PER_S = number(0.01, 10_000, unit="MB/s")  # 0.01: a 4 MB download in under 7 minutes
 SECONDS_YEAR = number(0, 366 * 86_400, lo_open=True, unit="s")

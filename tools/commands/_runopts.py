@@ -42,7 +42,7 @@ def add_setting_arguments(p, *, defaults_from_input: bool = False) -> None:
                    help="flush the MCAP every N s of data time (default 10: a kill loses <= 10 s)")
     g.add_argument("--compression", choices=("zstd", "lz4", "none"), default=None,
                    help="MCAP chunk compression (default zstd)")
-    g.add_argument("--view-hz", type=number(0, 5000, unit="Hz"), default=None,
+    g.add_argument("--view-hz", type=number(0.001, 5000, unit="Hz", or_zero=True), default=None,
                    help="samples per second on the plottable /view/accel topic (default 1; 0 = off)")
 
 

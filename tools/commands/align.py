@@ -45,7 +45,7 @@ def add_arguments(p) -> None:
                         "own rate (sub-sample lags at the native rate; slower)")
     p.add_argument("--out-rate", type=RATE_HZ, default=None,
                    help="rate of the aligned stream (default: OTHER's nominal rate)")
-    p.add_argument("--block-minutes", type=number(0, 10_080, lo_open=True, unit="min"), default=None,
+    p.add_argument("--block-minutes", type=number(1, 10_080, unit="min"), default=None,
                    help="block length (default 60 for brond, 10 for robust)")
     p.add_argument("--max-lag-s", type=SECONDS_DAY, default=None,
                    help="lag search half-width, s (default 1000 samples for brond, 600 s robust)")

@@ -8,7 +8,8 @@ the station through the runtime registry), ``stillpoint station OUT --clear-afte
 process group of its own, killed with SIGKILL (the whole group, or only the station's pid, so
 its download workers must end by themselves), then ``stillpoint station OUT --once
 --clear-after-verify`` run to its end. A boundary trial starts the first station with
-``STILLPOINT_KILL_AT=<step>`` (``ledger.KILL_STEPS``), so it kills itself at that step. Counted:
+``STILLPOINT_KILL_AT=<step>`` (``ledger.KILL_STEPS``; ``KILL_STEPS_CONFIGURE`` with a study profile
+and ``--configure-after``), so it kills itself at that step. Counted:
 
 * stranded: a device not cleared after the restart, or a ledger row left between states
   (``downloading``/``completing`` download, ``sent`` clear);
@@ -54,20 +55,54 @@ def _group_alive(pgid: int) -> list[int]:
     return alive
 
 
-def _station(out: Path, env: dict, once: bool) -> subprocess.Popen:
+PROFILE = """
+[device]
+rate_hz = 50
+range_g = 4
+start = "+2h"
+stop = "+7d"
+session = "increment"
+min_battery_pct = 10
+"""
+
+
+def _last_states(out: Path) -> str:
+    """Each device's last state in the ledger (where the kill found it)."""
+    try:
+        db = sqlite3.connect(out / "stillpoint-ledger.sqlite")
+        try:
+            rows = db.execute("SELECT device_id, state FROM events WHERE id IN "
+                              "(SELECT MAX(id) FROM events GROUP BY device_id) "
+                              "ORDER BY device_id").fetchall()
+        finally:
+            db.close()
+    except sqlite3.Error:
+        return "-"
+    return ",".join(state for _, state in rows) or "-"
+
+
+def _station(out: Path, env: dict, once: bool, profile: Path | None = None) -> subprocess.Popen:
     cmd = [sys.executable, "-m", "stillpoint.tools", "station", str(out), "--clear-after-verify",
-           "--plain", "--stall-s", "20"] + (["--once"] if once else [])
+           "--plain", "--stall-s", "20"] + (["--once"] if once else []) + \
+        (["--configure-after", "--profile", str(profile)] if profile else [])
     return subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                             start_new_session=True, text=True)
 
 
 def trial(work: Path, *, kill_at: str | None = None, delay_s: float | None = None,
-          pid_only: bool = False, devices: int = 2, timeout_s: float = 120.0) -> dict:
-    """One kill trial in ``work`` (see module docstring); returns what it found."""
+          pid_only: bool = False, devices: int = 2, timeout_s: float = 120.0,
+          configure: bool = False) -> dict:
+    """One kill trial in ``work`` (see module docstring); returns what it found. ``configure``:
+    the station also configures each cleared device from a study profile, and a device not
+    configured after the restart counts as stranded too."""
     from stillpoint.drivers.ax.emulator import EmulatedDevice
     work.mkdir(parents=True, exist_ok=True)
     runtime, out = work / "runtime", work / "out"
     out.mkdir()
+    profile = None
+    if configure:
+        profile = work / "study.toml"
+        profile.write_text(PROFILE)
     env = dict(os.environ, STILLPOINT_RUNTIME_DIR=str(runtime))
     env.pop("STILLPOINT_KILL_AT", None)
     old_rt = os.environ.get("STILLPOINT_RUNTIME_DIR")
@@ -82,7 +117,7 @@ def trial(work: Path, *, kill_at: str | None = None, delay_s: float | None = Non
             devs.append(d)
         held = {d.device_id: _sha(d.data_file.read_bytes()) for d in devs}
         first_env = dict(env, STILLPOINT_KILL_AT=kill_at) if kill_at else env
-        p = _station(out, first_env, once=kill_at is not None)
+        p = _station(out, first_env, once=kill_at is not None, profile=profile)
         if kill_at is None:
             time.sleep(delay_s or 0.0)
             if p.poll() is None:
@@ -106,11 +141,12 @@ def trial(work: Path, *, kill_at: str | None = None, delay_s: float | None = Non
                 os.kill(pid, signal.SIGKILL)
             except OSError:
                 pass
+        res["states_at_kill"] = _last_states(out)
         for d in devs:  # a device the kill left unplugged (mid-clear) comes back
             t_end = time.monotonic() + 5.0
             while not d.plugged and time.monotonic() < t_end:
                 time.sleep(0.05)
-        q = _station(out, env, once=True)
+        q = _station(out, env, once=True, profile=profile)
         try:
             second_out, _ = q.communicate(timeout=timeout_s)
         except subprocess.TimeoutExpired:
@@ -126,6 +162,10 @@ def trial(work: Path, *, kill_at: str | None = None, delay_s: float | None = Non
                     if not d.clears or d.data_file.stat().st_size > 1024]
         db = sqlite3.connect(out / "stillpoint-ledger.sqlite")
         try:
+            if configure:
+                ok = {r[0] for r in db.execute("SELECT device_id FROM configurations "
+                                               "WHERE result='ok'")}
+                stranded += [d.device_id for d in devs if d.device_id not in ok]
             unsettled = db.execute("SELECT COUNT(*) FROM downloads WHERE state IN "
                                    "('downloading', 'completing')").fetchone()[0]
             unsettled += db.execute("SELECT COUNT(*) FROM clears WHERE result='sent'").fetchone()[0]
@@ -146,16 +186,17 @@ def trial(work: Path, *, kill_at: str | None = None, delay_s: float | None = Non
 
 
 def main(argv=None) -> int:
-    from stillpoint.engine.station.ledger import KILL_STEPS
+    from stillpoint.engine.station.ledger import KILL_STEPS, KILL_STEPS_CONFIGURE
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--random", type=int, default=50, help="trials killed at a random time")
     ap.add_argument("--boundaries", action="store_true", help="also one trial per state boundary")
     ap.add_argument("--seed", type=int, default=1)
-    ap.add_argument("--max-delay-s", type=float, default=8.0)
+    ap.add_argument("--max-delay-s", type=float, default=5.0)
     ap.add_argument("--keep", type=Path, default=None, help="keep the trials' folders here")
     a = ap.parse_args(argv)
     rng = random.Random(a.seed)
     plan = [dict(kill_at=s) for s in (KILL_STEPS if a.boundaries else ())]
+    plan += [dict(kill_at=s, configure=True) for s in (KILL_STEPS_CONFIGURE if a.boundaries else ())]
     plan += [dict(delay_s=round(rng.uniform(0.3, a.max_delay_s), 2), pid_only=bool(i % 2))
              for i in range(a.random)]
     root = Path(a.keep) if a.keep else Path(tempfile.mkdtemp(prefix="kill-station-"))
@@ -168,7 +209,7 @@ def main(argv=None) -> int:
             f"after {r['delay_s']:.2f} s ({'pid' if r['pid_only'] else 'group'})"
         print(f"trial {i + 1:3d}/{len(plan)} kill {what:<34} killed={int(r['killed'])} "
               f"orphans={r['orphans']} stranded={r['stranded']} lost={r['lost']} "
-              f"restart_rc={r['restart_rc']}", flush=True)
+              f"restart_rc={r['restart_rc']} states={r['states_at_kill']}", flush=True)
         if "log" in r:
             print(r["log"], flush=True)
     print(f"{len(plan)} trials: {totals['killed']} killed, {totals['orphans']} orphaned workers, "

@@ -5,6 +5,10 @@ States: ``identifying`` -> ``empty`` (nothing recorded) | ``downloading`` -> ``v
 (with the reason) from any state. Every state change is one ledger transaction (``events``).
 An unplug during the copy ends in ``error`` ("... resumes when it comes back"): when the same
 device and session return, the download resumes from the verified prefix of the partial copy.
+A verified download is completed by the ledger (``completion.complete``: row ``completing``, the
+renames, row ``verified``); a clear a killed station left at ``sent`` is settled from the device
+when it is next attached (``completion.resolve_sent_clear``). A device whose data changed between
+two reads of one session (a ``changed`` download) is never cleared here.
 """
 
 from __future__ import annotations

@@ -17,7 +17,8 @@ resolves the rows a killed station left in between.
 
 ``kill_point(step)``: a station started with ``STILLPOINT_KILL_AT=<step>`` in its environment kills
 itself (SIGKILL) at that step, for the kill trials (``tools/kill_station.py``); the steps are the
-ledger writes and the renames between them (``KILL_STEPS``).
+ledger writes and the renames between them (``KILL_STEPS``, and ``KILL_STEPS_CONFIGURE`` when
+the station configures devices too).
 """
 
 from __future__ import annotations
@@ -41,6 +42,7 @@ KILL_STEPS = ("event:identifying", "download:started", "event:downloading", "dow
               "event:verifying", "download:completing", "completion:raw-renamed",
               "completion:renamed", "download:verified", "event:verified", "event:clearing",
               "clear:sent", "clear:result", "event:cleared")
+KILL_STEPS_CONFIGURE = ("event:configuring", "event:configured")  # with --configure-after
 
 
 def kill_point(step: str) -> None:

@@ -5,7 +5,9 @@
 own worker processes); a device that leaves is marked ``detached`` and, when it comes back, runs
 again (an interrupted download resumes). ``once=True`` handles the devices attached at start and
 returns when they are all in a final state. The ledger lock refuses a second station on the same
-folder. ``render`` draws the live table (TTY) or prints one plain line per state change.
+folder. At start the ledger rows a killed station left between two states are resolved
+(``completion.reconcile``). ``render`` draws the live table (TTY) or prints one plain line per
+state change.
 """
 
 from __future__ import annotations

@@ -261,3 +261,27 @@ def test_a_ledger_that_is_a_link_is_refused(tmp_path):
     with pytest.raises(LedgerError, match="symbolic link"):
         acquire_station_lock(out)
     assert not elsewhere.exists()
+
+
+def test_a_ledger_from_before_device_types_still_finds_its_downloads(tmp_path):
+    """Rows written before the device type column (and their old names, ``<id>_<session>.cwa``)
+    are still found, for either device type; rows with a type only for their own."""
+    db = sqlite3.connect(tmp_path / "stillpoint-ledger.sqlite")
+    db.executescript(
+        "CREATE TABLE downloads (id INTEGER PRIMARY KEY AUTOINCREMENT, device_id INTEGER NOT NULL, "
+        "session_id INTEGER NOT NULL, state TEXT NOT NULL, bytes INTEGER, sha256 TEXT, verified "
+        "INTEGER NOT NULL DEFAULT 0, started REAL, finished REAL, clock_offset_s REAL, host_tz "
+        "TEXT, station_id TEXT, battery_pct INTEGER, bad_sectors INTEGER, cwa_path TEXT, mcap_path "
+        "TEXT, reason TEXT, summary TEXT);")
+    old = tmp_path / "10001_1.cwa"
+    old.write_bytes(b"MD")
+    db.execute("INSERT INTO downloads(device_id, session_id, state, verified, sha256, bytes, "
+               "cwa_path) VALUES (10001, 1, 'verified', 1, 'aa', 2, ?)", (str(old),))
+    db.commit()
+    db.close()
+    lg = Ledger(tmp_path)
+    assert lg.verified_download(10001, 1, device_type="AX6").cwa_path == str(old)
+    i = lg.download_started(10002, 1, device_type="AX3", cwa_path=str(old))
+    lg.download_verified(i, bytes_=2, sha256="bb", bad_sectors=0, cwa_path=str(old), mcap_path=None)
+    assert lg.verified_download(10002, 1, device_type="AX6") is None
+    assert lg.verified_download(10002, 1, device_type="AX3").id == i

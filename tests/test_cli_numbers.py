@@ -150,7 +150,7 @@ def test_align_rate_native_and_numbers(capsys):
     align.add_arguments(p)
     assert p.parse_args(["a", "b"]).rate == 30.0
     assert p.parse_args(["a", "b", "--rate", "Native"]).rate == "native"
-    assert p.parse_args(["a", "b", "--rate", "12.5"]).rate == 12.5
+    assert p.parse_args(["a", "b", "--rate", "20.5"]).rate == 20.5
 
 
 def _small_cwa(tmp_path) -> Path:
@@ -224,3 +224,18 @@ def test_calibrate_store_dir_without_store_is_refused(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--store-dir" in err[0] and "--store" in err[0]
     assert not (tmp_path / "st").exists()
+
+
+def test_align_rate_must_be_above_twice_the_band_edge(tmp_path, capsys):
+    """The activity band-pass ends at 7 Hz: a common rate of 14 Hz or less (a number, or the
+    native rate of a 12.5 Hz reference) is one line, not scipy's ValueError traceback."""
+    from stillpoint.engine.alignment.signal import BAND_HZ
+    from stillpoint.engine.sim.record import simulate_recording
+    from stillpoint.tools.commands.align import MIN_COMMON_RATE_HZ
+    assert MIN_COMMON_RATE_HZ == 2 * BAND_HZ[1]
+    rec = tmp_path / "slow.cwa"
+    simulate_recording(rec, device="ax3", hz=12.5, days=0.002, truth_path=False)
+    for rate in ("native", "14", "1"):
+        assert main(["align", str(rec), str(rec), "--rate", rate]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "Traceback" not in err[0] and "14" in err[0], err

@@ -12,6 +12,7 @@ import json
 import sys
 
 from ._numbers import RATE_HZ, SECONDS_DAY, number, number_or
+from stillpoint.drivers.errors import StillpointError
 from stillpoint.drivers.outputs import atomic_output, check_distinct_outputs, check_output_path
 from stillpoint.engine.jsonsafe import jsonable
 
@@ -24,6 +25,10 @@ DESCRIPTION = (
     "Exit codes: 0 aligned, 2 unreadable input, 3 cannot align (reason printed).")
 
 EXIT_CANNOT_ALIGN = 3
+# the common rate must be above twice the activity band-pass's upper edge (7 Hz,
+# engine/alignment/signal.py BAND_HZ): the filter cannot be designed below it
+MIN_COMMON_RATE_HZ = 14.0
+COMMON_RATE = number(MIN_COMMON_RATE_HZ, RATE_HZ.hi, lo_open=True, unit="Hz")
 
 
 def add_arguments(p) -> None:
@@ -40,7 +45,7 @@ def add_arguments(p) -> None:
                         "+-600 s search, trimmed fit with CIs, halt/step detection, temperature term")
     p.add_argument("--interpolation", choices=("previous", "linear", "cubic"), default="previous",
                    help="resampling of OTHER (default previous: keeps amplitudes, as the paper)")
-    p.add_argument("--rate", type=number_or("native", RATE_HZ), default="30",
+    p.add_argument("--rate", type=number_or("native", COMMON_RATE), default="30",
                    help="common rate, Hz (default 30, the paper's), or 'native': the reference's "
                         "own rate (sub-sample lags at the native rate; slower)")
     p.add_argument("--out-rate", type=RATE_HZ, default=None,
@@ -96,7 +101,12 @@ def run(args) -> int:
                          max_lag_s=args.max_lag_s, block_time=args.block_time,
                          min_blocks=args.min_blocks, temperature=not args.no_temperature,
                          detect_steps=not args.no_steps, keep_correlograms=bool(args.plot))
-    open_recording(args.reference).close()  # fail early (exit 2) on unreadable input
+    with open_recording(args.reference) as ref:  # fail early (exit 2) on unreadable input
+        native = ref.info.sample_rate_nominal
+    if args.rate == "native" and not (native or 0) > MIN_COMMON_RATE_HZ:
+        raise StillpointError(f"{args.reference}: --rate native needs a reference rate above "
+                              f"{MIN_COMMON_RATE_HZ:g} Hz (twice the activity band's 7 Hz upper "
+                              f"edge); its nominal rate is {native} Hz: give --rate 30")
     open_recording(args.other).close()
     check_distinct_outputs({"MCAP output": args.output, "JSON output": args.json_out,
                             "plot": args.plot})

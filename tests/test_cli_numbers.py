@@ -239,3 +239,13 @@ def test_align_rate_must_be_above_twice_the_band_edge(tmp_path, capsys):
         assert main(["align", str(rec), str(rec), "--rate", rate]) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and "Traceback" not in err[0] and "14" in err[0], err
+
+
+@pytest.mark.parametrize("scenario", ["sixface", "infant"])
+def test_a_scenario_rate_the_writer_refuses_is_one_line(scenario, tmp_path, capsys):
+    out = tmp_path / "s.cwa"
+    assert main(["simulate", "-o", str(out), "--device", "ax6", "--scenario", scenario,
+                 "--hz", "5000", "--minutes" if scenario == "infant" else "--hold-s", "1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "3200/2^k" in err[0] and str(out) in err[0], err
+    assert not out.exists()

@@ -36,6 +36,19 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
+    """The scenario; a value the writers refuse (an AX rate that is not 3200/2^k Hz, ...) is
+    one line (``ModelError``), not a traceback."""
+    from stillpoint.drivers.errors import StillpointError
+    from stillpoint.engine.sim.model import ModelError
+    try:
+        return _run(args)
+    except ValueError as e:
+        if isinstance(e, StillpointError):
+            raise
+        raise ModelError(f"{args.output}: {e}") from None
+
+
+def _run(args) -> int:
     import numpy as np
 
     from stillpoint.engine.sim.model import ModelError

@@ -191,7 +191,21 @@ if __name__ == "__main__":
 """
 
 
-def test_a_worker_never_outlives_its_station(tmp_path, runtime):
+# for the processes of one test: no parent-death signal (as on a system without prctl), so the
+# worker's lifeline pipe alone must end it
+_NO_PRCTL = """
+import ctypes
+_CDLL = ctypes.CDLL
+def _no_libc(name, *a, **k):
+    if name is None:
+        raise OSError("no prctl on this system")
+    return _CDLL(name, *a, **k)
+ctypes.CDLL = _no_libc
+"""
+
+
+@pytest.mark.parametrize("means", ["prctl and lifeline", "lifeline only"])
+def test_a_worker_never_outlives_its_station(tmp_path, runtime, monkeypatch, means):
     """A station that dies (here: exits without a word to its worker, whose read hangs) takes its
     download worker with it: nothing renames or writes after the station is gone."""
     import subprocess
@@ -199,6 +213,10 @@ def test_a_worker_never_outlives_its_station(tmp_path, runtime):
     import time
     script = tmp_path / "station.py"
     script.write_text(_ORPHAN_SCRIPT)
+    if means == "lifeline only":
+        (tmp_path / "site").mkdir()
+        (tmp_path / "site" / "sitecustomize.py").write_text(_NO_PRCTL)
+        monkeypatch.setenv("PYTHONPATH", str(tmp_path / "site"))
     subprocess.run([sys.executable, str(script), str(tmp_path)], timeout=60, check=True,
                    stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     pid = int((tmp_path / "pid").read_text())

@@ -249,3 +249,13 @@ def test_a_scenario_rate_the_writer_refuses_is_one_line(scenario, tmp_path, caps
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "3200/2^k" in err[0] and str(out) in err[0], err
     assert not out.exists()
+
+
+def test_emulated_ids_fit_the_drive_label(capsys, tmp_path):
+    """--first-id plus --count stays within what an emulated drive label can hold (checked
+    before any device is made)."""
+    assert main(["device", "emulate", "--count", "2", "--first-id", "9999999",
+                 "--dir", str(tmp_path / "emu")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "9999999" in err[0]
+    assert not (tmp_path / "emu").exists()

@@ -149,6 +149,9 @@ RATE_HZ = number(1, 5000, unit="Hz")
 SEED = number(0, 2**32 - 1, integer=True)
 DAYS = number(0, 366, lo_open=True, unit="days")  # a simulated or emulated recording's length
 DEVICE_ID = number(0, 2**32 - 1, integer=True)  # the .cwa header holds a 32-bit id (cwa_layout)
+# an emulated device's id: its drive label holds at most 7 digits (drivers/ax/emulator.py
+# volume_label: AX317_<5 digits>, or AX3_<7 digits> for longer ids)
+EMULATED_ID = number(1, 9_999_999, integer=True)
 WORKERS = number(1, 1024, integer=True)
 MB_PER_S = number(0.01, 10_000, unit="MB/s")  # 0.01: a 4 MB download in under 7 minutes
 SECONDS_YEAR = number(0, 366 * 86_400, lo_open=True, unit="s")

@@ -10,7 +10,7 @@ from pathlib import Path
 from stillpoint.drivers import constants as C
 from stillpoint.drivers.errors import StillpointError
 
-from ._numbers import DAYS, DEVICE_ID, MB_PER_S, SECONDS_DAY, SECONDS_YEAR, number
+from ._numbers import DAYS, EMULATED_ID, MB_PER_S, SECONDS_DAY, SECONDS_YEAR, number
 
 NAME = "device"
 HELP = "act on one attached AX3/AX6 (download, verify, clear, configure, sync-time, stream) or emulate devices"
@@ -59,7 +59,7 @@ def add_arguments(p) -> None:
                                                 "none: every device). Names: see --list-faults")
     s.add_argument("--list-faults", action="store_true")
     s.add_argument("--dir", type=Path, default=None, help="where the emulated drives live")
-    s.add_argument("--first-id", type=DEVICE_ID, default=10001)
+    s.add_argument("--first-id", type=EMULATED_ID, default=10001)
     s.add_argument("--read-mbps", type=MB_PER_S, default=None,
                    help="emulate the drive's USB read speed in MB/s (full speed is ~1.2); default unlimited")
     s.add_argument("--seconds", type=SECONDS_YEAR, default=None,
@@ -278,9 +278,9 @@ def _emulate(args) -> int:
         return 0
     if args.count < 1 or args.ax6 < 0 or args.ax6 > args.count:
         raise _Err("--count must be >= 1 and --ax6 between 0 and --count")
-    if args.first_id + args.count - 1 > DEVICE_ID.hi:
-        raise _Err(f"--first-id {args.first_id} with --count {args.count}: device ids must fit "
-                   f"32 bits (at most {DEVICE_ID.hi})")
+    if args.first_id + args.count - 1 > EMULATED_ID.hi:
+        raise _Err(f"--first-id {args.first_id} with --count {args.count}: an emulated device's id "
+                   f"is at most {EMULATED_ID.hi} (7 digits in its drive label)")
     ids = [args.first_id + i for i in range(args.count)]
     faults = _parse_faults(args.faults, ids)
     root = args.dir or (registry.runtime_dir() / "emulated")

@@ -86,7 +86,8 @@ def test_a_header_serial_never_writes_outside_the_output_folder(tmp_path, repro,
     assert sorted(p.name for p in out.parent.iterdir()) == ["out"]
     made = sorted(p.name for p in out.iterdir() if not p.name.startswith("stillpoint-ledger"))
     assert [n for n in made if n.endswith(".bin")] and [n for n in made if n.endswith(".mcap")]
-    assert all(n.startswith("escaped-") or n.startswith("tmp_stillpoint_escaped-") for n in made), made
+    assert all(n.startswith(("GENEActiv-escaped-", "GENEActiv-tmp_stillpoint_escaped-"))
+               for n in made), made
     rec = lg.downloads()[0]
     for p in (rec.cwa_path, rec.mcap_path):
         assert Path(p).parent == out and Path(p).is_file()
@@ -168,3 +169,26 @@ def test_calibration_store_lock_link_is_not_followed(tmp_path):
         with _locked(store_file):
             pass
     assert not outside.exists()
+
+
+def test_a_geneactiv_serial_equal_to_an_ax_id_does_not_share_output_names(tmp_path):
+    """p01.bin (GENEActiv serial 123456) and p01.cwa (AX3 id 123456): two raw copies and two
+    MCAP logs (the second MCAP used to replace the first)."""
+    from stillpoint.engine.sim.record import simulate_recording
+    from stillpoint.engine.station.inbox import Inbox
+    from stillpoint.engine.station.ledger import Ledger
+    inbox, out = tmp_path / "inbox", tmp_path / "out"
+    inbox.mkdir()
+    out.mkdir()
+    for dev, ext in (("geneactiv", ".bin"), ("ax3", ".cwa")):
+        simulate_recording(inbox / f"p01{ext}", device=dev, days=0.01, truth_path=False,
+                           device_id=123456)
+    lg = Ledger(out)
+    ib = Inbox(inbox, out, stable_s=0.0, ledger=lg)
+    end = time.monotonic() + 60
+    while time.monotonic() < end and not ib.idle():
+        time.sleep(0.05)
+    recs = lg.downloads()
+    assert len(recs) == 2 and all(r.verified for r in recs), ib.errors
+    assert len({r.mcap_path for r in recs}) == 2
+    assert all(Path(r.mcap_path).is_file() and Path(r.cwa_path).is_file() for r in recs)

@@ -3,13 +3,15 @@
 GENEActiv devices have no public USB protocol (usb-protocols.md Part B), so the station never
 talks to them: the vendor software extracts ``.bin`` files into a folder, and ``.cwa`` files can
 be dropped there too. ``Inbox(folder, out_dir)`` ingests each file once its size and mtime have
-been stable for ``stable_s``: a raw copy ``<out>/<device>_<stem>.<ext>`` with its SHA-256 (written
-through ``.part``, fsynced, renamed), the online pipeline's MCAP beside it, and a ledger download
-record. ``<device>`` (the header's free-text serial) and ``<stem>`` pass through
+been stable for ``stable_s``: a raw copy ``<out>/<type>-<device>_<stem>.<ext>`` with its SHA-256
+(written through ``.part``, fsynced, renamed), the online pipeline's MCAP beside it, and a ledger
+download record. ``<type>`` (GENEActiv, AX3, AX6: a GENEActiv serial can equal an AX id),
+``<device>`` (the header's free-text serial) and ``<stem>`` pass through
 ``drivers.names.safe_name_part``: a serial such as ``../x`` or ``/tmp/x`` names a file inside
 ``<out>``, never a path. Completeness is checked from the reader's QC: a page count that
 disagrees with the header, sequence gaps, a last page cut inside its data line make the record
-``error`` (the outputs are kept, not marked verified). Each file is ingested once (its SHA-256 is remembered in the ledger).
+``error`` (the outputs are kept, not marked verified). Each file is ingested once (its SHA-256
+is remembered in the ledger).
 """
 
 from __future__ import annotations
@@ -99,7 +101,9 @@ class Inbox:
         src.close()
         dev = str(info.device_id or "unknown")
         session = info.session_id if info.session_id is not None else 0
-        stem = f"{safe_name_part(dev)}_{safe_name_part(p.stem, fallback='recording')}"
+        # the device type is part of the name: a GENEActiv serial and an AX3/AX6 id can be equal
+        stem = (f"{safe_name_part(info.device_type)}-{safe_name_part(dev)}_"
+                f"{safe_name_part(p.stem, fallback='recording')}")
         raw_out = safe_child(self.out, f"{stem}{p.suffix.lower()}")
         mcap_out = safe_child(self.out, f"{stem}.mcap")
         if raw_out.exists():

@@ -3,16 +3,25 @@
 Error model per sample: r = S u + o + n, S = diag(G) + M (spec static-calibration.md §2).
 From the six windows (``sixface.find_faces``), per axis j with the other axes i, l:
 
-* offset o_j = mean of axis j over the pooled samples of the four windows in which j is not the
-  gravity axis (w_i+, w_i-, w_l+, w_l-), as the paper and the reference code do;
+* offset o_j, reference and paper modes: mean of axis j over the pooled samples of the four
+  windows in which j is not the gravity axis (w_i+, w_i-, w_l+, w_l-), as the paper and the
+  reference code do. Robust mode: the face pair's midpoint (m_j+ + m_j-) / 2 of axis j's own
+  +-1 g holds, which is what the six-face geometry defines: the pooled non-gravity mean cancels
+  cross-axis coupling only when the +i and -i windows hold equally many samples (the robust
+  search keeps each face's whole still hold, 7-12 s in practice), and carries any tilt of the
+  placements at first order;
 * gain G_k = (m_k+ - m_k-) / 2 with m the offset-removed mean of axis k over its own windows;
+* cross-axis coupling (reported, all modes): M_jk = (r_j over w_k+ - r_j over w_k-) / 2, the
+  off-diagonal of S; the off-axis readings of each face are in its quality record. Tilt and
+  coupling cannot be told apart from six faces alone (``face_pair_geometry``);
 * misalignment, signed (reference default): mean of (r_j - o_j) over the two windows where the
   other axes point up (= (M_ji + M_jl) / 2); absolute (paper): mean of |r_j - o_j| over the four
   non-gravity windows; also the reference's absolute-over-"up"-windows as a diagnostic;
 * noise_k = 2 x SD of axis k over its +1 g window (paper; population SD);
 * diagnostics: the classical midpoint offset (m_k+ + m_k-)/2 and the raw window means;
-* optionally the full 3x3 matrix: column k of S = (mean vector over w_k+ - over w_k-) / 2,
-  o = mean of the six window mean vectors, correction a = S^-1 (r - o).
+* optionally the full affine model: column k of S = (mean vector over w_k+ - over w_k-) / 2
+  (the gains on the diagonal, the coupling off it), o = the face-pair midpoints, correction
+  a = S^-1 (r - o).
 
 The correction is a_k = (r_k - o_k) / G_k (g). As an engine estimate (the GGIR form of the
 autocalibration, (raw + offset) * scale) it is offset = -o, scale = 1/G, method ``static-6``;
@@ -34,6 +43,11 @@ from .estimate import CalibrationEstimate
 from .sixface import FACE_WORDS, FACES, FaceSearch, find_faces
 
 STATIC_METHOD = "static-6"
+# offset rule per search mode (module docstring)
+OFFSET_RULE = {"reference": "non-gravity", "paper": "non-gravity", "robust": "midpoint"}
+# above this |coupling| a calibration without the full matrix says so: the rest level of the
+# norm then moves with posture by up to about 2 |M| (0.5 % -> ~10 mg, far above sensor noise)
+COUPLING_NOTE = 0.005
 G_MS2 = 9.80665  # m/s^2 per g (the reference code's constant)
 
 
@@ -72,6 +86,7 @@ class StaticCalibration:
     attempts: list = field(default_factory=list)  # the search's fallback steps
     warnings: list = field(default_factory=list)
     diagnostics: dict = field(default_factory=dict)
+    cross_axis_g: Optional[list] = None  # 3x3 coupling M (rows = measured axes, 0 on the diagonal)
     matrix: Optional[list] = None  # full-matrix option: S (3x3, rows = measured axes)
     matrix_offset_g: Optional[list] = None
     device_key: Optional[str] = None
@@ -144,19 +159,78 @@ def _mean(x: np.ndarray) -> float:
     return float(np.mean(x)) if x.size else float("nan")
 
 
-def estimate_from_windows(acc_g: np.ndarray, windows: dict, *, full_matrix: bool = False) -> dict:
-    """The formulas of §2 on given windows (face -> indices); NaN where a face is empty."""
+def _face_means(acc: np.ndarray, w: dict) -> dict:
+    """Mean reading vector of each face's window (NaN where the face is empty)."""
+    nan = np.full(3, np.nan)
+    return {f: acc[w[f]].mean(axis=0) if w[f].size else nan for f in FACES}
+
+
+def face_pair_geometry(means: dict) -> dict:
+    """What the three face pairs define, from the six face mean vectors (g).
+
+    * ``midpoint_g[k]`` = (r_k(+k) + r_k(-k)) / 2: the offset of axis k (the classical
+      six-position midpoint; a tilted placement moves it by only G (1 - cos theta) / 2, 0.15 mg
+      at 1 degree, and cross-axis coupling not at all);
+    * ``half_difference[k]`` = (r_k(+k) - r_k(-k)) / 2: the gain of axis k;
+    * ``cross_axis_g[j][k]`` (j != k) = (r_j(+k) - r_j(-k)) / 2: the coupling of axis j to
+      gravity along axis k (the off-diagonal term M_jk of S = diag(G) + M); 0 on the diagonal;
+    * ``off_axis_pair_mean_g[j][k]`` (j != k) = (r_j(+k) + r_j(-k)) / 2 - midpoint_g[j]: zero for
+      exact flips under the linear model whatever the coupling; a placement that is not level
+      (tilted table, a face not sitting flat) leaves about G_j sin(theta) here (17 mg per degree).
+
+    Six faces alone cannot separate a tilted placement from coupling: both move the off-axis
+    readings, and a tilt that differs between the two holds of a pair enters the half-difference
+    as well. Coupling changes sign with the face (it is only in the half-difference); a tilt need
+    not, so a non-zero ``off_axis_pair_mean_g`` flags tilt and bounds how much of the coupling
+    estimate may be tilt. A second hold of a face turned 180 degrees about the vertical separates
+    them: the tilt's share of the off-axis readings changes sign in the device frame, the
+    coupling's does not.
+    """
+    mid, half = np.full(3, np.nan), np.full(3, np.nan)
+    cross, pair = np.zeros((3, 3)), np.zeros((3, 3))
+    for k, a in enumerate("xyz"):
+        up, dn = means["+" + a], means["-" + a]
+        mid[k] = (up[k] + dn[k]) / 2.0
+        half[k] = (up[k] - dn[k]) / 2.0
+    for k, a in enumerate("xyz"):
+        up, dn = means["+" + a], means["-" + a]
+        for j in range(3):
+            if j != k:
+                cross[j, k] = (up[j] - dn[j]) / 2.0
+                pair[j, k] = (up[j] + dn[j]) / 2.0 - mid[j]
+    return {"midpoint_g": mid, "half_difference": half, "cross_axis_g": cross,
+            "off_axis_pair_mean_g": pair}
+
+
+OFFSET_RULES = ("non-gravity", "midpoint")
+
+
+def estimate_from_windows(acc_g: np.ndarray, windows: dict, *, full_matrix: bool = False,
+                          offset_rule: str = "non-gravity") -> dict:
+    """The formulas of §2 on given windows (face -> indices); NaN where a face is empty.
+
+    ``offset_rule``: "non-gravity" (the paper and the reference code: axis j's mean over the
+    pooled samples of the four windows where it is not the gravity axis) or "midpoint" (the face
+    pair's own midpoint, :func:`face_pair_geometry`). The pooled mean cancels the coupling only
+    when the +i and -i windows hold equally many samples: with holds of unequal length a 1 %
+    coupling moves it by several tenths of a mg to a few mg; the midpoint is free of it.
+    """
+    if offset_rule not in OFFSET_RULES:
+        raise ValueError(f"offset_rule must be one of {OFFSET_RULES}, not {offset_rule!r}")
     acc = np.asarray(acc_g, np.float64)
     w = {f: np.asarray(windows.get(f, ()), np.int64) for f in FACES}
     axes = "xyz"
-    offset, gain, mis_s, mis_abs, mis_abs_up, noise, mid, raw_up, raw_down = ([] for _ in range(9))
+    pooled, gain, mis_s, mis_abs, mis_abs_up, noise, raw_up, raw_down = ([] for _ in range(8))
     with np.errstate(invalid="ignore", divide="ignore"):
+        geo = face_pair_geometry(_face_means(acc, w))
         for j, a in enumerate(axes):
             others = [b for b in axes if b != a]
             png = _pool(w["+" + others[0]], w["+" + others[1]])
             nng = _pool(w["-" + others[0]], w["-" + others[1]])
             non_g = _pool(png, nng)
-            offset.append(_mean(acc[non_g, j]))
+            pooled.append(_mean(acc[non_g, j]))
+        offset = list(pooled) if offset_rule == "non-gravity" else \
+            [float(v) for v in geo["midpoint_g"]]
         o = np.asarray(offset)
         for j, a in enumerate(axes):
             others = [b for b in axes if b != a]
@@ -172,16 +246,22 @@ def estimate_from_windows(acc_g: np.ndarray, windows: dict, *, full_matrix: bool
             noise.append(2.0 * float(np.std(r_up)) if r_up.size else float("nan"))
             raw_up.append(_mean(r_up))
             raw_down.append(_mean(r_dn))
-            mid.append((raw_up[-1] + raw_down[-1]) / 2.0)
     out = {"offset_g": offset, "gain": gain, "misalignment_signed_g": mis_s,
            "misalignment_abs_g": mis_abs, "noise_g": noise,
-           "diagnostics": {"midpoint_offset_g": mid, "misalignment_abs_up_g": mis_abs_up,
+           "cross_axis_g": geo["cross_axis_g"].tolist(),
+           "diagnostics": {"offset_rule": offset_rule,
+                           "midpoint_offset_g": geo["midpoint_g"].tolist(),
+                           "non_gravity_offset_g": pooled,
+                           "off_axis_pair_mean_g": geo["off_axis_pair_mean_g"].tolist(),
+                           "misalignment_abs_up_g": mis_abs_up,
                            "raw_mean_up_g": raw_up, "raw_mean_down_g": raw_down}}
     if full_matrix:
-        means = {f: acc[w[f]].mean(axis=0) for f in FACES}
-        s = np.stack([(means["+" + a] - means["-" + a]) / 2.0 for a in axes], axis=1)
+        # the affine model r = S u + o: S = diag(half-differences) + the coupling, o = the pair
+        # midpoints (not the mean of all six windows: the off-axis readings carry any tilt of the
+        # placements at first order, the midpoints at second order)
+        s = np.diag(geo["half_difference"]) + geo["cross_axis_g"]
         out["matrix"] = s.tolist()
-        out["matrix_offset_g"] = np.mean(np.stack([means[f] for f in FACES]), axis=0).tolist()
+        out["matrix_offset_g"] = geo["midpoint_g"].tolist()
     return out
 
 
@@ -226,7 +306,8 @@ def static_calibration(acc_g: np.ndarray, fs: float, *, mode: str = "reference",
                 raise StaticCalibrationError(
                     f"{where or 'input'}: clipping at the ±{range_g:g} g range inside the {f} "
                     f"({FACE_WORDS[f]}) window: the readings are not usable for calibration")
-    est = estimate_from_windows(acc, search.windows, full_matrix=full_matrix and not missing)
+    est = estimate_from_windows(acc, search.windows, full_matrix=full_matrix and not missing,
+                                offset_rule=OFFSET_RULE.get(mode, "non-gravity"))
     faces = {}
     t = None if time_ns is None else np.asarray(time_ns, np.int64)
     for f in FACES:
@@ -252,10 +333,21 @@ def static_calibration(acc_g: np.ndarray, fs: float, *, mode: str = "reference",
             k = "xyz".index(f[1])
             sign = 1.0 if f[0] == "+" else -1.0
             faces[f]["corrected_norm_error_g"] = float(abs(np.linalg.norm(m) - 1.0))
+            off = acc[search.windows[f]].mean(axis=0) - o  # offset-removed off-axis readings
+            faces[f]["off_axis_g"] = {a: float(off[i]) for i, a in enumerate("xyz") if i != k}
             faces[f]["corrected_tilt_deg"] = float(np.degrees(np.arccos(
                 np.clip(sign * m[k] / np.linalg.norm(m), -1.0, 1.0))))
     status = "ok" if not missing else "incomplete"
     warnings = list(search.warnings)
+    cross = np.asarray(est["cross_axis_g"])
+    if not missing and not full_matrix and np.nanmax(np.abs(cross)) > COUPLING_NOTE:
+        j, k = np.unravel_index(int(np.nanargmax(np.abs(cross))), cross.shape)
+        warnings.append(
+            f"cross-axis coupling up to {abs(cross[j, k]) * 100:.2f} % ({'xyz'[j]} reads "
+            f"{cross[j, k] * 1000:+.1f} mg per g along {'xyz'[k]}): offset and gain are not "
+            "affected, but the corrected norm at rest moves with the posture; the full matrix "
+            "(--full-matrix) corrects it, unless the faces were held tilted (see "
+            "diagnostics.off_axis_pair_mean_g)")
     if missing:
         warnings.append("reference behaviour: NaN gain for the axes of the missing faces; offsets "
                         "of the other axes come from fewer than four orientations")
@@ -264,7 +356,7 @@ def static_calibration(acc_g: np.ndarray, fs: float, *, mode: str = "reference",
         misalignment_signed_g=est["misalignment_signed_g"],
         misalignment_abs_g=est["misalignment_abs_g"], noise_g=est["noise_g"], mode=mode,
         status=status, faces=faces, attempts=search.attempts, warnings=warnings,
-        diagnostics=est["diagnostics"], matrix=est.get("matrix"),
+        diagnostics=est["diagnostics"], cross_axis_g=est["cross_axis_g"], matrix=est.get("matrix"),
         matrix_offset_g=est.get("matrix_offset_g"), device_key=device_key,
         device_serial=device_serial,
         calibration_time_ns=None if t is None or not len(t) else int(t[0]),

@@ -4,8 +4,18 @@ written as a real AX3/AX6 ``.cwa``.
 A session: optional handling before (random wandering orientation and jerks), then the six faces
 in any order (repeats allowed), each held for ``hold_s`` on a (possibly tilted) level surface,
 separated by hand turns of 1-3 s (smooth rotation between the face directions plus hand jitter on
-all axes), then optional handling after. The sensor errors (``StaticErrors``) are applied to the
-true specific force; the truth records them, the face order and every hold's time span.
+all axes), then optional handling after. The sensor errors (``StaticErrors``, including symmetric
+cross-axis coupling) are applied to the true specific force; the truth records them, the face
+order and every hold's time span.
+
+A table that is not level (``table_tilt_deg``) tilts gravity by that angle on every hold; the
+device lies on the table at a random yaw each time, so in the device frame the tilt points in a
+random direction per hold. The off-axis readings of a hold then carry about sin(tilt) (17 mg per
+degree), the gravity axis only 1 - cos(tilt) (0.15 mg at 1 degree). Coupling gives off-axis
+readings that change sign with the face; a tilt per hold need not. Six faces alone cannot
+separate the two (``engine.calibration.static.face_pair_geometry``): the face-pair midpoints (the
+robust offsets) and half-differences (gains) are nearly free of both, the coupling estimate is
+not free of tilt.
 """
 
 from __future__ import annotations
@@ -76,12 +86,15 @@ def _smooth_noise(rng, n: int, fs: float, cutoff_hz: float, sd: float) -> np.nda
 def simulate_sixface(*, fs: float = 25.0, hold_s=10.0, order: Optional[Sequence[str]] = None,
                      errors: Optional[StaticErrors] = None, seed: int = 1,
                      turn_s=(1.0, 3.0), jitter_g: float = 0.02, pre_s: float = 3.0,
-                     post_s: float = 3.0, tilt_deg: float = 0.0, hold_edge_jitter_g: float = 0.0,
+                     post_s: float = 3.0, tilt_deg: float = 0.0, table_tilt_deg: float = 0.0,
+                     hold_edge_jitter_g: float = 0.0,
                      start_ns: int = DEFAULT_START_NS, clip_g: Optional[float] = None,
                      turn_profile: str = "smooth") -> SixFaceSession:
     """Generate a session (see the module docstring). ``hold_s``: one value or one per face in
     ``order``; ``order``: default a random permutation of the six faces; ``errors``: default
-    ideal; ``hold_edge_jitter_g``: hand jitter on the non-gravity axes in the first and last
+    ideal; ``tilt_deg``: each hold tilted by a random angle up to this (a face not sitting flat);
+    ``table_tilt_deg``: a table tilted by this angle, the device at a random yaw on it per hold
+    (the two add); ``hold_edge_jitter_g``: hand jitter on the non-gravity axes in the first and last
     second of each hold (the hand letting go / picking up); ``clip_g``: clip the readings;
     ``turn_profile``: "smooth" (slow approach to the face: smoothstep) or "linear" (constant
     rotation speed, the device set down briskly)."""
@@ -117,10 +130,10 @@ def simulate_sixface(*, fs: float = 25.0, hold_s=10.0, order: Optional[Sequence[
         prev = mid
     for i, f in enumerate(order):
         target = np.asarray(_DIRS[f], np.float64)
-        if tilt_deg:
+        if tilt_deg or table_tilt_deg:
             ax = np.cross(target, rng.standard_normal(3))
             ax /= np.linalg.norm(ax)
-            th = np.radians(rng.uniform(0, tilt_deg))
+            th = np.radians(table_tilt_deg + (rng.uniform(0, tilt_deg) if tilt_deg else 0.0))
             target = target * np.cos(th) + np.cross(ax, target) * np.sin(th)
         n = int(round(rng.uniform(*turn_s) * fs)) if (i or pre_s > 0) else 0
         if n:
@@ -162,7 +175,8 @@ def simulate_sixface(*, fs: float = 25.0, hold_s=10.0, order: Optional[Sequence[
     return SixFaceSession(time_ns, meas, true, gyro, float(fs), errors, holds, lab,
                           {"order": order, "hold_s": holds_s.tolist(), "turn_s": list(turn_s),
                            "jitter_g": jitter_g, "pre_s": pre_s, "post_s": post_s,
-                           "tilt_deg": tilt_deg, "hold_edge_jitter_g": hold_edge_jitter_g,
+                           "tilt_deg": tilt_deg, "table_tilt_deg": table_tilt_deg,
+                           "hold_edge_jitter_g": hold_edge_jitter_g,
                            "turn_profile": turn_profile,
                            "seed": seed})
 

@@ -3,7 +3,8 @@
 r = (diag(G) + M) u + o + n: per-axis offset o (g), gain G, cross-axis term M (off-diagonal,
 a symmetric part = non-orthogonality and an antisymmetric part = a small rotation) and white
 noise of SD sigma (g). ``draw`` gives Table-2-like values (offsets up to ±0.2 g, gains
-0.99-1.015, |M| up to 0.025, sigma 0.5-5 mg).
+0.99-1.015, |M| up to 0.025, sigma 0.5-5 mg); ``coupling_max`` adds symmetric cross-axis
+coupling alone (M_ij = M_ji, non-orthogonal axes; MEMS data sheets allow up to 1-2 %).
 """
 
 from __future__ import annotations
@@ -53,11 +54,17 @@ class StaticErrors:
 
     @staticmethod
     def draw(rng, *, offset_max_g: float = 0.2, gain_range=(0.99, 1.015), cross_max: float = 0.0,
-             noise_range_g=(0.0005, 0.005)) -> "StaticErrors":
-        """Table-2-like errors (cross-axis terms off unless ``cross_max``)."""
-        return StaticErrors(
+             noise_range_g=(0.0005, 0.005), coupling_max: float = 0.0) -> "StaticErrors":
+        """Table-2-like errors (cross-axis terms off unless ``cross_max``: symmetric and
+        antisymmetric parts each within ±cross_max/2; or ``coupling_max``: symmetric terms
+        only, each within ±coupling_max; the two add)."""
+        e = StaticErrors(
             offset_g=list(rng.uniform(-offset_max_g, offset_max_g, 3)),
             gain=list(rng.uniform(*gain_range, 3)),
             symmetric=list(rng.uniform(-cross_max, cross_max, 3) / 2),
             antisymmetric=list(rng.uniform(-cross_max, cross_max, 3) / 2),
             noise_g=list(rng.uniform(*noise_range_g, 3)))
+        if coupling_max:
+            e.symmetric = list(np.asarray(e.symmetric)
+                               + rng.uniform(-coupling_max, coupling_max, 3))
+        return e

@@ -264,6 +264,10 @@ def test_movements_with_a_coupled_sensor_match_the_error_free_count(capsys, tmp_
     doc = json.loads(out)
     np.testing.assert_allclose(doc["offset_g"], e.offset_g, atol=0.001)
     np.testing.assert_allclose(doc["cross_axis_g"], e.matrix - np.diag(np.diag(e.matrix)), atol=0.001)
+    for f, d in doc["faces"].items():  # after the affine correction each face reads +-1 g
+        assert d["corrected_norm_error_g"] < 0.001 and d["corrected_tilt_deg"] < 0.1, (f, d)
+    code, out, _ = cli(capsys, "static-calibrate", tmp_path / "cal.cwa", "--mode", "robust")
+    assert code == 0 and "cross-axis coupling, %" in out and "--full-matrix" in out
 
     def count(*opts):
         code, out, _ = cli(capsys, "movements", tmp_path / "leg.cwa", "--calibration",

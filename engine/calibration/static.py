@@ -328,12 +328,14 @@ def static_calibration(acc_g: np.ndarray, fs: float, *, mode: str = "reference",
         faces[f] = d
     if not missing:  # per-face quality after the correction (all modes)
         o, g = np.asarray(est["offset_g"]), np.asarray(est["gain"])
+        sinv = np.linalg.inv(np.asarray(est["matrix"])) if "matrix" in est else None
         for f in FACES:
-            m = (acc[search.windows[f]].mean(axis=0) - o) / g
+            mean = acc[search.windows[f]].mean(axis=0)
+            m = (mean - o) / g if sinv is None else sinv @ (mean - np.asarray(est["matrix_offset_g"]))
             k = "xyz".index(f[1])
             sign = 1.0 if f[0] == "+" else -1.0
             faces[f]["corrected_norm_error_g"] = float(abs(np.linalg.norm(m) - 1.0))
-            off = acc[search.windows[f]].mean(axis=0) - o  # offset-removed off-axis readings
+            off = mean - o  # offset-removed off-axis readings
             faces[f]["off_axis_g"] = {a: float(off[i]) for i, a in enumerate("xyz") if i != k}
             faces[f]["corrected_tilt_deg"] = float(np.degrees(np.arccos(
                 np.clip(sign * m[k] / np.linalg.norm(m), -1.0, 1.0))))

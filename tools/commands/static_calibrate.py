@@ -46,6 +46,11 @@ def human(cal) -> str:
         lines.append(f"  {ax}   {_fmt(cal.offset_g[k])}   {_fmt(cal.gain[k], '{:.5f}')}   "
                      f"{_fmt(cal.misalignment_signed_g[k]):>17}  {_fmt(cal.misalignment_abs_g[k], '{:.4f}'):>14}"
                      f"  {_fmt(cal.noise_g[k], '{:.4f}')}")
+    cross = getattr(cal, "cross_axis_g", None)
+    if cross is not None:
+        lines.append("cross-axis coupling, % (jk: axis j's reading per g along axis k): " + ", ".join(
+            f"{'xyz'[j]}{'xyz'[k]} {_fmt(cross[j][k] * 100, '{:+.2f}')}"
+            for j in range(3) for k in range(3) if j != k))
     lines.append("face  start_s   end_s  window_s  band_g          SD_g")
     for f, d in cal.faces.items():
         if not d.get("samples"):

@@ -12,14 +12,18 @@ HELP = "estimate offset, gain, misalignment and noise per axis from a six-orient
 DESCRIPTION = (HELP + ". The user puts the device on a level surface on each of its six faces "
                "for about 10 s (any order). Modes: reference = the HBCD release's search "
                "exactly (incl. its quirks); paper = SD cut-off 0.01 g; robust = still on all "
-               "axes, longest hold per face, per-face quality (recommended for new data).")
+               "axes, longest hold per face, offsets from the face-pair midpoints, per-face quality "
+               "(recommended for new data). Cross-axis coupling is reported separately.")
 
 
 def add_arguments(p) -> None:
     p.add_argument("file", type=Path, help="six-orientation recording (.cwa, .cwa.gz, .bin)")
     p.add_argument("--mode", choices=("reference", "paper", "robust"), default="reference")
     p.add_argument("--full-matrix", action="store_true",
-                   help="also estimate the full 3x3 sensitivity matrix (beyond the paper)")
+                   help="also fit the affine model (beyond the paper): the 3x3 matrix with the "
+                        "gains on its diagonal and the cross-axis coupling off it, the face-pair "
+                        "midpoints as offset; `movements` applies it (level surface only: a tilt "
+                        "enters the coupling)")
     p.add_argument("--allow-nan", action="store_true",
                    help="reference mode: reproduce the reference code's NaNs for missing faces "
                         "instead of failing")

@@ -169,8 +169,9 @@ def face_pair_geometry(means: dict) -> dict:
     """What the three face pairs define, from the six face mean vectors (g).
 
     * ``midpoint_g[k]`` = (r_k(+k) + r_k(-k)) / 2: the offset of axis k (the classical
-      six-position midpoint; a tilted placement moves it by only G (1 - cos theta) / 2, 0.15 mg
-      at 1 degree, and cross-axis coupling not at all);
+      six-position midpoint). Coupling does not move it for level holds; a placement tilted by
+      theta moves it by at most G (1 - cos theta) / 2 + |M| sin theta (0.08 + 0.35 mg at 1 degree
+      and 2 % coupling), the off-axis readings by G sin theta (17 mg per degree);
     * ``half_difference[k]`` = (r_k(+k) - r_k(-k)) / 2: the gain of axis k;
     * ``cross_axis_g[j][k]`` (j != k) = (r_j(+k) - r_j(-k)) / 2: the coupling of axis j to
       gravity along axis k (the off-diagonal term M_jk of S = diag(G) + M); 0 on the diagonal;

@@ -18,7 +18,9 @@ its start. A device such as
 ``/dev/null`` is refused rather than written: the rename that completes an output would put a
 plain file in its place. So is a file the running command reads (``protect_inputs``: the command
 line registers its inputs), and two outputs of one command that are the same file
-(``check_distinct_outputs``).
+(``check_distinct_outputs``). Commands that write named outputs (``simulate``, ``process``,
+``export``, ``report``, ``recover``) also refuse an output that already exists unless given
+``--overwrite`` (``keep_existing_outputs``).
 
 Links are never followed for the folder's entries (the folder itself may be a link): a
 destination that is a symbolic link is refused (the rename would replace the link, and the user
@@ -102,6 +104,18 @@ def protect_inputs(paths) -> None:
             _INPUTS[(st.st_dev, st.st_ino)] = str(p)
 
 
+_KEEP_EXISTING: list = []  # non-empty: the running command replaces no existing output
+
+
+def keep_existing_outputs(on: bool) -> None:
+    """While on, ``check_output_path`` (and so every ``AtomicOutput``) refuses an output that
+    already exists: the command line turns it on for the commands that write named outputs,
+    unless ``--overwrite`` is given."""
+    _KEEP_EXISTING.clear()
+    if on:
+        _KEEP_EXISTING.append(True)
+
+
 def check_distinct_outputs(outputs: dict) -> None:
     """Refuse outputs of one command that are the same file (``outputs``: what -> path, None
     skipped): the last one written would replace the others (e.g. ``--summary`` naming the
@@ -117,10 +131,12 @@ def check_distinct_outputs(outputs: dict) -> None:
         seen[key] = (what, path)
 
 
-def check_output_path(path, *, what: str = "output") -> Path:
+def check_output_path(path, *, what: str = "output", updates: bool = False) -> Path:
     """Refuse, before any work, an output that cannot be written: the folder is missing or
     not a folder or not writable, the path (or its ``.part`` name) is a symbolic link, the path
-    is a folder or a device, pipe or socket, or the name cannot be encoded for the file system.
+    is a folder or a device, pipe or socket, or the name cannot be encoded for the file system;
+    or it exists while ``keep_existing_outputs`` is on (``updates=True``: a record that is meant
+    to be rewritten in place, such as a calibration store file, is exempt).
     Returns the path as a ``Path``."""
     p = Path(path)
     try:
@@ -162,6 +178,8 @@ def check_output_path(path, *, what: str = "output") -> Path:
     if kind:
         raise OutputError(path, f"{what} path is {kind}, not a file (outputs are written "
                                 "under a temporary name and renamed into place)")
+    if mode is not None and _KEEP_EXISTING and not updates:
+        raise OutputError(path, f"already exists (the {what}); add --overwrite to replace it")
     if not os.access(folder, os.W_OK | os.X_OK):
         raise OutputError(path, f"{what} folder {folder} is not writable")
     return p
@@ -204,8 +222,9 @@ class AtomicOutput:
     ``binary=False`` opens a text file (UTF-8, ``newline=""`` so CSV writers control line
     ends)."""
 
-    def __init__(self, path, *, binary: bool = True, what: str = "output"):
-        self.path = check_output_path(path, what=what)
+    def __init__(self, path, *, binary: bool = True, what: str = "output",
+                 updates: bool = False):
+        self.path = check_output_path(path, what=what, updates=updates)
         self.part = partial_path(self.path)
         self.set_aside: Optional[Path] = None
         self.committed = False
@@ -347,12 +366,13 @@ def _free_name(part: Path, when: float) -> Path:
 
 
 @contextmanager
-def atomic_output(path, *, binary: bool = True, what: str = "output") -> Iterator[BinaryIO]:
+def atomic_output(path, *, binary: bool = True, what: str = "output",
+                  updates: bool = False) -> Iterator[BinaryIO]:
     """``with atomic_output("x.csv", binary=False) as f: ...`` writes ``x.csv.part`` and renames
     it onto ``x.csv`` when the block ends without an exception. On an exception the partial
     file stays (removed if empty) and the exception propagates; OS errors while writing
     become an ``OutputError`` naming the partial file."""
-    out = AtomicOutput(path, binary=binary, what=what)
+    out = AtomicOutput(path, binary=binary, what=what, updates=updates)
     try:
         yield out.file
     except OSError as e:

@@ -167,7 +167,7 @@ def test_export_mcap_dispatch(tmp_path, capsys, monkeypatch):
     out = tmp_path / "o.csv"
     # the engine's exporter missing: one clear line, exit 2
     monkeypatch.setitem(sys.modules, "stillpoint.engine.mcap.export", None)
-    code, _, err = run_cli(["export", str(p), "-o", str(out)], capsys)
+    code, _, err = run_cli(["export", str(p), "-o", str(out), "--topic", "/a"], capsys)
     assert code == 2 and "mcap.export" in err and len(err.strip().splitlines()) == 1
     # present: called with (path, out, topics)
     calls = []

@@ -464,9 +464,9 @@ def test_raw_order_rule_covers_times_and_segments(fuzz3, tmp_path):
 def test_calibration_record_is_checked_when_tables_are_made_from_a_log(fuzz3, tmp_path, change, what):
     good = _rewrite(fuzz3("settings_first_hours_string.mcap"), tmp_path / "good.mcap",
                     settings={"first_hours": 72.0})
-    rc, out, err = cli("export", good, "-o", tmp_path / "g.epochs.csv.gz")
+    rc, out, err = cli("export", good, "-o", tmp_path / "g.epochs.csv.gz", "--table", "epochs")
     assert rc == 0, err
     bad = _rewrite(good, tmp_path / "bad.mcap", calibration=change)
-    rc, out, err = cli("export", bad, "-o", tmp_path / "b.epochs.csv.gz")
+    rc, out, err = cli("export", bad, "-o", tmp_path / "b.epochs.csv.gz", "--table", "epochs")
     assert_one_line_error(rc, err, "bad.mcap")
     assert "metadata 'calibration'" in err and what in err, err

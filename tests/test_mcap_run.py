@@ -191,7 +191,7 @@ def test_process_cli_summary_and_export(recording, tmp_path, capsys):
     assert by_id["/view/accel"] == "ros2msg"
     # export: epoch metrics to CSV, corrected stream to NPZ
     csv = tmp_path / "m.csv"
-    assert cli(["export", str(out), "-o", str(csv)]) == 0
+    assert cli(["export", str(out), "-o", str(csv), "--topic", "/metrics/epoch"]) == 0
     lines = csv.read_text().splitlines()
     assert lines[0].startswith("time,time_ns,n,enmo_mg,bfen_mg,mad_mg") and len(lines) - 1 == s["epochs"]
     npz = tmp_path / "c.npz"
@@ -255,7 +255,7 @@ def test_export_columns_empty_topics_and_foreign_logs(recording, tmp_path, capsy
         w.finish()
     capsys.readouterr()
     for dest in ("f.csv", "f.npz"):
-        assert cli(["export", str(foreign), "-o", str(tmp_path / dest)]) == 2
+        assert cli(["export", str(foreign), "-o", str(tmp_path / dest), "--topic", "/metrics/epoch"]) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and "not a stillpoint log" in err[0] and str(foreign) in err[0]
         assert not list(tmp_path.glob(dest + "*"))

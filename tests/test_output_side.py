@@ -53,7 +53,7 @@ def test_unwritable_destination_is_one_line_before_work(tmp_path, mcap, make, cm
     dest = base / "out"
     args = {
         "export": ["export", GOOD, "-o", f"{dest}.csv"],
-        "export_mcap": ["export", mcap, "-o", f"{dest}.csv"],
+        "export_mcap": ["export", mcap, "-o", f"{dest}.csv", "--topic", "/metrics/epoch"],
         "summary": ["process", GOOD, "-o", tmp_path / "ok.mcap", "--summary", f"{dest}.json", "-q"],
         "process": ["process", GOOD, "-o", f"{dest}.mcap", "-q"],
         "discrepancy": ["discrepancy", GOOD, "-o", dest],

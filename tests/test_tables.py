@@ -334,14 +334,28 @@ def test_cli_bad_zone_is_one_line(tmp_path):
 
 
 def test_export_from_the_mcap_gives_the_same_tables(small_run):
+    """An MCAP export says what it wants (--table or --topic): the output's name never decides."""
+    def export(*args):
+        return subprocess.run([sys.executable, "-m", "stillpoint.tools", "export",
+                               str(small_run.dir / "a.mcap"), *map(str, args)],
+                              capture_output=True, text=True)
     out = small_run.dir / "again.epochs.csv.gz"
-    r = subprocess.run([sys.executable, "-m", "stillpoint.tools", "export", str(small_run.dir / "a.mcap"),
-                        "-o", str(out)], capture_output=True, text=True)
+    r = export("-o", out)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "--table epochs|days" in r.stderr
+    assert not out.exists()
+    r = export("-o", out, "--table", "epochs")
     assert r.returncode == 0, r.stderr
     assert UNKNOWN_LABEL in r.stdout
     assert read_epochs(out) == small_run.epochs
-    assert read_days(small_run.dir / "again.days.csv") == small_run.days
+    days = small_run.dir / "again.days.csv"
+    assert not days.exists()  # only the table asked for
+    r = export("-o", days, "--table", "days")
+    assert r.returncode == 0, r.stderr
+    assert read_days(days) == small_run.days
+    r = export("-o", small_run.dir / "t.csv", "--table", "days", "--topic", "/metrics/epoch")
+    assert r.returncode == 2 and "not both" in r.stderr
     assert not list(small_run.dir.glob(".tables-*"))  # the re-run's MCAP is removed
+    assert not list(small_run.dir.glob(".again*"))  # nor the table not asked for
 
 
 def test_report_page_is_written(small_run, tmp_path):

@@ -7,7 +7,8 @@ Subcommands live in ``tools/commands/<name>.py``; each module defines
     def add_arguments(parser): ...        # argparse arguments
     def run(args) -> int: ...             # exit code
 
-and is found automatically. Any ``StillpointError`` (bad input) becomes exit code 2 with one line
+and is found automatically. A module with ``KEEPS_EXISTING_OUTPUTS = True`` gets ``--overwrite``:
+without it, an output that already exists is refused before any work. Any ``StillpointError`` (bad input) becomes exit code 2 with one line
 on stderr, and so does a bad argument (``CommandLineParser``; numbers are checked by the types in
 ``commands/_numbers.py``); a ``KeyboardInterrupt`` exits 130.
 """
@@ -69,6 +70,11 @@ def build_parser(only=None) -> argparse.ArgumentParser:
                            description=getattr(mod, "DESCRIPTION", getattr(mod, "HELP", None)))
         if hasattr(mod, "add_arguments"):
             mod.add_arguments(p)
+        if getattr(mod, "KEEPS_EXISTING_OUTPUTS", False):
+            p.add_argument("--overwrite", action="store_true",
+                           help="replace outputs that already exist (without it an existing "
+                                "output is refused before any work)")
+            p.set_defaults(_keeps_outputs=True)
         p.set_defaults(_run=mod.run)
     return parser
 
@@ -168,8 +174,10 @@ def main(argv=None) -> int:
     if not getattr(args, "_run", None):
         parser.print_help()
         return 2
-    from stillpoint.drivers.outputs import protect_inputs
+    from stillpoint.drivers.outputs import keep_existing_outputs, protect_inputs
     protect_inputs(_input_files(args))
+    keep_existing_outputs(getattr(args, "_keeps_outputs", False)
+                          and not getattr(args, "overwrite", False))
     try:
         return int(args._run(args) or 0)
     except StillpointError as e:
@@ -188,6 +196,7 @@ def main(argv=None) -> int:
         return 2
     finally:
         protect_inputs(())  # for this command only (main() is also called in-process)
+        keep_existing_outputs(False)
 
 
 if __name__ == "__main__":  # pragma: no cover

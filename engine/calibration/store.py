@@ -154,7 +154,8 @@ class CalibrationStore:
         self._mkdir()
         text = json.dumps(doc, indent=1, sort_keys=True) + "\n"
         try:
-            with atomic_output(path, binary=False, what="calibration store file") as f:
+            with atomic_output(path, binary=False, what="calibration store file",
+                               updates=True) as f:
                 f.write(text)
         except OutputError as e:
             raise CalibrationStoreError(str(e)) from None

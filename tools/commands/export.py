@@ -20,8 +20,9 @@ goes; NPZ columns are streamed to temporary files next to the output and then co
 so memory stays flat however long the recording. The output appears under its name only when
 complete (written as ``OUT.part`` and renamed; see ``stillpoint.drivers.outputs``).
 
-An MCAP input (a run's log) is exported by ``stillpoint.engine.mcap.export.export_mcap`` with
-``--topic`` selecting channels.
+An MCAP input (a run's log) takes ``--topic T`` (``stillpoint.engine.mcap.export.export_mcap``)
+or ``--table epochs|days`` (``stillpoint.engine.tables.tables_from_mcap``); one of them is
+required: the output's name never decides what is written.
 
 API: ``export_recording(path, out, *, time_format="iso", timezone=None, compress=False) -> dict``.
 """
@@ -47,9 +48,11 @@ from stillpoint.drivers.outputs import atomic_output, check_output_path
 from stillpoint.engine.blocks import PER_SAMPLE_BUTTON, PER_SAMPLE_LIGHT_RAW
 
 NAME = "export"
+KEEPS_EXISTING_OUTPUTS = True  # --overwrite replaces an existing output
 HELP = "write per-sample time, accel (g), gyro (dps), temperature, light, battery to CSV or NPZ"
 
 TIME_FORMATS = ("iso", "epoch", "ns")
+TABLES = ("epochs", "days")  # --table of an MCAP input
 
 
 def add_arguments(parser) -> None:
@@ -62,7 +65,11 @@ def add_arguments(parser) -> None:
                         help="device clock time zone, e.g. +01:00 (GENEActiv: overrides the header)")
     parser.add_argument("--compress", action="store_true", help="NPZ: deflate the columns")
     parser.add_argument("--topic", action="append", default=None,
-                        help="MCAP input only: topic(s) to export (repeatable)")
+                        help="MCAP input: topic(s) to export (repeatable); an MCAP export needs "
+                             "--topic or --table")
+    parser.add_argument("--table", choices=TABLES, default=None,
+                        help="MCAP input: write the epoch table (OUT.csv.gz) or the day table "
+                             "(OUT.csv) made from the log")
     from ._tableopts import add_table_arguments
     add_table_arguments(parser, with_switch=False)
 
@@ -315,22 +322,34 @@ _KIND = {"cwa": "an AX3/AX6 .cwa", "geneactiv": "a GENEActiv .bin"}
 
 
 def export_recording(path, out, *, time_format: str = "iso", timezone=None, compress: bool = False,
-                     topics=None, table_options: Optional[dict] = None) -> dict:
-    """Export a recording to CSV or NPZ (see the module docstring). Returns a small report."""
+                     topics=None, table: Optional[str] = None,
+                     table_options: Optional[dict] = None) -> dict:
+    """Export a recording to CSV or NPZ (see the module docstring). Returns a small report.
+
+    An MCAP input exports what is asked for, never what the output's name suggests: ``table``
+    (``epochs`` or ``days``: that table, made from the log) or ``topics``; one of them is
+    required."""
     out = Path(out)
     fmt = sniff_format(path)
     if topics and fmt != "mcap":
         raise StillpointError(f"{path}: --topic selects the topics of a stillpoint MCAP log; this "
                               f"input is {_KIND.get(fmt, fmt)} recording, whose export has no "
                               "topics (leave --topic out)")
-    if topics and out.name.lower().endswith(".epochs.csv.gz"):
-        raise StillpointError(f"{out}: --topic does not apply to the epoch and day tables (they are "
-                              "made from the log's epoch topics); leave it out, or export a topic "
-                              "to .csv/.npz")
-    if fmt == "mcap" and out.name.lower().endswith(".epochs.csv.gz"):
-        from stillpoint.engine.tables import tables_from_mcap
-        result = tables_from_mcap(path, out, timezone=timezone, **(table_options or {}))
-        return {"format": "mcap", "output": str(out), "tables": result}
+    if table and fmt != "mcap":
+        raise StillpointError(f"{path}: --table makes a table from a stillpoint MCAP log; this "
+                              f"input is {_KIND.get(fmt, fmt)} recording (run `stillpoint process` "
+                              "on it: it writes both tables)")
+    if fmt == "mcap":
+        if topics and table:
+            raise StillpointError(f"{path}: give either --table or --topic, not both")
+        if not topics and not table:
+            raise StillpointError(f"{path}: say what to export from the MCAP log: --table "
+                                  "epochs|days (a table) or --topic T (a topic's messages)")
+    if table:
+        if table not in TABLES:
+            raise StillpointError(f"--table must be one of {', '.join(TABLES)}")
+        result = _table_from_mcap(path, out, table, timezone, table_options or {})
+        return {"format": "mcap", "output": str(out), "table": table, "tables": result}
     if fmt == "mcap":
         result = export_mcap(path, out, topics)
         return {"format": "mcap", "output": str(out), "result": result}
@@ -366,17 +385,44 @@ def export_recording(path, out, *, time_format: str = "iso", timezone=None, comp
             "timezone": zone_label(path, fmt, timezone)}
 
 
+def _table_from_mcap(path, out: Path, table: str, timezone, options: dict) -> dict:
+    """One table (``epochs``: gzip CSV, ``days``: CSV) from a log into ``out``; the other table,
+    which the same pass makes, goes to a hidden name beside it and is removed."""
+    import secrets
+
+    from stillpoint.engine.tables import tables_from_mcap
+    name = out.name.lower()
+    if table == "epochs" and not name.endswith(".csv.gz"):
+        raise StillpointError(f"{out}: the epoch table is gzip-compressed CSV: name it .csv.gz")
+    if table == "days" and not name.endswith(".csv"):
+        raise StillpointError(f"{out}: the day table is CSV: name it .csv")
+    check_output_path(out, what=f"{table[:-1]} table")
+    other = out.with_name(f".{out.name}.{secrets.token_hex(6)}." +
+                          ("days.csv" if table == "epochs" else "epochs.csv.gz"))
+    ep, dp = (out, other) if table == "epochs" else (other, out)
+    try:
+        return tables_from_mcap(path, ep, dp, timezone=timezone, **options)
+    finally:
+        for p in (other, other.with_name(other.name + ".part")):
+            try:
+                os.unlink(p)
+            except OSError:
+                pass
+
+
 def run(args) -> int:
     from ._tableopts import table_settings
     ts = table_settings(args, Path(args.output))
     opts = {"nonwear_version": ts.nonwear_version, "valid_day_hours": ts.valid_day_hours,
             "enmo_bands_mg": ts.enmo_bands_mg, "mvpa_bout_s": ts.mvpa_bout_s}
     rep = export_recording(args.file, args.output, time_format=args.time, timezone=args.timezone,
-                           compress=args.compress, topics=args.topic, table_options=opts)
+                           compress=args.compress, topics=args.topic, table=args.table,
+                           table_options=opts)
     if rep.get("tables"):
         t = rep["tables"]
-        print(f"wrote {t['epochs']} ({t['epoch_rows']:,} epochs) and {t['days']} "
-              f"({t['day_rows']} day(s)); times: {t['timezone']}")
+        what = (f"{t['epoch_rows']:,} epochs" if rep["table"] == "epochs"
+                else f"{t['day_rows']} day(s) and the file summary row")
+        print(f"wrote {rep['output']} ({what}); times: {t['timezone']}")
     elif rep.get("format") == "mcap":
         print(f"wrote {rep['output']} (from the MCAP log)")
     else:

@@ -17,6 +17,7 @@ from ._runopts import (OptionError, Progress, add_setting_arguments, human_summa
                        settings_overrides, write_summary)
 
 NAME = "process"
+KEEPS_EXISTING_OUTPUTS = True  # --overwrite replaces an existing output
 HELP = "autocalibrate a .cwa/.bin recording; write raw, corrected, metrics and estimates to MCAP"
 DESCRIPTION = (HELP + ". Batch mode reads the file twice (features + fit, then corrected "
                "output); online mode refits every 12 h of data in one pass.")

@@ -9,6 +9,7 @@ from pathlib import Path
 from stillpoint.engine.recover import recover
 
 NAME = "recover"
+KEEPS_EXISTING_OUTPUTS = True  # --overwrite replaces an existing output
 HELP = "salvage every complete chunk of an unfinished MCAP into a valid, indexed file"
 
 

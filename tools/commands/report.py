@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 NAME = "report"
+KEEPS_EXISTING_OUTPUTS = True  # --overwrite replaces an existing output
 HELP = "one-page visual report (PNG + HTML) of a processed recording: activity per day, temperature, calibration, QC"
 
 

@@ -11,6 +11,7 @@ from pathlib import Path
 from ._numbers import RATE_HZ, SEED, number
 
 NAME = "simulate"
+KEEPS_EXISTING_OUTPUTS = True  # --overwrite replaces an existing output
 HELP = "simulate a free-living recording (AX3/AX6 .cwa or GENEActiv .bin) with ground truth"
 
 

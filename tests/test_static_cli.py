@@ -285,3 +285,27 @@ def test_movements_with_a_coupled_sensor_match_the_error_free_count(capsys, tmp_
     code, out, _ = cli(capsys, "movements", tmp_path / "leg.cwa", "--calibration",
                        tmp_path / "diag.json", "--json")
     assert code == 0 and json.loads(out)["left"]["count"] != free
+
+
+def test_simulate_sixface_with_coupling_and_a_tilted_table(capsys, tmp_path):
+    code, out, _ = cli(capsys, "simulate", "--scenario", "sixface", "-o", tmp_path / "s.cwa",
+                       "--seed", "5", "--coupling", "0.02", "--table-tilt-deg", "1", "--json")
+    assert code == 0
+    truth = json.loads((tmp_path / "s.truth.json").read_text())
+    sym = np.asarray(truth["errors"]["symmetric"])
+    assert np.all(np.abs(sym) <= 0.02) and np.abs(sym).max() > 0.005
+    assert truth["settings"]["table_tilt_deg"] == 1.0
+    code, out, _ = cli(capsys, "static-calibrate", tmp_path / "s.cwa", "--mode", "robust", "--json")
+    doc = json.loads(out)
+    np.testing.assert_allclose(doc["offset_g"], truth["errors"]["offset_g"], atol=0.001)
+    assert np.abs(doc["diagnostics"]["off_axis_pair_mean_g"]).max() > 0.004  # the tilt, flagged
+    code, _, _ = cli(capsys, "simulate", "--scenario", "sixface", "-o", tmp_path / "n.cwa",
+                     "--sensor-errors", "none", "--coupling", "0.01", "--json")
+    sym = np.asarray(json.loads((tmp_path / "n.truth.json").read_text())["errors"]["symmetric"])
+    assert code == 0 and 0 < np.abs(sym).max() <= 0.01
+    for extra in (["--coupling", "0.01"], ["--table-tilt-deg", "1"]):
+        code, _, err = cli(capsys, "simulate", "-o", tmp_path / "x.cwa", "--days", "0.01", *extra)
+        assert code == 2 and extra[0] in err and "ignored" in err and not (tmp_path / "x.cwa").exists()
+    code, _, err = cli(capsys, "simulate", "--scenario", "infant", "-o", tmp_path / "i.cwa",
+                       "--table-tilt-deg", "1")
+    assert code == 2 and "--table-tilt-deg" in err

@@ -19,6 +19,13 @@ def add_arguments(p) -> None:
                    help="sixface/infant: Table-2-like offset/gain/noise drawn from --seed, or none")
     g.add_argument("--cross-axis", type=number(0, 1), default=0.0,
                    help="sixface/infant: maximum |cross-axis term| of the drawn errors (default 0)")
+    g.add_argument("--coupling", type=number(0, 0.2), default=0.0, metavar="FRACTION",
+                   help="sixface/infant: symmetric cross-axis coupling (non-orthogonal axes), each "
+                        "axis pair drawn within ±FRACTION (e.g. 0.02 = 2 %%); added to the drawn "
+                        "errors, or alone with --sensor-errors none")
+    g.add_argument("--table-tilt-deg", type=number(0, 30, unit="deg"), default=0.0,
+                   help="sixface: the table tilted by this angle, the device at a random yaw on it "
+                        "per hold (six faces alone cannot tell this tilt from coupling)")
     g.add_argument("--hold-s", type=number(0, 3600, lo_open=True, unit="s"), default=10.0,
                    help="sixface: seconds per face")
     g.add_argument("--order", default=None, help="sixface: face order, e.g. +x,-x,+y,-y,+z,-z "
@@ -57,8 +64,10 @@ def _run(args) -> int:
     if args.device == "geneactiv" or not out.name.endswith(".cwa"):
         raise ModelError(f"{out}: the {args.scenario} scenario writes an AX3/AX6 .cwa file")
     rng = np.random.default_rng((args.seed, 5))
-    errors = (StaticErrors.draw(rng, cross_max=args.cross_axis) if args.sensor_errors == "table2"
-              else StaticErrors.ideal())
+    errors = (StaticErrors.draw(rng, cross_max=args.cross_axis, coupling_max=args.coupling)
+              if args.sensor_errors == "table2" else StaticErrors.ideal())
+    if args.coupling and args.sensor_errors != "table2":
+        errors.symmetric = list(rng.uniform(-args.coupling, args.coupling, 3))
     hz = args.hz if args.hz != 100.0 else 25.0  # the scenarios default to the AX6's 25 Hz
     dev_id = args.device_id if args.device_id is not None else 4000 + args.seed
     range_g = args.range_g or 8
@@ -66,7 +75,8 @@ def _run(args) -> int:
         from stillpoint.engine.sim.sixface import simulate_sixface, write_sixface
         order = args.order.split(",") if args.order else None
         try:
-            s = simulate_sixface(fs=hz, hold_s=args.hold_s, order=order, errors=errors, seed=args.seed)
+            s = simulate_sixface(fs=hz, hold_s=args.hold_s, order=order, errors=errors, seed=args.seed,
+                                 table_tilt_deg=args.table_tilt_deg)
         except ValueError as e:
             raise ModelError(str(e)) from None
         res = write_sixface(out, s, device=args.device, device_id=dev_id, range_g=range_g,

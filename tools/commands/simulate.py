@@ -82,6 +82,7 @@ _ONLY_FOR = {
     "minutes": (20.0, ("infant",)), "sleep": ([], ("infant",)), "controls": (False, ("infant",)),
     "skew_ppm": (0.0, ("infant",)), "device_id": (None, ("sixface", "infant")),
     "cross_axis": (0.0, ("sixface", "infant")), "sensor_errors": ("table2", ("sixface", "infant")),
+    "coupling": (0.0, ("sixface", "infant")), "table_tilt_deg": (0.0, ("sixface",)),
     "pair_output": (None, ("pair",)), "pair_device": (None, ("pair",)),
     "pair_hz": (None, ("pair",)), "pair_effect": ([], ("pair",)),
 }

@@ -199,6 +199,7 @@ def test_old_ledger_gains_the_clear_columns(tmp_path):
     con.close()
     lg = Ledger(tmp_path)
     assert lg.clears() == [(7, 1, 1, "ab", "ok", None, None, None)]
+    assert lg.clears(7, "AX6") == lg.clears(7, "AX3") == lg.clears()  # no type: either device type
     cid = lg.clear_attempt(7, 2, 2, "cd", erase="FORMAT QC")
     lg.clear_result(cid, "ok", None, "1024 bytes")
     assert lg.clears()[-1] == (7, 2, 2, "cd", "ok", None, "FORMAT QC", "1024 bytes")
@@ -340,6 +341,31 @@ def test_a_verified_ax6_does_not_clear_an_ax3_with_the_same_id(emu, tmp_path):
         with pytest.raises(ClearRefused, match="no verified download"):
             clear_verified(c, lg, 10001, 1, ax3.data_file, wait_for(ax3), device_type="AX3")
     assert ax3.clears == []
+
+
+def test_clears_and_the_device_list_keep_an_ax3_and_an_ax6_with_one_id_apart(emu, tmp_path):
+    """The AX6's clear left at 'sent' is not settled from an AX3 with the same id, its erased
+    session does not count for the AX3's "increment", and `stillpoint devices` does not show the
+    AX3 as verified because the AX6 of that id and session is."""
+    from stillpoint.drivers.ax.discovery import EmulatedBackend
+    from stillpoint.engine.station.clearing import session_before_clear
+    from stillpoint.engine.station.completion import resolve_sent_clear
+    from stillpoint.engine.station.status import list_devices
+    lg = _ledger(tmp_path)
+    copy = tmp_path / "out" / "AX6-10001_1.cwa"
+    copy.write_bytes(b"MD" * 600)  # the AX6's verified copy (not plugged in)
+    dl = lg.download_started(10001, 1, device_type="AX6")
+    lg.download_verified(dl, bytes_=copy.stat().st_size, sha256=_sha(copy), bad_sectors=0,
+                         cwa_path=str(copy), mcap_path="")
+    lg.clear_result(lg.clear_attempt(10001, 41, dl, "aa", device_type="AX6"), "ok")
+    sent = lg.clear_attempt(10001, 1, dl, _sha(copy), device_type="AX6")
+    ax3 = emu(10001, "AX3")
+    assert resolve_sent_clear(lg, 10001, ax3.data_file, device_type="AX3") == []
+    assert lg.sent_clears(10001, "AX6")[0][0] == sent
+    assert session_before_clear(lg, 10001, 1, "AX3") == 1
+    assert session_before_clear(lg, 10001, 1, "AX6") == 41
+    rows = list_devices(EmulatedBackend(), ledger=lg)
+    assert [(r["type"], r["state"]) for r in rows] == [("AX3", "has data (recording window still open)")]
 
 
 def test_increment_counts_from_the_erased_session_on_a_later_run(emu, tmp_path):

@@ -127,6 +127,7 @@ def test_a_misread_range_is_read_again_and_patched(emu, tmp_path):
 def test_a_change_with_valid_sectors_is_not_a_misread(emu, tmp_path, monkeypatch):
     """Two reads agree on bytes other than the copy's, but the copy's sector was a valid one: the
     device's data changed (a device writes whole, valid sectors); nothing is patched."""
+    import stillpoint.engine.station.device_read as device_read
     import stillpoint.engine.station.download as dl
     d = emu(12345)
     good = d.data_file.read_bytes()
@@ -145,6 +146,7 @@ def test_a_change_with_valid_sectors_is_not_a_misread(emu, tmp_path, monkeypatch
         return f
 
     monkeypatch.setattr(dl, "open_data_file", later_reads_see_other)
+    monkeypatch.setattr(device_read, "open_data_file", later_reads_see_other)
     r = run_download(_job(d, tmp_path, pipeline=False))
     assert not r.ok and r.changed and "complete sector in both reads" in r.reason
     assert (tmp_path / "AX3-12345_1.cwa.part").read_bytes() == good  # the copy is not patched

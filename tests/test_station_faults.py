@@ -22,6 +22,7 @@ CASES = {
     "short-read": "short read",
     "io-error": "Input/output error",
     "hang": "stalled",
+    "hang-before-clear": "not cleared: cannot re-read the data file",
     "bit-flip": None,  # a transient misread: read again, patched, verified and cleared
     "change-between-reads": "verification failed",
     "swap-before-clear": "not cleared",
@@ -36,8 +37,8 @@ CASES = {
 def _station(tmp_path, **kw):
     out = tmp_path / "out"
     out.mkdir(exist_ok=True)
-    opts = StationOptions(str(out), clear_after_verify=True, inline=True, stall_s=1.5, remount_s=1.0,
-                          **kw)
+    kw = {"inline": True, "stall_s": 1.5, **kw}
+    opts = StationOptions(str(out), clear_after_verify=True, remount_s=1.0, **kw)
     return out, Station(opts, EmulatedBackend(), tty=False, out=io.StringIO(), poll_s=0.1)
 
 
@@ -89,6 +90,29 @@ def test_hung_read_is_cancelled_in_bounded_time(emu, tmp_path):
     assert time.monotonic() - t0 < 20
     assert not w._proc.is_alive()
     assert (tmp_path / "AX3-12345_1.cwa.part").stat().st_size > 0
+
+
+def test_a_hung_reread_before_the_clear_ends_the_device_in_error(emu, tmp_path):
+    """The re-read of the device just before its clear runs in a worker with the stall bound: a
+    read that hangs there (a pulled drive) ends the device in error, not cleared, its verified copy
+    kept, and the worker process is gone; the station is never hung."""
+    import multiprocessing
+    import time
+    bad = emu(10001, faults=("hang-before-clear",))
+    out, st = _station(tmp_path, inline=False, stall_s=8.0)  # a worker process starts within 8 s
+    t0 = time.monotonic()
+    with st:
+        rc = st.run(once=True)
+        f = next(iter(st.flows.values()))
+        verified = [r for r in st.ledger.downloads(10001) if r.verified]
+        clears = st.ledger.clears()
+    assert time.monotonic() - t0 < 90
+    assert rc == 2 and f.state == "error"
+    assert f.reason.startswith("not cleared: cannot re-read the data file") and \
+        "stalled: no progress for 8 s" in f.reason, f.reason
+    assert bad.clears == [] and clears == []
+    assert len(verified) == 1 and (out / "AX3-10001_1.cwa").exists()
+    assert multiprocessing.active_children() == []
 
 
 def test_worker_process_download_ok(emu, tmp_path):

@@ -20,7 +20,7 @@
 
 Faults (kebab-case names, ``FAULTS``) make it misbehave the way a real device or cable can. Those
 that concern reading the drive (``unplug-mid-copy``, ``short-read``, ``io-error``, ``hang``,
-``bit-flip``, ``change-between-reads``) are applied by the emulated volume's file layer
+``hang-before-clear``, ``bit-flip``, ``change-between-reads``) are applied by the emulated volume's file layer
 (``volume.open_data_file``), which signals the device through ``<root>/control/``; the rest are
 applied here.
 
@@ -54,6 +54,8 @@ FAULTS = {
     "short-read": "the data file read ends early (fewer bytes than its size)",
     "io-error": "an I/O error at an offset in the data file",
     "hang": "a read of the data file never returns",
+    "hang-before-clear": "a cache-bypassing re-read after the download's verification read (the "
+                         "re-read just before a clear) never returns",
     "bit-flip": "one bit of the data differs in the first read",
     "change-between-reads": "the data file changes between the copy and the verification read",
     "swap-before-clear": "another device takes the slot between verification and clear",
@@ -65,7 +67,8 @@ FAULTS = {
     "locked": "settings are locked (ERROR: Locked.)",
     "stream-left-running": "the device is streaming its preview when the host opens the port",
 }
-READ_FAULTS = ("unplug-mid-copy", "short-read", "io-error", "hang", "bit-flip", "change-between-reads")
+READ_FAULTS = ("unplug-mid-copy", "short-read", "io-error", "hang", "hang-before-clear", "bit-flip",
+               "change-between-reads")
 FAULT_LOCK_CODE = 4321  # the lock code the ``locked`` fault sets (LOCK 4321; UNLOCK 4321 lifts it)
 INPUT_BUFFER = 128  # SERIAL_BUFFER_SIZE (Flux.AX3/src/Utils/Util.c 46)
 RESTARTS_AT_START, BATTERY_HEALTH_AT_START = 3, 12  # the emulated unit's program-memory counters

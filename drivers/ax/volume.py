@@ -5,7 +5,8 @@ from the device, not the page cache), and, for emulated devices, the fault layer
 The fault layer (``FaultyFile``) makes an emulated drive misbehave as a real one can:
 ``unplug-mid-copy`` (signals the emulator to pull the cable, then fails with ENODEV; fires
 once), ``short-read`` (end of file early), ``io-error`` (EIO at half the file), ``hang`` (a read
-that never returns), ``bit-flip`` (one bit differs in the copy read), ``change-between-reads``
+that never returns), ``hang-before-clear`` (every cache-bypassing read after the first, the
+download's verification read, never returns: the re-read just before a clear), ``bit-flip`` (one bit differs in the copy read), ``change-between-reads``
 (the file changes before the verification read), ``swap-before-clear`` (after the verification
 read another device takes the slot). Faults fire at fractions of the file so they land
 mid-copy for any recording length.
@@ -75,6 +76,9 @@ class FaultyFile(DataFile):
                 b = f.read(1)
                 f.seek(-1, os.SEEK_CUR)
                 f.write(bytes([b[0] ^ 0xFF]) if b else b"\x00")
+        # the first cache-bypassing read is the download's verification; a later one (the re-read
+        # before a clear) hangs
+        self.hang_now = verify and "hang-before-clear" in self.faults and not self._once("verified")
         super().__init__(path, verify)
 
     def _once(self, name: str) -> bool:
@@ -99,6 +103,8 @@ class FaultyFile(DataFile):
                 time.sleep(0.02)
 
     def read(self, n: int) -> bytes:
+        while self.hang_now:  # a read stuck in the kernel: only the worker's cancel ends it
+            time.sleep(3600)
         if not self.verify:
             for fault, frac in _FAULT_AT.items():
                 at = int(frac * self.total) // C.CWA_SECTOR_BYTES * C.CWA_SECTOR_BYTES

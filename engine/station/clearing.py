@@ -1,18 +1,19 @@
 """The only code path that erases a device.
 
 ``clear_verified(client, ledger, device_id, session_id, data_file, wait_volume, *, device_type,
-erase)`` erases only when all of these hold, checked immediately before the erase:
+erase, reread)`` erases only when all of these hold, checked immediately before the erase:
 
-* the ledger holds a verified download of this device id and session;
+* the ledger holds a verified download of this device type, id and session;
 * ``ID`` names the same device id, type and session (another device may be in the slot), and
   ``SESSION`` the same session;
 * the data file's header names the same device (as its firmware writes the id:
   ``drivers.ax.identity``) and session;
 * **the bytes**: the raw copy on disk is hashed again and its size and SHA-256 equal the ledger's
-  verified ones, and the device's data file is re-read (streamed, bypassing the page cache as
-  the download's verification read does: ``volume.open_data_file(verify=True)``) and its size and
-  SHA-256 equal them too. A copy damaged after verification, a device whose bytes changed, a
-  ledger row that does not describe the bytes: each refuses the clear (``ClearRefused``, one line).
+  verified ones, and the device's data file is re-read (``device_read.device_sha256``: streamed
+  past the page cache as the download's verification read is, in a worker with the download's
+  stall bound) and its size and SHA-256 equal them too. A copy damaged after verification, a
+  device whose bytes changed, a re-read that stalls (a pulled drive), a ledger row that does not
+  describe the bytes: each refuses the clear (``ClearRefused``, one line).
 
 Then the vendor's clear: "never log" (``HIBERNATE -1``, ``STOP -1``, ``SESSION 0``, each read
 back), ``FORMAT QC`` (``erase="quick"``, the default) or ``FORMAT WC`` (``"wipe"``), the drive's
@@ -25,19 +26,19 @@ read-back). Nothing else in the station erases a device.
 
 from __future__ import annotations
 
-import hashlib
 import os
 from pathlib import Path
-from typing import Optional
+from typing import Callable, Optional
 
 from stillpoint.drivers import constants as C
 from stillpoint.drivers.ax.errors import DeviceError
 from stillpoint.drivers.ax.identity import header_device_text, header_names_device
-from stillpoint.drivers.ax.volume import open_data_file
 from stillpoint.drivers.byteio import sha256_file
 from stillpoint.drivers.cwa_layout import parse_header
 
-READ_CHUNK = 1 << 20
+from .device_read import device_sha256
+
+DEFAULT_STALL_S = 30.0  # a re-read without progress this long is stopped (the download's default)
 
 
 class ClearRefused(DeviceError):
@@ -49,53 +50,42 @@ def _header(path: Path) -> dict:
         return parse_header(f.read(C.CWA_HEADER_BYTES))
 
 
-def device_sha256(data_file) -> tuple[int, str]:
-    """(bytes, SHA-256) of the device's data file, read in chunks past the page cache."""
-    f = open_data_file(data_file, verify=True)
-    h = hashlib.sha256()
-    n = 0
-    try:
-        while True:
-            b = f.read(READ_CHUNK)
-            if not b:
-                break
-            h.update(b)
-            n += len(b)
-    finally:
-        f.close()
-    return n, h.hexdigest()
-
-
 def copy_sha256(path) -> tuple[int, str]:
     """(bytes, SHA-256) of a raw copy on disk."""
     return os.stat(path).st_size, sha256_file(path)
 
 
-def check_bytes(device_id: int, rec, data_file) -> None:
+def _must_hold(device_id: int, rec, what: str, read_what: str, read, verified: str) -> None:
+    """``read()`` gives (bytes, SHA-256) of ``what``; both must be the ledger row's."""
+    try:
+        n, sha = read()
+    except OSError as e:
+        raise ClearRefused(device_id, f"not cleared: cannot {read_what}: {e.strerror or e}") from None
+    if n != rec.bytes or sha != rec.sha256:
+        raise ClearRefused(device_id, f"not cleared: {what} ({n} bytes, SHA-256 {sha[:16]}) is not "
+                                      f"{verified} ({rec.bytes} bytes, {rec.sha256[:16]})")
+
+
+def check_bytes(device_id: int, rec, data_file, reread: Optional[Callable] = None) -> None:
     """The byte rule: the raw copy on disk and the device's data file both hold exactly the bytes
-    the ledger verified (``rec``: a ``DownloadRecord``). Raises ``ClearRefused``."""
+    the ledger verified (``rec``: a ``DownloadRecord``). ``reread(data_file) -> (bytes, SHA-256)``
+    re-reads the device (default: ``device_read.device_sha256`` with the stall bound, on a
+    thread). Raises ``ClearRefused``."""
     if not rec.sha256 or rec.bytes is None:
         raise ClearRefused(device_id, "not cleared: the ledger's verified download has no size or "
                                       "SHA-256")
+    reread = reread or default_reread
     copy = rec.cwa_path
-    try:
-        n, sha = copy_sha256(copy)
-    except OSError as e:
-        raise ClearRefused(device_id, f"not cleared: cannot read the raw copy {copy}: "
-                                      f"{e.strerror or e}") from None
-    if n != rec.bytes or sha != rec.sha256:
-        raise ClearRefused(device_id, f"not cleared: the raw copy {copy} ({n} bytes, SHA-256 "
-                                      f"{sha[:16]}) is not the verified download ({rec.bytes} bytes, "
-                                      f"{rec.sha256[:16]})")
-    try:
-        n, sha = device_sha256(data_file)
-    except OSError as e:
-        raise ClearRefused(device_id, f"not cleared: cannot re-read the data file {data_file}: "
-                                      f"{e.strerror or e}") from None
-    if n != rec.bytes or sha != rec.sha256:
-        raise ClearRefused(device_id, f"not cleared: the device's data file ({n} bytes, SHA-256 "
-                                      f"{sha[:16]}) is not the verified copy {copy} ({rec.bytes} "
-                                      f"bytes, {rec.sha256[:16]})")
+    _must_hold(device_id, rec, f"the raw copy {copy}", f"read the raw copy {copy}",
+               lambda: copy_sha256(copy), "the verified download")
+    _must_hold(device_id, rec, "the device's data file", f"re-read the data file {data_file}",
+               lambda: reread(data_file), f"the verified copy {copy}")
+
+
+def default_reread(data_file) -> tuple[int, str]:
+    """The device re-read with the stall bound, on a thread (a station passes its own ``reread``:
+    a worker process, the emulated drive's faults)."""
+    return device_sha256(data_file, stall_s=DEFAULT_STALL_S, inline=True)
 
 
 def says_never_record(header: dict) -> bool:
@@ -116,16 +106,19 @@ def set_never_log(client) -> None:
             raise DeviceError(client.name, f"{key} {value} reads back {got!r}")
 
 
-def session_before_clear(ledger, device_id: int, session_now: int) -> int:
+def session_before_clear(ledger, device_id: int, session_now: int,
+                         device_type: Optional[str] = None) -> int:
     """The session a profile's "increment" counts from: a clear leaves the device at session 0,
     so the larger of the device's session and the one its last completed clear erased."""
-    erased = [c[1] for c in ledger.clears() if c[0] == device_id and c[4] == "ok"]
+    erased = [c[1] for c in ledger.clears(device_id, device_type) if c[4] == "ok"]
     return max([session_now] + erased)
 
 
 def clear_verified(client, ledger, device_id: int, session_id: int, data_file, wait_volume,
-                   *, device_type: Optional[str] = None, erase: str = "quick") -> int:
-    """Erase the device if (and only if) the rule holds; returns the clear's ledger id."""
+                   *, device_type: Optional[str] = None, erase: str = "quick",
+                   reread: Optional[Callable] = None) -> int:
+    """Erase the device if (and only if) the rule holds; returns the clear's ledger id.
+    ``reread``: how the device is re-read (``check_bytes``)."""
     if erase not in C.AX_ERASE_COMMANDS:
         raise ClearRefused(device_id, f"not cleared: erase must be one of "
                                       f"{', '.join(C.AX_ERASE_COMMANDS)}, not {erase!r}")
@@ -153,9 +146,9 @@ def clear_verified(client, ledger, device_id: int, session_id: int, data_file, w
     if not header_names_device(h, device_id, kind) or h["session_id"] != session_id:
         raise ClearRefused(device_id, f"not cleared: the data file is of device "
                                       f"{header_device_text(h)} session {h['session_id']}")
-    check_bytes(device_id, rec, path)
+    check_bytes(device_id, rec, path, reread)
     clear_id = ledger.clear_attempt(device_id, session_id, rec.id, rec.sha256,
-                                    erase=C.AX_ERASE_COMMANDS[erase])
+                                    erase=C.AX_ERASE_COMMANDS[erase], device_type=kind)
     readback = None
     try:
         set_never_log(client)

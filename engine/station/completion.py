@@ -12,8 +12,8 @@ never replaced; ``<stem>.unverified.mcap`` -> ``<stem>.mcap``), fsyncs the folde
 * a ``downloading`` row (no download runs while the folder's station lock is free): ``error``;
   its partial copy resumes when the device comes back.
 
-``resolve_sent_clear(ledger, device_id, data_file)`` settles a clear left at ``sent`` by looking
-at the device: a data file holding only a header means the clear was done (``ok``); a data file
+``resolve_sent_clear(ledger, device_id, data_file, device_type=...)`` settles a clear of this
+device type and id left at ``sent`` by looking at the device (re-read as before a clear): a data file holding only a header means the clear was done (``ok``); a data file
 whose SHA-256 is still the verified one means it was not (``error``, "not cleared").
 """
 
@@ -23,7 +23,7 @@ import errno
 import os
 import stat
 from pathlib import Path
-from typing import Optional
+from typing import Callable, Optional
 
 from stillpoint.drivers import constants as C
 from stillpoint.drivers.byteio import sha256_file
@@ -117,7 +117,7 @@ def reconcile(ledger) -> list[str]:
             lines.append(f"download {rec.id} ({final.name}): {why}")
             continue
         ledger.download_verified(rec.id, bytes_=rec.bytes, sha256=rec.sha256,
-                                 bad_sectors=_bad_sectors_of(ledger, rec.id),
+                                 bad_sectors=rec.bad_sectors or 0,
                                  cwa_path=str(final), mcap_path=rec.mcap_path,
                                  reason="completed after a restart")
         lines.append(f"download {rec.id} ({final.name}): completed after a restart")
@@ -128,22 +128,21 @@ def reconcile(ledger) -> list[str]:
     return lines
 
 
-def _bad_sectors_of(ledger, download_id: int) -> int:
-    rows = ledger._q("SELECT bad_sectors FROM downloads WHERE id=?", (download_id,))
-    return int(rows[0][0] or 0) if rows else 0
-
-
-def resolve_sent_clear(ledger, device_id: int, data_file) -> list[str]:
+def resolve_sent_clear(ledger, device_id: int, data_file, *, device_type: Optional[str] = None,
+                       reread: Optional[Callable] = None) -> list[str]:
     """Settle this device's clears left at ``sent`` by looking at its data file (module
-    docstring); returns one line per clear settled."""
+    docstring); returns one line per clear settled. ``reread(data_file) -> (bytes, SHA-256)``:
+    as for a clear (``clearing.check_bytes``)."""
+    from .clearing import default_reread
+    reread = reread or default_reread
     lines = []
-    for clear_id, session, _download_id, sha in ledger.sent_clears(device_id):
+    for clear_id, session, _download_id, sha in ledger.sent_clears(device_id, device_type):
         try:
             size = os.stat(data_file).st_size
             if size <= C.AX_EMPTY_DATA_BYTES:
                 result, why = "ok", ("settled after a restart: the device's data file holds only "
                                      "a header (the clear was done)")
-            elif _device_sha256(data_file) == sha:
+            elif reread(data_file)[1] == sha:
                 result, why = "error", ("not cleared: the station stopped before the clear took "
                                         "effect; the verified data is still on the device")
             else:
@@ -157,18 +156,3 @@ def resolve_sent_clear(ledger, device_id: int, data_file) -> list[str]:
         lines.append(f"clear {clear_id} (session {session}): {why}")
     return lines
 
-
-def _device_sha256(data_file) -> str:
-    import hashlib
-    from stillpoint.drivers.ax.volume import open_data_file
-    f = open_data_file(data_file, verify=True)
-    h = hashlib.sha256()
-    try:
-        while True:
-            b = f.read(1 << 20)
-            if not b:
-                break
-            h.update(b)
-    finally:
-        f.close()
-    return h.hexdigest()

@@ -51,9 +51,8 @@ from stillpoint.drivers.ax.volume import open_data_file
 from stillpoint.drivers.outputs import describe_os_error
 
 from . import names
+from .device_read import CHECK_BYTES, CHUNK_BYTES, RangeHashes, ReadCancelled, read_device
 
-CHUNK_BYTES = 1 << 20  # 1 MiB reads (2048 sectors)
-CHECK_BYTES = 64 * 1024  # the verification compares (and re-reads) the file in ranges this long
 REREADS = 2  # more reads of a range whose copy and verification reads differ
 _OPEN_NOFOLLOW = os.O_NOFOLLOW | getattr(os, "O_CLOEXEC", 0)
 
@@ -112,35 +111,6 @@ class DownloadResult:
 
     def to_dict(self) -> dict:
         return asdict(self)
-
-
-class RangeHashes:
-    """One hash per ``unit`` bytes of a stream fed in pieces of any length."""
-
-    def __init__(self, unit: int = CHECK_BYTES):
-        self.unit = unit
-        self.digests: list[bytes] = []
-        self._h = None
-        self._fill = 0
-
-    def update(self, b) -> None:
-        mv = memoryview(b)
-        while len(mv):
-            if self._h is None:
-                self._h, self._fill = hashlib.blake2b(digest_size=16), 0
-            k = min(self.unit - self._fill, len(mv))
-            self._h.update(mv[:k])
-            self._fill += k
-            mv = mv[k:]
-            if self._fill == self.unit:
-                self.digests.append(self._h.digest())
-                self._h = None
-
-    def finish(self) -> list[bytes]:
-        if self._h is not None:
-            self.digests.append(self._h.digest())
-            self._h = None
-        return self.digests
 
 
 def _range_hash(b: bytes) -> bytes:
@@ -540,28 +510,14 @@ def run_download(job: DownloadJob, progress: Optional[Callable[[str, int, int], 
                 pipe.thread.start()
             pipe.done.set()
         # ---------------------------------------------------------------- 4. verification read
-        progress("verify", 0, size0)
-        ver = open_data_file(data, verify=True, faults=job.faults, control=job.control)
         t_ver = time.monotonic()
-        vranges = RangeHashes()
         try:
-            got = 0
-            while True:
-                if job.throttle_bps:  # the second read comes from the device too
-                    lag = got / job.throttle_bps - (time.monotonic() - t_ver)
-                    if lag > 0:
-                        time.sleep(lag)
-                if cancel.is_set():
-                    raise DownloadAborted("cancelled")
-                b = ver.read(job.chunk_bytes)
-                if not b:
-                    break
-                vranges.update(b)
-                got += len(b)
-                progress("verify", got, size0)
-        finally:
-            ver.close()
-        ver_d = vranges.finish()
+            ver = read_device(data, faults=job.faults, control=job.control, chunk=job.chunk_bytes,
+                              ranges=True, phase="verify", progress=progress, cancel=cancel,
+                              throttle_bps=job.throttle_bps)
+        except ReadCancelled:
+            raise DownloadAborted("cancelled") from None
+        got, ver_d = ver.bytes, ver.ranges
         if got != size0:
             raise DownloadAborted(f"verification failed: the second read of {data} gave {got} "
                                   f"bytes, the copy has {size0}; the copy is kept as {part.name}")

@@ -30,6 +30,7 @@ from .clearing import clear_verified, session_before_clear
 from .configure import clock_offset_s, configure_device
 from . import names
 from .completion import CompletionError, complete, resolve_sent_clear
+from .device_read import device_sha256
 from .download import DownloadJob
 from .ledger import Ledger, host_timezone, kill_point, station_id
 from .profile import StudyProfile
@@ -109,6 +110,12 @@ class DeviceFlow:
         if self.worker is not None and not self.worker.finished:
             self.worker.cancel()
 
+    def reread(self, data_file) -> tuple[int, str]:
+        """(bytes, SHA-256) of the device's data file, re-read past the page cache in a worker
+        with the download's stall bound (a hung read ends in ``ReadStalled``, an ``OSError``)."""
+        return device_sha256(data_file, faults=tuple(self.att.faults), control=self.att.control,
+                             stall_s=self.opts.stall_s, inline=self.opts.inline)
+
     # ------------------------------------------------------------------ finding the drive again
     def _find(self) -> Optional[Attached]:
         for a in discover(self.backend):
@@ -179,7 +186,8 @@ class DeviceFlow:
         self.session = session
         self.info = f"fw {ident.firmware}, battery {batt.percent} %, clock {offset:+.1f} s"
         data_file = att.data_file
-        for line in resolve_sent_clear(self.ledger, att.device_id, data_file):
+        for line in resolve_sent_clear(self.ledger, att.device_id, data_file,
+                                       device_type=att.device_type, reread=self.reread):
             self.info += f"; {line}"
         size = os.stat(data_file).st_size
         self.total_bytes = size
@@ -207,7 +215,8 @@ class DeviceFlow:
             # ("already downloaded"): copy, device and ledger must agree before the erase
             self._set("clearing")
             clear_verified(client, self.ledger, att.device_id, session, self.att.data_file,
-                           self.wait_volume, device_type=ident.device_type, erase=opts.erase)
+                           self.wait_volume, device_type=ident.device_type, erase=opts.erase,
+                           reread=self.reread)
             self._set("cleared", self.info)
         if configure and self.state in ("cleared", "empty"):
             self._set("configuring")
@@ -215,7 +224,8 @@ class DeviceFlow:
                 settings, warnings = configure_device(client, opts.profile, data_file=self.att.data_file,
                                                       wait_volume=self.wait_volume,
                                                       session_now=session_before_clear(
-                                                          self.ledger, att.device_id, session))
+                                                          self.ledger, att.device_id, session,
+                                                          att.device_type))
             except DeviceError as e:
                 self.ledger.configured(att.device_id, None, {}, "error", e.reason)
                 raise

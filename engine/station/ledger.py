@@ -73,20 +73,21 @@ CREATE TABLE IF NOT EXISTS events (
 """
 
 
-# Columns the clears table gained after its first release (an older ledger gets them when opened;
-# its rows keep NULL there): the erase level sent and what was read back after the erase.
-_CLEAR_COLUMNS = (("erase", "TEXT"), ("readback", "TEXT"))
+# Columns tables gained after their first release (an older ledger gets them when opened; its
+# rows keep NULL there, and a NULL device type matches any type): the clear's erase level and
+# what was read back after the erase; the device type of downloads and clears (an AX3 and an AX6
+# may share an id).
+_ADDED_COLUMNS = (("clears", "erase", "TEXT"), ("clears", "readback", "TEXT"),
+                  ("clears", "device_type", "TEXT"), ("downloads", "device_type", "TEXT"))
+# a row of the device type asked for, or of a ledger older than the type column
+_OF_TYPE = "(? IS NULL OR device_type IS NULL OR device_type=?)"
 
 
-def _add_clear_columns(db) -> None:
-    have = {r[1] for r in db.execute("PRAGMA table_info(clears)").fetchall()}
-    for name, kind in _CLEAR_COLUMNS:
+def _add_columns(db) -> None:
+    for table, name, kind in _ADDED_COLUMNS:
+        have = {r[1] for r in db.execute(f"PRAGMA table_info({table})").fetchall()}
         if name not in have:
-            db.execute(f"ALTER TABLE clears ADD COLUMN {name} {kind}")
-    # downloads gained the device type (an AX3 and an AX6 may share an id); older rows: NULL
-    have = {r[1] for r in db.execute("PRAGMA table_info(downloads)").fetchall()}
-    if "device_type" not in have:
-        db.execute("ALTER TABLE downloads ADD COLUMN device_type TEXT")
+            db.execute(f"ALTER TABLE {table} ADD COLUMN {name} {kind}")
 
 
 def _refuse_links(folder: Path) -> None:
@@ -112,6 +113,8 @@ class DownloadRecord:
     cwa_path: Optional[str]
     mcap_path: Optional[str]
     reason: Optional[str]
+    device_type: Optional[str] = None  # None: a row older than the type column
+    bad_sectors: Optional[int] = None
 
 
 def station_id() -> str:
@@ -176,7 +179,7 @@ class Ledger:
                               "aside or restore it from a backup (no device is cleared "
                               "without it)")
         try:
-            _add_clear_columns(self.db)
+            _add_columns(self.db)
         except sqlite3.Error as e:
             self.db.close()
             raise LedgerError(f"{self.path}: cannot open the ledger: {e}") from None
@@ -258,10 +261,11 @@ class Ledger:
         kill_point("download:verified")
 
     def clear_attempt(self, device_id: int, session_id: int, download_id: int, sha256: str,
-                      erase: Optional[str] = None) -> int:
+                      erase: Optional[str] = None, device_type: Optional[str] = None) -> int:
         i = self._tx("INSERT INTO clears(device_id, session_id, download_id, sha256, time, result, "
-                     "erase) VALUES (?,?,?,?,?,?,?)", (device_id, session_id, download_id, sha256,
-                                                       time.time(), "sent", erase))
+                     "erase, device_type) VALUES (?,?,?,?,?,?,?,?)",
+                     (device_id, session_id, download_id, sha256, time.time(), "sent", erase,
+                      device_type))
         kill_point("clear:sent")
         return i
 
@@ -280,9 +284,10 @@ class Ledger:
     # ------------------------------------------------------------------ reads
     def _rec(self, row) -> DownloadRecord:
         return DownloadRecord(row[0], row[1], row[2], row[3], row[4], row[5], bool(row[6]),
-                              row[7], row[8], row[9])
+                              row[7], row[8], row[9], row[10], row[11])
 
-    _COLS = "id, device_id, session_id, state, bytes, sha256, verified, cwa_path, mcap_path, reason"
+    _COLS = ("id, device_id, session_id, state, bytes, sha256, verified, cwa_path, mcap_path, "
+             "reason, device_type, bad_sectors")
 
     def verified_download(self, device_id: int, session_id: int,
                           sha256: Optional[str] = None,
@@ -291,8 +296,7 @@ class Ledger:
         if given: rows older than the type column match any type) whose raw copy is still
         where the ledger says."""
         rows = self._q(f"SELECT {self._COLS} FROM downloads WHERE device_id=? AND session_id=? "
-                       "AND verified=1 AND state='verified' AND (? IS NULL OR device_type IS NULL "
-                       "OR device_type=?) ORDER BY id DESC",
+                       f"AND verified=1 AND state='verified' AND {_OF_TYPE} ORDER BY id DESC",
                        (device_id, session_id, device_type, device_type))
         for r in rows:
             rec = self._rec(r)
@@ -317,31 +321,33 @@ class Ledger:
                      device_type: Optional[str] = None) -> Optional[DownloadRecord]:
         """The latest download of this device and session whose data changed between reads."""
         rows = self._q(f"SELECT {self._COLS} FROM downloads WHERE device_id=? AND session_id=? "
-                       "AND state='changed' AND (? IS NULL OR device_type IS NULL OR device_type=?) "
-                       "ORDER BY id DESC LIMIT 1", (device_id, session_id, device_type, device_type))
+                       f"AND state='changed' AND {_OF_TYPE} ORDER BY id DESC LIMIT 1", (device_id, session_id, device_type, device_type))
         return self._rec(rows[0]) if rows else None
 
     def downloads_in(self, state: str) -> list[DownloadRecord]:
         return [self._rec(r) for r in self._q(f"SELECT {self._COLS} FROM downloads WHERE state=? "
                                               "ORDER BY id", (state,))]
 
-    def sent_clears(self, device_id: int) -> list[tuple]:
+    def sent_clears(self, device_id: int, device_type: Optional[str] = None) -> list[tuple]:
         """(clear id, session, download id, SHA-256) of this device's clears left at ``sent``."""
         return self._q("SELECT id, session_id, download_id, sha256 FROM clears WHERE device_id=? "
-                       "AND result='sent' ORDER BY id", (device_id,))
+                       f"AND result='sent' AND {_OF_TYPE} ORDER BY id",
+                       (device_id, device_type, device_type))
 
-    def downloads(self, device_id: Optional[int] = None) -> list[DownloadRecord]:
-        if device_id is None:
-            rows = self._q(f"SELECT {self._COLS} FROM downloads ORDER BY id")
-        else:
-            rows = self._q(f"SELECT {self._COLS} FROM downloads WHERE device_id=? ORDER BY id",
-                           (device_id,))
+    def downloads(self, device_id: Optional[int] = None,
+                  device_type: Optional[str] = None) -> list[DownloadRecord]:
+        """Every download, or this device's (of this type, if given)."""
+        rows = self._q(f"SELECT {self._COLS} FROM downloads WHERE (? IS NULL OR device_id=?) "
+                       f"AND {_OF_TYPE} ORDER BY id", (device_id, device_id, device_type, device_type))
         return [self._rec(r) for r in rows]
 
-    def clears(self) -> list[tuple]:
-        """(device, session, download id, SHA-256, result, reason, erase level, read-back) per clear."""
+    def clears(self, device_id: Optional[int] = None,
+               device_type: Optional[str] = None) -> list[tuple]:
+        """(device, session, download id, SHA-256, result, reason, erase level, read-back) per clear
+        (this device's, of this type, if given)."""
         return self._q("SELECT device_id, session_id, download_id, sha256, result, reason, erase, "
-                       "readback FROM clears ORDER BY id")
+                       f"readback FROM clears WHERE (? IS NULL OR device_id=?) AND {_OF_TYPE} "
+                       "ORDER BY id", (device_id, device_id, device_type, device_type))
 
     def events(self, device_id: Optional[int] = None) -> list[tuple]:
         if device_id is None:

@@ -41,8 +41,10 @@ def device_status(att: Attached, ledger=None) -> dict:
             if row["stop"] == "-1" or (stop is not None and stop > _dt.datetime.now()):
                 state = "has data (recording window still open)"
             if ledger is not None:
-                recs = [r for r in ledger.downloads(att.device_id) if r.session_id == row["session"]]
-                if ledger.verified_download(att.device_id, row["session"]):
+                recs = [r for r in ledger.downloads(att.device_id, att.device_type)
+                        if r.session_id == row["session"]]
+                if ledger.verified_download(att.device_id, row["session"],
+                                            device_type=att.device_type):
                     state = "verified"
                 elif recs and recs[-1].state == "downloading":
                     state = "downloading"

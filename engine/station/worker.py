@@ -1,18 +1,22 @@
-"""One download per worker process, so that a read blocked on a pulled drive (the kernel's SCSI
+"""One device read per worker process, so that a read blocked on a pulled drive (the kernel's SCSI
 timeout can be minutes) never blocks the station: the station only polls the worker's messages
 and cancels it with a bound (``stall_s`` without progress -> terminate, then kill).
 
-``DownloadWorker(job, stall_s=30).start()``, then ``poll()`` regularly: it returns the latest
-(phase, done bytes, total bytes) and, when finished, ``result`` is set (a ``DownloadResult``;
-a stalled or crashed worker gives ``ok=False`` with the reason). ``inline=True`` runs the
-download on a thread of this process instead (tests; no hang protection).
+``Worker(task, job, stall_s=30, name=...).start()`` runs ``task(job, progress, cancel) -> dict``
+(a module-level function: it crosses into a fresh interpreter) and ``poll()`` returns the latest
+(phase, done bytes, total bytes); when finished, ``result`` is set: the task's dict, or, for a
+stalled, crashed or stopped worker, ``{"error": reason}`` (``"stalled": True`` for a stall).
+``inline=True`` runs the task on a thread of this process instead (tests: the stall bound still
+ends the wait, but a hung thread cannot be killed). Two tasks use it: the download
+(``DownloadWorker``: its result is a ``DownloadResult``) and the re-read of a device before a
+clear (``device_read.device_sha256``).
 
 A worker never outlives its station: on Linux it asks the kernel for SIGKILL when its parent
 dies (``prctl(PR_SET_PDEATHSIG)``), and everywhere it watches a pipe whose only writing end the
-station holds: end of file means the station is gone, and the worker ends at once. Either way its
-partial copy stays and resumes; the worker never gives a file its final name (the station does,
-with the ledger: ``completion``). (The kernel's signal follows the thread that started the
-worker; the station's flow thread waits for its worker, so it never ends first.)
+station holds: end of file means the station is gone, and the worker ends at once. Either way a
+download's partial copy stays and resumes; a worker never gives a file its final name (the
+station does, with the ledger: ``completion``). (The kernel's signal follows the thread that
+started the worker; the station's flow thread waits for its worker, so it never ends first.)
 """
 
 from __future__ import annotations
@@ -22,7 +26,7 @@ import queue
 import threading
 import time
 
-from typing import Optional
+from typing import Callable, Optional
 
 from ..mcap.writer import peak_rss_mb as _peak_rss_mb  # VmHWM: starts afresh at exec
 from .download import DownloadJob, DownloadResult, run_download
@@ -54,11 +58,8 @@ def _die_with_parent(parent_pid: int, lifeline) -> None:
     threading.Thread(target=watch, daemon=True, name="lifeline").start()
 
 
-def _main(job: DownloadJob, q, parent_pid: int = 0, lifeline=None) -> None:
-    import signal
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the station decides when a download stops
-    if lifeline is not None:
-        _die_with_parent(parent_pid, lifeline)
+def _progress_sender(q) -> Callable[[str, int, int], None]:
+    """Progress messages at most every 0.2 s (and at the end of each phase)."""
     last = [0.0]
 
     def progress(phase, done, total):
@@ -66,22 +67,39 @@ def _main(job: DownloadJob, q, parent_pid: int = 0, lifeline=None) -> None:
         if now - last[0] >= 0.2 or done == total:
             last[0] = now
             q.put(("progress", phase, done, total))
+    return progress
 
+
+def _run_task(task, job, progress, cancel) -> dict:
     try:
-        res = run_download(job, progress)
-        d = res.to_dict()
+        d = task(job, progress, cancel)
     except BaseException as e:  # noqa: BLE001 - reported, never a traceback on the station
-        d = DownloadResult(ok=False, reason=f"download worker failed: {type(e).__name__}: {e}").to_dict()
+        d = {"error": f"worker failed: {type(e).__name__}: {e}"}
     d["peak_rss_mb"] = _peak_rss_mb()
-    q.put(("result", d))
+    return d
 
 
-class DownloadWorker:
-    def __init__(self, job: DownloadJob, *, stall_s: float = 30.0, inline: bool = False):
+def _main(task, job, q, parent_pid: int = 0, lifeline=None) -> None:
+    import signal
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the station decides when a read stops
+    if lifeline is not None:
+        _die_with_parent(parent_pid, lifeline)
+    q.put(("result", _run_task(task, job, _progress_sender(q), None)))
+
+
+class Worker:
+    """``task(job, progress, cancel)`` in a worker process with the stall bound (module
+    docstring)."""
+
+    def __init__(self, task, job, *, stall_s: float = 30.0, inline: bool = False,
+                 what: str = "read", name: Optional[str] = None):
+        self.task = task
         self.job = job
         self.stall_s = stall_s
         self.inline = inline
-        self.result: Optional[DownloadResult] = None
+        self.what = what  # in messages: "the <what> worker ended unexpectedly"
+        self.name = name or what  # the process or thread: stillpoint-<name>
+        self.result = None
         self.peak_rss_mb: Optional[float] = None
         self.phase, self.done, self.total = "starting", 0, 0
         self._last_progress = time.monotonic()
@@ -92,20 +110,21 @@ class DownloadWorker:
         self._lifeline = None  # the writing end of the pipe the worker watches
         self.started_at = time.monotonic()
 
-    def start(self) -> "DownloadWorker":
+    def start(self):
         self._last_progress = time.monotonic()
         if self.inline:
             def run():
-                r = run_download(self.job, lambda p, d, t: self._q.put(("progress", p, d, t)),
-                                 self._cancel)
-                self._q.put(("result", dict(r.to_dict(), peak_rss_mb=_peak_rss_mb())))
-            self._thread = threading.Thread(target=run, daemon=True, name=f"download-{self.job.stem}")
+                self._q.put(("result", _run_task(self.task, self.job,
+                                                 lambda p, d, t: self._q.put(("progress", p, d, t)),
+                                                 self._cancel)))
+            self._thread = threading.Thread(target=run, daemon=True, name=f"stillpoint-{self.name}")
             self._thread.start()
         else:
             import os
             reader, self._lifeline = _CTX.Pipe(duplex=False)
-            self._proc = _CTX.Process(target=_main, args=(self.job, self._q, os.getpid(), reader),
-                                      daemon=True, name=f"stillpoint-download-{self.job.stem}")
+            self._proc = _CTX.Process(target=_main, args=(self.task, self.job, self._q, os.getpid(),
+                                                          reader),
+                                      daemon=True, name=f"stillpoint-{self.name}")
             self._proc.start()
             reader.close()  # only the worker holds the reading end
         return self
@@ -113,6 +132,13 @@ class DownloadWorker:
     @property
     def finished(self) -> bool:
         return self.result is not None
+
+    # what a failed worker's result is, and what its reason adds (subclasses: the download's)
+    def _result(self, d: dict):
+        return d
+
+    def _failure(self, reason: str, stalled: bool = False):
+        return {"error": reason + "; the read was stopped", "stalled": stalled}
 
     def poll(self, timeout: float = 0.0) -> tuple:
         end = time.monotonic() + timeout
@@ -132,31 +158,30 @@ class DownloadWorker:
             elif msg[0] == "result":
                 d = dict(msg[1])
                 self.peak_rss_mb = d.pop("peak_rss_mb", None)
-                self.result = DownloadResult(**d)
+                self.result = self._result(d)
                 self._reap()
         if self.result is None:
             if self._cancel.is_set():
-                self.result = DownloadResult(ok=False, reason="stopped by the user; the partial copy "
-                                             "is kept and resumes next time", bytes=self.done)
+                self.result = self._stopped()
             elif time.monotonic() - self._last_progress > self.stall_s:
                 self._fail(f"reading the device stalled: no progress for {self.stall_s:g} s "
-                           f"({self.phase} at {self.done} of {self.total} bytes); the download "
-                           "was stopped and the partial copy is kept")
+                           f"({self.phase} at {self.done} of {self.total} bytes)", stalled=True)
             elif self._proc is not None and not self._proc.is_alive() and self._q.empty():
                 time.sleep(0.1)
                 if self._q.empty():
-                    self._fail(f"the download worker ended unexpectedly (exit code "
-                               f"{self._proc.exitcode}); the partial copy is kept")
+                    self._fail(f"the {self.what} worker ended unexpectedly (exit code "
+                               f"{self._proc.exitcode})")
         return self.phase, self.done, self.total
 
-    def _fail(self, reason: str) -> None:
-        from . import names
+    def _stopped(self):
+        return {"error": "stopped by the user"}
+
+    def _fail(self, reason: str, stalled: bool = False) -> None:
         self.cancel()
-        self.result = DownloadResult(ok=False, reason=reason, bytes=self.done,
-                                     cwa_part=str(names.raw_part(self.job.out_dir, self.job.stem)))
+        self.result = self._failure(reason, stalled)
 
     def cancel(self, grace_s: float = 2.0) -> None:
-        """Stop the download within ``grace_s`` (+ a kill)."""
+        """Stop the worker within ``grace_s`` (+ a kill)."""
         self._cancel.set()
         if self._proc is not None and self._proc.is_alive():
             self._proc.terminate()
@@ -175,7 +200,39 @@ class DownloadWorker:
             self._lifeline.close()
             self._lifeline = None
 
-    def wait(self, poll_s: float = 0.1) -> DownloadResult:
+    def wait(self, poll_s: float = 0.1):
         while self.result is None:
             self.poll(poll_s)
         return self.result
+
+
+def download_task(job: DownloadJob, progress, cancel=None) -> dict:
+    """``run_download`` as a worker task (its ``DownloadResult`` as a dict)."""
+    try:
+        return run_download(job, progress, cancel).to_dict()
+    except BaseException as e:  # noqa: BLE001 - reported, never a traceback on the station
+        return DownloadResult(ok=False, reason=f"download worker failed: {type(e).__name__}: "
+                                               f"{e}").to_dict()
+
+
+class DownloadWorker(Worker):
+    """One download (``run_download``) in a worker; ``result`` is its ``DownloadResult``."""
+
+    def __init__(self, job: DownloadJob, *, stall_s: float = 30.0, inline: bool = False):
+        super().__init__(download_task, job, stall_s=stall_s, inline=inline, what="download",
+                         name=f"download-{job.stem}")
+
+    def _result(self, d: dict) -> DownloadResult:
+        return DownloadResult(**d)
+
+    def _stopped(self) -> DownloadResult:
+        return DownloadResult(ok=False, reason="stopped by the user; the partial copy is kept and "
+                              "resumes next time", bytes=self.done)
+
+    def _failure(self, reason: str, stalled: bool = False) -> DownloadResult:
+        from . import names
+        if stalled:
+            reason += "; the download was stopped"
+        return DownloadResult(ok=False, reason=reason + "; the partial copy is kept",
+                              bytes=self.done,
+                              cwa_part=str(names.raw_part(self.job.out_dir, self.job.stem)))

@@ -124,7 +124,8 @@ def run(args) -> int:
                 from stillpoint.engine.station.ledger import Ledger
                 ledger = Ledger(args.output)
                 from stillpoint.engine.station.clearing import session_before_clear
-                session_now = session_before_clear(ledger, att.device_id, session_now)
+                session_now = session_before_clear(ledger, att.device_id, session_now,
+                                                   att.device_type)
             flow_wait = _volume_waiter(att)
             settings, warnings = cfg.configure_device(client, prof, data_file=att.data_file,
                                                       wait_volume=flow_wait, session_now=session_now)
@@ -178,7 +179,7 @@ def _with_ledger(args, att) -> int:
                  + (f" -> {r.cwa_path}, {r.mcap_path}" if r is not None else ""))
             return 0
         if args.action == "verify":
-            return _verify(att, ledger)
+            return _verify(att, ledger, DeviceFlow(att, StationOptions(str(out)), ledger).reread)
         if args.action == "clear":
             from stillpoint.drivers.ax.protocol import AxClient
             from stillpoint.engine.station.clearing import clear_verified
@@ -187,7 +188,7 @@ def _with_ledger(args, att) -> int:
                 client.stream_stop()
                 session = client.session()
                 clear_verified(client, ledger, att.device_id, session, att.data_file, flow.wait_volume,
-                               device_type=att.device_type, erase=args.erase)
+                               device_type=att.device_type, erase=args.erase, reread=flow.reread)
             _say(f"device {att.device_id}: cleared by {C.AX_ERASE_COMMANDS[args.erase]}; it will not "
                  f"record until configured (session {session}: device, raw copy and {ledger.path} "
                  "held the same bytes)")
@@ -215,10 +216,11 @@ def _progress_printer():
     return show
 
 
-def _verify(att, ledger) -> int:
-    """Device, raw copy and ledger: the three must hold the same bytes (size and SHA-256)."""
+def _verify(att, ledger, reread) -> int:
+    """Device, raw copy and ledger: the three must hold the same bytes (size and SHA-256).
+    ``reread``: the device re-read as before a clear (a worker with the stall bound)."""
     from stillpoint.drivers.ax.protocol import AxClient
-    from stillpoint.engine.station.clearing import copy_sha256, device_sha256
+    from stillpoint.engine.station.clearing import copy_sha256
     with AxClient.open(att.port, str(att.device_id)) as client:
         client.stream_stop()
         session = client.session()
@@ -232,7 +234,7 @@ def _verify(att, ledger) -> int:
         raise _Err(f"device {att.device_id}: cannot read the raw copy {rec.cwa_path}: "
                    f"{e.strerror or e}") from None
     try:
-        n, sha = device_sha256(att.data_file)
+        n, sha = reread(att.data_file)
     except OSError as e:
         raise _Err(f"device {att.device_id}: cannot read the data file {att.data_file}: "
                    f"{e.strerror or e}") from None

@@ -106,3 +106,44 @@ def test_inbox_flags_an_incomplete_file(tmp_path):
     _settle(ib)
     assert ib.errors and "incomplete" in ib.errors[0]
     assert lg.downloads()[0].verified is False
+
+
+_KILLED_INGEST = """
+import sys
+from pathlib import Path
+from stillpoint.engine.station.inbox import Inbox
+from stillpoint.engine.station.ledger import Ledger
+inbox, out = Path(sys.argv[1]), Path(sys.argv[2])
+Inbox(inbox, out, stable_s=0.0, ledger=Ledger(out)).ingest(inbox / "p01.bin")
+"""
+
+
+@pytest.mark.parametrize("step", ["download:completing", "completion:raw-renamed"])
+def test_a_station_killed_while_the_inbox_completes_is_reconciled(tmp_path, step):
+    """The inbox completes through the ledger like a download: a kill between the ledger's
+    'completing' and its 'verified' leaves a row the next start completes (both outputs under
+    their final names, the row verified); the file is then not ingested again."""
+    import hashlib
+    import os
+    import subprocess
+    import sys
+
+    from stillpoint.engine.sim.record import simulate_recording
+    from stillpoint.engine.station.completion import reconcile
+    inbox, out = tmp_path / "inbox", tmp_path / "out"
+    inbox.mkdir()
+    out.mkdir()
+    simulate_recording(inbox / "p01.bin", device="geneactiv", days=0.01, truth_path=False)
+    r = subprocess.run([sys.executable, "-c", _KILLED_INGEST, str(inbox), str(out)], timeout=300,
+                       env=dict(os.environ, STILLPOINT_KILL_AT=step), capture_output=True)
+    assert r.returncode == -9, r.stderr.decode()[-500:]
+    lg = Ledger(out)
+    assert [x.state for x in lg.downloads()] == ["completing"]
+    assert "completed after a restart" in reconcile(lg)[0]
+    rec = lg.downloads()[0]
+    assert rec.verified and rec.device_type == "GENEActiv"
+    raw = (inbox / "p01.bin").read_bytes()
+    assert open(rec.cwa_path, "rb").read() == raw and rec.sha256 == hashlib.sha256(raw).hexdigest()
+    assert os.path.exists(rec.mcap_path)
+    assert sorted(p.name for p in out.iterdir() if ".part" in p.name or "unverified" in p.name) == []
+    assert "already ingested" in Inbox(inbox, out, stable_s=0.0, ledger=lg).ingest(inbox / "p01.bin")

@@ -3,15 +3,19 @@
 GENEActiv devices have no public USB protocol (usb-protocols.md Part B), so the station never
 talks to them: the vendor software extracts ``.bin`` files into a folder, and ``.cwa`` files can
 be dropped there too. ``Inbox(folder, out_dir)`` ingests each file once its size and mtime have
-been stable for ``stable_s``: a raw copy ``<out>/<type>-<device>_<stem>.<ext>`` with its SHA-256
-(written through ``.part``, fsynced, renamed), the online pipeline's MCAP beside it, and a ledger
-download record. ``<type>`` (GENEActiv, AX3, AX6: a GENEActiv serial can equal an AX id),
-``<device>`` (the header's free-text serial) and ``<stem>`` pass through
-``drivers.names.safe_name_part``: a serial such as ``../x`` or ``/tmp/x`` names a file inside
-``<out>``, never a path. Completeness is checked from the reader's QC: a page count that
-disagrees with the header, sequence gaps, a last page cut inside its data line make the record
-``error`` (the outputs are kept, not marked verified). Each file is ingested once (its SHA-256
-is remembered in the ledger).
+been stable for ``stable_s``, under the name ``<type>-<device>_<stem>`` (``<type>``: GENEActiv,
+AX3, AX6, since a GENEActiv serial can equal an AX id; ``<device>``: the header's free-text
+serial; ``<stem>``: the file's; each part through ``drivers.names.safe_name_part``, so a serial
+such as ``../x`` or ``/tmp/x`` names a file inside ``<out>``, never a path): the raw copy with
+its SHA-256, written to ``<name>.<ext>.part`` and fsynced, and the online pipeline's log
+``<name>.unverified.mcap``. The ledger then completes them as it completes a download
+(``completion.complete``: row ``completing``, the renames to ``<name>.<ext>`` and
+``<name>.mcap``, row ``verified``), so a station killed in between leaves what
+``completion.reconcile`` resolves at the next start, never an output without its ledger row.
+Completeness is checked from the reader's QC: a page count that disagrees with the header,
+sequence gaps, a last page cut inside its data line make the record ``error`` (the outputs are
+kept under their names, not verified). Each file is ingested once (its SHA-256 is remembered in
+the ledger).
 """
 
 from __future__ import annotations
@@ -26,6 +30,8 @@ from typing import Optional
 from stillpoint.drivers.byteio import sha256_file
 from stillpoint.drivers.names import safe_child, safe_name_part
 from stillpoint.drivers.outputs import AtomicOutput, describe_os_error, fsync_folder
+
+from .completion import complete, part_of, place_log, place_raw, unverified_log_of
 
 INCOMPLETE = ("page_count_mismatch", "sequence_gap", "truncated_page", "truncated",
               "restart")
@@ -116,9 +122,10 @@ class Inbox:
         dev_id = int(dev) if dev.isascii() and dev.isdigit() and len(dev) <= 18 else -1
         if self.ledger is not None:
             dl = self.ledger.download_started(dev_id, int(session), cwa_path=str(raw_out),
-                                              mcap_path=str(mcap_out))
+                                              mcap_path=str(mcap_out), device_type=info.device_type)
+        ao = None
         try:
-            ao = AtomicOutput(raw_out, what="raw copy")
+            ao = AtomicOutput(raw_out, what="raw copy")  # <name>.part: links and leftovers handled
             h = hashlib.sha256()
             n = 0
             try:
@@ -130,29 +137,36 @@ class Inbox:
                         ao.file.write(b)
                         h.update(b)
                         n += len(b)
+                ao.file.flush()
+                os.fsync(ao.fd)
             except OSError as e:
-                ao.abandon()
                 raise OSError(e.errno, f"copying {p}: {describe_os_error(e)}") from None
-            summary = process_file(p, mcap_out.with_name(mcap_out.name + ".part"), RunSettings(mode="online"),
-                                   metadata={"station": {"inbox_file": str(p), "sha256": h.hexdigest()}})
-            ao.commit()
-            os.replace(mcap_out.with_name(mcap_out.name + ".part"), mcap_out)
-            fsync_folder(self.out)
+            sha = h.hexdigest()
+            log = unverified_log_of(mcap_out)
+            summary = process_file(p, log, RunSettings(mode="online"),
+                                   metadata={"station": {"inbox_file": str(p), "sha256": sha}})
             reasons = (summary.get("qc") or {}).get("reasons", {})
             bad = {k: v for k, v in reasons.items() if k in INCOMPLETE}
+            if self.ledger is not None and not bad:  # the ledger completes it, as a download
+                complete(self.ledger, dl, cwa_path=raw_out, mcap_path=mcap_out, sha256=sha,
+                         bytes_=n, bad_sectors=0,
+                         summary={"calibration": summary.get("calibration")})
+            else:  # outputs kept under their names, not verified
+                place_raw(part_of(raw_out), raw_out, sha)
+                place_log(log, mcap_out)
+                fsync_folder(self.out)
             if bad:
                 why = "incomplete: " + ", ".join(f"{k} x{v}" for k, v in bad.items())
                 if self.ledger is not None:
                     self.ledger.download_failed(dl, why + "; outputs kept", n)
                 self.errors.append(f"{p}: {why}")
                 return f"error: {why} (outputs kept: {raw_out.name}, {mcap_out.name})"
-            if self.ledger is not None:
-                self.ledger.download_verified(dl, bytes_=n, sha256=h.hexdigest(), bad_sectors=0,
-                                              cwa_path=str(raw_out), mcap_path=str(mcap_out),
-                                              summary={"calibration": summary.get("calibration")})
             cal = (summary.get("calibration") or {}).get("status", "-")
             return f"ingested -> {raw_out.name}, {mcap_out.name} (calibration {cal})"
         except BaseException as e:
             if self.ledger is not None and dl is not None:
-                self.ledger.download_failed(dl, str(e))
+                self.ledger.download_failed(dl, str(getattr(e, "reason", None) or e))
             raise
+        finally:
+            if ao is not None:
+                ao.abandon(remove_if_empty=False)  # our handle; the file has its name or stays .part

@@ -1,13 +1,31 @@
 """Fixtures for the station tests: emulated devices in this process (axemu:// ports), each test
-with its own runtime registry, short simulated recordings."""
+with its own runtime registry, short simulated recordings; the study profile the station tests
+configure with (the kill trials' own); waiting for an emulated drive to come back."""
 
 from __future__ import annotations
+
+import time
 
 import pytest
 
 from stillpoint.drivers.ax.emulator import EmulatedDevice
+from stillpoint.drivers.ax.errors import DeviceError
+from stillpoint.tools.kill_station import PROFILE as STUDY_PROFILE  # noqa: F401 - for the tests
 
 DAYS = 0.01  # ~15 min at 100 Hz: 0.37 MB per AX3
+
+
+def wait_for(d, timeout_s: float = 10.0):
+    """The emulated drive's data file once the drive is back (after COMMIT/FORMAT), as a flow's
+    ``wait_volume``."""
+    def w():
+        end = time.monotonic() + timeout_s
+        while not d.data_file.exists():
+            if time.monotonic() > end:
+                raise DeviceError(d.device_id, "the drive did not come back")
+            time.sleep(0.02)
+        return str(d.data_file)
+    return w
 
 
 @pytest.fixture

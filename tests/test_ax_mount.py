@@ -15,17 +15,7 @@ from stillpoint.engine.station.flow import DeviceFlow, StationOptions
 from stillpoint.engine.station.profile import load_profile
 from stillpoint.engine.station.station import Station
 
-from station_fixtures import emu, runtime  # noqa: F401
-
-PROFILE = """
-[device]
-rate_hz = 50
-range_g = 4
-start = "+2h"
-stop = "+7d"
-session = "increment"
-min_battery_pct = 10
-"""
+from station_fixtures import STUDY_PROFILE as PROFILE, emu, runtime  # noqa: F401
 
 
 class Runner:

@@ -8,12 +8,10 @@ import hashlib
 import io
 import shutil
 import sqlite3
-import time
 
 import pytest
 
 from stillpoint.drivers.ax.discovery import EmulatedBackend
-from stillpoint.drivers.ax.errors import DeviceError
 from stillpoint.drivers.ax.protocol import AxClient
 from stillpoint.drivers.cwa_layout import parse_header
 from stillpoint.engine.station.clearing import ClearRefused, clear_verified, says_never_record
@@ -22,7 +20,7 @@ from stillpoint.engine.station.ledger import Ledger
 from stillpoint.engine.station.profile import load_profile
 from stillpoint.engine.station.station import Station
 
-from station_fixtures import emu, runtime  # noqa: F401
+from station_fixtures import emu, runtime, wait_for  # noqa: F401
 
 
 def _sha(path) -> str:
@@ -45,18 +43,6 @@ def verified_copy(d, out, lg):
 def _ledger(tmp_path) -> Ledger:
     (tmp_path / "out").mkdir(exist_ok=True)
     return Ledger(tmp_path / "out")
-
-
-def wait_for(d, timeout_s: float = 10.0):
-    """The emulated drive's data file once the drive is back (as the flow's wait_volume)."""
-    def w():
-        end = time.monotonic() + timeout_s
-        while not d.data_file.exists():
-            if time.monotonic() > end:
-                raise DeviceError(d.device_id, "the drive did not come back")
-            time.sleep(0.02)
-        return str(d.data_file)
-    return w
 
 
 def _header(d) -> dict:

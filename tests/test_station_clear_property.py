@@ -7,7 +7,6 @@ from __future__ import annotations
 import hashlib
 import shutil
 import tempfile
-import time
 from pathlib import Path
 
 import pytest
@@ -15,12 +14,11 @@ from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from stillpoint.drivers.ax.emulator import EmulatedDevice
-from stillpoint.drivers.ax.errors import DeviceError
 from stillpoint.drivers.ax.protocol import AxClient
 from stillpoint.engine.station.clearing import ClearRefused, clear_verified
 from stillpoint.engine.station.ledger import Ledger
 
-from station_fixtures import runtime  # noqa: F401
+from station_fixtures import runtime, wait_for  # noqa: F401
 
 DEVICE = 4321
 
@@ -46,17 +44,6 @@ def _flip(path: Path, at: int) -> None:
         b = f.read(1)
         f.seek(at)
         f.write(bytes([b[0] ^ 0x10]))
-
-
-def _wait(d):
-    def w():
-        end = time.monotonic() + 10
-        while not d.data_file.exists():
-            if time.monotonic() > end:
-                raise DeviceError(d.device_id, "the drive did not come back")
-            time.sleep(0.02)
-        return str(d.data_file)
-    return w
 
 
 COPY = ("none", "truncate", "flip", "delete", "append")
@@ -110,7 +97,7 @@ def test_nothing_is_erased_that_is_not_in_a_verified_copy(runtime, recording, co
             lg.db.execute(f"UPDATE downloads SET {col} = ? WHERE id = ?", (val, dl))
         try:
             with AxClient.open(f"axemu://{d.serial}") as c:
-                clear_verified(c, lg, DEVICE, 1, d.data_file, _wait(d))
+                clear_verified(c, lg, DEVICE, 1, d.data_file, wait_for(d))
             erased = True
         except ClearRefused:
             erased = False

@@ -12,19 +12,9 @@ import time
 
 from stillpoint.tools.cli import main
 
-from station_fixtures import emu, runtime  # noqa: F401
+from station_fixtures import STUDY_PROFILE, emu, runtime  # noqa: F401
 
-PROFILE = """
-[device]
-rate_hz = 50
-range_g = 4
-start = "+2h"
-stop = "+7d"
-session = "increment"
-min_battery_pct = 10
-[metadata]
-study = "trial"
-"""
+PROFILE = STUDY_PROFILE + '[metadata]\nstudy = "trial"\n'
 
 
 def test_devices_json(emu, capsys):

@@ -8,13 +8,12 @@ import sqlite3
 
 import pytest
 
-from stillpoint.drivers.ax.errors import DeviceError
 from stillpoint.drivers.ax.protocol import AxClient
 from stillpoint.engine.station.clearing import ClearRefused, clear_verified
 from stillpoint.engine.station.download import DownloadJob, run_download
 from stillpoint.engine.station.ledger import Ledger, LedgerError, acquire_station_lock
 
-from station_fixtures import emu, runtime  # noqa: F401
+from station_fixtures import emu, runtime, wait_for  # noqa: F401
 
 
 def test_wal_and_reopen(tmp_path):
@@ -93,24 +92,12 @@ def _verified(d, out, lg):
     return r
 
 
-def _wait(d):
-    def w(timeout_s=5.0):
-        import time
-        end = time.monotonic() + timeout_s
-        while not d.data_file.exists():  # the drive comes back after COMMIT/FORMAT
-            if time.monotonic() > end:
-                raise DeviceError(d.device_id, "the drive did not come back")
-            time.sleep(0.02)
-        return str(d.data_file)
-    return w
-
-
 def test_clear_refused_without_verified_download(emu, tmp_path):
     d = emu(12345)
     lg = Ledger(tmp_path)
     with AxClient.open(f"axemu://{d.serial}") as c:
         with pytest.raises(ClearRefused, match="no verified download"):
-            clear_verified(c, lg, 12345, 1, d.data_file, _wait(d))
+            clear_verified(c, lg, 12345, 1, d.data_file, wait_for(d))
     assert d.clears == [] and lg.clears() == []
 
 
@@ -119,7 +106,7 @@ def test_clear_after_verification_and_readback(emu, tmp_path):
     lg = Ledger(tmp_path)
     r = _verified(d, tmp_path, lg)
     with AxClient.open(f"axemu://{d.serial}") as c:
-        clear_verified(c, lg, 12345, 1, d.data_file, _wait(d))
+        clear_verified(c, lg, 12345, 1, d.data_file, wait_for(d))
     assert d.clears == [(12345, 1, r.sha256)]
     assert d.data_file.stat().st_size == 1024
     assert lg.clears()[-1][:5] == (12345, 1, 1, r.sha256, "ok")
@@ -133,7 +120,7 @@ def test_clear_refused_when_the_file_grew(emu, tmp_path):
         f.write(b"\0" * 512)
     with AxClient.open(f"axemu://{d.serial}") as c:
         with pytest.raises(ClearRefused, match="is not the verified copy"):
-            clear_verified(c, lg, 12345, 1, d.data_file, _wait(d))
+            clear_verified(c, lg, 12345, 1, d.data_file, wait_for(d))
     assert d.clears == []
 
 
@@ -144,9 +131,9 @@ def test_clear_refused_for_another_session(emu, tmp_path):
     with AxClient.open(f"axemu://{d.serial}") as c:
         c.session(2)
         with pytest.raises(ClearRefused):
-            clear_verified(c, lg, 12345, 2, d.data_file, _wait(d))
+            clear_verified(c, lg, 12345, 2, d.data_file, wait_for(d))
         with pytest.raises(ClearRefused, match="session is now 2"):
-            clear_verified(c, lg, 12345, 1, d.data_file, _wait(d))
+            clear_verified(c, lg, 12345, 1, d.data_file, wait_for(d))
     assert d.clears == []
 
 

@@ -5,9 +5,9 @@ copy on disk holding exactly that content)."""
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import io
-import os
 import tempfile
 import threading
 import time
@@ -18,6 +18,7 @@ from hypothesis import strategies as st
 
 from stillpoint.drivers.ax.discovery import EmulatedBackend
 from stillpoint.drivers.ax.emulator import FAULTS, EmulatedDevice
+from stillpoint.drivers.ax.registry import using_runtime_dir
 from stillpoint.engine.station.flow import StationOptions
 from stillpoint.engine.station.ledger import Ledger
 from stillpoint.engine.station.station import Station
@@ -45,8 +46,8 @@ def _station(out):
 def test_no_clear_without_matching_verified_record(steps):
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        old = os.environ.get("STILLPOINT_RUNTIME_DIR")
-        os.environ["STILLPOINT_RUNTIME_DIR"] = str(tmp / "runtime")
+        in_runtime = contextlib.ExitStack()
+        in_runtime.enter_context(using_runtime_dir(tmp / "runtime"))
         out = tmp / "out"
         out.mkdir()
         devs = [EmulatedDevice(tmp / f"d{i}", 10001 + i, days=0.005, remount_s=0.05, replug_s=0.2,
@@ -93,7 +94,4 @@ def test_no_clear_without_matching_verified_record(steps):
         finally:
             for d in devs:
                 d.shutdown()
-            if old is None:
-                os.environ.pop("STILLPOINT_RUNTIME_DIR", None)
-            else:
-                os.environ["STILLPOINT_RUNTIME_DIR"] = old
+            in_runtime.close()

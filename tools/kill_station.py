@@ -21,6 +21,7 @@ and ``--configure-after``), so it kills itself at that step. Counted:
 from __future__ import annotations
 
 import argparse
+import contextlib
 import hashlib
 import os
 import random
@@ -96,6 +97,7 @@ def trial(work: Path, *, kill_at: str | None = None, delay_s: float | None = Non
     the station also configures each cleared device from a study profile, and a device not
     configured after the restart counts as stranded too."""
     from stillpoint.drivers.ax.emulator import EmulatedDevice
+    from stillpoint.drivers.ax.registry import using_runtime_dir
     work.mkdir(parents=True, exist_ok=True)
     runtime, out = work / "runtime", work / "out"
     out.mkdir()
@@ -105,8 +107,8 @@ def trial(work: Path, *, kill_at: str | None = None, delay_s: float | None = Non
         profile.write_text(PROFILE)
     env = dict(os.environ, STILLPOINT_RUNTIME_DIR=str(runtime))
     env.pop("STILLPOINT_KILL_AT", None)
-    old_rt = os.environ.get("STILLPOINT_RUNTIME_DIR")
-    os.environ["STILLPOINT_RUNTIME_DIR"] = str(runtime)
+    in_runtime = contextlib.ExitStack()
+    in_runtime.enter_context(using_runtime_dir(runtime))
     devs = []
     res = {"kill_at": kill_at, "delay_s": delay_s, "pid_only": pid_only}
     try:
@@ -178,10 +180,7 @@ def trial(work: Path, *, kill_at: str | None = None, delay_s: float | None = Non
     finally:
         for d in devs:
             d.shutdown()
-        if old_rt is None:
-            os.environ.pop("STILLPOINT_RUNTIME_DIR", None)
-        else:
-            os.environ["STILLPOINT_RUNTIME_DIR"] = old_rt
+        in_runtime.close()
     return res
 
 

@@ -609,23 +609,24 @@ class FirmwareShell:
                 self.dev.set_mounted(True)
         self.say("LOCK=0\r\n")
 
-    def _ecc(self, line, at, locked, beyond):  # 1332-1349
-        if at(3) != "\0":
+    def _config_char(self, line, at, locked, value_at: int, name: str, key: int) -> None:
+        """ECC and FRACTIONAL: with text after the command (at ``value_at``) and not locked, the
+        value parsed from line + 4 (both handlers parse from there) is kept as a char and in
+        program memory (``key``); then ``<NAME>=<value>``."""
+        attr = name.lower()
+        if at(value_at) != "\0":
             if locked:
                 self.say("ERROR: Locked.\r\n")
                 return
-            self.ecc = T.as_char(self.atoi(line[4:]))
-            self.dev.config[CONFIG_ECC] = self.ecc & 0xFFFF
-        self.say(f"ECC={self.ecc}\r\n")
+            setattr(self, attr, T.as_char(self.atoi(line[4:])))
+            self.dev.config[key] = getattr(self, attr) & 0xFFFF
+        self.say(f"{name}={getattr(self, attr)}\r\n")
+
+    def _ecc(self, line, at, locked, beyond):  # 1332-1349
+        self._config_char(line, at, locked, 3, "ECC", CONFIG_ECC)
 
     def _fractional(self, line, at, locked, beyond):  # 1350-1367 (parses from line + 4)
-        if at(10) != "\0":
-            if locked:
-                self.say("ERROR: Locked.\r\n")
-                return
-            self.fractional = T.as_char(self.atoi(line[4:]))
-            self.dev.config[CONFIG_FRACTIONAL] = self.fractional & 0xFFFF
-        self.say(f"FRACTIONAL={self.fractional}\r\n")
+        self._config_char(line, at, locked, 10, "FRACTIONAL", CONFIG_FRACTIONAL)
 
     def _reset(self, line, at, locked, beyond):  # 1368-1374: restart 1-2 s later
         self.say("RESET\r\nOK\r\n")

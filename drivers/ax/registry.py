@@ -9,6 +9,7 @@ removes it when unplugged. ``<runtime>`` is
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import tempfile
@@ -23,6 +24,21 @@ def runtime_dir() -> Path:
     if xdg and os.path.isdir(xdg):
         return Path(xdg) / "stillpoint"
     return Path(tempfile.gettempdir()) / f"stillpoint-{os.getuid()}"
+
+
+@contextlib.contextmanager
+def using_runtime_dir(folder):
+    """``$STILLPOINT_RUNTIME_DIR`` is ``folder`` within the block (this process and the ones it
+    starts find the emulated devices registered there), then what it was."""
+    old = os.environ.get("STILLPOINT_RUNTIME_DIR")
+    os.environ["STILLPOINT_RUNTIME_DIR"] = str(folder)
+    try:
+        yield Path(folder)
+    finally:
+        if old is None:
+            os.environ.pop("STILLPOINT_RUNTIME_DIR", None)
+        else:
+            os.environ["STILLPOINT_RUNTIME_DIR"] = old
 
 
 def devices_dir() -> Path:

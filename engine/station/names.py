@@ -24,10 +24,10 @@ pattern                            meaning                                      
 
 from __future__ import annotations
 
-import os
 import re
-import time
 from pathlib import Path
+
+from stillpoint.drivers.outputs import _free_name
 
 RAW = ".cwa"
 LOG = ".mcap"
@@ -61,14 +61,9 @@ def log_unverified(out, stem_: str) -> Path:
 
 
 def set_aside_name(part: Path, when: float | None = None) -> Path:
-    """A free ``<name>.part.<UTC stamp>[-n]`` beside ``part`` (``part`` ends in ``.part``)."""
-    stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime(when))
-    aside = part.with_name(f"{part.name}.{stamp}")
-    n = 1
-    while os.path.lexists(aside):
-        aside = part.with_name(f"{part.name}.{stamp}-{n}")
-        n += 1
-    return aside
+    """A free ``<name>.part.<UTC stamp>[-n]`` beside ``part`` (``part`` ends in ``.part``): the
+    name every writer's set-aside partial file gets (``drivers.outputs``), now by default."""
+    return _free_name(Path(part), when)
 
 
 # every name a download or the ledger leaves in the output folder, with what it is

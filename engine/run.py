@@ -109,6 +109,9 @@ class RunSettings:
     view_hz: float = VIEW_HZ  # /view/accel samples per second (0: no view topic)
     chunk_s: Optional[float] = None  # MCAP chunk span, data time (None: CHUNK_S below)
     timezone: Optional[str] = None  # the device clock's zone (IANA or offset); None: as the reader
+    # a GENEActiv header's zone that ``timezone`` contradicts is refused unless this is set
+    # (engine/timezones.py, check_header_zone); the settings record keeps that it was
+    timezone_override: bool = False
 
     def __post_init__(self):
         if self.mode not in ("batch", "online"):
@@ -166,6 +169,7 @@ def settings_problem(d: dict) -> Optional[str]:
                        "a byte count in (0, 1 GiB]"),
         "view_hz": (lambda v: num(v) and 0 <= v <= 5000, "0 (off) or samples per second up to 5000"),
         "timezone": (lambda v: v is None or (isinstance(v, str) and 0 < len(v) <= 64), "null or a zone name"),
+        "timezone_override": (lambda v: isinstance(v, bool), "true or false"),
     })
     if not isinstance(d, dict):
         return f"not a JSON object ({type(d).__name__})"
@@ -401,13 +405,12 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
     path, out = Path(path), Path(out)
     opts = dict(source_options or {})
     check_output(out)
-    zone = None
-    if s.timezone is not None or tables is not None:
-        from stillpoint.drivers import sniff_format
-        from .timezones import reader_timezone
-        tz, zone = reader_timezone(path, sniff_format(path), s.timezone)
-        if tz is not None and "timezone" not in opts:
-            opts["timezone"] = tz
+    from stillpoint.drivers import sniff_format
+    from .timezones import CLOCK_RECORD, clock_record, reader_timezone
+    # the zone of the times (unknown for a .cwa without one): logged as the ``clock`` record
+    tz, zone = reader_timezone(path, sniff_format(path), s.timezone, s.timezone_override)
+    if tz is not None and "timezone" not in opts:
+        opts["timezone"] = tz
     if tables is not None:
         from stillpoint.drivers.outputs import check_output_path
         check_output_path(tables.epochs_path, what="epoch table")
@@ -472,6 +475,7 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
                         corrected_quantum_g=s.corrected_quantum_g, writer=writer,
                         zstd_level=s.zstd_level, view_hz=s.view_hz, chunk_s=chunk_span(s))
         try:
+            sink.write_metadata(CLOCK_RECORD, clock_record(zone, src.info.timezone_offset_s))
             applied = est.status in APPLIED_STATUSES
             initial = est if applied else CalibrationEstimate.identity(est.reason)
             sink.write_estimate(est, applied, st1.first_ns or 0)
@@ -503,6 +507,7 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
                         corrected_quantum_g=s.corrected_quantum_g, writer=writer,
                         zstd_level=s.zstd_level, view_hz=s.view_hz, chunk_s=chunk_span(s),
                         step_chunks=True)
+        sink.write_metadata(CLOCK_RECORD, clock_record(zone, info.timezone_offset_s))
         window_ns = int(round(s.window_s * 1e9))
         outst = None
 
@@ -565,8 +570,9 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
         sc = summary.get("static_calibration")
         if sc and sc.get("fit_end_ns") is not None:
             sc["gap_hours"] = (int(st.first_ns) - int(sc["fit_end_ns"])) / 3.6e12
-    if zone is not None:
-        summary["timezone"] = zone.label
+    summary["timezone"] = zone.label
+    if s.timezone_override and zone.known:  # a GENEActiv header's zone replaced on request
+        summary["timezone_override"] = True
     for tap in outst.taps:  # the epoch and day tables
         try:
             summary["tables"] = tap.close(final.status)

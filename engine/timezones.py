@@ -19,6 +19,16 @@ How recordings use it:
 
 ``Zone.offsets_s(utc_ns)`` is vectorised: offsets are looked up once per hour of data (and the
 change instant found to the second by bisection), never per sample.
+
+**How outputs label times** (one rule, applied by ``inspect``, ``export``, the MCAP log, the
+tables, the cohort summary and the report through the helpers below): a time is called UTC
+(``...Z``, a ``*_utc`` column, ``timezone_offset_s``) only when the zone is known. Otherwise it
+is the device clock's local time, written without ``Z`` or offset in columns named ``*_local``
+(``time_local``, ``start_local``); a ``*_utc`` column is then empty and the zone is stated as
+``UNKNOWN_LABEL``. ``utc_text``/``local_text`` format one instant; ``time_column`` names a
+per-sample time column; ``clock_record``/``zone_of_log`` write and read the ``clock`` metadata
+record of an MCAP log (a log written before that record existed has none: its times are read
+as before, as UTC shifted by the device record's ``timezone_offset_s``).
 """
 
 from __future__ import annotations
@@ -173,21 +183,34 @@ def fixed_zone(offset_s: int) -> Zone:
     return Zone(f"{sign}{a // 60:02d}:{a % 60:02d}", int(offset_s))
 
 
-def reader_timezone(path, fmt: str, spec) -> tuple[Optional[int], Zone]:
+def reader_timezone(path, fmt: str, spec, override: bool = False) -> tuple[Optional[int], Zone]:
     """What to pass as ``timezone=`` to the reader of ``path`` (None: the reader's default) and
-    the Zone of local time, for a user's zone ``spec`` (None: not given)."""
-    if fmt == "mcap":
-        return None, parse_zone(spec)
+    the Zone of local time, for a user's zone ``spec`` (None: not given). A GENEActiv header's
+    zone that the given one contradicts is a ``ZoneError`` unless ``override``. An MCAP log's
+    zone is the one its ``clock`` record names (``zone_of_log``) unless a zone is given."""
     zone = parse_zone(spec)
+    if fmt == "mcap":
+        if zone.known:
+            return None, zone
+        from stillpoint.drivers import open_recording
+        src = open_recording(path)
+        try:
+            return None, zone_of_log(getattr(src, "metadata", {}), src.info.timezone_offset_s)
+        finally:
+            src.close()
     if fmt == "geneactiv":
         from stillpoint.drivers.geneactiv import read_header
         if not zone.known:
-            info = read_header(path)
-            return None, fixed_zone(info.timezone_offset_s)
+            return None, fixed_zone(read_header(path).timezone_offset_s)
+        try:
+            header_offset = read_header(path).timezone_offset_s
+        except StillpointError:  # an unreadable header zone: the given one stands in for it
+            header_offset = None
+        start = _header_start_s(read_header(path, timezone=0))
+        if header_offset is not None:
+            check_header_zone(path, header_offset, zone, start, override)
         if zone.fixed_s is not None:
             return zone.fixed_s, zone
-        info = read_header(path, timezone=0)
-        start = _header_start_s(info)
         return (zone.device_offset_s(start) if start is not None else zone.offset_at_s(0)), zone
     # .cwa (and anything else with a local clock and no stored zone)
     if not zone.known:
@@ -222,3 +245,80 @@ def _header_start_s(info) -> Optional[float]:
         except ValueError:
             continue
     return None
+
+
+# ---------------------------------------------------------------------------- labels
+CLOCK_RECORD = "clock"  # MCAP metadata record naming the zone of the log's times
+
+
+def zone_from_label(label) -> Zone:
+    """The Zone an output's ``timezone`` text names (``UNKNOWN_LABEL`` or empty: unknown)."""
+    if label is None or str(label).strip() in ("", UNKNOWN_LABEL, "unknown"):
+        return Zone("")
+    return parse_zone(str(label))
+
+
+def _iso_s(t_ns: int, unit: str) -> str:
+    return str(np.datetime64(int(t_ns), "ns").astype(f"datetime64[{unit}]"))
+
+
+def utc_text(t_ns, zone: Zone, unit: str = "s") -> str:
+    """ISO 8601 UTC (``...Z``) of an instant when the zone is known; "" when it is not (the
+    instant is then the device clock, not UTC)."""
+    if t_ns is None or not zone.known:
+        return ""
+    return _iso_s(t_ns, unit) + "Z"
+
+
+def local_text(t_ns, zone: Zone, unit: str = "s") -> str:
+    """Local time of an instant: with the zone's offset in force (``2026-03-29T02:00:00+01:00``)
+    when the zone is known, else the device clock without any offset."""
+    if t_ns is None:
+        return ""
+    if not zone.known:
+        return _iso_s(t_ns, unit)
+    off = int(zone.offsets_s(np.array([int(t_ns)], np.int64))[0])
+    a = abs(off) // 60
+    return _iso_s(int(t_ns) + off * 10**9, unit) + f"{'-' if off < 0 else '+'}{a // 60:02d}:{a % 60:02d}"
+
+
+def time_column(zone: Zone) -> str:
+    """Name of a per-sample time column: ``time`` (UTC) when the zone is known, else
+    ``time_local`` (the device clock)."""
+    return "time" if zone.known else "time_local"
+
+
+def clock_record(zone: Zone, device_offset_s: int) -> dict:
+    """The ``clock`` metadata record of an MCAP log: the zone of its times (``zone``: the IANA
+    name or offset, "" when unknown), ``known`` (``true``/``false``), the label the outputs
+    print and the device clock's offset applied to make the logged times (seconds)."""
+    return {"zone": zone.name, "known": "true" if zone.known else "false", "label": zone.label,
+            "device_offset_s": str(int(device_offset_s))}
+
+
+def zone_of_log(metadata: dict, device_offset_s: int = 0) -> Zone:
+    """The zone of an MCAP log's times from its metadata records (``{name: {key: text}}``).
+    Without a ``clock`` record (a log written before it existed) the times are read as before:
+    UTC shifted by the device record's offset, i.e. a fixed zone of that offset."""
+    rec = (metadata or {}).get(CLOCK_RECORD)
+    if not rec:
+        return fixed_zone(int(device_offset_s or 0))
+    if str(rec.get("known", "")).lower() != "true":
+        return Zone("")
+    try:
+        return parse_zone(rec.get("zone") or None)
+    except ZoneError:
+        return fixed_zone(int(device_offset_s or 0))
+
+
+def check_header_zone(path, header_offset_s: int, zone: Zone, start_s, override: bool) -> None:
+    """A GENEActiv header states its zone; a given zone that puts the recording at another
+    offset is refused unless ``override`` (the run then records that it replaced the header's)."""
+    if override or not zone.known:
+        return
+    offset = zone.device_offset_s(start_s) if start_s is not None else zone.offset_at_s(0)
+    if offset != int(header_offset_s):
+        raise ZoneError(
+            f"{path}: the header's time zone is {fixed_zone(int(header_offset_s)).name} but "
+            f"--timezone {zone.name} puts this recording at {fixed_zone(offset).name}; leave "
+            "--timezone out to keep the header's, or add --timezone-override to replace it")

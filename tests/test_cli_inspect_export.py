@@ -89,9 +89,14 @@ def test_inspect_text_and_header_only(gna, capsys):
 
 
 def test_inspect_timezone_override(gna, capsys):
+    """A zone that contradicts the GENEActiv header's (+02:00) is refused unless overridden."""
     p, t, _ = gna
-    d = inspect_recording(p, timezone="+00:00")
-    assert d["start_ns"] == int(t[0]) + 7200 * 10**9
+    code, out, err = run_cli(["inspect", str(p), "--timezone", "+00:00"], capsys)
+    assert code == 2 and out == "" and err.count("\n") == 1
+    assert str(p) in err and "+02:00" in err and "--timezone-override" in err
+    assert inspect_recording(p, timezone="+02:00")["start_ns"] == int(t[0])  # agrees: fine
+    d = inspect_recording(p, timezone="+00:00", timezone_override=True)
+    assert d["start_ns"] == int(t[0]) + 7200 * 10**9 and d["timezone"] == "+00:00"
 
 
 def test_export_csv_geneactiv(gna, tmp_path, capsys):
@@ -222,7 +227,10 @@ def test_inspect_and_export_cwa(tmp_path, capsys):
     code, _, _ = run_cli(["export", str(p), "-o", str(out)], capsys)
     assert code == 0
     rows = list(csv.reader(out.open()))
-    assert rows[0] == ["time", "x", "y", "z", "gx", "gy", "gz", "temperature", "light", "battery"]
+    # a .cwa without --timezone: the device clock in a time_local column, never "...Z"
+    assert rows[0] == ["time_local", "x", "y", "z", "gx", "gy", "gz", "temperature", "light",
+                       "battery"]
+    assert not rows[1][0].endswith("Z")
     assert len(rows) == 2001
     ref = Block.concat(list(open_recording(p)))
     np.testing.assert_allclose(np.array([[float(v) for v in r[4:7]] for r in rows[1:]]), ref.gyro_dps(),
@@ -246,7 +254,12 @@ def test_inspect_and_export_every_real_file(real_file, tmp_path, name):
         pytest.importorskip("stillpoint.drivers.cwa")
     p = real_file(name)
     d = inspect_recording(p)
-    assert d["samples"] > 0 and d["start"].endswith("Z")
+    assert d["samples"] > 0
+    if name.startswith("geneactiv"):  # the header states the zone: UTC times
+        assert d["start"].endswith("Z") and d["timezone_offset_s"] is not None
+    else:  # a .cwa without --timezone: the device clock, never labelled UTC
+        assert d["start"] is None and d["timezone_offset_s"] is None
+        assert d["start_local"][:19] == str(np.datetime64(d["start_ns"], "ns"))[:19]
     unit = "pages" if name.startswith("geneactiv") else "sectors"
     assert d[unit]["valid"] + d[unit]["skipped"] == d[unit]["total"]
     assert d["sample_rate_measured"] == pytest.approx(d["sample_rate_nominal"], rel=0.05)

@@ -193,7 +193,9 @@ def test_process_cli_summary_and_export(recording, tmp_path, capsys):
     csv = tmp_path / "m.csv"
     assert cli(["export", str(out), "-o", str(csv), "--topic", "/metrics/epoch"]) == 0
     lines = csv.read_text().splitlines()
-    assert lines[0].startswith("time,time_ns,n,enmo_mg,bfen_mg,mad_mg") and len(lines) - 1 == s["epochs"]
+    # a .cwa processed without a zone: the device clock, never labelled UTC
+    assert lines[0].startswith("time_local,time_local_ns,n,enmo_mg,bfen_mg,mad_mg")
+    assert len(lines) - 1 == s["epochs"] and not lines[1].split(",")[0].endswith("Z")
     npz = tmp_path / "c.npz"
     assert cli(["export", str(out), "-o", str(npz), "--topic", "/corrected/accel"]) == 0
     z = np.load(npz)
@@ -245,7 +247,7 @@ def test_export_columns_empty_topics_and_foreign_logs(recording, tmp_path, capsy
     assert seen == set(COLUMNS) - {"/raw/gyro"}  # an AX3: no gyro
     gyro = tmp_path / "gyro.csv"
     assert cli(["export", str(out), "-o", str(gyro), "--topic", "/raw/gyro"]) == 0
-    assert gyro.read_text() == "time,time_ns,gx,gy,gz\n"
+    assert gyro.read_text() == "time_local,time_local_ns,gx,gy,gz\n"  # zone unknown
     foreign = tmp_path / "foreign.mcap"
     with open(foreign, "wb") as f:
         w = Writer(f)

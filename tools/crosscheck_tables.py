@@ -109,7 +109,7 @@ def read_epochs(path):
 
 
 def epoch_times(rows):
-    key = "time_utc" if rows and rows[0]["time_utc"] else "time_local"
+    key = "time_utc" if rows and rows[0].get("time_utc") else "time_local"
     return np.array([np.datetime64(r[key][:19], "ns").astype(np.int64) for r in rows])
 
 

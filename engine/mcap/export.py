@@ -5,6 +5,9 @@ sample or epoch. ``.npz``: every selected topic (default: corrected stream, epoc
 temperature, calibration), arrays named ``<topic>/<column>`` (e.g. ``corrected/accel/x``).
 
 Columns per topic: ``time_ns`` (int64, exact) and, in CSV, ``time`` (ISO 8601 UTC, µs), then
+(a log whose ``clock`` record says the zone is unknown holds the device clock, not UTC: the
+CSV columns are then ``time_local_ns`` and ``time_local``, ISO text without ``Z``;
+engine/timezones.py; NPZ arrays keep ``<topic>/time_ns``)
 
 * ``/corrected/accel``: ``x, y, z`` (g), ``segment``;
 * ``/raw/accel``: ``x, y, z`` (g, from counts and the logged scale), ``cx, cy, cz`` (counts), ``segment``;
@@ -100,8 +103,21 @@ def _not_exportable(topic: str) -> "ExportError":
     return ExportError(f"topic {topic} cannot be exported (known: {', '.join(COLUMNS)})")
 
 
-def _iso(t: np.ndarray) -> np.ndarray:
-    return np.char.add(np.datetime_as_string(t.astype("datetime64[ns]"), unit="us"), "Z")
+def _iso(t: np.ndarray, utc: bool = True) -> np.ndarray:
+    text = np.datetime_as_string(t.astype("datetime64[ns]"), unit="us")
+    return np.char.add(text, "Z") if utc else text
+
+
+def _zone_known(path) -> bool:
+    """Whether the log's times are UTC (its ``clock`` record; a log without one: as before)."""
+    from stillpoint.engine.timezones import zone_of_log
+    from .stream import read_metadata
+    try:
+        with open(path, "rb") as f:
+            meta = read_metadata(f)
+    except Exception:  # noqa: BLE001 - unfinished or damaged: the export's own read reports it
+        return True
+    return zone_of_log(meta).known
 
 
 def _fmt(col: np.ndarray) -> np.ndarray:
@@ -118,17 +134,19 @@ def _messages(path, topics):
     yield from iter_messages(path, topics)
 
 
-def _export_csv(path, raw, topic: str, gz: bool) -> int:
-    """Rows of ``topic`` as CSV text into the binary file ``raw`` (left open)."""
+def _export_csv(path, raw, topic: str, gz: bool, utc: bool = True) -> int:
+    """Rows of ``topic`` as CSV text into the binary file ``raw`` (left open); ``utc``: the
+    log's zone is known (else the time columns are ``time_local``/``time_local_ns``)."""
     rows = 0
     inner = gzip.GzipFile(fileobj=raw, mode="wb", compresslevel=6) if gz else io.BufferedWriter(raw, 1 << 20)
     f = io.TextIOWrapper(inner, encoding="utf-8", newline="")
     try:
         header = ["time"] + list(COLUMNS[topic])
-        f.write(",".join(header) + "\n")  # also when the log holds no message of the topic
+        names = header if utc else ["time_local", "time_local_ns"] + header[2:]
+        f.write(",".join(names) + "\n")  # also when the log holds no message of the topic
         for _t, i, msg in _messages(path, [topic]):
             cols = _rows(topic, msg.data, msg.log_time, path, i)
-            parts = [_iso(cols["time_ns"])] + [_fmt(np.asarray(cols[k])) for k in header[1:]]
+            parts = [_iso(cols["time_ns"], utc)] + [_fmt(np.asarray(cols[k])) for k in header[1:]]
             lines = parts[0]
             for p in parts[1:]:
                 lines = np.char.add(np.char.add(lines, ","), p)
@@ -226,7 +244,7 @@ def export_mcap(path, out, topics=None) -> dict:
         check_output_path(out)
         _check_stillpoint_log(path)
         with atomic_output(out) as raw:
-            n = _export_csv(path, raw, topic, name.endswith(".gz"))
+            n = _export_csv(path, raw, topic, name.endswith(".gz"), _zone_known(path))
         return {topic: n}
     if name.endswith(".npz"):
         _check_stillpoint_log(path)  # the output is checked by _export_npz, before any work

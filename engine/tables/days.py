@@ -8,7 +8,7 @@ intensity minutes, MVPA and M10/L5; ``wear_hours`` counts clean epochs. Per day:
   ``recorded_hours``: the part of it inside the recording; ``data_hours``: epochs with data;
   ``nonwear_hours``, ``clipping_hours``, ``qc_hours``: epochs with data and that flag;
 * ``valid_day``: ``wear_hours >= valid_day_hours`` (default 16);
-* ``enmo_mean_mg``: mean ENMO over clean epochs;
+* ``enmo_mean_mg``, ``mad_mean_mg``: mean ENMO and mean MAD over clean epochs;
 * ``min_enmo_<a>_<b>mg``: minutes of clean epochs with a <= ENMO < b for the band edges (default
   40/100/400 mg, GGIR's common light/moderate/vigorous thresholds);
 * ``mvpa_bout_min``: minutes in runs of consecutive clean epochs with ENMO >= the MVPA threshold
@@ -21,7 +21,7 @@ intensity minutes, MVPA and M10/L5; ``wear_hours`` counts clean epochs. Per day:
 * ``data_coverage`` / ``qc_coverage``: data hours and QC-flagged hours over ``day_hours``.
 
 The summary row (``date`` = ``all``) sums the hours, counts valid days in ``valid_day``, gives the
-mean ENMO over every clean epoch of the file, and the minutes per band, MVPA and M10/L5 averaged
+mean ENMO and MAD over every clean epoch of the file, and the minutes per band, MVPA and M10/L5 averaged
 over valid days (empty when there is none).
 Every row also carries the time zone used and the calibration status.
 """
@@ -55,7 +55,8 @@ def _band_names(bands) -> list[str]:
 
 def day_columns(bands=ENMO_BANDS_MG) -> list[str]:
     return (["date", "day_hours", "recorded_hours", "data_hours", "wear_hours", "nonwear_hours",
-             "clipping_hours", "qc_hours", "valid_day", "enmo_mean_mg"] + _band_names(bands) +
+             "clipping_hours", "qc_hours", "valid_day", "enmo_mean_mg", "mad_mean_mg"] +
+            _band_names(bands) +
             ["mvpa_bout_min", "m10_mg", "m10_start", "l5_mg", "l5_start", "data_coverage",
              "qc_coverage", "timezone", "calibration"])
 
@@ -85,7 +86,7 @@ class DayAccumulator:
         self._local: list[np.ndarray] = []
         self.days: list[dict] = []
         # epoch-level totals (for the summary and the day-sum = epoch-sum check)
-        self.totals = {"epochs": 0, "clean": 0, "enmo_clean_sum": 0.0}
+        self.totals = {"epochs": 0, "clean": 0, "enmo_clean_sum": 0.0, "mad_clean_sum": 0.0}
 
     # ------------------------------------------------------------------ streaming
     def push(self, rows: EpochRows) -> None:
@@ -97,6 +98,7 @@ class DayAccumulator:
         c = rows.clean
         self.totals["clean"] += int(c.sum())
         self.totals["enmo_clean_sum"] += float(np.nansum(rows.enmo_mg[c]))
+        self.totals["mad_clean_sum"] += float(np.nansum(rows.mad_mg[c]))
         cuts = np.flatnonzero(np.diff(day)) + 1
         for a, b in zip(np.r_[0, cuts], np.r_[cuts, len(rows)]):
             d = int(day[a])
@@ -139,6 +141,7 @@ class DayAccumulator:
         }
         row["valid_day"] = int(row["wear_hours"] >= self.valid_day_hours - 1e-9)
         row["enmo_mean_mg"] = float(e[clean].mean()) if clean.any() else None
+        row["mad_mean_mg"] = float(r.mad_mg[clean].mean()) if clean.any() else None
         edges = [0.0] + list(self.bands) + [np.inf]
         for name, lo, hi in zip(_band_names(self.bands), edges[:-1], edges[1:]):
             row[name] = int((clean & (e >= lo) & (e < hi)).sum()) * self.epoch_s / 60.0
@@ -184,6 +187,7 @@ class DayAccumulator:
         row["valid_day"] = len(valid)
         clean = self.totals["clean"]
         row["enmo_mean_mg"] = self.totals["enmo_clean_sum"] / clean if clean else None
+        row["mad_mean_mg"] = self.totals["mad_clean_sum"] / clean if clean else None
         for k in _band_names(self.bands) + ["mvpa_bout_min", "m10_mg", "l5_mg"]:
             v = [d[k] for d in valid if d[k] is not None]
             row[k] = float(np.mean(v)) if v else None

@@ -6,8 +6,8 @@ the raw messages gathered into blocks of up to 10 min of one segment first (ever
 output is independent of block cuts), so the tables equal those ``process`` wrote. An online run
 (estimates switched in over time) is re-run with its logged settings through ``process_file``
 (replay is bit-identical), its MCAP written to a temporary file beside the output and removed.
-The zone is the one the run used (its ``timezone`` setting; GENEActiv times were already
-converted with the header's zone).
+The zone is the one the run logged (its ``clock`` record, engine/timezones.py; a log from
+before that record: its ``timezone`` setting, for GENEActiv the header's zone).
 """
 
 from __future__ import annotations
@@ -44,20 +44,24 @@ def tables_from_mcap(mcap, epochs_path, days_path=None, *, timezone: Optional[st
 
     epochs_path = check_output_path(epochs_path, what="epoch table")
     days_path = check_output_path(days_path or days_path_for(epochs_path), what="day table")
+    from ..timezones import CLOCK_RECORD, fixed_zone, zone_of_log
     src = McapRawSource(mcap)
     logged = dict(src.settings or {})
     info = src.info
+    meta = dict(src.metadata)
     src.close()
-    zone_spec = logged.get("timezone")
+    if CLOCK_RECORD in meta:  # the zone the run logged its times in
+        logged_zone = zone_of_log(meta, info.timezone_offset_s)
+    else:  # a log from before the clock record: the run's setting, the header's for GENEActiv
+        logged_zone = parse_zone(logged.get("timezone"))
+        if not logged_zone.known and info.device_type == "GENEActiv":
+            logged_zone = fixed_zone(info.timezone_offset_s)
+    zone = logged_zone
     if timezone is not None:
-        if zone_spec is None and info.device_type != "GENEActiv":
+        if not logged_zone.known:
             raise TablesError(f"{mcap}: this run had no time zone (device local time); run "
                               f"`stillpoint process` on the recording with --timezone instead")
-        zone_spec = timezone
-    zone = parse_zone(zone_spec)
-    if not zone.known and info.device_type == "GENEActiv":
-        from ..timezones import fixed_zone
-        zone = fixed_zone(info.timezone_offset_s)
+        zone = parse_zone(timezone)
     settings = RunSettings.from_dict(logged)
     ts = TablesSettings(epochs_path, days_path, zone=zone, nonwear_version=nonwear_version,
                         valid_day_hours=valid_day_hours, enmo_bands_mg=tuple(enmo_bands_mg),

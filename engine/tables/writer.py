@@ -4,9 +4,9 @@ pipeline step (see ``engine.run.OutputStage``), streams epoch rows into gzip tex
 local day of rows for the day table. Both files go through ``drivers.outputs`` (``.part``, fsync,
 atomic rename); a failed run leaves no table under the final names.
 
-Epoch table columns: ``time_utc`` (ISO 8601, ``Z``; empty when the zone is unknown),
-``time_local`` (ISO 8601 with the offset in force, or without offset when the zone is unknown:
-the device clock), ``n`` (samples), ``enmo_mg``, ``bfen_mg``, ``mad_mg``, ``anglez_deg``,
+Epoch table columns: ``time_utc`` (ISO 8601, ``Z``; only when the zone is known: a table of
+a recording whose zone is unknown has no UTC column), ``time_local`` (ISO 8601 with the offset
+in force, or without offset when the zone is unknown: the device clock), ``n`` (samples), ``enmo_mg``, ``bfen_mg``, ``mad_mg``, ``anglez_deg``,
 ``temperature_c`` (empty without data), then the flags ``nonwear``, ``clipping``, ``gap``, ``qc``,
 ``filter_warmup`` (0/1). Times are epoch starts.
 """
@@ -36,6 +36,11 @@ _DECIMALS = {"enmo_mg": 3, "bfen_mg": 3, "mad_mg": 3, "anglez_deg": 3, "temperat
 # gzip level of the epoch table: on a week of 5 s epochs (8.5 MB of CSV) level 1 takes 0.06 s
 # for 2.37 MB, level 6 0.30 s for 2.06 MB (zlib, measured on tools/bench_process.py's file)
 GZIP_LEVEL = 1
+
+
+def epoch_columns(zone: Zone) -> list:
+    """The epoch table's columns: ``time_utc`` only when the zone is known."""
+    return EPOCH_COLUMNS if zone.known else EPOCH_COLUMNS[1:]
 
 
 def table_paths(mcap_path) -> tuple[Path, Path]:
@@ -100,9 +105,9 @@ def format_rows(rows: EpochRows, zone: Zone, epoch_ns: int) -> str:
         off = zone.offsets_s(t)
         local = np.char.add(_iso(t + off * 10**9, unit), _offset_text(off)).tolist()
     else:
-        utc = [""] * len(rows)
+        utc = None
         local = _iso(t, unit).tolist()
-    cols = [utc, local, [str(x) for x in rows.n.tolist()]]
+    cols = ([utc] if utc is not None else []) + [local, [str(x) for x in rows.n.tolist()]]
     for name in EPOCH_COLUMNS[3:8]:
         cols.append(_num(getattr(rows, name), _DECIMALS[name]))
     for f in FLAGS:
@@ -134,7 +139,7 @@ class TablesTap:
         self._out = AtomicOutput(ts.epochs_path, what="epoch table")
         self._gz = gzip.GzipFile(filename="", mode="wb", fileobj=self._out.file, mtime=0,
                                  compresslevel=GZIP_LEVEL)
-        self._gz.write((",".join(EPOCH_COLUMNS) + "\n").encode())
+        self._gz.write((",".join(epoch_columns(ts.zone)) + "\n").encode())
         self.rows = 0
         self.flag_counts = {f: 0 for f in FLAGS}
         self.clean = 0

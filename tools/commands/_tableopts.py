@@ -14,8 +14,11 @@ def add_timezone_argument(p) -> None:
     p.add_argument("--timezone", default=None, metavar="ZONE",
                    help="the participant's time zone: an IANA name (Europe/London) or an offset "
                         "(+01:00). .cwa: the device clock is that zone's wall-clock time (DST-aware); "
-                        "without it times are 'device local time, zone unknown'. GENEActiv: overrides "
-                        "the header's zone")
+                        "without it times are 'device local time, zone unknown'. GENEActiv: must "
+                        "agree with the header's zone unless --timezone-override")
+    p.add_argument("--timezone-override", action="store_true",
+                   help="GENEActiv: let --timezone replace a header zone it contradicts (the "
+                        "run's settings record that it did)")
 
 
 def add_table_arguments(p, *, with_switch: bool = True) -> None:
@@ -52,6 +55,8 @@ def check_zone(spec):
 def tables_text(summary: dict) -> str:
     """Lines for the text summary: the zone and what the tables hold."""
     lines = [f"times: {summary.get('timezone', 'UTC')}"]
+    if summary.get("timezone_override"):
+        lines[0] += " (replaces the GENEActiv header's zone: --timezone-override)"
     t = summary.get("tables")
     if t:
         f = t["file"]

@@ -5,7 +5,11 @@ Columns (what users of cwa-convert / OMGui expect, in SI-ish units):
 * ``time``: UTC. CSV ``--time iso`` (default) writes ISO 8601 with microseconds and a ``Z``
   (``2019-02-26T10:55:06.000500Z``; the sub-microsecond part is truncated), ``--time epoch`` writes
   Unix seconds with 9 decimals (exact), ``--time ns`` integer nanoseconds (exact). NPZ always holds
-  ``time_ns`` (int64).
+  ``time_ns`` (int64). When the zone is unknown (a .cwa without ``--timezone``) the times are the
+  device clock, not UTC: the CSV column is ``time_local`` (ISO text without ``Z``; seconds or
+  nanoseconds of the device clock read as if UTC; engine/timezones.py: one rule for every
+  output). NPZ keeps ``time_ns`` and says which in ``info`` (``timezone``; ``timezone_offset_s``
+  null when the zone is unknown).
 * ``x, y, z``: acceleration in g (6 decimals in CSV; float64 in NPZ as ``accel`` (n, 3)).
 * ``gx, gy, gz``: angular rate in deg/s (AX6 only; ``gyro`` (n, 3) in NPZ).
 * ``temperature``: degC, the sector/page value held over its samples (no interpolation).
@@ -62,7 +66,10 @@ def add_arguments(parser) -> None:
                         help="CSV time column: iso (UTC, microseconds; default), epoch (seconds, 9 "
                              "decimals) or ns (integer nanoseconds)")
     parser.add_argument("--timezone", default=None,
-                        help="device clock time zone, e.g. +01:00 (GENEActiv: overrides the header)")
+                        help="device clock time zone, e.g. +01:00 or Europe/London (GENEActiv: a "
+                             "zone that contradicts the header's needs --timezone-override)")
+    parser.add_argument("--timezone-override", action="store_true",
+                        help="GENEActiv: let --timezone replace a header zone it contradicts")
     parser.add_argument("--compress", action="store_true", help="NPZ: deflate the columns")
     parser.add_argument("--topic", action="append", default=None,
                         help="MCAP input: topic(s) to export (repeatable); an MCAP export needs "
@@ -162,30 +169,32 @@ def _civil_from_days(days: np.ndarray):
     return y, mo, d
 
 
-def format_iso(t_ns: np.ndarray) -> np.ndarray:
-    """UTC ns -> "YYYY-MM-DDTHH:MM:SS.ffffffZ" (27 bytes; sub-microsecond part truncated)."""
+def format_iso(t_ns: np.ndarray, utc: bool = True) -> np.ndarray:
+    """UTC ns -> "YYYY-MM-DDTHH:MM:SS.ffffffZ" (27 bytes; sub-microsecond part truncated);
+    ``utc=False``: a local time, the same text without the ``Z`` (26 bytes)."""
     t_us = np.floor_divide(np.asarray(t_ns, np.int64), 1000)
     days, us_of_day = np.divmod(t_us, 86_400_000_000)
     y, mo, d = _civil_from_days(days)
     sec, us = np.divmod(us_of_day, 1_000_000)
     hh, rem = np.divmod(sec, 3600)
     mi, ss = np.divmod(rem, 60)
-    m = np.empty((t_us.shape[0], 27), np.uint8)
+    m = np.empty((t_us.shape[0], 27 if utc else 26), np.uint8)
     m[:, [4, 7]] = ord("-")
     m[:, 10] = ord("T")
     m[:, [13, 16]] = ord(":")
     m[:, 19] = ord(".")
-    m[:, 26] = ord("Z")
+    if utc:
+        m[:, 26] = ord("Z")
     for col, v, k in ((0, np.clip(y, 0, 9999), 4), (5, mo, 2), (8, d, 2), (11, hh, 2), (14, mi, 2),
                       (17, ss, 2), (20, us, 6)):
         _put_digits(m, col, v, k)
     return m
 
 
-def format_time(t_ns: np.ndarray, mode: str) -> np.ndarray:
+def format_time(t_ns: np.ndarray, mode: str, utc: bool = True) -> np.ndarray:
     t_ns = np.asarray(t_ns, np.int64)
     if mode == "iso":
-        return format_iso(t_ns)
+        return format_iso(t_ns, utc)
     if mode == "epoch":
         return format_scaled(t_ns, 9)
     if mode == "ns":
@@ -198,9 +207,11 @@ class CsvSink:
 
     DECIMALS = {"accel": 6, "gyro": 5, "temperature": 4, "light": 3, "battery": 4}
 
-    def __init__(self, raw, time_format: str, gz: bool = False):
-        """``raw``: the binary output file (left open on close)."""
+    def __init__(self, raw, time_format: str, gz: bool = False, utc: bool = True):
+        """``raw``: the binary output file (left open on close); ``utc``: the zone is known (else
+        the time column is ``time_local``, the device clock)."""
         self.time_format = time_format
+        self.utc = utc
         self._raw = raw
         self._f = (gzip.GzipFile(fileobj=raw, mode="wb", compresslevel=6) if gz
                    else io.BufferedWriter(raw, 1 << 20))
@@ -210,7 +221,7 @@ class CsvSink:
     def write(self, cols: dict) -> None:
         n = cols["time_ns"].shape[0]
         if not self._header_written:
-            names = ["time", "x", "y", "z"]
+            names = ["time" if self.utc else "time_local", "x", "y", "z"]
             if "gyro" in cols:
                 names += ["gx", "gy", "gz"]
             names += ["temperature", "light", "battery"]
@@ -221,7 +232,7 @@ class CsvSink:
             self._names = names
         if n == 0:
             return
-        parts = [format_time(cols["time_ns"], self.time_format)]
+        parts = [format_time(cols["time_ns"], self.time_format, self.utc)]
         for j in range(3):
             parts.append(format_fixed(cols["accel"][:, j], self.DECIMALS["accel"]))
         if "gyro" in cols:
@@ -255,10 +266,12 @@ class CsvSink:
 class NpzSink:
     """Columns streamed to temporary raw files, then packed as .npy members of a zip (np.load-able)."""
 
-    def __init__(self, raw, folder: Path, compress: bool):
+    def __init__(self, raw, folder: Path, compress: bool, utc: bool = True):
         """``raw``: the binary output file (left open on close); ``folder``: for column scratch
-        files (beside the output, removed on close)."""
+        files (beside the output, removed on close); ``utc``: the zone is known (``info``
+        says which; ``time_ns`` keeps its name)."""
         self._raw = raw
+        self.utc = utc
         self.compress = compress
         self._dir = tempfile.mkdtemp(prefix=".export-", dir=str(folder))
         self._files: dict[str, tuple] = {}  # name -> (file, dtype, trailing shape)
@@ -323,7 +336,7 @@ _KIND = {"cwa": "an AX3/AX6 .cwa", "geneactiv": "a GENEActiv .bin"}
 
 def export_recording(path, out, *, time_format: str = "iso", timezone=None, compress: bool = False,
                      topics=None, table: Optional[str] = None,
-                     table_options: Optional[dict] = None) -> dict:
+                     table_options: Optional[dict] = None, timezone_override: bool = False) -> dict:
     """Export a recording to CSV or NPZ (see the module docstring). Returns a small report.
 
     An MCAP input exports what is asked for, never what the output's name suggests: ``table``
@@ -356,33 +369,34 @@ def export_recording(path, out, *, time_format: str = "iso", timezone=None, comp
     kind = _output_kind(out)
     if time_format not in TIME_FORMATS:
         raise StillpointError(f"--time must be one of {', '.join(TIME_FORMATS)}")
+    from .inspect import timezone_option, zone_of
+    zone = zone_of(path, fmt, timezone, timezone_override)
     opts = {}
     if timezone is not None:
-        from .inspect import timezone_option
-        opts["timezone"] = timezone_option(timezone, fmt, path)
+        opts["timezone"] = timezone_option(timezone, fmt, path, timezone_override)
     check_output_path(out)
     src = open_recording(path, **opts)
     sink = None
     try:
         with atomic_output(out) as raw:
-            sink = (CsvSink(raw, time_format, gz=out.name.lower().endswith(".gz")) if kind == "csv"
-                    else NpzSink(raw, out.parent, compress))
+            sink = (CsvSink(raw, time_format, gz=out.name.lower().endswith(".gz"), utc=zone.known)
+                    if kind == "csv" else NpzSink(raw, out.parent, compress, utc=zone.known))
             for block in src:
                 sink.write(block_columns(block, src.info))
             info = src.info
             info_dict = {"device_type": info.device_type, "device_id": info.device_id,
                          "session_id": info.session_id, "firmware": info.firmware,
                          "sample_rate_nominal": info.sample_rate_nominal,
-                         "timezone_offset_s": info.timezone_offset_s, "metadata": info.metadata,
+                         "timezone_offset_s": info.timezone_offset_s if zone.known else None,
+                         "timezone": zone.label, "metadata": info.metadata,
                          "header": {k: v for k, v in info.header.items()}, "qc": src.qc.as_dict()}
             sink.close(info_dict)
     finally:
         src.close()
         if isinstance(sink, NpzSink):
             shutil.rmtree(sink._dir, ignore_errors=True)
-    from .inspect import zone_label
     return {"format": fmt, "output": str(out), "samples": sink.rows, "qc": src.qc.as_dict(),
-            "timezone": zone_label(path, fmt, timezone)}
+            "timezone": zone.label}
 
 
 def _table_from_mcap(path, out: Path, table: str, timezone, options: dict) -> dict:
@@ -417,7 +431,7 @@ def run(args) -> int:
             "enmo_bands_mg": ts.enmo_bands_mg, "mvpa_bout_s": ts.mvpa_bout_s}
     rep = export_recording(args.file, args.output, time_format=args.time, timezone=args.timezone,
                            compress=args.compress, topics=args.topic, table=args.table,
-                           table_options=opts)
+                           table_options=opts, timezone_override=args.timezone_override)
     if rep.get("tables"):
         t = rep["tables"]
         what = (f"{t['epoch_rows']:,} epochs" if rep["table"] == "epochs"
@@ -430,6 +444,6 @@ def run(args) -> int:
         print(f"wrote {rep['samples']} samples to {rep['output']} "
               f"({q['valid']} of {q['total']} {q['unit']}s valid, {len(q['events'])} QC event(s))")
         tz = rep.get("timezone", "")
-        print(f"times: {tz}" + (" (the time column holds the device clock, not UTC)"
+        print(f"times: {tz}" + (" (the time_local column holds the device clock, not UTC)"
                                 if "unknown" in tz else " (the time column is UTC)"))
     return 0

@@ -1,13 +1,15 @@
 """``stillpoint inspect FILE``: what is in a recording (AX3/AX6 .cwa, GENEActiv .bin, gzipped or not).
 
 A full streaming pass (bounded memory) reports device, samples, nominal and measured rate, start/end
-(ISO 8601 UTC, nanoseconds), duration, channels, sectors/pages {total, valid, skipped}, segments, the
+(ISO 8601 UTC with nanoseconds when the zone is known; otherwise ``start``/``end`` and
+``timezone_offset_s`` are null and ``start_local``/``end_local`` give the device clock, as
+engine/timezones.py rules for every output), duration, channels, sectors/pages {total, valid, skipped}, segments, the
 QC log and the temperature/battery ranges. ``--header-only`` reads the header alone (fast).
 Several files: one summary each (``--json``: one JSON object per line); a bad file is reported on
 stderr and the others are still inspected (exit code 2 if any failed).
 
-API: ``inspect_recording(path, header_only=False, timezone=None, follow_idle_s=None) -> dict`` (the
-same dict as --json; ``follow_idle_s`` reads a file still being written, CLI ``--follow``).
+API: ``inspect_recording(path, header_only=False, timezone=None, follow_idle_s=None,
+timezone_override=False) -> dict`` (the same dict as --json; ``follow_idle_s`` reads a file still being written, CLI ``--follow``).
 """
 
 from __future__ import annotations
@@ -42,8 +44,11 @@ def add_arguments(parser) -> None:
                         "in progress) until it has not grown for IDLE_S seconds (default 5)")
     parser.add_argument("--timezone", default=None,
                         help="the device clock's time zone: an IANA name (Europe/London; DST-aware) or "
-                             "an offset (+01:00). GENEActiv: overrides the header's Time Zone; AX: "
-                             "without it times are device local time, zone unknown")
+                             "an offset (+01:00). GENEActiv: a zone that contradicts the header's "
+                             "needs --timezone-override; AX: without it times are device local "
+                             "time, zone unknown")
+    parser.add_argument("--timezone-override", action="store_true",
+                        help="GENEActiv: let --timezone replace a header zone it contradicts")
 
 
 def iso_utc(t_ns: Optional[int]) -> Optional[str]:
@@ -53,10 +58,10 @@ def iso_utc(t_ns: Optional[int]) -> Optional[str]:
     return str(np.datetime64(int(t_ns), "ns")) + "Z"
 
 
-def _open(path, fmt: str, timezone, follow_idle_s=None):
+def _open(path, fmt: str, timezone, follow_idle_s=None, override: bool = False):
     opts = {}
     if timezone is not None:
-        opts["timezone"] = timezone_option(timezone, fmt, path)
+        opts["timezone"] = timezone_option(timezone, fmt, path, override)
     if follow_idle_s is not None:
         if fmt == "mcap":
             raise StillpointError(f"{path}: --follow reads a .cwa/.bin that is still being written, "
@@ -65,34 +70,34 @@ def _open(path, fmt: str, timezone, follow_idle_s=None):
     return open_recording(path, **opts)
 
 
-def timezone_option(timezone, fmt: str, path=None):
+def timezone_option(timezone, fmt: str, path=None, override: bool = False):
     """The CLI's time zone (an IANA name or an offset) as the reader wants it: seconds of the
     device clock's offset from UTC (engine.timezones.reader_timezone: one rule for every command)."""
     from stillpoint.engine.timezones import parse_zone, reader_timezone
     zone = parse_zone(timezone)  # a bad zone: one line, exit 2
     if path is not None:
-        tz, _ = reader_timezone(path, fmt, timezone)
+        tz, _ = reader_timezone(path, fmt, timezone, override)
         return tz
     if zone.iana:
         raise StillpointError(f"--timezone {timezone}: an IANA zone needs the recording's start time")
     return zone.fixed_s
 
 
-def zone_label(path, fmt: str, timezone) -> str:
-    """Which zone the times are in, as the outputs state it."""
+def zone_of(path, fmt: str, timezone, override: bool = False):
+    """The Zone the times are in (engine.timezones: unknown for a .cwa without one)."""
     from stillpoint.engine.timezones import reader_timezone
-    try:
-        return reader_timezone(path, fmt, timezone)[1].label
-    except StillpointError:
-        raise
-    except Exception:
-        return "unknown"
+    return reader_timezone(path, fmt, timezone, override)[1]
 
 
-def _header_info(path, fmt: str, timezone):
+def zone_label(path, fmt: str, timezone, override: bool = False) -> str:
+    """Which zone the times are in, as the outputs state it."""
+    return zone_of(path, fmt, timezone, override).label
+
+
+def _header_info(path, fmt: str, timezone, override: bool = False):
     if fmt == "geneactiv":
         from stillpoint.drivers.geneactiv import read_header
-        return read_header(path, **({"timezone": timezone_option(timezone, fmt, path)}
+        return read_header(path, **({"timezone": timezone_option(timezone, fmt, path, override)}
                                     if timezone is not None else {}))
     if fmt == "cwa":
         from stillpoint.drivers.cwa import read_header
@@ -105,7 +110,7 @@ def _header_info(path, fmt: str, timezone):
         src.close()
 
 
-def _info_dict(info, fmt: str) -> dict:
+def _info_dict(info, fmt: str, zone=None) -> dict:
     return {
         "path": info.path,
         "format": fmt,
@@ -116,7 +121,7 @@ def _info_dict(info, fmt: str) -> dict:
         "sample_rate_nominal": info.sample_rate_nominal,
         "accel_range_g": info.accel_range_g,
         "gyro_range_dps": info.gyro_range_dps,
-        "timezone_offset_s": info.timezone_offset_s,
+        "timezone_offset_s": info.timezone_offset_s if zone is None or zone.known else None,
         "metadata": dict(info.metadata),
     }
 
@@ -176,19 +181,21 @@ def follow_format(path) -> str:
 
 
 def inspect_recording(path, *, header_only: bool = False, timezone=None,
-                      follow_idle_s: Optional[float] = None) -> dict:
+                      follow_idle_s: Optional[float] = None, timezone_override: bool = False) -> dict:
     """Summary of a recording as a plain dict (see the module docstring). ``follow_idle_s``:
     read a file that is still being written until it has not grown for that many seconds."""
+    from stillpoint.engine.timezones import local_text, utc_text
     fmt = follow_format(path) if follow_idle_s is not None else sniff_format(path)
-    zone = zone_label(path, fmt, timezone) if fmt in ("cwa", "geneactiv") else None
+    zone = (zone_of(path, fmt, timezone, timezone_override)
+            if fmt in ("cwa", "geneactiv", "mcap") else None)
     if header_only:
-        info = _header_info(path, fmt, timezone)
-        out = _info_dict(info, fmt)
+        info = _header_info(path, fmt, timezone, timezone_override)
+        out = _info_dict(info, fmt, zone)
         out["header"] = dict(info.header)
-        if zone:
-            out["timezone"] = zone
+        if zone is not None:
+            out["timezone"] = zone.label
         return out
-    src = _open(path, fmt, timezone, follow_idle_s)
+    src = _open(path, fmt, timezone, follow_idle_s, timezone_override)
     acc = _Summary()
     try:
         for block in src:
@@ -196,15 +203,17 @@ def inspect_recording(path, *, header_only: bool = False, timezone=None,
     finally:
         src.close()
     info, qc = src.info, src.qc
-    out = _info_dict(info, fmt)
+    out = _info_dict(info, fmt, zone)
     aux = ["temperature", "light", "battery"] + sorted(k for k in acc.per_sample if k == "button")
     unit = f"{qc.unit}s"  # "pages" (.bin), "sectors" (.cwa)
     rate = acc.measured_rate()
     out.update({
         "samples": acc.samples,
         "sample_rate_measured": rate,
-        "start": iso_utc(acc.start),
-        "end": iso_utc(acc.end),
+        "start": iso_utc(acc.start) if zone is None or zone.known else None,
+        "end": iso_utc(acc.end) if zone is None or zone.known else None,
+        "start_local": local_text(acc.start, zone, "ns") if zone is not None else None,
+        "end_local": local_text(acc.end, zone, "ns") if zone is not None else None,
         "start_ns": acc.start,
         "end_ns": acc.end,
         "duration_s": (acc.end - acc.start) / 1e9 if acc.start is not None else 0.0,
@@ -215,8 +224,8 @@ def inspect_recording(path, *, header_only: bool = False, timezone=None,
         "temperature_range_c": [acc.tmin, acc.tmax] if acc.tmin <= acc.tmax else None,
         "battery_range_v": [acc.bmin, acc.bmax] if acc.bmin <= acc.bmax else None,
     })
-    if zone:
-        out["timezone"] = zone
+    if zone is not None:
+        out["timezone"] = zone.label
     warnings = info.header.get("warnings") if isinstance(info.header, dict) else None
     if warnings:
         out["header_warnings"] = list(warnings)
@@ -241,15 +250,22 @@ def format_text(d: dict) -> str:
         + (f"   range {rng}" if rng else ""))
     tz = d.get("timezone_offset_s") or 0
     clock = f"UTC{'+' if tz >= 0 else '-'}{abs(tz) // 3600:02d}:{abs(tz) % 3600 // 60:02d}"
-    if d.get("timezone") and "unknown" in d["timezone"]:
+    unknown = bool(d.get("timezone")) and "unknown" in d["timezone"]
+    if unknown:
         clock = d["timezone"] + " (start/end below are the device clock, not UTC)"
     elif d.get("timezone"):
         clock += f" (zone {d['timezone']})"
     add(f"  clock       {clock}")
     if "samples" in d:
         add(f"  samples     {d['samples']}  ({', '.join(d['channels'])})")
-        add(f"  start       {d['start'] or '-'}")
-        add(f"  end         {d['end'] or '-'}")
+        if unknown:
+            add(f"  start       {d.get('start_local') or '-'}  (device clock)")
+            add(f"  end         {d.get('end_local') or '-'}  (device clock)")
+        else:
+            add(f"  start       {d['start'] or '-'}" + (f"  (local {d['start_local']})"
+                                                       if d.get("start_local") else ""))
+            add(f"  end         {d['end'] or '-'}" + (f"  (local {d['end_local']})"
+                                                     if d.get("end_local") else ""))
         dur = d["duration_s"]
         add(f"  duration    {dur:.3f} s ({dur / 3600:.3f} h, {dur / 86400:.4f} days)")
         for unit, u in d.items():
@@ -293,14 +309,16 @@ def run(args) -> int:
     files = args.file
     if len(files) == 1:  # one file: a bad one is the CLI's one-line error (exit 2)
         _print(inspect_recording(files[0], header_only=args.header_only, timezone=args.timezone,
-                                 follow_idle_s=args.follow),
+                                 follow_idle_s=args.follow,
+                                 timezone_override=args.timezone_override),
                args.json)
         return 0
     failed = 0
     for i, f in enumerate(files):
         try:
             d = inspect_recording(f, header_only=args.header_only, timezone=args.timezone,
-                                  follow_idle_s=args.follow)
+                                  follow_idle_s=args.follow,
+                                  timezone_override=args.timezone_override)
         except StillpointError as e:
             failed += 1
             print(f"stillpoint inspect: error: {e}", file=sys.stderr)

@@ -73,6 +73,11 @@ def build_settings(args, base: dict | None = None) -> RunSettings:
     if getattr(args, "timezone", None) is not None:
         check_zone(args.timezone)
         over["timezone"] = args.timezone
+    if getattr(args, "timezone_override", False):
+        if getattr(args, "timezone", None) is None:
+            raise OptionError("--timezone-override replaces a GENEActiv header's zone with "
+                              "--timezone: give --timezone too")
+        over["timezone_override"] = True
     if (getattr(args, "static", None) or getattr(args, "static_from_store", None) is not None) \
             and over.get("calibrate") is False:
         raise OptionError("--static/--static-from-store apply a calibration: not with --no-calibrate")

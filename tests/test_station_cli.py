@@ -208,6 +208,27 @@ def test_clean_lists_and_removes_only_superseded_partial_files(emu, tmp_path, ca
     assert "no station ledger" in capsys.readouterr().err
 
 
+def test_clean_knows_the_raw_copy_of_an_inbox_log(tmp_path, capsys):
+    """A set-aside log of an inbox recording is superseded by its verified .bin (the raw copy the
+    ledger names for that log), not looked for as a .cwa."""
+    from stillpoint.engine.sim.record import simulate_recording
+    from stillpoint.engine.station.inbox import Inbox
+    from stillpoint.engine.station.ledger import Ledger
+    inbox, out = tmp_path / "inbox", tmp_path / "out"
+    inbox.mkdir()
+    out.mkdir()
+    simulate_recording(inbox / "p01.bin", device="geneactiv", days=0.01, truth_path=False)
+    lg = Ledger(out)
+    assert Inbox(inbox, out, stable_s=0.0, ledger=lg).ingest(inbox / "p01.bin").startswith("ingested")
+    log = os.path.basename(lg.downloads()[0].mcap_path)
+    lg.close()
+    planted = log[: -len(".mcap")] + ".unverified.mcap.part.20260101T000000Z"
+    (out / planted).write_bytes(b"x")
+    capsys.readouterr()
+    assert main(["clean", str(out)]) == 0
+    assert f"superseded {planted}  (by {log})" in capsys.readouterr().out
+
+
 def test_an_ax3_and_an_ax6_with_the_same_id_and_session_both_download(emu, tmp_path, capsys):
     from stillpoint.drivers.ax.emulator import EmulatedDevice
     a = emu(10001)

@@ -20,9 +20,9 @@
 
 Faults (kebab-case names, ``FAULTS``) make it misbehave the way a real device or cable can. Those
 that concern reading the drive (``unplug-mid-copy``, ``short-read``, ``io-error``, ``hang``,
-``hang-before-clear``, ``bit-flip``, ``change-between-reads``) are applied by the emulated volume's file layer
-(``volume.open_data_file``), which signals the device through ``<root>/control/``; the rest are
-applied here.
+``hang-before-clear``, ``bit-flip``, ``change-between-reads``) are applied by the emulated
+volume's file layer (``volume.open_data_file``), which signals the device through
+``<root>/control/``; the rest are applied here.
 
 The folder ``root`` can be used again: leftovers of an earlier run (a drive moved aside, a
 half-written simulation, stale control signals) are put back or removed on start and on
@@ -67,8 +67,6 @@ FAULTS = {
     "locked": "settings are locked (ERROR: Locked.)",
     "stream-left-running": "the device is streaming its preview when the host opens the port",
 }
-READ_FAULTS = ("unplug-mid-copy", "short-read", "io-error", "hang", "hang-before-clear", "bit-flip",
-               "change-between-reads")
 FAULT_LOCK_CODE = 4321  # the lock code the ``locked`` fault sets (LOCK 4321; UNLOCK 4321 lifts it)
 INPUT_BUFFER = 128  # SERIAL_BUFFER_SIZE (Flux.AX3/src/Utils/Util.c 46)
 RESTARTS_AT_START, BATTERY_HEALTH_AT_START = 3, 12  # the emulated unit's program-memory counters

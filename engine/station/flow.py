@@ -3,12 +3,26 @@
 States: ``identifying`` -> ``empty`` (nothing recorded) | ``downloading`` -> ``verifying`` ->
 ``verified`` -> [``clearing`` -> ``cleared``] -> [``configuring`` -> ``configured``]; or ``error``
 (with the reason) from any state. Every state change is one ledger transaction (``events``).
-An unplug during the copy ends in ``error`` ("... resumes when it comes back"): when the same
-device and session return, the download resumes from the verified prefix of the partial copy.
-A verified download is completed by the ledger (``completion.complete``: row ``completing``, the
-renames, row ``verified``); a clear a killed station left at ``sent`` is settled from the device
-when it is next attached (``completion.resolve_sent_clear``). A device whose data changed between
-two reads of one session (a ``changed`` download) is never cleared here.
+
+* identifying: a preview left streaming is stopped; ``ID`` must name the device id and type
+  the USB serial says; clock offset, battery and session are read; a clear of this device a
+  killed station left at ``sent`` is settled from the device (``completion.resolve_sent_clear``).
+* downloading/verifying: in a worker process with the stall bound (``worker``,
+  ``download.run_download``); the ledger completes the download (``completion.complete``: row
+  ``completing``, the renames, row ``verified``). A session the ledger already holds verified,
+  with the device's size, is not downloaded again (``verified``, "already downloaded"). An
+  unplug during the copy ends in ``error`` ("... resumes when it comes back"): when the same
+  device and session return, the download resumes from the verified prefix of the partial copy.
+* clearing (``--clear-after-verify``): the same byte rule whether this run downloaded the data
+  or the ledger already held it (``clearing.clear_verified``; the device re-read in a worker with
+  the stall bound, ``reread``); a device whose data changed between two reads of one session (a
+  ``changed`` download) is never cleared here. A profile the device cannot record is refused
+  before the clear.
+* configuring (``--configure-after`` with a profile): a cleared or empty device, from the profile
+  (``configure.configure_device``; "increment" counts from the session its last clear erased).
+
+After a COMMIT or an erase the drive is waited for (``wait_volume``) and, on a headless station
+where nothing mounts it again, mounted by the station.
 """
 
 from __future__ import annotations
@@ -35,9 +49,6 @@ from .download import DownloadJob
 from .ledger import Ledger, host_timezone, kill_point, station_id
 from .profile import StudyProfile
 from .worker import DownloadWorker
-
-FINAL_STATES = ("empty", "verified", "cleared", "configured", "error")
-
 
 @dataclass
 class StationOptions:
@@ -265,10 +276,9 @@ class DeviceFlow:
         while not w.finished:
             if self.cancel.is_set():
                 w.cancel()
-                w.result = None
-                self.ledger.download_failed(dl_id, "stopped by the user; the partial copy is kept",
-                                            w.done)
-                raise DeviceError(att.device_id, "stopped by the user; the partial copy is kept")
+                why = "stopped by the user; the partial copy is kept"
+                self.ledger.download_failed(dl_id, why, w.done)
+                raise DeviceError(att.device_id, why)
             ph, self.done_bytes, total = w.poll(0.2)
             self.total_bytes = total or self.total_bytes
             if self.done_bytes and not copying:  # the worker is under way

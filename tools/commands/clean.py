@@ -59,10 +59,14 @@ def _is_prefix(part: Path, whole: Path) -> bool:
 def survey(out: Path, ledger) -> list[tuple[str, str, str]]:
     """(name, "superseded"|"kept", why) for every partial file in ``out``."""
     from stillpoint.drivers.byteio import sha256_file
+    from stillpoint.engine.station import names
     verified = {}  # raw copy name -> record
+    raw_of_log = {}  # corrected log name -> its raw copy's name (.cwa, or an inbox's .bin)
     for rec in ledger.downloads():
         if rec.verified and rec.state == "verified" and rec.cwa_path:
             verified[Path(rec.cwa_path).name] = rec
+            if rec.mcap_path:
+                raw_of_log[Path(rec.mcap_path).name] = Path(rec.cwa_path).name
     good: dict[str, bool] = {}  # raw copy name -> its SHA-256 is the ledger's
 
     def raw_ok(raw: str) -> bool:
@@ -80,7 +84,7 @@ def survey(out: Path, ledger) -> list[tuple[str, str, str]]:
         if t is None or p.is_symlink() or not p.is_file():
             continue
         base, is_raw = t
-        raw = base if is_raw else base[: -len(".mcap")] + ".cwa"
+        raw = base if is_raw else raw_of_log.get(base, base[: -len(names.LOG)] + names.RAW)
         if not raw_ok(raw):
             why = (f"{raw} is not a verified copy in the ledger" if raw not in verified else
                    f"{raw} is missing or no longer matches the ledger's SHA-256")

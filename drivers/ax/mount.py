@@ -23,8 +23,9 @@ How: ``udisksctl mount --block-device DEV --no-user-interaction`` when udisks2 i
 mounts under ``/media/<user>/<label>`` like a desktop and cleans up the mounts of media that went
 away; from a session without a seat (SSH, a service) polkit must allow it: a rule in
 ``/etc/polkit-1/rules.d/`` returning ``polkit.Result.YES`` for the station's user on the actions
-``org.freedesktop.udisks2.filesystem-mount`` and ``...filesystem-mount-other-seat``), else, as root, ``mount -t vfat -o nosuid,nodev,noexec`` into a folder the
-station owns (``STATION_MOUNT_DIR/<device name>``). Otherwise one line says what to set up.
+``org.freedesktop.udisks2.filesystem-mount`` and ``...filesystem-mount-other-seat``), else, as
+root, ``mount -t vfat -o nosuid,nodev,noexec`` into a folder the station owns
+(``STATION_MOUNT_DIR/<device name>``). Otherwise one line says what to set up.
 
 A mount the station made itself outlives the medium: after the next COMMIT the kernel keeps it on
 the old filesystem, and nothing (no udisks) cleans it up. So the station writes the disk's

@@ -1,11 +1,11 @@
 """The AX3/AX6 serial command protocol (usb-protocols.md A3-A7), host side.
 
-``AxClient(port, name)`` wraps an open pyserial port (a real ``/dev/ttyACM*``, a pseudo-terminal
-or an ``axemu://`` URL). Framing as OmApi/axconfig: send ``"\\r\\n" + COMMAND + "\\r\\n"``, read CR LF
+``AxClient(port, name)`` wraps an open pyserial port (a real ``/dev/ttyACM*``, a pseudo-terminal or
+an ``axemu://`` URL). Framing as OmApi/axconfig: send ``"\\r\\n" + COMMAND + "\\r\\n"``, read CR LF
 lines until one starts with the expected prefix (success), one starts with ``ERROR:`` (a typed
 ``DeviceCommandError``; ``ERROR: Locked.`` is ``DeviceLocked``) or the command's timeout passes
-(``DeviceTimeout``); other lines are ignored. After ``ERROR: Locked.`` the setter's
-``<KEY>=<old>`` line is read too, so it is never taken as a later reply. The factory/destructive commands listed in
+(``DeviceTimeout``); other lines are ignored. After ``ERROR: Locked.`` the setter's ``<KEY>=<old>``
+line is read too, so it is never taken as a later reply. The factory/destructive commands listed in
 ``constants.AX_FORBIDDEN_COMMANDS`` are refused before anything is sent.
 
 Delayed activation: after ``COMMIT`` or ``FORMAT QC``/``WC`` the device ejects its drive,

@@ -3,13 +3,13 @@ verification (``posix_fadvise(DONTNEED)`` before and while reading, so the secon
 from the device, not the page cache), and, for emulated devices, the fault layer.
 
 The fault layer (``FaultyFile``) makes an emulated drive misbehave as a real one can:
-``unplug-mid-copy`` (signals the emulator to pull the cable, then fails with ENODEV; fires
-once), ``short-read`` (end of file early), ``io-error`` (EIO at half the file), ``hang`` (a read
-that never returns), ``hang-before-clear`` (every cache-bypassing read after the first, the
-download's verification read, never returns: the re-read just before a clear), ``bit-flip`` (one bit differs in the copy read), ``change-between-reads``
-(the file changes before the verification read), ``swap-before-clear`` (after the verification
-read another device takes the slot). Faults fire at fractions of the file so they land
-mid-copy for any recording length.
+``unplug-mid-copy`` (signals the emulator to pull the cable, then fails with ENODEV; fires once),
+``short-read`` (end of file early), ``io-error`` (EIO at half the file), ``hang`` (a read that
+never returns), ``hang-before-clear`` (every cache-bypassing read after the first, the download's
+verification read, never returns: the re-read just before a clear), ``bit-flip`` (one bit differs
+in the copy read), ``change-between-reads`` (the file changes before the verification read),
+``swap-before-clear`` (after the verification read another device takes the slot). Faults fire at
+fractions of the file so they land mid-copy for any recording length.
 """
 
 from __future__ import annotations

@@ -13,8 +13,9 @@ never replaced; ``<stem>.unverified.mcap`` -> ``<stem>.mcap``), fsyncs the folde
   its partial copy resumes when the device comes back.
 
 ``resolve_sent_clear(ledger, device_id, data_file, device_type=...)`` settles a clear of this
-device type and id left at ``sent`` by looking at the device (re-read as before a clear): a data file holding only a header means the clear was done (``ok``); a data file
-whose SHA-256 is still the verified one means it was not (``error``, "not cleared").
+device type and id left at ``sent`` by looking at the device (re-read as before a clear): a data
+file holding only a header means the clear was done (``ok``); a data file whose SHA-256 is still
+the verified one means it was not (``error``, "not cleared").
 """
 
 from __future__ import annotations

@@ -1,15 +1,15 @@
 """Configuring a device for the next wearer from a study profile (usb-protocols.md A7).
 
-``configure_device(client, profile, *, data_file, wait_volume, session_now)``: the profile
-checked against the device's type (``StudyProfile.check_device``: what it cannot record is
-refused before any setting is sent); LED blue; battery at least the profile's minimum; the data
-file must be empty (at most the 1024-byte header: a new recording is never appended to an old
-one); the clock set the way OMGui does (``sync_time``); RATE, SESSION, MAXSAMPLES 0, DEBUG,
-HIBERNATE, STOP and the 14 annotation slots, each reply read back and checked; COMMIT with
-delayed activation; the data file's header read back (device, session, rate code); LED magenta. Returns (settings, warnings).
-Each step is retried up to ``AX_CONFIGURE_RETRIES`` times, 1 s apart, except the checks. A
-profile's session "increment" counts from ``session_now`` (``clearing.session_before_clear``: a
-clear leaves the device at session 0).
+``configure_device(client, profile, *, data_file, wait_volume, session_now)``: the profile checked
+against the device's type (``StudyProfile.check_device``: what it cannot record is refused before
+any setting is sent); LED blue; battery at least the profile's minimum; the data file must be empty
+(at most the 1024-byte header: a new recording is never appended to an old one); the clock set the
+way OMGui does (``sync_time``); RATE, SESSION, MAXSAMPLES 0, DEBUG, HIBERNATE, STOP and the 14
+annotation slots, each reply read back and checked; COMMIT with delayed activation; the data file's
+header read back (device, session, rate code); LED magenta. Returns (settings, warnings). Each step
+is retried up to ``AX_CONFIGURE_RETRIES`` times, 1 s apart, except the checks. A profile's session
+"increment" counts from ``session_now`` (``clearing.session_before_clear``: a clear leaves the
+device at session 0).
 """
 
 from __future__ import annotations

@@ -18,14 +18,14 @@ when the ledger says so. Steps:
 3. Meanwhile the online pipeline (``engine.run.process_file``, mode "online") follows the growing
    copy on a thread and writes ``<stem>.unverified.mcap``.
 4. Verification: bytes copied = size at start = size in the directory entry now; a second read of
-   the device that bypasses the OS cache, hashed per range. A range whose hashes differ is read
-   again (up to ``REREADS`` more times) until two reads agree. If they agree with the copy, the
-   copy stands. If they agree on other bytes, the copy was misread only when every sector that
-   differs failed its sector checks in the copy and passes them in the agreed bytes (a read error
-   damages a sector; a device that writes writes whole, valid sectors): those ranges of the copy
-   are patched. Any other difference means the device's data changed between the reads: the
-   result is ``changed`` and the device must not be cleared. After a patch the corrected log is
-   rebuilt from the patched copy.
+   the device that bypasses the OS cache (``device_read.read_device``), hashed per range. A range
+   whose hashes differ is read again (up to ``REREADS`` more times) until two reads agree. If they
+   agree with the copy, the copy stands. If they agree on other bytes, the copy was misread only
+   when every sector that differs failed its sector checks in the copy and passes them in the
+   agreed bytes (a read error damages a sector; a device that writes writes whole, valid sectors):
+   those ranges of the copy are patched. Any other difference means the device's data changed
+   between the reads: the result is ``changed`` and the device must not be cleared. After a patch
+   the corrected log is rebuilt from the patched copy.
 5. A final copy that is already there and has no ledger row (a station killed between its rename
    and its ledger write, in older versions) is adopted when it equals the device, range by range.
 

@@ -272,3 +272,24 @@ def test_a_ledger_from_before_device_types_still_finds_its_downloads(tmp_path):
     lg.download_verified(i, bytes_=2, sha256="bb", bad_sectors=0, cwa_path=str(old), mcap_path=None)
     assert lg.verified_download(10002, 1, device_type="AX6") is None
     assert lg.verified_download(10002, 1, device_type="AX3").id == i
+
+
+def test_devices_are_kept_per_type_also_in_an_older_ledger(tmp_path):
+    """An AX3 and an AX6 with one id are two devices; a ledger whose devices table was keyed by
+    the id alone is rebuilt keyed by id and type, its rows kept."""
+    db = sqlite3.connect(tmp_path / "stillpoint-ledger.sqlite")
+    db.executescript(
+        "CREATE TABLE devices (device_id INTEGER PRIMARY KEY, device_type TEXT, serial TEXT, "
+        "firmware INTEGER, slot TEXT, first_seen REAL, last_seen REAL);"
+        "INSERT INTO devices VALUES (10001, 'AX3', 'CWA17_10001', 50, 'emu-1', 1.0, 2.0);")
+    db.commit()
+    db.close()
+    lg = Ledger(tmp_path)
+    lg.device_seen(10001, "AX6", "AX6_10001", 1, "emu-2")
+    lg.device_seen(10001, "AX3", "CWA17_10001", 51, "emu-1")
+    rows = lg.db.execute("SELECT device_id, device_type, serial, firmware, first_seen FROM devices "
+                         "ORDER BY device_type").fetchall()
+    assert rows[0] == (10001, "AX3", "CWA17_10001", 51, 1.0)
+    assert rows[1][:4] == (10001, "AX6", "AX6_10001", 1) and len(rows) == 2
+    lg.close()
+    assert len(Ledger(tmp_path).db.execute("SELECT * FROM devices").fetchall()) == 2  # reopened

@@ -1,10 +1,11 @@
 """The station's ledger: an SQLite database in the output folder (``stillpoint-ledger.sqlite``).
 
-It records the devices seen, every download (device, session, bytes, SHA-256, verified, times,
-clock offset, host time zone, station id, battery, bad sectors), every clear, every
-configuration, and every state change of a device (``events``). WAL journal, one transaction
+It records the devices seen (by id and type: an AX3 and an AX6 may share an id), every download
+(device type and id, session, bytes, SHA-256, verified, times, clock offset, host time zone,
+station id, battery, bad sectors), every clear (with the device type), every configuration, and
+every state change of a device (``events``, with its USB serial). WAL journal, one transaction
 per state change, so a crash at any moment leaves it consistent. The clear rule
-(``clearing``) asks it for a verified download of the exact device, session and hash.
+(``clearing``) asks it for a verified download of the exact device type, id and session.
 
 A second station on the same folder is refused: the station holds an exclusive ``flock`` on
 ``.stillpoint-station.lock`` for its lifetime (``acquire_station_lock``). A ledger, journal or
@@ -53,8 +54,8 @@ def kill_point(step: str) -> None:
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS devices (
-    device_id INTEGER PRIMARY KEY, device_type TEXT, serial TEXT, firmware INTEGER,
-    slot TEXT, first_seen REAL, last_seen REAL);
+    device_id INTEGER NOT NULL, device_type TEXT NOT NULL, serial TEXT, firmware INTEGER,
+    slot TEXT, first_seen REAL, last_seen REAL, PRIMARY KEY (device_id, device_type));
 CREATE TABLE IF NOT EXISTS downloads (
     id INTEGER PRIMARY KEY AUTOINCREMENT, device_id INTEGER NOT NULL, session_id INTEGER NOT NULL,
     state TEXT NOT NULL, bytes INTEGER, sha256 TEXT, verified INTEGER NOT NULL DEFAULT 0,
@@ -88,6 +89,17 @@ def _add_columns(db) -> None:
         have = {r[1] for r in db.execute(f"PRAGMA table_info({table})").fetchall()}
         if name not in have:
             db.execute(f"ALTER TABLE {table} ADD COLUMN {name} {kind}")
+    # the devices table was keyed by the id alone (an AX6 replaced the AX3 of the same id): rebuilt
+    # keyed by id and type, its rows kept
+    key = [r[1] for r in sorted(db.execute("PRAGMA table_info(devices)").fetchall(),
+                                key=lambda r: r[5]) if r[5]]
+    if key == ["device_id"]:
+        db.executescript(
+            "BEGIN IMMEDIATE; ALTER TABLE devices RENAME TO devices_by_id;"
+            + _SCHEMA[_SCHEMA.index("CREATE TABLE IF NOT EXISTS devices"):
+                      _SCHEMA.index("CREATE TABLE IF NOT EXISTS downloads")]
+            + "INSERT INTO devices SELECT device_id, COALESCE(device_type, ''), serial, firmware, "
+              "slot, first_seen, last_seen FROM devices_by_id; DROP TABLE devices_by_id; COMMIT;")
 
 
 def _refuse_links(folder: Path) -> None:
@@ -217,8 +229,8 @@ class Ledger:
 
     def device_seen(self, device_id: int, device_type: str, serial: str, firmware, slot) -> None:
         now = time.time()
-        self._tx("INSERT INTO devices VALUES (?,?,?,?,?,?,?) ON CONFLICT(device_id) DO UPDATE SET "
-                 "device_type=excluded.device_type, serial=excluded.serial, firmware=excluded.firmware, "
+        self._tx("INSERT INTO devices VALUES (?,?,?,?,?,?,?) ON CONFLICT(device_id, device_type) DO "
+                 "UPDATE SET serial=excluded.serial, firmware=excluded.firmware, "
                  "slot=excluded.slot, last_seen=excluded.last_seen",
                  (device_id, device_type, serial, firmware, slot, now, now))
 

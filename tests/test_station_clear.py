@@ -367,3 +367,7 @@ def test_increment_counts_from_the_erased_session_on_a_later_run(emu, tmp_path):
     rc, flows = _run_station(out, load_profile(prof_path), configure_after=True)
     assert rc == 0 and flows[10001].state == "configured", flows[10001].reason
     assert _header(d)["session_id"] == 42
+    lg = Ledger(out)
+    assert lg.db.execute("SELECT device_id, device_type, session_id, result FROM "
+                         "configurations").fetchall() == [(10001, "AX3", 42, "ok")]
+    lg.close()

@@ -238,10 +238,11 @@ class DeviceFlow:
                                                           self.ledger, att.device_id, session,
                                                           att.device_type))
             except DeviceError as e:
-                self.ledger.configured(att.device_id, None, {}, "error", e.reason)
+                self.ledger.configured(att.device_id, None, {}, "error", e.reason,
+                                       device_type=att.device_type)
                 raise
             self.ledger.configured(att.device_id, settings["session"], settings, "ok",
-                                   "; ".join(warnings) or None)
+                                   "; ".join(warnings) or None, device_type=att.device_type)
             self._set("configured", f"session {settings['session']}, start {settings['start']}"
                       + (f" (warning: {'; '.join(warnings)})" if warnings else ""))
 

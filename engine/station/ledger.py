@@ -2,7 +2,7 @@
 
 It records the devices seen (by id and type: an AX3 and an AX6 may share an id), every download
 (device type and id, session, bytes, SHA-256, verified, times, clock offset, host time zone,
-station id, battery, bad sectors), every clear (with the device type), every configuration, and
+station id, battery, bad sectors), every clear and configuration (with the device type), and
 every state change of a device (``events``, with its USB serial). WAL journal, one transaction
 per state change, so a crash at any moment leaves it consistent. The clear rule
 (``clearing``) asks it for a verified download of the exact device type, id and session.
@@ -76,10 +76,11 @@ CREATE TABLE IF NOT EXISTS events (
 
 # Columns tables gained after their first release (an older ledger gets them when opened; its
 # rows keep NULL there, and a NULL device type matches any type): the clear's erase level and
-# what was read back after the erase; the device type of downloads and clears (an AX3 and an AX6
-# may share an id).
+# what was read back after the erase; the device type of downloads, clears and configurations
+# (an AX3 and an AX6 may share an id).
 _ADDED_COLUMNS = (("clears", "erase", "TEXT"), ("clears", "readback", "TEXT"),
-                  ("clears", "device_type", "TEXT"), ("downloads", "device_type", "TEXT"))
+                  ("clears", "device_type", "TEXT"), ("downloads", "device_type", "TEXT"),
+                  ("configurations", "device_type", "TEXT"))
 # a row of the device type asked for, or of a ledger older than the type column
 _OF_TYPE = "(? IS NULL OR device_type IS NULL OR device_type=?)"
 
@@ -288,10 +289,11 @@ class Ledger:
                  (result, reason, readback, clear_id))
 
     def configured(self, device_id: int, session_id, settings: dict, result: str,
-                   reason: Optional[str] = None) -> None:
-        self._tx("INSERT INTO configurations(device_id, session_id, time, settings, result, reason) "
-                 "VALUES (?,?,?,?,?,?)", (device_id, session_id, time.time(),
-                                          json.dumps(settings, default=str), result, reason))
+                   reason: Optional[str] = None, device_type: Optional[str] = None) -> None:
+        self._tx("INSERT INTO configurations(device_id, session_id, time, settings, result, reason, "
+                 "device_type) VALUES (?,?,?,?,?,?,?)",
+                 (device_id, session_id, time.time(), json.dumps(settings, default=str), result,
+                  reason, device_type))
 
     # ------------------------------------------------------------------ reads
     def _rec(self, row) -> DownloadRecord:

@@ -131,7 +131,7 @@ def run(args) -> int:
                                                       wait_volume=flow_wait, session_now=session_now)
             if ledger is not None:
                 ledger.configured(att.device_id, settings["session"], settings, "ok",
-                                  "; ".join(warnings) or None)
+                                  "; ".join(warnings) or None, device_type=att.device_type)
                 ledger.close()
             for w in warnings:
                 print(f"warning: device {att.device_id}: {w}", file=sys.stderr)

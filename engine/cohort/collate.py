@@ -3,10 +3,16 @@
 ``status(outdir)``: done / failed by class / pending (and which pending files are being
 processed right now: their lock is held).
 
-``collate(outdir)``: ``cohort_summary.csv``, one row per finished file (device, session,
-start/end, duration, samples, QC counts, calibration status, error before/after and
-coefficients, ENMO mean, wear time when the run summary gives one, output paths, timings), and
-``cohort_failures.csv``, one row per failed file with its class and error. Only folders with a
+``collate(outdir)``: ``cohort_summary.csv``, one row per finished file (participant, device,
+session, start/end, duration, samples, QC counts, calibration status, error before/after and
+coefficients, and from its day table: wear hours, valid days, ENMO and MAD over clean epochs,
+minutes per ENMO band, MVPA bouts, M10/L5; output paths, timings), ``cohort_days.csv`` (every
+file's day rows stacked, with the participant id, the file, its key and the weekday),
+``cohort_participants.csv`` (one row per participant: files, valid days on weekdays and at
+weekends, wear hours, clean-epoch ENMO/MAD, means over valid days) and ``cohort_failures.csv``,
+one row per failed file with its class and error. Times follow engine/timezones.py:
+``start_utc``/``end_utc`` only when the file's zone is known, ``start_local``/``end_local``
+always (the device clock when the zone is unknown), and ``timezone`` names which. Only folders with a
 ``_DONE.json`` for their key are read; a finished file whose outputs are missing, of the wrong
 size (or, with ``verify``, the wrong SHA-256) or unreadable goes to the failure table with the
 class ``unreadable_output`` instead of stopping the collation. Cells pass through
@@ -20,7 +26,7 @@ import csv
 import json
 import os
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
+from datetime import datetime
 from pathlib import Path
 from typing import Optional
 
@@ -33,15 +39,28 @@ from .plan import read_plan
 
 SUMMARY_CSV = "cohort_summary.csv"
 FAILURES_CSV = "cohort_failures.csv"
+DAYS_CSV = "cohort_days.csv"
+PARTICIPANTS_CSV = "cohort_participants.csv"
+
+# the day table's summaries a study reads, taken from each file's ``all`` row (band minutes,
+# MVPA and M10/L5 are means over its valid days; ENMO/MAD over its clean epochs)
+_BAND_PREFIX = "min_enmo_"
+_ACTIVITY = ("mvpa_bout_min", "m10_mg", "l5_mg")
 
 SUMMARY_FIELDS = (
-    "file", "key", "device_type", "device_id", "session", "rate_hz", "start_utc", "end_utc",
+    "participant", "file", "key", "device_type", "device_id", "session", "rate_hz", "timezone",
+    "start_utc", "end_utc", "start_local", "end_local",
     "duration_h", "samples", "segments", "qc_unit", "qc_total", "qc_valid", "qc_skipped",
     "qc_events", "windows", "nonmovement_windows", "calibration_status", "calibration_applied",
     "calibration_reason", "error_before_mg", "error_after_mg", "hours_used",
     "offset_x", "offset_y", "offset_z", "scale_x", "scale_y", "scale_z",
-    "tempoffset_x", "tempoffset_y", "tempoffset_z", "temperature_ref", "enmo_mean_mg",
-    "wear_time_h", "mcap", "summary", "folder", "wall_s", "peak_rss_mb", "finished_utc")
+    "tempoffset_x", "tempoffset_y", "tempoffset_z", "temperature_ref",
+    "wear_time_h", "nonwear_h", "valid_days", "enmo_mean_mg", "mad_mean_mg",
+    "enmo_all_epochs_mg", "BANDS", "mvpa_bout_min", "m10_mg", "l5_mg",
+    "mcap", "summary", "epochs", "days", "folder", "wall_s", "peak_rss_mb", "finished_utc")
+PARTICIPANT_FIELDS = ("participant", "files", "valid_days", "valid_weekdays",
+                      "valid_weekend_days", "wear_time_h", "enmo_mean_mg", "mad_mean_mg",
+                      "BANDS", "mvpa_bout_min", "m10_mg", "l5_mg", "timezones")
 FAILURE_FIELDS = ("file", "key", "class", "error", "attempts", "time_utc", "folder")
 
 
@@ -49,33 +68,46 @@ class UnreadableOutput(Exception):
     pass
 
 
-def _utc_ns(ns) -> str:
-    if ns is None:
-        return ""
-    return datetime.fromtimestamp(int(ns) / 1e9, tz=timezone.utc).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
+def _file_table(summary: dict) -> dict:
+    """The day table's ``all`` row of a run (``summary["tables"]["file"]``); {} without tables."""
+    return ((summary.get("tables") or {}).get("file")) or {}
 
 
 def wear_hours(summary: dict) -> Optional[float]:
-    """Wear time in hours when the run summary provides it (``wear_time_s``, or ``wear_s`` in a
-    ``wear`` / ``nonwear`` section); None otherwise."""
-    for v in (summary.get("wear_time_s"), (summary.get("wear") or {}).get("wear_s"),
-              (summary.get("nonwear") or {}).get("wear_s"),
-              (summary.get("nonwear") or {}).get("wear_time_s")):
-        if isinstance(v, (int, float)):
-            return v / 3600.0
-    return None
+    """Hours of clean wear (epochs without nonwear or any other flag) from the run's day
+    table; None when the run wrote no tables."""
+    v = _file_table(summary).get("wear_hours")
+    return float(v) if isinstance(v, (int, float)) else None
+
+
+def _fields(base, bands) -> list:
+    out = []
+    for f in base:
+        out.extend(bands if f == "BANDS" else [f])
+    return out
 
 
 def summary_row(entry, final: Path, done: dict, summary: dict) -> dict:
     from stillpoint.engine.run import APPLIED_STATUSES
+    from stillpoint.engine.timezones import ZoneError, local_text, utc_text, zone_from_label
     dev = summary.get("device") or {}
     qc = summary.get("qc") or {}
     cal = summary["calibration"]
+    try:
+        zone = zone_from_label(summary.get("timezone"))
+    except ZoneError:
+        zone = zone_from_label(None)
+    day = _file_table(summary)
+    outs = summary.get("outputs") or {}
     row = {
+        "participant": summary.get("participant") or entry.participant or Path(entry.path).name,
         "file": entry.path, "key": entry.key, "folder": str(final),
         "device_type": dev.get("type"), "device_id": dev.get("id"), "session": dev.get("session"),
-        "rate_hz": dev.get("rate_hz"),
-        "start_utc": _utc_ns(summary.get("start_ns")), "end_utc": _utc_ns(summary.get("end_ns")),
+        "rate_hz": dev.get("rate_hz"), "timezone": zone.label,
+        "start_utc": utc_text(summary.get("start_ns"), zone, "us"),
+        "end_utc": utc_text(summary.get("end_ns"), zone, "us"),
+        "start_local": local_text(summary.get("start_ns"), zone, "us"),
+        "end_local": local_text(summary.get("end_ns"), zone, "us"),
         "duration_h": summary["duration_s"] / 3600.0, "samples": summary["samples"],
         "segments": summary.get("segments"),
         "qc_unit": qc.get("unit"), "qc_total": qc.get("total"), "qc_valid": qc.get("valid"),
@@ -86,8 +118,14 @@ def summary_row(entry, final: Path, done: dict, summary: dict) -> dict:
         "calibration_reason": cal.get("reason"),
         "error_before_mg": cal.get("error_before_mg"), "error_after_mg": cal.get("error_after_mg"),
         "hours_used": cal.get("hours_used"), "temperature_ref": cal.get("temperature_ref"),
-        "enmo_mean_mg": summary.get("enmo_mean_mg"), "wear_time_h": wear_hours(summary),
+        "wear_time_h": wear_hours(summary), "nonwear_h": day.get("nonwear_hours"),
+        "valid_days": day.get("valid_day"), "enmo_mean_mg": day.get("enmo_mean_mg"),
+        "mad_mean_mg": day.get("mad_mean_mg"), "enmo_all_epochs_mg": summary.get("enmo_mean_mg"),
+        **{k: day.get(k) for k in _ACTIVITY},
+        **{k: v for k, v in day.items() if k.startswith(_BAND_PREFIX)},
         "mcap": str(final / summary["outputs"]["mcap"]), "summary": str(final / SUMMARY_NAME),
+        "epochs": str(final / outs["epochs"]) if outs.get("epochs") else None,
+        "days": str(final / outs["days"]) if outs.get("days") else None,
         "wall_s": (done.get("timings") or {}).get("wall_s"), "peak_rss_mb": done.get("peak_rss_mb"),
         "finished_utc": (done.get("timings") or {}).get("finished_utc"),
     }
@@ -130,6 +168,71 @@ class Collation:
     pending: int = 0
     summary_csv: Optional[Path] = None
     failures_csv: Optional[Path] = None
+    days_csv: Optional[Path] = None
+    participants_csv: Optional[Path] = None
+    participants: list = field(default_factory=list)
+
+
+_WEEKDAYS = ("Mon", "Tue", "Wed", "Thu", "Fri", "Sat", "Sun")
+
+
+def _day_rows(row: dict) -> tuple[list, list]:
+    """(columns, rows) of one file's day table, each row led by the participant, file and key
+    and given its weekday; the ``all`` row is left out (it is the file's summary row)."""
+    path = row.get("days")
+    if not path:
+        return [], []
+    try:
+        with open(path, encoding="utf-8", newline="") as f:
+            rd = csv.DictReader(f)
+            cols = list(rd.fieldnames or [])
+            rows = [r for r in rd if r.get("date") != "all"]
+    except (OSError, UnicodeError, csv.Error) as e:
+        raise UnreadableOutput(f"{path}: unreadable day table ({e})") from None
+    for r in rows:
+        try:
+            wd = datetime.strptime(r["date"], "%Y-%m-%d").weekday()
+        except (KeyError, ValueError):
+            raise UnreadableOutput(f"{path}: a day row without a date") from None
+        r.update(participant=row["participant"], file=row["file"], key=row["key"],
+                 weekday=_WEEKDAYS[wd])
+    return cols, rows
+
+
+def _num(v) -> Optional[float]:
+    try:
+        x = float(v)
+    except (TypeError, ValueError):
+        return None
+    return x if x == x else None
+
+
+def participant_rows(rows: list, days: list, bands: list) -> list:
+    """One row per participant from the file rows and the stacked day rows: valid days (also
+    split into weekdays and weekend days, by the local date), wear hours, ENMO/MAD over every
+    clean epoch of their files (wear-weighted means of the files'), and the band minutes, MVPA
+    and M10/L5 averaged over their valid days."""
+    out = []
+    for who in sorted({r["participant"] for r in rows}):
+        files = [r for r in rows if r["participant"] == who]
+        valid = [d for d in days if d["participant"] == who and d.get("valid_day") == "1"]
+        wear = sum(_num(r.get("wear_time_h")) or 0.0 for r in files)
+        p = {"participant": who, "files": len(files), "valid_days": len(valid),
+             "valid_weekdays": sum(d["weekday"] not in ("Sat", "Sun") for d in valid),
+             "valid_weekend_days": sum(d["weekday"] in ("Sat", "Sun") for d in valid),
+             "wear_time_h": wear,
+             "timezones": ";".join(sorted({str(r.get("timezone")) for r in files}))}
+        for k in ("enmo_mean_mg", "mad_mean_mg"):
+            pairs = [(_num(r.get(k)), _num(r.get("wear_time_h")) or 0.0) for r in files]
+            pairs = [(v, w) for v, w in pairs if v is not None and w > 0]
+            w = sum(w for _, w in pairs)
+            p[k] = sum(v * w for v, w in pairs) / w if w else None
+        for k in list(bands) + list(_ACTIVITY):
+            v = [_num(d.get(k)) for d in valid]
+            v = [x for x in v if x is not None]
+            p[k] = sum(v) / len(v) if v else None
+        out.append(p)
+    return out
 
 
 def _write_csv(path: Path, fields, rows) -> Path:
@@ -165,8 +268,29 @@ def collate(outdir, *, verify: bool = False, write: bool = True) -> Collation:
                                  "time_utc": failed.get("time_utc"), "folder": str(final)})
             continue
         out.pending += 1
+    days, day_cols, kept = [], [], []
+    for r in out.rows:  # a file whose day table cannot be read is a failure, not a hole
+        try:
+            cols, rows = _day_rows(r)
+        except UnreadableOutput as err:
+            out.failures.append({"file": r["file"], "key": r["key"], "class": "unreadable_output",
+                                 "error": str(err), "folder": r["folder"]})
+            continue
+        kept.append(r)
+        days.extend(rows)
+        day_cols.extend(c for c in cols if c not in day_cols)
+    out.rows = kept
+    bands = [c for c in day_cols if c.startswith(_BAND_PREFIX)]
+    if not bands:
+        bands = sorted({k for r in kept for k in r if k.startswith(_BAND_PREFIX)})
+    out.participants = participant_rows(kept, days, bands)
     if write:
-        out.summary_csv = _write_csv(outdir / SUMMARY_CSV, SUMMARY_FIELDS, out.rows)
+        out.summary_csv = _write_csv(outdir / SUMMARY_CSV, _fields(SUMMARY_FIELDS, bands), out.rows)
+        out.days_csv = _write_csv(outdir / DAYS_CSV,
+                                  ["participant", "file", "key", "date", "weekday"] +
+                                  [c for c in day_cols if c != "date"], days)
+        out.participants_csv = _write_csv(outdir / PARTICIPANTS_CSV,
+                                          _fields(PARTICIPANT_FIELDS, bands), out.participants)
         out.failures_csv = _write_csv(outdir / FAILURES_CSV, FAILURE_FIELDS, out.failures)
     return out
 

@@ -50,7 +50,7 @@ from stillpoint.drivers.errors import StillpointError
 from stillpoint.drivers.outputs import atomic_output, fsync_folder
 
 from ..malloc import set_block_thresholds
-from .plan import code_version, fingerprint, make_key, canonical_settings
+from .plan import canonical_settings, code_version, entry_settings, fingerprint, make_key
 
 try:
     import fcntl
@@ -197,6 +197,32 @@ def versions() -> dict:
 
 
 # ---------------------------------------------------------------------------- the job
+TABLE_OPTIONS = ("nonwear_version", "valid_day_hours", "enmo_bands_mg", "mvpa_bout_s")
+
+
+def table_options(settings: dict) -> dict:
+    """The epoch/day table options of a cohort's settings (``settings["tables"]``, as
+    ``process``'s --nonwear, --valid-day-hours, --enmo-bands, --mvpa-bout-s) as
+    ``TablesSettings`` keywords; absent: the defaults."""
+    t = settings.get("tables") or {}
+    out = {k: t[k] for k in TABLE_OPTIONS if t.get(k) is not None}
+    if "enmo_bands_mg" in out:
+        out["enmo_bands_mg"] = tuple(float(x) for x in out["enmo_bands_mg"])
+    return out
+
+
+def _subject_code(mcap: Path) -> str:
+    """The recording's subject code (the header's ``Subject Code``), from the log's device
+    record; "" when it has none."""
+    from stillpoint.engine.mcap.stream import read_metadata
+    try:
+        with open(mcap, "rb") as f:
+            dev = json.loads(read_metadata(f)["device"]["json"])
+        return str((dev.get("metadata") or {}).get("Subject Code") or "").strip()
+    except Exception:  # noqa: BLE001 - the id is a convenience: the file name stands in
+        return ""
+
+
 def run_job(entry: dict, outdir: str, settings: dict, code: str, attempt: int = 1) -> dict:
     """Process one entry of the plan (``path``, ``key``, ``folder``, ``error``) into its folder.
 
@@ -211,6 +237,7 @@ def run_job(entry: dict, outdir: str, settings: dict, code: str, attempt: int = 
     t0, cpu0 = time.perf_counter(), time.process_time()
     started = time.time()
     path = entry["path"]
+    settings = entry_settings(settings, entry)  # the manifest's zone for this file, if any
     final, tmp, lock = paths(outdir, entry["folder"])
     final.parent.mkdir(parents=True, exist_ok=True)
     if entry.get("error"):
@@ -241,11 +268,14 @@ def run_job(entry: dict, outdir: str, settings: dict, code: str, attempt: int = 
             # and hold its own allocator arena (peak RSS per worker 123-127 -> 180-200 MB on
             # 1-day files, tools/bench_cohort.py)
             summary = process_file(path, tmp / MCAP_NAME, RunSettings.from_dict(settings),
-                                   tables=TablesSettings(*table_paths(tmp / MCAP_NAME)),
+                                   tables=TablesSettings(*table_paths(tmp / MCAP_NAME),
+                                                         **table_options(settings)),
                                    prefetch=False)
             t_engine = time.perf_counter() - t0
             rss = peak_rss_mb()
             summary = {k: v for k, v in summary.items() if k not in _VOLATILE}
+            summary["participant"] = entry.get("participant") or _subject_code(tmp / MCAP_NAME) \
+                or Path(path).name
             summary["outputs"] = {"mcap": MCAP_NAME}
             if "tables" in summary:  # names inside the folder, not the temporary path
                 for k in ("epochs", "days"):

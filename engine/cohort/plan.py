@@ -12,6 +12,11 @@ holds more than a few hundred entries at 100,000 files).
 
 A file that cannot even be opened to take its key (missing, permission denied) is still in the
 plan, with ``error`` set and a key made from its path, so it lands in the failure table.
+
+A manifest CSV may also give, per file, ``timezone`` (the participant's zone for that file: it
+replaces the run's ``--timezone`` for it and is part of its key) and ``participant`` (the id
+the day tables and the per-participant summary are grouped by; default: the recording's
+subject code, else its file name).
 """
 
 from __future__ import annotations
@@ -38,7 +43,10 @@ RECORDING_SUFFIXES = (".cwa", ".cwa.gz", ".bin", ".bin.gz")
 MANIFEST = "manifest.csv"
 PLAN_FILE = "cohort.json"
 FILES_DIR = "files"
-MANIFEST_FIELDS = ("path", "size", "key", "folder", "error")
+MANIFEST_FIELDS = ("path", "size", "key", "folder", "error", "timezone", "participant")
+# manifest CSV columns read per file besides ``path`` (first name found wins)
+ZONE_COLUMNS = ("timezone", "time_zone", "tz")
+PARTICIPANT_COLUMNS = ("participant", "participant_id", "id")
 
 
 class CohortInputError(StillpointError):
@@ -65,6 +73,15 @@ def code_version() -> str:
     return f"{v}+{h.hexdigest()[:12]}"
 
 
+def default_table_options() -> dict:
+    """The epoch/day table options a cohort's settings carry when none are given (those of
+    ``process``): a plan's settings always hold them, so they are part of every key."""
+    from stillpoint.engine.operators.nonwear import DEFAULT_VERSION
+    from stillpoint.engine.tables.days import ENMO_BANDS_MG, MVPA_BOUT_S, VALID_DAY_HOURS
+    return {"nonwear_version": DEFAULT_VERSION, "valid_day_hours": float(VALID_DAY_HOURS),
+            "enmo_bands_mg": [float(x) for x in ENMO_BANDS_MG], "mvpa_bout_s": float(MVPA_BOUT_S)}
+
+
 def canonical_settings(settings) -> str:
     """The settings as canonical JSON (sorted keys, no spaces): what goes into every key."""
     d = settings.to_dict() if hasattr(settings, "to_dict") else dict(settings)
@@ -77,10 +94,11 @@ def is_recording_name(name: str) -> bool:
     return n.endswith(RECORDING_SUFFIXES)
 
 
-def _read_manifest_csv(path: Path) -> list[Path]:
+def _read_manifest_csv(path: Path, attributes: Optional[dict] = None) -> list[Path]:
     """A manifest CSV: a header row with a ``path`` column, or one path per line (first column);
     relative paths are relative to the CSV's folder; blank lines and lines starting with # are
-    ignored."""
+    ignored. With a header, the optional ``timezone`` and ``participant`` columns of each row
+    go into ``attributes`` (absolute path -> {"timezone", "participant"})."""
     try:
         text = path.read_text(encoding="utf-8-sig")
     except (OSError, UnicodeError) as e:
@@ -90,19 +108,36 @@ def _read_manifest_csv(path: Path) -> list[Path]:
         raise CohortInputError(f"{path}: the manifest lists no files")
     header = [c.strip().lower() for c in rows[0]]
     col = header.index("path") if "path" in header else 0
+    extra = {}
     if "path" in header:
         rows = rows[1:]
+        for name, cands in (("timezone", ZONE_COLUMNS), ("participant", PARTICIPANT_COLUMNS)):
+            found = [header.index(c) for c in cands if c in header]
+            if found:
+                extra[name] = found[0]
     out = []
     for r in rows:
         p = Path(r[col].strip()).expanduser()
-        out.append(p if p.is_absolute() else path.parent / p)
+        p = p if p.is_absolute() else path.parent / p
+        out.append(p)
+        if attributes is not None and extra:
+            vals = {k: (r[i].strip() if i < len(r) else "") for k, i in extra.items()}
+            if "timezone" in vals and vals["timezone"]:
+                from stillpoint.engine.timezones import ZoneError, parse_zone
+                try:
+                    parse_zone(vals["timezone"])
+                except ZoneError as e:
+                    raise CohortInputError(f"{path}: row of {p.name}: {e}") from None
+            attributes[str(p.absolute())] = {k: v for k, v in vals.items() if v}
     return out
 
 
-def discover_inputs(inputs: Iterable) -> list[Path]:
+def discover_inputs(inputs: Iterable, attributes: Optional[dict] = None) -> list[Path]:
     """Files, folders (searched recursively for .cwa/.cwa.gz/.bin/.bin.gz, any case) and manifest
     CSVs -> absolute paths, sorted, each once. A name on the command line that does not exist is
-    an error; a file listed in a manifest that does not exist is kept (it fails as unreadable)."""
+    an error; a file listed in a manifest that does not exist is kept (it fails as unreadable).
+    ``attributes``: a dict that receives the manifests' per-file ``timezone`` / ``participant``
+    (absolute path -> values; pass it on to ``make_plan``)."""
     found: dict[str, Path] = {}
     for raw in inputs:
         p = Path(raw).expanduser()
@@ -114,7 +149,7 @@ def discover_inputs(inputs: Iterable) -> list[Path]:
                         q = Path(root, name).absolute()
                         found[str(q)] = q
         elif p.name.lower().endswith(".csv") and p.is_file():
-            for q in _read_manifest_csv(p):
+            for q in _read_manifest_csv(p, attributes):
                 q = q.absolute()
                 found[str(q)] = q
         elif p.exists() or p.is_symlink():
@@ -177,13 +212,24 @@ class Entry:
     key: str
     folder: str  # relative to OUTDIR
     error: str = ""  # set when the file could not be opened to take its key
+    timezone: str = ""  # the manifest's zone for this file ("": the run's setting)
+    participant: str = ""  # the manifest's participant id ("": from the recording)
 
     def shard(self, n: int) -> int:
         return int(self.key[:8], 16) % n
 
     def as_row(self) -> dict:
         return {"path": self.path, "size": self.size, "key": self.key, "folder": self.folder,
-                "error": self.error}
+                "error": self.error, "timezone": self.timezone, "participant": self.participant}
+
+
+def entry_settings(settings: dict, entry) -> dict:
+    """The settings one file is processed with: the run's, with the manifest's zone for that
+    file in place of the run's ``timezone`` (``entry``: an Entry or its row)."""
+    tz = entry.get("timezone") if isinstance(entry, dict) else getattr(entry, "timezone", "")
+    if not tz:
+        return settings
+    return dict(settings, timezone=tz)
 
 
 @dataclass
@@ -234,18 +280,25 @@ class Plan:
                     raise
 
 
-def make_plan(paths: Iterable[Path], settings, *, code: Optional[str] = None) -> Plan:
-    """Fingerprint every file and make its key and folder (reads ``HEADER_BYTES`` per file)."""
+def make_plan(paths: Iterable[Path], settings, *, code: Optional[str] = None,
+              attributes: Optional[dict] = None) -> Plan:
+    """Fingerprint every file and make its key and folder (reads ``HEADER_BYTES`` per file).
+    ``attributes`` (from ``discover_inputs``): per-file ``timezone`` and ``participant``; a
+    file's zone is part of its key."""
     settings_dict = settings.to_dict() if hasattr(settings, "to_dict") else dict(settings)
+    settings_dict.setdefault("tables", default_table_options())
     sj = canonical_settings(settings_dict)
     code = code or code_version()
     plan = Plan(settings=settings_dict, code_version=code)
     seen: dict[str, str] = {}
     for p in paths:
         p = Path(p)
+        attrs = (attributes or {}).get(str(p.absolute()), {})
+        tz, who = attrs.get("timezone", ""), attrs.get("participant", "")
+        sj_file = canonical_settings(entry_settings(settings_dict, {"timezone": tz})) if tz else sj
         try:
             fp = fingerprint(p)
-            key, size, err = make_key(fp, sj, code), fp["size"], ""
+            key, size, err = make_key(fp, sj_file, code), fp["size"], ""
         except OSError as e:
             key = hashlib.sha256(f"unreadable\0{p}\0{sj}\0{code}".encode()).hexdigest()
             size, err = 0, f"cannot open: {describe_input_error(e)}"
@@ -254,7 +307,8 @@ def make_plan(paths: Iterable[Path], settings, *, code: Optional[str] = None) ->
             plan.duplicates.append((str(p), seen[folder]))
             continue
         seen[folder] = str(p)
-        plan.entries.append(Entry(path=str(p), size=size, key=key, folder=folder, error=err))
+        plan.entries.append(Entry(path=str(p), size=size, key=key, folder=folder, error=err,
+                                  timezone=tz, participant=who))
     return plan
 
 
@@ -272,5 +326,7 @@ def read_plan(outdir: Path) -> Plan:
     plan = Plan(settings=meta["settings"], code_version=meta["code_version"])
     for r in csv.DictReader(io.StringIO(text)):
         plan.entries.append(Entry(path=r["path"], size=int(r["size"] or 0), key=r["key"],
-                                  folder=r["folder"], error=r.get("error") or ""))
+                                  folder=r["folder"], error=r.get("error") or "",
+                                  timezone=r.get("timezone") or "",
+                                  participant=r.get("participant") or ""))
     return plan

@@ -7,6 +7,9 @@ distributed (laptop to cluster) into one output folder that is the single source
     stillpoint cohort retry OUT --class transient_io|resource|corrupt_input|bug|all
     stillpoint cohort collate OUT [--verify]
 
+``run`` takes every processing setting of ``process`` and its table options (--nonwear,
+--valid-day-hours, --enmo-bands, --mvpa-bout-s), all part of each file's key.
+
 A rerun of the same command does only what is not finished; Ctrl-C stops cleanly (exit 130).
 Exit codes: 0 (failed files are in the failure table), 1 with ``--strict`` when any file failed,
 2 for unusable arguments or an unusable output folder, 130 when interrupted.
@@ -51,14 +54,16 @@ def add_arguments(p) -> None:
     r = sub.add_parser("run", help="plan, process and collate a cohort",
                        description="Process recordings into OUTDIR; a rerun resumes.")
     r.add_argument("inputs", nargs="+", help="recordings, folders (searched recursively for "
-                   ".cwa/.cwa.gz/.bin/.bin.gz) or manifest CSVs (a 'path' column)")
+                   ".cwa/.cwa.gz/.bin/.bin.gz) or manifest CSVs (a 'path' column; optional "
+                   "'timezone' (that file's zone, in place of --timezone) and 'participant')")
     r.add_argument("-o", "--output", type=Path, required=True, help="the cohort folder")
     r.add_argument("--shard", type=shard, metavar="K/N", help="process only shard K of N (0-based; for job "
                    "arrays: --shard $SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT); no collation")
     _exec_arguments(r)
-    from ._tableopts import add_timezone_argument
+    from ._tableopts import add_table_arguments, add_timezone_argument
     add_timezone_argument(r)
     add_setting_arguments(r)
+    add_table_arguments(r, with_switch=False)
     s = sub.add_parser("status", help="done / failed by class / pending")
     s.add_argument("outdir", type=Path)
     s.add_argument("--json", action="store_true", help="one JSON object")
@@ -125,7 +130,8 @@ def _execute(args, plan, outdir: Path, retry_classes=(), collate_after=True) -> 
               "_FAILED.json holds the traceback. Please report it.", file=sys.stderr)
     if collate_after:
         col = collate(outdir)
-        print(f"summary: {col.summary_csv} ({len(col.rows)} file(s)); failures: "
+        print(f"summary: {col.summary_csv} ({len(col.rows)} file(s)); days: {col.days_csv}; "
+              f"participants: {col.participants_csv} ({len(col.participants)}); failures: "
               f"{col.failures_csv} ({len(col.failures)})", file=sys.stderr)
         n_failed = len(col.failures)
     else:
@@ -145,12 +151,21 @@ def _run(args) -> int:
         from ._tableopts import check_zone
         check_zone(args.timezone)
         over["timezone"] = args.timezone
-    settings = RunSettings.from_dict({}, **over)
-    files = discover_inputs(args.inputs)
+    if getattr(args, "timezone_override", False):
+        if getattr(args, "timezone", None) is None:
+            raise OptionError("--timezone-override replaces a GENEActiv header's zone with "
+                              "--timezone: give --timezone too")
+        over["timezone_override"] = True
+    settings = RunSettings.from_dict({}, **over).to_dict()
+    settings["tables"] = {"nonwear_version": args.nonwear, "valid_day_hours": args.valid_day_hours,
+                          "enmo_bands_mg": [float(x) for x in args.enmo_bands],
+                          "mvpa_bout_s": args.mvpa_bout_s}  # part of every file's key
+    attributes: dict = {}  # a manifest's per-file timezone / participant
+    files = discover_inputs(args.inputs, attributes)
     if not files:
         raise OptionError("no recordings (.cwa, .cwa.gz, .bin, .bin.gz) found in "
                           + ", ".join(str(x) for x in args.inputs))
-    plan = make_plan(files, settings)
+    plan = make_plan(files, settings, attributes=attributes)
     plan.write(outdir)
     for dup, first in plan.duplicates:
         print(f"note: {dup} has the same bytes and name as {first}: processed once", file=sys.stderr)
@@ -166,7 +181,9 @@ def _retry(args) -> int:
     outdir = args.outdir.absolute()
     old = read_plan(outdir)
     classes = CLASSES if "all" in args.classes else tuple(args.classes)
-    plan = make_plan([Path(e.path) for e in old.entries], old.settings)
+    attributes = {e.path: {"timezone": e.timezone, "participant": e.participant}
+                  for e in old.entries}
+    plan = make_plan([Path(e.path) for e in old.entries], old.settings, attributes=attributes)
     if plan.code_version != old.code_version:
         print(f"note: the code changed ({old.code_version} -> {plan.code_version}): files get new "
               "keys and are processed again", file=sys.stderr)
@@ -194,6 +211,8 @@ def _collate(args) -> int:
     from stillpoint.engine.cohort import collate
     col = collate(args.outdir, verify=args.verify)
     print(f"summary: {col.summary_csv} ({len(col.rows)} file(s))")
+    print(f"days: {col.days_csv}")
+    print(f"participants: {col.participants_csv} ({len(col.participants)})")
     print(f"failures: {col.failures_csv} ({len(col.failures)} file(s))")
     if col.pending:
         print(f"pending: {col.pending} file(s) not processed yet")

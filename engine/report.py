@@ -198,6 +198,10 @@ def _draw(plt, ep: dict, days: list[dict], windows, est, rec: dict, title: str, 
     step_h = epoch_s / 3600
     by_date = {d["date"]: d for d in days}
     ymax = 300.0
+    from .timezones import UNKNOWN_LABEL
+    # times are local only when the zone is known; otherwise they are the device clock
+    device_clock = bool(days) and days[-1].get("timezone") == UNKNOWN_LABEL
+    clock = "device clock (zone unknown)" if device_clock else "local time"
     short = len(dates) == 1 and len(ep["hour"]) and (ep["hour"][-1] - ep["hour"][0]) < 6
     if short:
         pad = max(0.02, 0.05 * (ep["hour"][-1] - ep["hour"][0]))
@@ -234,12 +238,12 @@ def _draw(plt, ep: dict, days: list[dict], windows, est, rec: dict, title: str, 
             ax.text(1.01, 0.5, (f"{wh:.1f} h" if wh >= 1 else f"{wh * 60:.1f} min") + f" wear\n{mark}", transform=ax.transAxes,
                     fontsize=6.5, va="center")
         if i == 0:
-            ax.set_title("ENMO per epoch (mg) against the local clock (h), one row per local day",
-                         fontsize=8, pad=14)
+            ax.set_title(f"ENMO per epoch (mg) against the {clock} (h), one row per "
+                         f"{'device-clock' if device_clock else 'local'} day", fontsize=8, pad=14)
     if len(dates) > DAYS_SHOWN:
         fig.text(0.5, 0.945, f"first {DAYS_SHOWN} of {len(dates)} days shown", ha="center", fontsize=7)
     if shown:
-        fig.axes[len(shown) - 1].set_xlabel("local time (h)", fontsize=7, labelpad=1)
+        fig.axes[len(shown) - 1].set_xlabel(f"{clock} (h)", fontsize=7, labelpad=1)
     # legend entries for every shading kind, present or not
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
@@ -257,7 +261,7 @@ def _draw(plt, ep: dict, days: list[dict], windows, est, rec: dict, title: str, 
     if len(ep["temp_c"]):
         ax.plot(ep["temp_local"], ep["temp_c"], lw=0.6, color="tab:red")
     ax.set_ylabel("degC", fontsize=7)
-    ax.set_title("device temperature (local time)", fontsize=8)
+    ax.set_title(f"device temperature ({clock})", fontsize=8)
     ax.tick_params(labelsize=6.5)
     import matplotlib.dates as mdates
     loc = mdates.AutoDateLocator(maxticks=9)

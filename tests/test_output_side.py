@@ -171,7 +171,7 @@ def test_non_utf8_file_names(tmp_path):
     out = tmp_path / "o\udcfe.mcap"
     for args in (["process", src, "-o", out, "--summary", tmp_path / "s\udcff.json", "-q"],
                  ["export", src, "-o", tmp_path / "e\udcff.csv"],
-                 ["export", out, "-o", tmp_path / "e\udcff.npz"],
+                 ["export", out, "-o", tmp_path / "e\udcff.npz", "--topic", "/corrected/accel"],
                  ["replay", out, "--check", "-o", tmp_path / "r\udcff.mcap", "-q"],
                  ["simulate", "-o", tmp_path / "sim\udcff.cwa", "--days", "0.005"]):
         r = subprocess.run([sys.executable, "-m", "tools", *map(str, args)], capture_output=True,

@@ -52,7 +52,7 @@ def test_process_export_report_recover_keep_existing_outputs(tmp_path, capsys):
     assert {p.name: p.stat().st_mtime_ns for p in tmp_path.iterdir() if p.name != "e.csv"} == stamp
     assert main(["process", str(GOOD), "-o", str(out), "-q", "--overwrite"]) == 0
     assert main(["export", str(GOOD), "-o", str(csv), "--overwrite"]) == 0
-    assert csv.read_text().startswith("time,x,y,z")
+    assert csv.read_text().startswith("time_local,x,y,z")  # replaced
 
 
 @pytest.mark.parametrize("command", ["process", "report", "recover", "inspect", "export"])

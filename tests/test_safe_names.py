@@ -111,7 +111,10 @@ def test_cohort_summary_cells_are_never_formulas(tmp_path):
     with open(out / "cohort_summary.csv", newline="", encoding="utf-8") as f:
         rows = list(csv.DictReader(f))
     assert rows[0]["device_id"] == "'=HYPERLINK"
-    assert all(not v.startswith(("=", "+", "@", "\t", "\r")) for r in rows for v in r.values())
+    from stillpoint.drivers.names import _PLAIN_VALUE  # numbers and UTC offsets (+00:00) are data
+    assert all(not v.startswith(("=", "+", "@", "\t", "\r")) or _PLAIN_VALUE.fullmatch(v)
+               for r in rows for v in r.values())
+    assert rows[0]["timezone"] == "+00:00"  # the header's zone, a plain offset
     assert float(rows[0]["offset_x"]) == float(rows[0]["offset_x"])  # numbers stay numbers
     negative = [v for r in rows for k, v in r.items() if k.startswith("offset_") and v.startswith("-")]
     assert all(float(v) < 0 for v in negative)

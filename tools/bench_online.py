@@ -55,7 +55,8 @@ def main(argv=None) -> int:
         summ = wd / f"bench_online_{d:g}d.json"
         res = {}
         for mode in ("batch", "online"):
-            r = measure(sp + ["process", path, "-o", out, "--mode", mode, "-q", "--summary", summ])
+            r = measure(sp + ["process", path, "-o", out, "--mode", mode, "-q", "--summary", summ,
+                                   "--overwrite"])
             if r["rc"] != 0:
                 raise SystemExit(f"process --mode {mode} failed on {path}:\n{r['err']}")
             res[mode] = r

@@ -123,15 +123,15 @@ def main(argv=None) -> int:
     summ = wd / "bench_process.json"
 
     res = {"decode": best([sys.executable, "-c", DECODE_PASS, path], args.repeat)}
-    res["process"] = best(sp + ["process", path, "-o", out, "--mode", "batch", "-q", "--summary", summ],
+    res["process"] = best(sp + ["process", path, "-o", out, "--mode", "batch", "-q", "--summary", summ, "--overwrite"],
                           args.repeat)
     mcap_mb = out.stat().st_size / 1e6
     s = json.loads(summ.read_text())
     res["process60"] = best(sp + ["process", path, "-o", out, "--mode", "batch", "-q",
-                                  "--flush-every-s", "60"], args.repeat)
+                                  "--flush-every-s", "60", "--overwrite"], args.repeat)
     # the work the same-work bound does: no epoch/day tables, no view topic
     res["process_same"] = best(sp + ["process", path, "-o", out, "--mode", "batch", "-q",
-                                     "--no-tables", "--view-hz", "0"], args.repeat)
+                                     "--no-tables", "--view-hz", "0", "--overwrite"], args.repeat)
     res["process_wp"] = best([sys.executable, "-c", PROCESS_API, path, out, "process"], args.repeat)
     res["bound"] = best([sys.executable, BOUND, path], args.repeat)
     res["bound_bare"] = best([sys.executable, BOUND, path, "--no-filter", "--no-zstd"], args.repeat)
@@ -206,7 +206,8 @@ def main(argv=None) -> int:
             if p == path:
                 r, ss = pr, s
             else:
-                r = measure_ok(sp + ["process", p, "-o", o, "--mode", "batch", "-q", "--summary", sj])
+                r = measure_ok(sp + ["process", p, "-o", o, "--mode", "batch", "-q", "--summary", sj,
+                                   "--overwrite"])
                 ss = json.loads(sj.read_text())
             rr = ss.get("peak_rss_mb") or {}
             both = (f" (engine {rr['engine']:.0f} + writer {rr['writer']:.0f} = "

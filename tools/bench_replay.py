@@ -46,7 +46,7 @@ def main(argv=None) -> int:
         rec = recording(wd, d, args.hz)
         log = wd / f"replay_{d:g}d.mcap"
         again = wd / f"replay_{d:g}d.replay.mcap"
-        rows = [measure(sp + ["process", rec, "-o", log, "-q"]),
+        rows = [measure(sp + ["process", rec, "-o", log, "-q", "--overwrite"]),
                 measure(sp + ["replay", log, "-o", again, "-q"]),
                 measure(sp + ["replay", log, "-o", again, "-q", "--check"])]
         for r in rows:

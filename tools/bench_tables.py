@@ -29,7 +29,7 @@ def main(argv=None) -> int:
     work = Path(args.workdir or tempfile.mkdtemp(prefix="bench-tables-"))
     work.mkdir(parents=True, exist_ok=True)
     from stillpoint.engine.sim import simulate_recording
-    exe = [sys.executable, "-m", "stillpoint.tools", "process", "-q"]
+    exe = [sys.executable, "-m", "stillpoint.tools", "process", "-q", "--overwrite"]
     rows = []
     for days in (float(d) for d in args.days.split(",")):
         rec = work / f"tables_{days:g}d_{args.hz:g}hz.cwa"

@@ -361,9 +361,10 @@ def test_raw_messages_in_order_still_replay(fuzz3, tmp_path):
     assert rc == 0, err
 
 
-def _rewrite(src_path, out_path, *, settings=None, swap_raw=None, calibration=None):
-    """A copy of a log with its ``settings`` or ``calibration`` record changed (key -> value) or
-    two /raw/accel payloads swapped back."""
+def _rewrite(src_path, out_path, *, settings=None, swap_raw=None, calibration=None, raw=None):
+    """A copy of a log with its ``settings`` or ``calibration`` record changed (key -> value), two
+    /raw/accel payloads swapped back, or fields of one /raw/accel message changed
+    (``raw=(message, {field: values})``)."""
     import json
     from mcap.reader import make_reader
     from mcap.writer import Writer
@@ -376,6 +377,13 @@ def _rewrite(src_path, out_path, *, settings=None, swap_raw=None, calibration=No
         raw = [j for j, (_s, ch, _m) in enumerate(msgs) if ch.topic == "/raw/accel"]
         a, b = raw[swap_raw[0]], raw[swap_raw[1]]
         payloads[a], payloads[b] = payloads[b], payloads[a]
+    if raw:
+        from stillpoint.engine.mcap.schemas import ACCEL_BATCH_RAW
+        j = [j for j, (_s, ch, _m) in enumerate(msgs) if ch.topic == "/raw/accel"][raw[0]]
+        values = ACCEL_BATCH_RAW.decode(payloads[j])
+        for k, v in raw[1].items():
+            values[k] = np.asarray(v, dtype=np.asarray(values[k]).dtype)
+        payloads[j] = ACCEL_BATCH_RAW.encode(values)
     with open(out_path, "wb") as f:
         w = Writer(f)
         w.start()
@@ -470,3 +478,39 @@ def test_calibration_record_is_checked_when_tables_are_made_from_a_log(fuzz3, tm
     rc, out, err = cli("export", bad, "-o", tmp_path / "b.epochs.csv.gz", "--table", "epochs")
     assert_one_line_error(rc, err, "bad.mcap")
     assert "metadata 'calibration'" in err and what in err, err
+
+
+@pytest.mark.parametrize("field, value, what", [
+    ("zero_counts", [0.0, 0.0, 1e-310], "zero_counts"),  # underflowed in the float32 pipeline
+    ("counts_per_g", [1e-306, 256.0, 256.0], "counts_per_g"),  # overflowed to inf g
+    ("temperature_c", [2.9e78], r"temperature_c 2\.9e\+78"),  # overflowed the float32 epoch topic
+    ("temperature_c", [float("inf")], "temperature_c inf"),
+    ("battery_v", [-1e300], "battery_v"),
+])
+def test_raw_scale_and_unit_values_a_float32_run_cannot_hold_are_typed(fuzz3, tmp_path, field, value, what):
+    """Found by the fuzz script as numpy warnings during replay; now refused where the message is
+    read, with the message named."""
+    import warnings
+    from stillpoint.drivers.mcap_replay import McapRawSource
+    from stillpoint.engine.mcap.reading import McapReadError
+    good = _rewrite(fuzz3("settings_first_hours_string.mcap"), tmp_path / "good.mcap",
+                    settings={"first_hours": 72.0})
+    bad = _rewrite(good, tmp_path / "bad.mcap", raw=(0, {field: _fill(good, field, value)}))
+    with warnings.catch_warnings(), np.errstate(all="raise"):
+        warnings.simplefilter("error")
+        with pytest.raises(McapReadError, match=f"message 0.*{what}"):
+            with McapRawSource(bad) as src:
+                list(src)
+    rc, out, err = cli("replay", bad, "-o", tmp_path / "r.mcap")
+    assert_one_line_error(rc, err, "bad.mcap")
+
+
+def _fill(log, field, head):
+    """``head`` then the logged values of message 0's ``field`` (same length as logged)."""
+    from mcap.reader import make_reader
+    from stillpoint.engine.mcap.schemas import ACCEL_BATCH_RAW
+    with open(log, "rb") as f:
+        for _s, ch, m in make_reader(f).iter_messages(log_time_order=False):
+            if ch.topic == "/raw/accel":
+                logged = list(np.asarray(ACCEL_BATCH_RAW.decode(m.data)[field], np.float64))
+                return head + logged[len(head):]

@@ -3,7 +3,7 @@ them, counted by outcome.
 
     python -m tools.fuzz                          # 100,000 inputs per format (cwa, bin, gz, mcap)
     python -m tools.fuzz --count 2000 --formats cwa,mcap --seed 7
-    python -m tools.fuzz --save-dir fuzz-out      # keep every input that broke a reader
+    python -m tools.fuzz --save-dir fuzz-out      # keep every input that broke a reader or warned
 
 Outcomes: ``ok`` (read to the end), ``typed`` (a ``StillpointError``: one clear line, exit 2 in the
 CLI), ``untyped`` (any other exception: a bug), ``hang`` (over ``--timeout`` s, counted as a bug),
@@ -473,10 +473,10 @@ def run(formats=FORMATS, count: int = 100_000, seed: int = 0, timeout_s: float =
                 outcome, detail = classify(fmt, path, timeout_s)
                 counts[outcome] += 1
                 if outcome in ("untyped", "hang", "warning", "mismatch"):
-                    kinds[detail.split(":")[0] if outcome == "warning" else detail[:160]] += 1
-                    if save_dir is not None and outcome != "warning":
+                    kinds[detail[:160]] += 1
+                    if save_dir is not None:
                         save_dir.mkdir(parents=True, exist_ok=True)
-                        (save_dir / f"{fmt}-{seed}-{n}{SUFFIX[fmt]}").write_bytes(data)
+                        (save_dir / f"{fmt}-{seed}-{n}-{outcome}{SUFFIX[fmt]}").write_bytes(data)
                 if progress is not None and n % 1000 == 0:
                     progress(fmt, n, counts)
                 if time_budget_s is not None and time.monotonic() - t0 > time_budget_s:
@@ -498,7 +498,8 @@ def main(argv=None) -> int:
     ap.add_argument("--formats", default=",".join(FORMATS), help="comma list of " + ", ".join(FORMATS))
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--timeout", type=float, default=10.0, help="seconds per input before it is a hang")
-    ap.add_argument("--save-dir", type=Path, help="keep every input with an untyped error or hang here")
+    ap.add_argument("--save-dir", type=Path,
+                    help="keep every input with an untyped error, hang, mismatch or warning here")
     ap.add_argument("--memory-gb", type=float, default=4.0,
                     help="address-space limit, so a runaway allocation is an error, not a swap storm")
     args = ap.parse_args(argv)

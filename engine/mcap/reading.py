@@ -25,6 +25,19 @@ import numpy as np
 from stillpoint.drivers.errors import CorruptRecordingError, StillpointError
 
 RECOVER_HINT = "`stillpoint recover` salvages every readable chunk of it"
+# Scales a raw message may carry. Every reader's scale is far inside these: AX3/AX6 256..16384
+# counts per g, GENEActiv gain/100 >= 0.01 with offsets within +-GNA_OFFSET_MAX/100
+# (drivers/constants.py); AX6 gyro 125..2000 dps over 32768 counts. The bounds keep raw * scale
+# a normal number in float32, the engine's working type (a scale of 1e-300 would underflow, one
+# of 1e300 overflow).
+RAW_COUNTS_PER_G = (1e-3, 1e6)
+RAW_ZERO_COUNTS_MAX = 1e6  # |zero_counts|; a nonzero one below RAW_ZERO_COUNTS_MIN is damage
+RAW_ZERO_COUNTS_MIN = 1e-6
+RAW_DPS_PER_COUNT = (1e-6, 1e3)
+# Per-unit temperature (degC) and battery (V): NaN (unknown) or within +-RAW_UNIT_VALUE_MAX. The
+# readers give far less (a CWA 16-bit temperature code reads at most ~19,150 degC); the bound keeps
+# the values finite in the float32 topics they are written to.
+RAW_UNIT_VALUE_MAX = 1e6
 
 
 class McapReadError(CorruptRecordingError):
@@ -133,8 +146,9 @@ def check_raw_message(m: dict, path, topic: str, index: int, *, gyro: bool = Fal
         bad(f"{n} times but x/y/z hold {m['x'].shape[0]}/{m['y'].shape[0]}/{m['z'].shape[0]} samples")
     if gyro:
         k = m["dps_per_count"]
-        if not (np.isfinite(k) and k > 0):
-            bad(f"dps_per_count is {k}")
+        lo, hi = RAW_DPS_PER_COUNT
+        if not lo <= k <= hi:  # NaN fails too
+            bad(f"dps_per_count is {k}, not a gyro scale ({lo:g}..{hi:g})")
         return n
     units = int(m["unit_start"].shape[0])
     for f in ("unit_index", "unit_sequence", "temperature_c", "temperature_raw", "light",
@@ -150,9 +164,18 @@ def check_raw_message(m: dict, path, topic: str, index: int, *, gyro: bool = Fal
     for f in ("light_raw", "button"):
         if m[f].shape[0] not in (0, n):
             bad(f"{f} has {m[f].shape[0]} entries for {n} samples")
+    for f in ("temperature_c", "battery_v"):
+        v = m[f]
+        far = ~np.isnan(v) & ~(np.abs(v) <= RAW_UNIT_VALUE_MAX)
+        if far.any():
+            bad(f"{f} {float(v[far][0])!r} is neither NaN nor within +-{RAW_UNIT_VALUE_MAX:g}")
     cpg, zero = m["counts_per_g"], m["zero_counts"]
-    if not (np.isfinite(cpg).all() and (cpg > 0).all() and np.isfinite(zero).all()):
-        bad(f"counts_per_g {cpg.tolist()} / zero_counts {zero.tolist()} are not a usable scale")
+    lo, hi = RAW_COUNTS_PER_G
+    az = np.abs(zero)
+    if not (((cpg >= lo) & (cpg <= hi)).all()  # NaN fails too
+            and ((az == 0) | ((az >= RAW_ZERO_COUNTS_MIN) & (az <= RAW_ZERO_COUNTS_MAX))).all()):
+        bad(f"counts_per_g {cpg.tolist()} / zero_counts {zero.tolist()} are not a usable scale "
+            f"(counts per g {lo:g}..{hi:g}, |zero| 0 or {RAW_ZERO_COUNTS_MIN:g}..{RAW_ZERO_COUNTS_MAX:g})")
     return n
 
 

@@ -12,6 +12,7 @@ from ._staticopts import add_static_arguments
 from .process import build_settings, default_output, execute
 
 NAME = "replay"
+KEEPS_EXISTING_OUTPUTS = True  # --overwrite replaces an existing output
 HELP = "re-process the raw stream logged in a stillpoint MCAP (same settings -> identical output)"
 DESCRIPTION = (HELP + ". Settings default to those logged in IN.mcap; any option given overrides "
                "them. --check compares the corrected stream, metrics and estimates with IN.")

@@ -19,7 +19,7 @@ its start. A device such as
 plain file in its place. So is a file the running command reads (``protect_inputs``: the command
 line registers its inputs), and two outputs of one command that are the same file
 (``check_distinct_outputs``). Commands that write named outputs (``simulate``, ``process``,
-``export``, ``report``, ``recover``) also refuse an output that already exists unless given
+``replay``, ``export``, ``report``, ``recover``) also refuse an output that already exists unless given
 ``--overwrite`` (``keep_existing_outputs``).
 
 Links are never followed for the folder's entries (the folder itself may be a link): a

@@ -19,8 +19,8 @@ its start. A device such as
 plain file in its place. So is a file the running command reads (``protect_inputs``: the command
 line registers its inputs), and two outputs of one command that are the same file
 (``check_distinct_outputs``). Commands that write named outputs (``simulate``, ``process``,
-``replay``, ``export``, ``report``, ``recover``) also refuse an output that already exists unless given
-``--overwrite`` (``keep_existing_outputs``).
+``replay``, ``export``, ``report``, ``recover``) also refuse an output that already exists
+unless given ``--overwrite`` (``keep_existing_outputs``).
 
 Links are never followed for the folder's entries (the folder itself may be a link): a
 destination that is a symbolic link is refused (the rename would replace the link, and the user

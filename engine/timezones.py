@@ -279,7 +279,8 @@ def local_text(t_ns, zone: Zone, unit: str = "s") -> str:
         return _iso_s(t_ns, unit)
     off = int(zone.offsets_s(np.array([int(t_ns)], np.int64))[0])
     a = abs(off) // 60
-    return _iso_s(int(t_ns) + off * 10**9, unit) + f"{'-' if off < 0 else '+'}{a // 60:02d}:{a % 60:02d}"
+    sign = "-" if off < 0 else "+"
+    return _iso_s(int(t_ns) + off * 10**9, unit) + f"{sign}{a // 60:02d}:{a % 60:02d}"
 
 
 def time_column(zone: Zone) -> str:

@@ -12,10 +12,10 @@ file's day rows stacked, with the participant id, the file, its key and the week
 weekends, wear hours, clean-epoch ENMO/MAD, means over valid days) and ``cohort_failures.csv``,
 one row per failed file with its class and error. Times follow engine/timezones.py:
 ``start_utc``/``end_utc`` only when the file's zone is known, ``start_local``/``end_local``
-always (the device clock when the zone is unknown), and ``timezone`` names which. Only folders with a
-``_DONE.json`` for their key are read; a finished file whose outputs are missing, of the wrong
-size (or, with ``verify``, the wrong SHA-256) or unreadable goes to the failure table with the
-class ``unreadable_output`` instead of stopping the collation. Cells pass through
+always (the device clock when the zone is unknown), and ``timezone`` names which. Only folders
+with a ``_DONE.json`` for their key are read; a finished file whose outputs are missing, of the
+wrong size (or, with ``verify``, the wrong SHA-256) or unreadable (its day table included) goes
+to the failure table with the class ``unreadable_output`` instead of stopping the collation. Cells pass through
 ``drivers.names.csv_cell``: a header's serial such as ``=HYPERLINK(...)`` is text in a
 spreadsheet, never a formula.
 """

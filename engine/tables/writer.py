@@ -6,9 +6,10 @@ atomic rename); a failed run leaves no table under the final names.
 
 Epoch table columns: ``time_utc`` (ISO 8601, ``Z``; only when the zone is known: a table of
 a recording whose zone is unknown has no UTC column), ``time_local`` (ISO 8601 with the offset
-in force, or without offset when the zone is unknown: the device clock), ``n`` (samples), ``enmo_mg``, ``bfen_mg``, ``mad_mg``, ``anglez_deg``,
-``temperature_c`` (empty without data), then the flags ``nonwear``, ``clipping``, ``gap``, ``qc``,
-``filter_warmup`` (0/1). Times are epoch starts.
+in force, or without offset when the zone is unknown: the device clock), ``n`` (samples),
+``enmo_mg``, ``bfen_mg``, ``mad_mg``, ``anglez_deg``, ``temperature_c`` (empty without data),
+then the flags ``nonwear``, ``clipping``, ``gap``, ``qc``, ``filter_warmup`` (0/1). Times are
+epoch starts.
 """
 
 from __future__ import annotations

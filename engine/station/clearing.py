@@ -6,14 +6,14 @@ erase, reread)`` erases only when all of these hold, checked immediately before 
 * the ledger holds a verified download of this device type, id and session;
 * ``ID`` names the same device id, type and session (another device may be in the slot), and
   ``SESSION`` the same session;
-* the data file's header names the same device (as its firmware writes the id:
-  ``drivers.ax.identity``) and session;
 * **the bytes**: the raw copy on disk is hashed again and its size and SHA-256 equal the ledger's
-  verified ones, and the device's data file is re-read (``device_read.device_sha256``: streamed
-  past the page cache as the download's verification read is, in a worker with the download's
-  stall bound) and its size and SHA-256 equal them too. A copy damaged after verification, a
-  device whose bytes changed, a re-read that stalls (a pulled drive), a ledger row that does not
-  describe the bytes: each refuses the clear (``ClearRefused``, one line).
+  verified ones; then the device's data file is read once more (``device_read.device_digest``:
+  streamed past the page cache as the download's verification read is, in a worker with the
+  download's stall bound), and in that one read its header names the same device (as its
+  firmware writes the id: ``drivers.ax.identity``) and session, and its size and SHA-256 equal
+  the verified ones. A copy damaged after verification, a device whose bytes changed, a re-read
+  that stalls (a pulled drive), a ledger row that does not describe the bytes: each refuses the
+  clear (``ClearRefused``, one line).
 
 Then the vendor's clear: "never log" (``HIBERNATE -1``, ``STOP -1``, ``SESSION 0``, each read
 back), ``FORMAT QC`` (``erase="quick"``, the default) or ``FORMAT WC`` (``"wipe"``), the drive's
@@ -36,7 +36,7 @@ from stillpoint.drivers.ax.identity import header_device_text, header_names_devi
 from stillpoint.drivers.byteio import sha256_file
 from stillpoint.drivers.cwa_layout import parse_header
 
-from .device_read import device_sha256
+from .device_read import DeviceDigest, device_digest
 
 DEFAULT_STALL_S = 30.0  # a re-read without progress this long is stopped (the download's default)
 
@@ -56,21 +56,24 @@ def copy_sha256(path) -> tuple[int, str]:
 
 
 def _must_hold(device_id: int, rec, what: str, read_what: str, read, verified: str) -> None:
-    """``read()`` gives (bytes, SHA-256) of ``what``; both must be the ledger row's."""
+    """``read()`` gives (bytes, SHA-256) of ``what``; both must be the ledger row's. A read
+    fault refuses the clear naming ``read_what``."""
     try:
         n, sha = read()
     except OSError as e:
         raise ClearRefused(device_id, f"not cleared: cannot {read_what}: {e.strerror or e}") from None
     if n != rec.bytes or sha != rec.sha256:
         raise ClearRefused(device_id, f"not cleared: {what} ({n} bytes, SHA-256 {sha[:16]}) is not "
-                                      f"{verified} ({rec.bytes} bytes, {rec.sha256[:16]})")
+                                      f"{verified} ({rec.bytes} bytes, SHA-256 {rec.sha256[:16]})")
 
 
-def check_bytes(device_id: int, rec, data_file, reread: Optional[Callable] = None) -> None:
+def check_bytes(device_id: int, rec, data_file, reread: Optional[Callable] = None,
+                check_header: Optional[Callable[[bytes], None]] = None) -> None:
     """The byte rule: the raw copy on disk and the device's data file both hold exactly the bytes
-    the ledger verified (``rec``: a ``DownloadRecord``). ``reread(data_file) -> (bytes, SHA-256)``
-    re-reads the device (default: ``device_read.device_sha256`` with the stall bound, on a
-    thread). Raises ``ClearRefused``."""
+    the ledger verified (``rec``: a ``DownloadRecord``). ``reread(data_file) -> DeviceDigest``
+    re-reads the device once (default: ``device_read.device_digest`` with the stall bound, on a
+    thread); ``check_header(head)`` checks the header of that same read. Raises
+    ``ClearRefused``."""
     if not rec.sha256 or rec.bytes is None:
         raise ClearRefused(device_id, "not cleared: the ledger's verified download has no size or "
                                       "SHA-256")
@@ -78,14 +81,20 @@ def check_bytes(device_id: int, rec, data_file, reread: Optional[Callable] = Non
     copy = rec.cwa_path
     _must_hold(device_id, rec, f"the raw copy {copy}", f"read the raw copy {copy}",
                lambda: copy_sha256(copy), "the verified download")
+
+    def device() -> tuple[int, str]:
+        d = reread(data_file)
+        if check_header is not None:
+            check_header(d.head)
+        return d.bytes, d.sha256
     _must_hold(device_id, rec, "the device's data file", f"re-read the data file {data_file}",
-               lambda: reread(data_file), f"the verified copy {copy}")
+               device, f"the verified copy {copy}")
 
 
-def default_reread(data_file) -> tuple[int, str]:
+def default_reread(data_file) -> DeviceDigest:
     """The device re-read with the stall bound, on a thread (a station passes its own ``reread``:
     a worker process, the emulated drive's faults)."""
-    return device_sha256(data_file, stall_s=DEFAULT_STALL_S, inline=True)
+    return device_digest(data_file, stall_s=DEFAULT_STALL_S, inline=True)
 
 
 def says_never_record(header: dict) -> bool:
@@ -139,14 +148,17 @@ def clear_verified(client, ledger, device_id: int, session_id: int, data_file, w
         raise ClearRefused(device_id, f"not cleared: SESSION says {sess}, the verified download is of "
                                       f"session {session_id}")
     path = Path(data_file)
-    try:
-        h = _header(path)
-    except (OSError, ValueError) as e:
-        raise ClearRefused(device_id, f"not cleared: cannot re-check the data file {path}: {e}") from None
-    if not header_names_device(h, device_id, kind) or h["session_id"] != session_id:
-        raise ClearRefused(device_id, f"not cleared: the data file is of device "
-                                      f"{header_device_text(h)} session {h['session_id']}")
-    check_bytes(device_id, rec, path, reread)
+
+    def this_device_and_session(head: bytes) -> None:
+        try:
+            h = parse_header(head)
+        except ValueError as e:
+            raise ClearRefused(device_id, f"not cleared: cannot re-check the data file {path}: "
+                                          f"{e}") from None
+        if not header_names_device(h, device_id, kind) or h["session_id"] != session_id:
+            raise ClearRefused(device_id, f"not cleared: the data file is of device "
+                                          f"{header_device_text(h)} session {h['session_id']}")
+    check_bytes(device_id, rec, path, reread, this_device_and_session)
     clear_id = ledger.clear_attempt(device_id, session_id, rec.id, rec.sha256,
                                     erase=C.AX_ERASE_COMMANDS[erase], device_type=kind)
     readback = None

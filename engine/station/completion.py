@@ -132,8 +132,8 @@ def reconcile(ledger) -> list[str]:
 def resolve_sent_clear(ledger, device_id: int, data_file, *, device_type: Optional[str] = None,
                        reread: Optional[Callable] = None) -> list[str]:
     """Settle this device's clears left at ``sent`` by looking at its data file (module
-    docstring); returns one line per clear settled. ``reread(data_file) -> (bytes, SHA-256)``:
-    as for a clear (``clearing.check_bytes``)."""
+    docstring); returns one line per clear settled. ``reread(data_file) -> DeviceDigest``: as
+    for a clear (``clearing.check_bytes``)."""
     from .clearing import default_reread
     reread = reread or default_reread
     lines = []
@@ -143,7 +143,7 @@ def resolve_sent_clear(ledger, device_id: int, data_file, *, device_type: Option
             if size <= C.AX_EMPTY_DATA_BYTES:
                 result, why = "ok", ("settled after a restart: the device's data file holds only "
                                      "a header (the clear was done)")
-            elif reread(data_file)[1] == sha:
+            elif reread(data_file).sha256 == sha:
                 result, why = "error", ("not cleared: the station stopped before the clear took "
                                         "effect; the verified data is still on the device")
             else:

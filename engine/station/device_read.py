@@ -4,11 +4,12 @@ device hash of the station (the download's verification read, the re-read just b
 
 ``read_device(data_file, ...) -> DeviceDigest`` streams the file in chunks through
 ``volume.open_data_file(verify=True)`` (an emulated drive's faults apply) and returns its size, its
-SHA-256 and, with ``ranges=True``, one hash per ``CHECK_BYTES`` range (what the download compares
-with its copy). ``progress(phase, done, total)``, ``cancel`` and ``throttle_bps`` serve the
+SHA-256, its first ``CWA_HEADER_BYTES`` (the header, checked from the same read that is hashed)
+and, with ``ranges=True``, one hash per ``CHECK_BYTES`` range (what the download compares with its
+copy). ``progress(phase, done, total)``, ``cancel`` and ``throttle_bps`` serve the
 download's worker.
 
-``device_sha256(data_file, ..., stall_s=...)`` is the same read with the download's stall bound: it
+``device_digest(data_file, ..., stall_s=...)`` is the same read with the download's stall bound: it
 runs in a worker process (``worker.Worker``; a thread with ``inline=True``), so a read that hangs
 on a pulled drive ends in ``ReadStalled`` (an ``OSError``: "no progress for N s") after
 ``stall_s`` without progress, never in a hung device flow.
@@ -23,6 +24,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Callable, Optional
 
+from stillpoint.drivers import constants as C
 from stillpoint.drivers.ax.volume import open_data_file
 
 CHUNK_BYTES = 1 << 20  # 1 MiB reads (2048 sectors)
@@ -70,6 +72,7 @@ class ReadStalled(OSError):
 class DeviceDigest:
     bytes: int
     sha256: str
+    head: bytes = b""  # the first CWA_HEADER_BYTES (fewer in a shorter file)
     ranges: list = field(default_factory=list)  # one hash per CHECK_BYTES (``ranges=True``)
 
 
@@ -94,6 +97,7 @@ def read_device(data_file, *, faults=(), control=None, chunk: int = CHUNK_BYTES,
     rh = RangeHashes() if ranges else None
     total = f.size()
     got = 0
+    head = b""
     t0 = time.monotonic()
     if progress is not None:
         progress(phase, 0, total)
@@ -111,17 +115,19 @@ def read_device(data_file, *, faults=(), control=None, chunk: int = CHUNK_BYTES,
             sha.update(b)
             if rh is not None:
                 rh.update(b)
+            if got < C.CWA_HEADER_BYTES:
+                head += b[:C.CWA_HEADER_BYTES - got]
             got += len(b)
             if progress is not None:
                 progress(phase, got, total)
     finally:
         f.close()
-    return DeviceDigest(got, sha.hexdigest(), rh.finish() if rh is not None else [])
+    return DeviceDigest(got, sha.hexdigest(), head, rh.finish() if rh is not None else [])
 
 
 def hash_task(job: ReadJob, progress, cancel=None) -> dict:
-    """``read_device`` as a worker task: a plain dict (``bytes``, ``sha256``; or ``errno`` and
-    ``error`` for a read fault)."""
+    """``read_device`` as a worker task: a plain dict (``bytes``, ``sha256``, ``head``; or ``errno``
+    and ``error`` for a read fault)."""
     try:
         d = read_device(job.data_file, faults=job.faults, control=job.control,
                         chunk=job.chunk_bytes, progress=progress, cancel=cancel)
@@ -129,23 +135,22 @@ def hash_task(job: ReadJob, progress, cancel=None) -> dict:
         return {"errno": e.errno or errno.EIO, "error": e.strerror or str(e)}
     except ReadCancelled:
         return {"errno": errno.EINTR, "error": "stopped"}
-    return {"bytes": d.bytes, "sha256": d.sha256}
+    return {"bytes": d.bytes, "sha256": d.sha256, "head": d.head}
 
 
-def device_sha256(data_file, *, faults=(), control=None, stall_s: Optional[float] = None,
-                  inline: bool = False) -> tuple[int, str]:
-    """(bytes, SHA-256) of the device's data file. With ``stall_s`` the read runs in a worker and
-    a read without progress that long raises ``ReadStalled`` (module docstring); read faults are
-    ``OSError`` either way."""
+def device_digest(data_file, *, faults=(), control=None, stall_s: Optional[float] = None,
+                  inline: bool = False) -> DeviceDigest:
+    """Size, SHA-256 and header of the device's data file. With ``stall_s`` the read runs in a
+    worker and a read without progress that long raises ``ReadStalled`` (module docstring); read
+    faults are ``OSError`` either way."""
     job = ReadJob(str(data_file), tuple(faults), str(control) if control else None)
     if stall_s is None:
-        d = read_device(job.data_file, faults=job.faults, control=job.control)
-        return d.bytes, d.sha256
+        return read_device(job.data_file, faults=job.faults, control=job.control)
     from .worker import Worker
     w = Worker(hash_task, job, stall_s=stall_s, inline=inline, what="re-read").start()
     r = w.wait()
     if "sha256" in r:
-        return int(r["bytes"]), r["sha256"]
+        return DeviceDigest(int(r["bytes"]), r["sha256"], r["head"])
     if r.get("stalled"):
         raise ReadStalled(errno.ETIMEDOUT, r["error"])
     raise OSError(r.get("errno") or errno.EIO, r["error"])

@@ -44,7 +44,7 @@ from .clearing import clear_verified, session_before_clear
 from .configure import clock_offset_s, configure_device
 from . import names
 from .completion import CompletionError, complete, resolve_sent_clear
-from .device_read import device_sha256
+from .device_read import DeviceDigest, device_digest
 from .download import DownloadJob
 from .ledger import Ledger, host_timezone, kill_point, station_id
 from .profile import StudyProfile
@@ -121,10 +121,11 @@ class DeviceFlow:
         if self.worker is not None and not self.worker.finished:
             self.worker.cancel()
 
-    def reread(self, data_file) -> tuple[int, str]:
-        """(bytes, SHA-256) of the device's data file, re-read past the page cache in a worker
-        with the download's stall bound (a hung read ends in ``ReadStalled``, an ``OSError``)."""
-        return device_sha256(data_file, faults=tuple(self.att.faults), control=self.att.control,
+    def reread(self, data_file) -> DeviceDigest:
+        """Size, SHA-256 and header of the device's data file, re-read past the page cache in a
+        worker with the download's stall bound (a hung read ends in ``ReadStalled``, an
+        ``OSError``)."""
+        return device_digest(data_file, faults=tuple(self.att.faults), control=self.att.control,
                              stall_s=self.opts.stall_s, inline=self.opts.inline)
 
     # ------------------------------------------------------------------ finding the drive again

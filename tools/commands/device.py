@@ -234,7 +234,8 @@ def _verify(att, ledger, reread) -> int:
         raise _Err(f"device {att.device_id}: cannot read the raw copy {rec.cwa_path}: "
                    f"{e.strerror or e}") from None
     try:
-        n, sha = reread(att.data_file)
+        d = reread(att.data_file)
+        n, sha = d.bytes, d.sha256
     except OSError as e:
         raise _Err(f"device {att.device_id}: cannot read the data file {att.data_file}: "
                    f"{e.strerror or e}") from None

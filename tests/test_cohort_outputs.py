@@ -112,3 +112,25 @@ def test_a_bad_manifest_zone_is_one_line(tmp_path, capsys):
                  "--scheduler", "serial", "-q"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "Mars/Base" in err[0] and "m.csv" in err[0]
+
+
+def test_a_cohort_zone_that_contradicts_a_geneactiv_header_fails_that_file(tmp_path, capsys):
+    """One cohort-wide --timezone never silently moves a GENEActiv file away from the zone in
+    its header: the file fails (one line naming it and both zones) unless --timezone-override,
+    which the settings record."""
+    rec = tmp_path / "us.bin"
+    simulate_recording(rec, days=0.02, hz=25, seed=8, device="geneactiv", truth_path=False,
+                       labels_path=False)  # header zone +00:00
+    out = tmp_path / "o"
+    assert main(["cohort", "run", str(rec), "-o", str(out), "--scheduler", "serial", "-q",
+                 "--timezone", "America/Chicago"]) == 0
+    [fail] = _rows(out / "cohort_failures.csv")
+    assert fail["class"] == "corrupt_input" and str(rec) in fail["error"]
+    assert "+00:00" in fail["error"] and "--timezone-override" in fail["error"]
+    assert _rows(out / "cohort_summary.csv") == []
+    out2 = tmp_path / "o2"
+    assert main(["cohort", "run", str(rec), "-o", str(out2), "--scheduler", "serial", "-q",
+                 "--timezone", "America/Chicago", "--timezone-override"]) == 0
+    [row] = _rows(out2 / "cohort_summary.csv")
+    assert row["timezone"] == "America/Chicago"
+    assert json.loads((out2 / "cohort.json").read_text())["settings"]["timezone_override"] is True

@@ -20,7 +20,12 @@ Backends are injectable: ``SystemBackend`` (this OS's enumeration; ``LinuxBacken
 ``WindowsBackend``, ``MacBackend``, ``LabelBackend``), ``EmulatedBackend`` (the emulator
 registry, see ``registry``), ``CombinedBackend`` (both; the default). A backend has ``ports()``
 and ``drives()`` (or, label-only, ``volumes()``: (mount point, label) pairs), and may offer
-``mount(attached)``.
+``mount(attached)``. An enumeration command (PowerShell, ``system_profiler``) is bounded by
+``ENUMERATION_TIMEOUT_S`` and its answer reused for ``ENUMERATION_REFRESH_S``.
+
+``discover(backend, port=..., volume=...)`` takes manual overrides (a port not enumerated as an
+AX, a drive mounted elsewhere); an override that names nothing usable is one line naming the
+option (``OverrideError``).
 """
 
 from __future__ import annotations

@@ -32,7 +32,7 @@ from typing import Callable, Optional
 
 from stillpoint.drivers import constants as C
 from stillpoint.drivers.ax.errors import DeviceError
-from stillpoint.drivers.ax.identity import header_device_text, header_names_device
+from stillpoint.drivers.ax.identity import header_device_text, header_mismatch, header_names_device
 from stillpoint.drivers.byteio import sha256_file
 from stillpoint.drivers.cwa_layout import parse_header
 
@@ -150,14 +150,9 @@ def clear_verified(client, ledger, device_id: int, session_id: int, data_file, w
     path = Path(data_file)
 
     def this_device_and_session(head: bytes) -> None:
-        try:
-            h = parse_header(head)
-        except ValueError as e:
-            raise ClearRefused(device_id, f"not cleared: cannot re-check the data file {path}: "
-                                          f"{e}") from None
-        if not header_names_device(h, device_id, kind) or h["session_id"] != session_id:
-            raise ClearRefused(device_id, f"not cleared: the data file is of device "
-                                          f"{header_device_text(h)} session {h['session_id']}")
+        why = header_mismatch(head, device_id, kind, session_id)
+        if why:
+            raise ClearRefused(device_id, f"not cleared: {why}")
     check_bytes(device_id, rec, path, reread, this_device_and_session)
     clear_id = ledger.clear_attempt(device_id, session_id, rec.id, rec.sha256,
                                     erase=C.AX_ERASE_COMMANDS[erase], device_type=kind)

@@ -142,21 +142,12 @@ def _bad_sectors(buf: bytes, offset: int) -> int:
 
 def _check_header(path: Path, job: DownloadJob) -> None:
     from stillpoint.drivers.ax.errors import IdentityMismatch
-    from stillpoint.drivers.cwa_layout import parse_header
+    from stillpoint.drivers.ax.identity import header_mismatch
     with open(path, "rb") as f:
-        head = f.read(C.CWA_HEADER_BYTES)
-    try:
-        h = parse_header(head)
-    except ValueError as e:
-        raise IdentityMismatch(job.device_id, f"the data file header is not readable: {e}") from None
-    from stillpoint.drivers.ax.identity import header_device_text, header_names_device
-    if not header_names_device(h, job.device_id, job.device_type):
-        raise IdentityMismatch(job.device_id, f"the data file header names device "
-                                              f"{header_device_text(h)}, not {job.device_type} "
-                                              f"{job.device_id}")
-    if h["session_id"] != job.session_id:
-        raise IdentityMismatch(job.device_id, f"session mismatch: SESSION says {job.session_id}, the "
-                                              f"data file header says {h['session_id']}")
+        why = header_mismatch(f.read(C.CWA_HEADER_BYTES), job.device_id, job.device_type,
+                              job.session_id)
+    if why:
+        raise IdentityMismatch(job.device_id, why)
 
 
 def _set_aside(p: Path) -> Path:

@@ -3,6 +3,7 @@ sync-time, stream) and `device emulate` (emulated AX3/AX6 devices for trying the
 
 from __future__ import annotations
 
+import os
 import sys
 import time
 from pathlib import Path
@@ -153,17 +154,17 @@ def _with_ledger(args, att) -> int:
     from stillpoint.engine.station.flow import DeviceFlow, StationOptions
     from stillpoint.engine.station.ledger import Ledger, acquire_station_lock
     out = check_output_folder(args.output)
-    import os
     fd = acquire_station_lock(out)
     ledger = Ledger(out)
     from stillpoint.engine.station.completion import reconcile
     for line in reconcile(ledger):  # what a killed station or download left between two states
         print(f"ledger: {line}", file=sys.stderr)
+    # the device's flow: a download runs it; verify and clear use its bounded re-read and its
+    # wait for the drive
+    flow = DeviceFlow(att, StationOptions(str(out), stall_s=getattr(args, "stall_s", 30.0)), ledger,
+                      on_change=_progress_printer())
     try:
         if args.action == "download":
-            opts = StationOptions(str(out), stall_s=args.stall_s)
-            flow = DeviceFlow(att, opts, ledger,
-                              on_change=_progress_printer())
             try:
                 flow.run()
             except KeyboardInterrupt:
@@ -179,11 +180,10 @@ def _with_ledger(args, att) -> int:
                  + (f" -> {r.cwa_path}, {r.mcap_path}" if r is not None else ""))
             return 0
         if args.action == "verify":
-            return _verify(att, ledger, DeviceFlow(att, StationOptions(str(out)), ledger).reread)
+            return _verify(att, ledger, flow.reread)
         if args.action == "clear":
             from stillpoint.drivers.ax.protocol import AxClient
             from stillpoint.engine.station.clearing import clear_verified
-            flow = DeviceFlow(att, StationOptions(str(out)), ledger)
             with AxClient.open(att.port, str(att.device_id)) as client:
                 client.stream_stop()
                 session = client.session()

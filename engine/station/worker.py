@@ -2,14 +2,15 @@
 timeout can be minutes) never blocks the station: the station only polls the worker's messages
 and cancels it with a bound (``stall_s`` without progress -> terminate, then kill).
 
-``Worker(task, job, stall_s=30, name=...).start()`` runs ``task(job, progress, cancel) -> dict``
+``Worker(task, job, stall_s=30, what=...).start()`` runs ``task(job, progress, cancel) -> dict``
 (a module-level function: it crosses into a fresh interpreter) and ``poll()`` returns the latest
 (phase, done bytes, total bytes); when finished, ``result`` is set: the task's dict, or, for a
 stalled, crashed or stopped worker, ``{"error": reason}`` (``"stalled": True`` for a stall).
 ``inline=True`` runs the task on a thread of this process instead (tests: the stall bound still
 ends the wait, but a hung thread cannot be killed). Two tasks use it: the download
-(``DownloadWorker``: its result is a ``DownloadResult``) and the re-read of a device before a
-clear (``device_read.device_sha256``).
+(``DownloadWorker``: its result is a ``DownloadResult``) and the re-read of a device
+(``device_read.device_digest``: before a clear, ``device verify``, settling a clear left at
+``sent``).
 
 A worker never outlives its station: on Linux it asks the kernel for SIGKILL when its parent
 dies (``prctl(PR_SET_PDEATHSIG)``), and everywhere it watches a pipe whose only writing end the

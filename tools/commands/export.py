@@ -438,10 +438,11 @@ def run(args) -> int:
                 else f"{t['day_rows']} day(s) and the file summary row")
         print(f"wrote {rep['output']} ({what}); times: {t['timezone']}")
     elif rep.get("format") == "mcap":
-        from stillpoint.engine.timezones import reader_timezone
-        zone = reader_timezone(args.file, "mcap", None)[1]  # the log's clock record
-        print(f"wrote {rep['output']} (from the MCAP log); times: {zone.label}"
-              + ("" if zone.known else " (time_local: the device clock, not UTC)"))
+        from stillpoint.engine.mcap.export import log_zone
+        zone = log_zone(args.file)  # the log's clock record
+        print(f"wrote {rep['output']} (from the MCAP log)" + (
+            "" if zone is None else f"; times: {zone.label}" +
+            ("" if zone.known else " (time_local: the device clock, not UTC)")))
     else:
         q = rep["qc"]
         print(f"wrote {rep['samples']} samples to {rep['output']} "

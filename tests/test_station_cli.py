@@ -243,3 +243,24 @@ def test_an_ax3_and_an_ax6_with_the_same_id_and_session_both_download(emu, tmp_p
         assert len(a.clears) == 1 and len(b.clears) == 1
     finally:
         b.shutdown()
+
+
+def test_device_commands_refuse_an_id_two_devices_share(emu, tmp_path, capsys):
+    """An AX3 and an AX6 with the same id: `device verify 10001` names both and asks for the USB
+    serial; the serial picks one."""
+    from stillpoint.drivers.ax.emulator import EmulatedDevice
+    a = emu(10001)
+    b = EmulatedDevice(tmp_path / "ax6", 10001, "AX6", days=0.01, remount_s=0.05, slot="emu-2")
+    try:
+        b.plug()
+        out = tmp_path / "out"
+        out.mkdir()
+        capsys.readouterr()
+        assert main(["device", "download", "10001", "-o", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert f"2 attached devices have this id (AX3 {a.serial}, AX6 {b.serial})" in err
+        assert main(["device", "download", b.serial, "-o", str(out)]) == 0
+        assert (out / "AX6-10001_1.cwa").exists() and not (out / "AX3-10001_1.cwa").exists()
+    finally:
+        b.shutdown()
+

@@ -78,10 +78,16 @@ def _find(args):
         if len(atts) != 1:
             raise _Err(f"{len(atts)} devices attached: name one (device id or serial)")
         return atts[0]
-    for a in atts:
-        if args.id in (str(a.device_id), a.serial):
-            return a
-    raise _Err(f"device {args.id}: not attached (see `stillpoint devices`)")
+    named = [a for a in atts if args.id == a.serial] or \
+        [a for a in atts if args.id == str(a.device_id)]
+    if len(named) > 1:  # an AX3 and an AX6 may carry the same id
+        raise _Err(f"device {args.id}: {len(named)} attached devices have this id ("
+                   + ", ".join(f"{a.device_type} {a.serial}"
+                               for a in sorted(named, key=lambda a: (a.device_type, a.serial)))
+                   + "): name one by its USB serial")
+    if not named:
+        raise _Err(f"device {args.id}: not attached (see `stillpoint devices`)")
+    return named[0]
 
 
 def _say(msg: str) -> None:

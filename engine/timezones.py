@@ -312,6 +312,24 @@ def zone_of_log(metadata: dict, device_offset_s: int = 0) -> Zone:
         return fixed_zone(int(device_offset_s or 0))
 
 
+def log_zone(path) -> Optional[Zone]:
+    """The Zone of an MCAP log's times from its metadata alone (``zone_of_log`` with the device
+    record's offset); None when the metadata cannot be read (an unfinished or damaged log)."""
+    import json
+
+    from stillpoint.engine.mcap.stream import read_metadata
+    try:
+        with open(path, "rb") as f:
+            meta = read_metadata(f)
+    except Exception:  # noqa: BLE001 - the caller's own read reports the damage
+        return None
+    try:
+        offset = int(json.loads(meta["device"]["json"]).get("timezone_offset_s") or 0)
+    except (KeyError, TypeError, ValueError, AttributeError):
+        offset = 0
+    return zone_of_log(meta, offset)
+
+
 def check_header_zone(path, header_offset_s: int, zone: Zone, start_s, override: bool) -> None:
     """A GENEActiv header states its zone; a given zone that puts the recording at another
     offset is refused unless ``override`` (the run then records that it replaced the header's)."""

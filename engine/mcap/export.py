@@ -108,26 +108,9 @@ def _iso(t: np.ndarray, utc: bool = True) -> np.ndarray:
     return np.char.add(text, "Z") if utc else text
 
 
-def log_zone(path):
-    """The Zone of the log's times (its ``clock`` record; a log without one: as before, UTC
-    shifted by the device record's offset); None when the metadata cannot be read (unfinished
-    or damaged: the export's own read reports it)."""
-    from stillpoint.engine.timezones import zone_of_log
-    from .stream import read_metadata
-    try:
-        with open(path, "rb") as f:
-            meta = read_metadata(f)
-        try:
-            offset = int(json.loads(meta["device"]["json"]).get("timezone_offset_s") or 0)
-        except (KeyError, TypeError, ValueError, AttributeError):
-            offset = 0
-        return zone_of_log(meta, offset)
-    except Exception:  # noqa: BLE001
-        return None
-
-
 def _zone_known(path) -> bool:
-    """Whether the log's times are UTC (``log_zone``; unreadable: as before)."""
+    """Whether the log's times are UTC (``engine.timezones.log_zone``; unreadable: as before)."""
+    from stillpoint.engine.timezones import log_zone
     zone = log_zone(path)
     return True if zone is None else zone.known
 

@@ -438,7 +438,7 @@ def run(args) -> int:
                 else f"{t['day_rows']} day(s) and the file summary row")
         print(f"wrote {rep['output']} ({what}); times: {t['timezone']}")
     elif rep.get("format") == "mcap":
-        from stillpoint.engine.mcap.export import log_zone
+        from stillpoint.engine.timezones import log_zone
         zone = log_zone(args.file)  # the log's clock record
         print(f"wrote {rep['output']} (from the MCAP log)" + (
             "" if zone is None else f"; times: {zone.label}" +

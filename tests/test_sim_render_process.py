@@ -5,7 +5,6 @@ mid-run only costs speed; leaving early stops the child and leaves no shared fil
 from __future__ import annotations
 
 import functools
-import glob
 import os
 
 import numpy as np
@@ -44,8 +43,27 @@ def _same(a, b):
                 assert x[f].dtype == y[f].dtype and np.array_equal(x[f], y[f]), (x["k"], f)
 
 
-def _leftovers():
-    return set(glob.glob(os.path.join(render_process._shm_dir() or "/tmp", "stillpoint-render-*")))
+@pytest.fixture
+def shared_files(monkeypatch):
+    """The shared files this test's children were given (not a folder listing: other processes
+    on the machine, e.g. a parallel test worker, render in the same /dev/shm)."""
+    paths = []
+    orig = render_process._Child.__init__
+
+    def init(self, sim):
+        try:
+            orig(self, sim)
+        finally:
+            if getattr(self, "path", None):
+                paths.append(self.path)
+
+    monkeypatch.setattr(render_process._Child, "__init__", init)
+    return paths
+
+
+def _leftovers(paths):
+    assert paths, "no child was started"
+    return [p for p in paths if os.path.exists(p)]
 
 
 @pytest.fixture
@@ -67,15 +85,14 @@ def child_renders_all(monkeypatch):
 
 
 @pytest.mark.parametrize("device", ["ax3", "ax6", "geneactiv"])
-def test_child_process_gives_the_same_chunks(device, child_renders_all):
-    before = _leftovers()
+def test_child_process_gives_the_same_chunks(device, child_renders_all, shared_files):
     ref = _chunks(_sim(device), False)
     assert len(ref) == 30
     _same(ref, _chunks(_sim(device), "thread"))
     assert not child_renders_all
     _same(ref, _chunks(_sim(device), "process"))
     assert child_renders_all == list(range(30))
-    assert _leftovers() <= before
+    assert _leftovers(shared_files) == []
 
 
 class _Dying(render_process._Child):
@@ -100,8 +117,7 @@ def test_a_child_that_dies_or_cannot_start_only_costs_speed(monkeypatch, child_r
     _same(ref, _chunks(_sim(), "process"))
 
 
-def test_leaving_early_stops_the_child():
-    before = _leftovers()
+def test_leaving_early_stops_the_child(shared_files):
     sim = _sim()
     gen = render_process.rendered(sim, parent_starts=False)
     procs = []
@@ -116,7 +132,7 @@ def test_leaving_early_stops_the_child():
     for p in procs:
         assert p.poll() is not None, "the child still runs"
     assert procs, "the child never took over"
-    assert _leftovers() <= before
+    assert _leftovers(shared_files) == []
 
 
 def test_a_chunk_larger_than_its_slot_is_rendered_by_the_parent(monkeypatch, child_renders_all):

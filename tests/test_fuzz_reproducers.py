@@ -374,8 +374,8 @@ def _rewrite(src_path, out_path, *, settings=None, swap_raw=None, calibration=No
         meta = [(m.name, dict(m.metadata)) for m in r.iter_metadata()]
     payloads = [m.data for _s, _c, m in msgs]
     if swap_raw:
-        raw = [j for j, (_s, ch, _m) in enumerate(msgs) if ch.topic == "/raw/accel"]
-        a, b = raw[swap_raw[0]], raw[swap_raw[1]]
+        raw_at = [j for j, (_s, ch, _m) in enumerate(msgs) if ch.topic == "/raw/accel"]
+        a, b = raw_at[swap_raw[0]], raw_at[swap_raw[1]]
         payloads[a], payloads[b] = payloads[b], payloads[a]
     if raw:
         from stillpoint.engine.mcap.schemas import ACCEL_BATCH_RAW

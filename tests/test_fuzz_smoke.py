@@ -1,6 +1,6 @@
 """In-process fuzz smoke test: mutated .cwa, .bin, gzip and MCAP inputs (fixed seed) never give an
-untyped exception or a hang. Bounded to ~30 s in total (a time budget per format, a few thousand
-inputs each on an idle machine); ``python -m tools.fuzz`` runs 100,000 per format."""
+untyped exception or a hang. A fixed number of inputs per format (the same inputs on every machine,
+whatever its load; ~10 s in all); ``python -m tools.fuzz`` runs 100,000 per format."""
 
 from __future__ import annotations
 
@@ -8,8 +8,7 @@ import pytest
 
 from tools import fuzz
 
-BUDGET_S = 6.5  # per format; 4 formats + seeds stay within ~30 s
-COUNT = 3000
+COUNT = 500  # per format: MCAP inputs are also replayed (~10 ms each), the others cost less
 
 
 @pytest.fixture(scope="module")
@@ -19,11 +18,10 @@ def seeds():
 
 @pytest.mark.parametrize("fmt", fuzz.FORMATS)
 def test_fuzz_smoke(fmt, seeds):
-    res = fuzz.run([fmt], count=COUNT, seed=20261123, timeout_s=10.0, seeds=seeds,
-                   time_budget_s=BUDGET_S)[fmt]
+    res = fuzz.run([fmt], count=COUNT, seed=20261123, timeout_s=10.0, seeds=seeds)[fmt]
     c = res["counts"]
     print(f"{fmt}: {res['inputs']} inputs in {res['seconds']:.1f} s: {dict(c)}")
-    assert res["inputs"] >= 150, f"only {res['inputs']} inputs ran in {BUDGET_S} s"
+    assert res["inputs"] == COUNT
     assert c["untyped"] == 0 and c["hang"] == 0, res["kinds"].most_common(10)
     assert c["ok"] > 0 and c["typed"] > 0  # the mutations reach both outcomes
 

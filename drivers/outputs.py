@@ -287,7 +287,7 @@ class AtomicOutput:
                         except OSError:
                             raise self._busy() from None
                     if st.st_size > 0 or st.st_nlink > 1:  # a killed run's: keep it
-                        self.set_aside = _free_name(self.part, st.st_mtime)
+                        self.set_aside = set_aside_name(self.part, st.st_mtime)
                         os.rename(self.part, self.set_aside)
                     else:  # an empty leftover
                         os.unlink(self.part)
@@ -354,8 +354,9 @@ def _identity(st) -> tuple:
     return (st.st_dev, st.st_ino)
 
 
-def _free_name(part: Path, when: float) -> Path:
-    """``<name>.part.<UTC time>[-n]`` beside ``part``, not taken by anything (links included)."""
+def set_aside_name(part, when: Optional[float] = None) -> Path:
+    """``<name>.part.<UTC time>[-n]`` beside ``part`` (``when``: a POSIX time, default now), not
+    taken by anything (links included): the name every writer's set-aside partial file gets."""
     stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime(when))
     aside = part.with_name(f"{part.name}.{stamp}")
     n = 1

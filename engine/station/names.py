@@ -27,7 +27,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from stillpoint.drivers.outputs import _free_name
+from stillpoint.drivers.outputs import set_aside_name  # noqa: F401  (the one rule for set-aside names)
 
 RAW = ".cwa"
 LOG = ".mcap"
@@ -58,12 +58,6 @@ def log_final(out, stem_: str) -> Path:
 def log_unverified(out, stem_: str) -> Path:
     """Where the pipeline writes while the copy is not verified (its own ``.part`` while open)."""
     return Path(out) / f"{stem_}{UNVERIFIED_LOG}"
-
-
-def set_aside_name(part: Path, when: float | None = None) -> Path:
-    """A free ``<name>.part.<UTC stamp>[-n]`` beside ``part`` (``part`` ends in ``.part``): the
-    name every writer's set-aside partial file gets (``drivers.outputs``), now by default."""
-    return _free_name(Path(part), when)
 
 
 # every name a download or the ledger leaves in the output folder, with what it is

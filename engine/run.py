@@ -180,7 +180,6 @@ def settings_problem(d: dict) -> Optional[str]:
         v = d.get(key)
         if v is None:
             continue
-        from .calibration.validate import validate_estimate
         try:
             validate_estimate(v, key)
         except StillpointError as e:

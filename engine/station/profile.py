@@ -207,7 +207,7 @@ def _when(text: str, base: _dt.datetime, path, what: str = "time") -> _dt.dateti
             t = (base + _dt.timedelta(seconds=float(m.group(1)) * mult)).replace(microsecond=0)
         else:
             t = _dt.datetime.fromisoformat(text.strip()).replace(tzinfo=None, microsecond=0)
-    except (OverflowError, ValueError) as e:
+    except (OverflowError, ValueError):
         if m:
             raise ProfileError(f"{where}: {what} {text!r} is beyond the year "
                                f"{_YEARS[1]} a device can hold") from None

@@ -12,6 +12,7 @@ import sqlite3
 import pytest
 
 from stillpoint.drivers.ax.discovery import EmulatedBackend
+from stillpoint.drivers.ax.errors import DeviceError
 from stillpoint.drivers.ax.protocol import AxClient
 from stillpoint.drivers.cwa_layout import parse_header
 from stillpoint.engine.station.clearing import ClearRefused, clear_verified, says_never_record
@@ -371,3 +372,39 @@ def test_increment_counts_from_the_erased_session_on_a_later_run(emu, tmp_path):
     assert lg.db.execute("SELECT device_id, device_type, session_id, result FROM "
                          "configurations").fetchall() == [(10001, "AX3", 42, "ok")]
     lg.close()
+
+
+def test_a_read_back_that_hangs_after_the_erase_is_an_error_not_a_hang(emu, tmp_path, monkeypatch):
+    """The drive is pulled just after the erase: the read-back of the new header hangs. It runs
+    with the stall bound, so the clear ends in error (recorded), and the caller is not hung."""
+    import threading
+    import time
+
+    from stillpoint.engine.station import clearing, device_read
+
+    d = emu(12345)
+    lg = _ledger(tmp_path)
+    _, sha = verified_copy(d, tmp_path / "out", lg)
+    release = threading.Event()
+    real_read = device_read.read_device
+
+    def hangs_after_the_erase(path, **kw):
+        if d.clears:  # the erase has happened: this is the read-back
+            release.wait(60)
+            raise OSError(5, "released")
+        return real_read(path, **kw)
+
+    monkeypatch.setattr(device_read, "read_device", hangs_after_the_erase)
+    monkeypatch.setattr(clearing, "DEFAULT_STALL_S", 1.0)
+    t0 = time.monotonic()
+    try:
+        with AxClient.open(f"axemu://{d.serial}") as c:
+            with pytest.raises(DeviceError) as e:
+                clear_verified(c, lg, 12345, 1, d.data_file, wait_for(d),
+                               reread=lambda p: real_read(p))
+    finally:
+        release.set()
+    assert time.monotonic() - t0 < 30
+    assert "clear did not complete" in str(e.value) and "stalled" in str(e.value), str(e.value)
+    assert d.clears == [(12345, 1, sha)]  # erased; the outcome is recorded as not confirmed
+    assert lg.clears()[-1][4] == "error"

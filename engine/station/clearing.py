@@ -45,11 +45,6 @@ class ClearRefused(DeviceError):
     """The clear rule does not hold: the device is not erased."""
 
 
-def _header(path: Path) -> dict:
-    with open(path, "rb") as f:
-        return parse_header(f.read(C.CWA_HEADER_BYTES))
-
-
 def copy_sha256(path) -> tuple[int, str]:
     """(bytes, SHA-256) of a raw copy on disk."""
     return os.stat(path).st_size, sha256_file(path)
@@ -161,8 +156,8 @@ def clear_verified(client, ledger, device_id: int, session_id: int, data_file, w
         set_never_log(client)
         client.erase(erase, wait_volume)
         new_path = Path(wait_volume()) if wait_volume else path
-        size2 = os.stat(new_path).st_size
-        h2 = _header(new_path)
+        after = default_reread(new_path)  # bounded: a drive pulled now cannot hang the flow
+        size2, h2 = after.bytes, parse_header(after.head)
         wire = (client.hibernate().strip(), client.stop().strip())
         readback = (f"{size2} bytes; header {header_device_text(h2)} session {h2['session_id']} "
                     f"start {h2['logging_start']} stop {h2['logging_end']}; HIBERNATE={wire[0]} "

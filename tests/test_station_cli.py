@@ -9,6 +9,7 @@ import subprocess
 import sys
 import time
 
+import pytest
 
 from stillpoint.tools.cli import main
 
@@ -229,7 +230,9 @@ def test_clean_knows_the_raw_copy_of_an_inbox_log(tmp_path, capsys):
     assert f"superseded {planted}  (by {log})" in capsys.readouterr().out
 
 
-def test_an_ax3_and_an_ax6_with_the_same_id_and_session_both_download(emu, tmp_path, capsys):
+@pytest.fixture
+def same_id_pair(emu, tmp_path):
+    """An emulated AX3 and AX6 that share id 10001 and session 1, and an empty output folder."""
     from stillpoint.drivers.ax.emulator import EmulatedDevice
     a = emu(10001)
     b = EmulatedDevice(tmp_path / "ax6", 10001, "AX6", days=0.01, remount_s=0.05, slot="emu-2")
@@ -237,30 +240,26 @@ def test_an_ax3_and_an_ax6_with_the_same_id_and_session_both_download(emu, tmp_p
         b.plug()
         out = tmp_path / "out"
         out.mkdir()
-        assert main(["station", str(out), "--once", "--clear-after-verify", "--plain"]) == 0, \
-            capsys.readouterr()
-        assert (out / "AX3-10001_1.cwa").read_bytes() != (out / "AX6-10001_1.cwa").read_bytes()
-        assert len(a.clears) == 1 and len(b.clears) == 1
+        yield a, b, out
     finally:
         b.shutdown()
 
 
-def test_device_commands_refuse_an_id_two_devices_share(emu, tmp_path, capsys):
+def test_an_ax3_and_an_ax6_with_the_same_id_and_session_both_download(same_id_pair, capsys):
+    a, b, out = same_id_pair
+    assert main(["station", str(out), "--once", "--clear-after-verify", "--plain"]) == 0, \
+        capsys.readouterr()
+    assert (out / "AX3-10001_1.cwa").read_bytes() != (out / "AX6-10001_1.cwa").read_bytes()
+    assert len(a.clears) == 1 and len(b.clears) == 1
+
+
+def test_device_commands_refuse_an_id_two_devices_share(same_id_pair, capsys):
     """An AX3 and an AX6 with the same id: `device verify 10001` names both and asks for the USB
     serial; the serial picks one."""
-    from stillpoint.drivers.ax.emulator import EmulatedDevice
-    a = emu(10001)
-    b = EmulatedDevice(tmp_path / "ax6", 10001, "AX6", days=0.01, remount_s=0.05, slot="emu-2")
-    try:
-        b.plug()
-        out = tmp_path / "out"
-        out.mkdir()
-        capsys.readouterr()
-        assert main(["device", "download", "10001", "-o", str(out)]) == 2
-        err = capsys.readouterr().err
-        assert f"2 attached devices have this id (AX3 {a.serial}, AX6 {b.serial})" in err
-        assert main(["device", "download", b.serial, "-o", str(out)]) == 0
-        assert (out / "AX6-10001_1.cwa").exists() and not (out / "AX3-10001_1.cwa").exists()
-    finally:
-        b.shutdown()
-
+    a, b, out = same_id_pair
+    capsys.readouterr()
+    assert main(["device", "download", "10001", "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"2 attached devices have this id (AX3 {a.serial}, AX6 {b.serial})" in err
+    assert main(["device", "download", b.serial, "-o", str(out)]) == 0
+    assert (out / "AX6-10001_1.cwa").exists() and not (out / "AX3-10001_1.cwa").exists()

@@ -41,14 +41,26 @@ def real_data_dir() -> Path:
     return d
 
 
-@pytest.fixture(scope="session")
-def real_file(real_data_dir):
-    """real_file("name.cwa") -> Path; fails (never skips) when the file is missing."""
+def _files_in(folder: Path, what: str):
+    """name -> Path in ``folder``; a missing file fails (never skips)."""
 
     def get(name: str) -> Path:
-        p = real_data_dir / name
+        p = folder / name
         if not p.is_file():
-            pytest.fail(f"real recording {name} missing from {real_data_dir}")
+            pytest.fail(f"{what} {name} missing from {folder}")
         return p
 
     return get
+
+
+@pytest.fixture(scope="session")
+def real_file(real_data_dir):
+    """real_file("name.cwa") -> Path; fails (never skips) when the file is missing."""
+    return _files_in(real_data_dir, "real recording")
+
+
+@pytest.fixture(scope="session")
+def fuzz3(real_data_dir):
+    """fuzz3("name") -> Path of a reliability campaign's reproducer, kept beside the real
+    recordings (STILLPOINT_REAL_DATA/../fuzz3, README there); skipped and failed as they are."""
+    return _files_in(real_data_dir.parent / "fuzz3", "reproducer")

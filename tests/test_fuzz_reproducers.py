@@ -235,20 +235,7 @@ def test_damaged_mcap_fields_are_typed_errors(name, what, cmd, tmp_path):
 
 
 # ----------------------------------------------------------------------------- fuzz3 reproducers
-# The reliability campaign's reproducers live next to the real recordings (README there):
-# STILLPOINT_REAL_DATA/../fuzz3. As with the real recordings: when the variable is set, a missing
-# file fails; unset, these tests skip with the reason shown.
-@pytest.fixture(scope="session")
-def fuzz3(real_data_dir):
-    d = real_data_dir.parent / "fuzz3"
-
-    def get(name: str) -> Path:
-        p = d / name
-        if not p.is_file():
-            pytest.fail(f"reproducer {name} missing from {d}")
-        return p
-
-    return get
+# The reliability campaign's reproducers: the ``fuzz3`` fixture (conftest.py).
 
 
 def _whole_read(path, **opts):

@@ -143,3 +143,12 @@ def test_device_configure_refuses_a_gyro_profile_for_an_ax3(emu, tmp_path, capsy
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "cannot configure an AX3: gyro_dps = 500 needs an AX6" in err[0]
     assert _untouched(d) == before
+
+
+@pytest.mark.parametrize("name", ["profile_session_2p32.toml", "profile_session_superscript.toml",
+                                  "profile_stop_overflow.toml"])
+def test_the_shared_reproducers_are_the_ones_restated_here(fuzz3, name):
+    """The reproducer files themselves (../shared/data/fuzz3) are refused with the same reason as
+    their restatement above."""
+    with pytest.raises(ProfileError, match=REPRODUCERS[name][1]):
+        load_profile(fuzz3(name))

@@ -7,7 +7,9 @@ again (an interrupted download resumes). ``once=True`` handles the devices attac
 returns when they are all in a final state. The ledger lock refuses a second station on the same
 folder. At start the ledger rows a killed station left between two states are resolved
 (``completion.reconcile``). ``render`` draws the live table (TTY) or prints one plain line per
-state change.
+state change. ``add_listener(fn)`` calls ``fn(flow)`` on every state change and progress update
+of any device (from the flow's thread: a listener must be quick and never raise), for a view of the
+station other than the terminal's.
 """
 
 from __future__ import annotations
@@ -65,6 +67,11 @@ class Station:
         self._drawn = 0
         self._lock = threading.Lock()
         self._pending = None  # a discovery pass still running (see _discover)
+        self._listeners: list = []
+
+    def add_listener(self, fn) -> None:
+        """Call ``fn(flow)`` on every state change and progress update of any device."""
+        self._listeners.append(fn)
 
     def close(self) -> None:
         import os
@@ -85,6 +92,11 @@ class Station:
 
     # ------------------------------------------------------------------ output
     def _changed(self, flow: DeviceFlow) -> None:
+        for fn in list(self._listeners):
+            try:
+                fn(flow)
+            except Exception as e:  # noqa: BLE001 - a view's fault never stops a device's flow
+                print(f"station view failed: {type(e).__name__}: {e}", file=sys.stderr)
         if self.tty:
             return
         key = (flow.state, flow.reason, flow.detached)

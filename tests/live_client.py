@@ -23,7 +23,7 @@ class LiveClient:
     def __init__(self, port: int, host: str = "127.0.0.1", timeout: float = 10.0):
         from websockets.sync.client import connect
         self.ws = connect(f"ws://{host}:{port}", subprotocols=SUBPROTOCOLS, open_timeout=timeout,
-                          max_size=None)
+                          max_size=None).__enter__()  # open as long as the client (close())
         self.subprotocol = self.ws.subprotocol
         self.server_info = None
         self.channels: dict[int, dict] = {}  # id -> advertised channel

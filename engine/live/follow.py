@@ -27,11 +27,16 @@ class FollowedMessage(NamedTuple):
 
 
 class McapFollower:
-    """Reads a growing MCAP from where the last poll stopped. ``skip_topics``: topics whose
-    messages are never returned (their chunks are still read for the other topics)."""
+    """Reads a growing MCAP from where the last poll stopped. ``paths``: the file's name, or its
+    names in the order it takes them (``x.mcap.part`` renamed ``x.mcap`` when finished: the
+    same bytes, so reading goes on where it was); each poll reads the first that exists.
+    ``skip_topics``: topics whose messages are never returned (their chunks are still read for
+    the other topics). ``finishing``: set by the caller once the writer is done."""
 
-    def __init__(self, path, skip_topics=()):
-        self.path = str(path)
+    def __init__(self, paths, skip_topics=()):
+        self.paths = [str(p) for p in (paths if isinstance(paths, (list, tuple)) else [paths])]
+        self.path = self.paths[0]
+        self.finishing = False
         self.skip = set(skip_topics)
         self.pos = 0
         self.schemas: dict[int, tuple[str, str, bytes]] = {}
@@ -92,10 +97,16 @@ class McapFollower:
         out: list[FollowedMessage] = []
         if self.error is not None:
             return out
-        try:
-            f = open(self.path, "rb")
-        except OSError:
-            return out  # not there yet, or renamed when finished
+        f = None
+        for p in self.paths:
+            try:
+                f = open(p, "rb")
+                self.path = p
+                break
+            except OSError:
+                continue  # not there yet, or renamed when finished
+        if f is None:
+            return out
         with f:
             try:
                 size = os.fstat(f.fileno()).st_size

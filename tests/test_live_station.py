@@ -13,10 +13,9 @@ from collections import Counter
 
 import pytest
 
-pytest.importorskip("foxglove", reason="the live extra (foxglove-sdk) is not installed")
-pytest.importorskip("websockets", reason="the websockets test client is not installed")
+from live_client import LiveClient, need_live  # noqa: E402
 
-from live_client import LiveClient  # noqa: E402
+need_live()
 from station_fixtures import emu, runtime  # noqa: E402,F401
 from stillpoint.drivers.ax.discovery import EmulatedBackend  # noqa: E402
 from stillpoint.engine.mcap.stream import iter_messages  # noqa: E402
@@ -144,3 +143,51 @@ def test_a_client_leaving_mid_stream_does_not_disturb_the_station(emu, tmp_path)
     cb = Counter((t, m.log_time, bytes(m.data)) for t, _i, m in iter_messages(b) if t != "/qc")
     assert ca == cb
     assert next(out_live.glob("AX3-10001_*.cwa")).read_bytes() == next(out_plain.glob("AX3-10001_*.cwa")).read_bytes()
+
+
+def test_device_stream_preview_live_corrected_by_the_stored_calibration(emu, tmp_path, monkeypatch):
+    """`device stream ID --foxglove`: each preview reading the MCAP logs is served live, raw and
+    corrected by the device's stored calibration ((g + offset) * scale)."""
+    import numpy as np
+
+    from stillpoint.engine.calibration.estimate import CalibrationEstimate
+    from stillpoint.engine.calibration.store import CalibrationStore
+    from stillpoint.engine.live import preview as live_preview
+    from stillpoint.tools.cli import main
+    monkeypatch.setenv("STILLPOINT_HOME", str(tmp_path / "home"))
+    est = CalibrationEstimate(offset=np.array([0.02, -0.01, 0.03]), scale=np.array([1.01, 0.99, 1.02]),
+                              status="ok", reason="test", method="autocal-c1", error_before_mg=20.0,
+                              error_after_mg=2.0, windows=50, fit_start_ns=1, fit_end_ns=2)
+    CalibrationStore().add(est, device_key="AX3-10001")
+    emu(10001)
+    made = []
+    real_init = live_preview.PreviewLive.__init__
+
+    def init(self, *a, **kw):
+        real_init(self, *a, **kw)
+        made.append(self)
+    monkeypatch.setattr(live_preview.PreviewLive, "__init__", init)
+    out = tmp_path / "p.mcap"
+    rc = {}
+    t = threading.Thread(target=lambda: rc.setdefault("rc", main(
+        ["device", "stream", "10001", "-o", str(out), "--seconds", "4", "--foxglove", "0"])))
+    t.start()
+    end = time.monotonic() + 30
+    while not made and time.monotonic() < end:
+        time.sleep(0.05)
+    c = LiveClient(made[0].port)
+    c.pump(5.0, until=lambda: len(c.channels) == 2)
+    assert set(c.topics()) == {"/preview/accel", "/preview/corrected"}
+    c.subscribe()
+    c.pump(10.0, until=lambda: not t.is_alive())
+    t.join()
+    assert rc["rc"] == 0
+    logged = {m.log_time: json.loads(bytes(m.data)) for _t, _i, m in iter_messages(out)}
+    raw, cor = c.messages["/preview/accel"], c.messages["/preview/corrected"]
+    assert len(raw) >= 10 and len(cor) == len(raw)
+    for (lt, payload), (lt2, cp) in zip(raw, cor):
+        assert lt == lt2 and json.loads(payload) == logged[lt]
+        d = json.loads(cp)
+        want = (np.array(logged[lt]["g"]) + est.offset) * est.scale
+        assert np.allclose(d["g"], want) and d["calibration"] == "autocal-c1"
+    c.close()

@@ -153,8 +153,9 @@ def _document(config: dict, tree) -> dict:
 
 
 def recording_layout(topics: Iterable[Topic]) -> dict:
-    """The layout of a processed recording's log."""
+    """The layout of a processed recording's log (the view of the corrected stream on top)."""
     config, plots, raws = panels(topics)
+    plots.sort(key=lambda pid: "view" not in pid)
     return _document(config, _tree(plots, raws))
 
 

@@ -176,6 +176,7 @@ def test_device_stream_preview_live_corrected_by_the_stored_calibration(emu, tmp
     while not made and time.monotonic() < end:
         time.sleep(0.05)
     c = LiveClient(made[0].port)
+    assert "/preview/corrected.norm" in made[0].layout_text  # its layout plots the corrected reading
     c.pump(5.0, until=lambda: len(c.channels) == 2)
     assert set(c.topics()) == {"/preview/accel", "/preview/corrected"}
     c.subscribe()

@@ -210,3 +210,27 @@ def test_the_extra_absent_gives_one_clear_line(logged, tmp_path, argv):
     assert r.stderr.count("\n") == 1 and "Traceback" not in r.stderr
     assert "needs the optional extra `live`: pip install 'stillpoint[live]'" in r.stderr
     assert list(out.iterdir()) == []  # nothing written
+
+
+def test_a_log_damaged_further_on_ends_playback_with_one_line(logged, tmp_path):
+    """A chunk that fails its CRC in the middle of the log: what precedes it is served, then the
+    player stops with the error naming the file (the command prints it, exit 2)."""
+    LiveClient, RecordingPlayer = _sdk()
+    bad = tmp_path / "bad.mcap"
+    data = bytearray(logged.read_bytes())
+    mid = len(data) // 2
+    data[mid:mid + 64] = bytes(64)
+    bad.write_bytes(bytes(data))
+    player = RecordingPlayer(bad, port=0, speed=1e6)
+    try:
+        c = LiveClient(player.port)
+        c.pump(5.0, until=lambda: len(c.channels) >= 7)
+        c.subscribe()
+        end = time.monotonic() + 30
+        while player.error is None and time.monotonic() < end:
+            c.pump(0.2)
+        assert player.error is not None and str(bad) in player.error
+        assert "\n" not in player.error and sum(len(v) for v in c.messages.values()) > 0
+        c.close()
+    finally:
+        player.stop()

@@ -11,8 +11,8 @@ Panels follow from each topic's schema:
   ``n`` aside) a third. Batched topics (array fields: ``/raw/accel``, ``/corrected/accel``)
   are not plotted: a plot cannot place a batch's samples in time (``/view/accel`` exists for that);
 * a JSON topic whose name ends in ``/state`` gets a State Transitions panel on its ``state``;
-  one ending in ``/progress``, ``/battery`` or ``/clock_offset`` is plotted (its numeric
-  JSON-schema properties); every other JSON topic (``/calibration``, ``/qc``) gets a Raw Messages
+  one ending in ``/progress``, ``/battery``, ``/clock_offset`` or ``/preview/corrected`` is
+  plotted (its numeric JSON-schema properties but times, ``*_ns``); every other JSON topic (``/calibration``, ``/qc``) gets a Raw Messages
   panel.
 
 Nothing here needs the ``live`` extra: ``stillpoint view --layout`` writes a layout without it.
@@ -24,9 +24,10 @@ import json
 import re
 from typing import Iterable, NamedTuple, Optional
 
-COUNT_FIELDS = {"n"}  # sample counts: not worth a line in a plot
+COUNT_FIELDS = {"n"}
+TIME_SUFFIXES = ("_ns",)  # times are the plot's x axis, not a line in it  # sample counts: not worth a line in a plot
 TEMPERATURE_FIELDS = {"celsius", "temperature_c"}
-PLOTTED_JSON = ("/progress", "/battery", "/clock_offset")
+PLOTTED_JSON = ("/progress", "/battery", "/clock_offset", "/preview/corrected")
 _NUMERIC_ROS = {"int8", "uint8", "int16", "uint16", "int32", "uint32", "int64", "uint64",
                 "float32", "float64"}
 
@@ -114,6 +115,7 @@ def panels(topics: Iterable[Topic], prefix: str = "") -> tuple[dict, list[str], 
                 plots.append(f"StateTransitions!{pid}")
                 continue
             fields = numeric_fields(t) if t.topic.endswith(PLOTTED_JSON) else None
+            fields = [f for f in fields or () if not f.endswith(TIME_SUFFIXES)]
             if fields:
                 config[f"Plot!{pid}"] = _plot(short.strip("/"), [(f"{t.topic}.{f}", f) for f in fields])
                 plots.append(f"Plot!{pid}")

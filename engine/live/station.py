@@ -165,7 +165,10 @@ class StationLive:
     # ------------------------------------------------------------------ the followed logs
     def _follow_loop(self) -> None:
         while not self._stop.wait(POLL_S):
-            if self._subscriptions <= 0:
+            if self._subscriptions <= 0:  # nobody watching: a finished download is not replayed later
+                with self._lock:
+                    for key in [k for k, f in self._followers.items() if f.finishing]:
+                        del self._followers[key]
                 continue
             with self._lock:
                 followers = list(self._followers.items())

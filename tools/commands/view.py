@@ -59,8 +59,8 @@ def run(args) -> int:
         print(f"serving {args.file} on ws://{args.host}:{player.port} ({len(player.channels)} topics); "
               "open it in Foxglove: Open connection -> Foxglove WebSocket; playback starts when "
               "Foxglove subscribes; Ctrl-C stops", flush=True)
-        while not stop.wait(0.5):
-            pass
+        while not stop.wait(0.5) and player.error is None:
+            pass  # serves until Ctrl-C (or the log turns out damaged further on)
     finally:
         signal.signal(signal.SIGINT, old)
         signal.signal(signal.SIGTERM, old_term)

@@ -192,3 +192,15 @@ def test_device_stream_preview_live_corrected_by_the_stored_calibration(emu, tmp
         want = (np.array(logged[lt]["g"]) + est.offset) * est.scale
         assert np.allclose(d["g"], want) and d["calibration"] == "autocal-c1"
     c.close()
+
+
+def test_station_command_with_foxglove(emu, tmp_path, capsys):
+    """`stillpoint station OUT --once --foxglove 0`: the address is printed, the device is
+    downloaded as without the option."""
+    from stillpoint.tools.cli import main
+    emu(10001)
+    out = tmp_path / "out"
+    assert main(["station", str(out), "--once", "--plain", "--foxglove", "0"]) == 0
+    text = capsys.readouterr().out
+    assert "foxglove: ws://127.0.0.1:" in text and "verified" in text
+    assert next(out.glob("AX3-10001_*.mcap")).is_file()

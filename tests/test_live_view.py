@@ -234,3 +234,24 @@ def test_a_log_damaged_further_on_ends_playback_with_one_line(logged, tmp_path):
         c.close()
     finally:
         player.stop()
+
+
+def test_view_command_serves_until_interrupted(logged, tmp_path):
+    """`stillpoint view LOG --port 0`: prints where it serves, a client gets the channels, Ctrl-C
+    stops it with exit code 0."""
+    import re
+    import signal
+    LiveClient, _ = _sdk()
+    p = subprocess.Popen([sys.executable, "-m", "stillpoint.tools", "view", str(logged), "--port", "0"],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        line = p.stdout.readline()
+        port = int(re.search(r"ws://127\.0\.0\.1:(\d+)", line).group(1))
+        c = LiveClient(port)
+        c.pump(5.0, until=lambda: len(c.channels) == 7)
+        assert "/view/accel" in c.topics()
+        c.close()
+    finally:
+        p.send_signal(signal.SIGINT)
+        rc = p.wait(30)
+    assert rc == 0, p.stderr.read()

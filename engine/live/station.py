@@ -37,6 +37,7 @@ from .follow import McapFollower
 from .layouts import layout_json, station_layout
 
 POLL_S = 0.25
+BACKLOG = 4096  # messages queued per client before the SDK drops its oldest data message
 RAW_TOPICS = ("/raw/accel", "/raw/gyro")
 FOLLOWED_STATES = ("downloading", "verifying")
 LATCHED_TOPICS = ("/calibration", "/qc")  # rare events of the followed log, sent again on subscribe
@@ -84,7 +85,8 @@ class StationLive:
         self._latest: dict[str, tuple[bytes, int]] = {}  # station topic -> its last message
         self.published = 0
         self.server = sdk.start(fg, self._ctx, "station", port=port, host=host,
-                                listener=_Listener(self), layout=self.layout_text)
+                                listener=_Listener(self), layout=self.layout_text,
+                                backlog=BACKLOG)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._follow_loop, name="station-live", daemon=True)
         self._thread.start()

@@ -1,7 +1,9 @@
 """Foxglove layouts generated from a topic list: one for a processed recording, one for the
 station (a tab per device). Plain JSON in the layout format Foxglove imports ("Import from
 file..." in the Layouts menu): ``configById`` (one config per panel id ``<Kind>!<name>``) and
-``layout`` (a tree of row/column splits whose leaves are panel ids).
+``layout`` (a tree of row/column splits whose leaves are panel ids); the format of Foxglove's own
+layout export (docs.foxglove.dev/docs/visualization/layouts; the panel configs as the typed layout
+builder of foxglove-sdk, ``foxglove.layouts``, spells them, written here as plain JSON).
 
 Panels follow from each topic's schema:
 

@@ -10,7 +10,9 @@ from typing import Callable, Optional
 from stillpoint.drivers.errors import StillpointError
 
 LAYOUT_URI = "package://stillpoint/layout.json"
-DEFAULT_PORT = 8765  # Foxglove's default WebSocket connection (ws://localhost:8765)
+# Foxglove's default WebSocket connection, ws://localhost:8765 (docs.foxglove.dev/docs/sdk/websocket-server,
+# "Connecting"); the protocol: github.com/foxglove/ws-protocol docs/spec.md, served by foxglove-sdk
+DEFAULT_PORT = 8765
 EXTRA_HINT = "pip install 'stillpoint[live]' (foxglove-sdk)"
 
 

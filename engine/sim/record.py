@@ -34,7 +34,7 @@ from .model import ModelError, SensorModel  # noqa: F401
 from .temperature import TRACK_STEP_S, TemperatureParams
 from .truth import (LABEL_COLUMNS, TRUTH_FORMAT, WINDOW_S, Truth, _write_label_rows,  # noqa: F401
                     load_labels, load_truth, relative_clock_s, truth_device_time, write_labels)
-from .wearer import ACTIVITIES, WearerParams
+from .wearer import ACTIVITIES, WearerParams, nonwear_summary
 
 
 # ----------------------------------------------------------------------------- writing
@@ -301,6 +301,7 @@ def _finish(sim: DeviceSim, sink: _FileSink, corrupt: list, truth_path: Optional
                                       if worn_T.size else None),
         "activity_hours": {a: float(st["activity"][i] * WINDOW_S / 3600.0) for i, a in enumerate(ACTIVITIES)},
         "steps": int(np.count_nonzero((sim.schedule.steps >= 0) & (sim.schedule.steps < sim.duration_s))),
+        "nonwear": nonwear_summary(sim.schedule),
     }
     truth = Truth(path=str(sink.path), device=dict(sim.spec.to_dict(), device_id=sim.device_id),
                   site=sim.site, seed=sim.seed, start_ns=sim.start_ns, duration_s=sim.duration_s,

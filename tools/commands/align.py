@@ -18,6 +18,7 @@ from stillpoint.engine.jsonsafe import jsonable
 
 NAME = "align"
 HELP = "align two recordings worn together (clock offset, drift, halts; Brønd et al. 2021)"
+KEEPS_EXISTING_OUTPUTS = True  # --overwrite replaces an existing output
 DESCRIPTION = (
     "Estimate the clock offset and drift of OTHER relative to REFERENCE from the acceleration "
     "itself (per 1 h block cross-correlation of the activity signal, Brønd et al. 2021) and "

@@ -24,6 +24,7 @@ from ._numbers import HOURS, MG, number
 
 NAME = "calibrate"
 HELP = "autocalibrate a recording (fit only, no corrected output; --json, --plot, --store)"
+KEEPS_EXISTING_OUTPUTS = True  # --overwrite replaces an existing output
 
 JSON_KEYS = ("offset", "scale", "tempoffset", "temperature_ref", "error_before_mg",
              "error_after_mg", "windows", "iterations", "status", "reason")

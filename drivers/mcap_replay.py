@@ -26,7 +26,7 @@ from stillpoint.engine.mcap.schemas import ACCEL_BATCH_RAW, GYRO_BATCH_RAW, time
 from stillpoint.engine.mcap.stream import iter_messages, read_metadata
 
 from . import constants as C
-from .byteio import check_recording_path
+from .byteio import check_recording_path, consumed_fraction
 from .errors import CorruptRecordingError, UnsupportedFormatError
 
 NOT_A_STILLPOINT_LOG = "MCAP has no 'device' metadata record: not a stillpoint log"
@@ -228,6 +228,10 @@ class McapRawSource:
 
     def close(self) -> None:
         self._f.close()
+
+    def progress(self) -> Optional[float]:
+        """Share of the log read so far (its position in the file): for progress bars."""
+        return consumed_fraction(self._f)
 
     def __iter__(self) -> Iterator[Block]:
         pending_raw: list[tuple] = []

@@ -124,7 +124,7 @@ def _read_days(path) -> list[dict]:
         return list(csv.DictReader(f))
 
 
-def _sphere(mcap, est_json: Optional[dict], settings: dict):
+def _sphere(mcap, est_json: Optional[dict], settings: dict, progress=None):
     """Nonmovement window means (raw g), temperatures, and the estimate to apply."""
     from stillpoint.drivers.mcap_replay import McapRawSource
     from .calibration.estimate import CalibrationEstimate
@@ -143,6 +143,8 @@ def _sphere(mcap, est_json: Optional[dict], settings: dict):
         from .tables.from_mcap import _coalesced
         for b in _coalesced(src):  # 10-min blocks instead of the log's 10-s messages
             nm.push(win.push(b))
+            if progress is not None and callable(getattr(src, "progress", None)):
+                progress.update(fraction=src.progress())
         nm.push(win.flush())
     finally:
         src.close()
@@ -366,8 +368,11 @@ def _qc_text(rec: dict, days: list[dict]) -> str:
 
 
 # ---------------------------------------------------------------------------- the job
-def write_report(mcap, *, summary: Optional[dict] = None, out_png=None, out_html=None) -> dict:
-    """Write the PNG page and the HTML page for a processed recording's MCAP."""
+def write_report(mcap, *, summary: Optional[dict] = None, out_png=None, out_html=None,
+                 progress=None) -> dict:
+    """Write the PNG page and the HTML page for a processed recording's MCAP. ``progress``: an
+    ``engine.progress.Progress`` told of the three steps (tables, the calibration sphere read
+    from the raw stream, drawing)."""
     plt = require_matplotlib()
     mcap = Path(mcap)
     png, page = report_paths(mcap)
@@ -381,6 +386,9 @@ def write_report(mcap, *, summary: Optional[dict] = None, out_png=None, out_html
         rec["summary"] = summary
     settings = rec.get("settings") or {}
     with tempfile.TemporaryDirectory(prefix=".report-", dir=str(png.parent)) as tmp:
+        if progress is not None:
+            progress.phase(0, 3)
+            progress.update(fraction=0.0, detail="tables")
         if not (ep_path.is_file() and days_path.is_file()):
             ep_path = Path(tmp) / "t.epochs.csv.gz"
             days_path = Path(tmp) / "t.days.csv"
@@ -388,7 +396,13 @@ def write_report(mcap, *, summary: Optional[dict] = None, out_png=None, out_html
         ep = _read_epochs(ep_path)
         days = _read_days(days_path)
     est_json = (rec.get("summary") or {}).get("calibration") or rec.get("calibration")
-    windows, est = _sphere(mcap, est_json, settings)
+    if progress is not None:
+        progress.phase(1, 3)
+        progress.update(fraction=0.0, detail="nonmovement windows")
+    windows, est = _sphere(mcap, est_json, settings, progress)
+    if progress is not None:
+        progress.phase(2, 3)
+        progress.update(fraction=0.0, detail="drawing")
     dev = (rec.get("summary") or {}).get("device") or {}
     title = (f"{mcap.name}: {dev.get('type', '')} {dev.get('id', '')}, "
              f"{ep['dates'][0] if ep['dates'] else '?'} to {ep['dates'][-1] if ep['dates'] else '?'}")

@@ -125,8 +125,10 @@ def execute(args, settings: RunSettings, out: Path) -> int:
             opts = {"follow": True, "follow_idle_s": args.follow}
         summary = process_file(args.file, out, settings, progress=progress, tables=tables,
                                source_options=opts)
-    finally:
-        progress.done()
+    except BaseException:
+        progress.done(completed=False)
+        raise
+    progress.done()
     if getattr(args, "report", False):
         from stillpoint.engine.report import write_report
         summary["outputs"].update(write_report(out, summary=summary))

@@ -165,3 +165,50 @@ def file_size(path) -> Optional[int]:
         return os.path.getsize(path)
     except OSError:
         return None
+
+
+class Reporting:
+    """A Source whose iteration calls ``update(fraction=...)`` with the wrapped source's share
+    read (``source.progress()``) after each block; everything else is the source's."""
+
+    def __init__(self, source, update):
+        self.source = source
+        self.update = update
+
+    def __getattr__(self, name):
+        if name == "source":
+            raise AttributeError(name)
+        return getattr(self.source, name)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.source.close()
+
+    def __iter__(self):
+        probe = getattr(self.source, "progress", None)
+        for block in self.source:
+            yield block
+            f = probe() if callable(probe) else None
+            if f is not None:
+                self.update(fraction=f)
+
+
+class ByteSpans:
+    """Files of known sizes worked through one after another on one ``Progress``: ``start(i)``
+    points the bar at file i's share of the total bytes (``Progress.span``)."""
+
+    def __init__(self, bar: Progress, paths):
+        self.bar = bar
+        sizes = [max(file_size(p) or 0, 1) for p in paths]
+        total = float(sum(sizes))
+        self.edges = [sum(sizes[:i]) / total for i in range(len(sizes) + 1)]
+
+    def start(self, i: int) -> None:
+        self.bar.span(self.edges[i], self.edges[i + 1])
+        self.bar.update(fraction=0.0)
+
+    def finish(self, i: int) -> None:
+        self.bar.span(self.edges[i], self.edges[i + 1])
+        self.bar.update(fraction=1.0)

@@ -128,3 +128,24 @@ def test_cohort_eta_counts_the_bytes_of_files_still_running():
     prog.tick()
     line = out.getvalue().splitlines()[-1]
     assert "0/3 files" in line and "ETA 0m40s" in line, line
+
+
+def test_calibrate_export_and_report_show_progress(tmp_path, capsys):
+    assert main(["calibrate", str(GOOD)]) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert err[-2].startswith("calibrate: 100.0 %") and err[-1].startswith("calibrate: done in")
+    assert main(["export", str(GOOD), "-o", str(tmp_path / "e.csv")]) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert err[-2].startswith("export: 100.0 %") and err[-1].startswith("export: done in")
+    assert main(["export", str(GOOD), "-o", str(tmp_path / "f.csv"), "-q"]) == 0
+    assert capsys.readouterr().err == ""
+
+
+def test_report_tells_its_steps(tmp_path, capsys):
+    import pytest
+    pytest.importorskip("matplotlib", reason="the report draws with matplotlib")
+    mcap = tmp_path / "a.mcap"
+    assert main(["process", str(GOOD), "-o", str(mcap), "-q"]) == 0
+    assert main(["report", str(mcap)]) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert any("drawing" in ln for ln in err) and err[-1].startswith("report a.mcap: done in"), err

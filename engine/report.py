@@ -213,7 +213,7 @@ def _draw(plt, ep: dict, days: list[dict], windows, est, rec: dict, title: str, 
     n_day = max(len(shown), 1)
     day_h = 1.0 if n_day > 4 else 1.4
     qc_h = max(1.2, 0.16 * _qc_lines(rec, days))  # the QC box grows with its (wrapped) lines
-    gs = fig.add_gridspec(n_day + 6, 4, height_ratios=[day_h] * n_day + [0.3, 1.3, 0.3, 1.8, 0.25, qc_h],
+    gs = fig.add_gridspec(n_day + 6, 4, height_ratios=[day_h] * n_day + [0.55, 1.3, 0.35, 1.8, 0.3, qc_h],
                           hspace=0.25, wspace=0.45, left=0.08, right=0.88, top=0.91, bottom=0.03)
     fig.suptitle(title, fontsize=9.5)
     step_h = epoch_s / 3600

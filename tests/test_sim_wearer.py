@@ -196,8 +196,8 @@ def test_default_wearer_takes_the_device_off_and_the_truth_says_how_long():
     long_eps = [x for x in eps if x["end_s"] - x["start_s"] >= 3600]
     assert len(long_eps) >= 1 and nw["hours_in_episodes_ge_60_min"] >= 1.0
     assert abs(nw["hours"] - sum(x["end_s"] - x["start_s"] for x in eps) / 3600) < 1e-3
-    # no nonwear during sleep; a week holds 1-20 h of it (Doherty 2017 Table 1: median ~2-3 h,
-    # lower quartile up to ~15 h a week)
+    # no nonwear during sleep; a week holds 1-20 h of it (Doherty 2017 Table 1: median ~1-3 h,
+    # 7-18 h at the lower quartile of wear time)
     sleep = sch.activity == ACTIVITIES.index("sleep")
     for x in eps:
         assert not ((sch.start < x["end_s"]) & (sch.end > x["start_s"]) & sleep).any()

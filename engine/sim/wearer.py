@@ -50,8 +50,8 @@ M = {n: i for i, n in enumerate(MOTIONS)}
 #   worn accelerometers: the UK Biobank study", PLoS ONE 12(2):e0169649, Table 1: mean
 #   acceleration vector magnitude (ENMO, mg) 31.2/31.1 (women/men, 45-54 y), 29.1/28.8
 #   (55-64 y), 26.6/25.6 (65-74 y); wear time per 7-day wear median 164.9-166.8 h (IQR from
-#   149.5-160.8 h to 167.0-168.0 h), i.e. a median of ~2-3 h of nonwear per week, up to ~15 h
-#   in the lower quartile. The default wearer (a week, seeds 1-4): mean ENMO 28-46 mg (the
+#   149.5-160.8 h to 167.0-168.0 h), i.e. a median of ~1-3 h of nonwear per week, 7-18 h
+#   at the lower quartile. The default wearer (a week, seeds 1-4): mean ENMO 28-46 mg (the
 #   upper seeds run twice a week), nonwear (showers, a drawer, off-wrist on a table) 6-11 h.
 # * Hildebrand M et al. 2014, "Age group comparability of raw accelerometer output from wrist-
 #   and hip-worn monitors", Med Sci Sports Exerc 46(9):1816-24, Table 3 (non-dominant wrist,

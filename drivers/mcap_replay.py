@@ -26,7 +26,7 @@ from stillpoint.engine.mcap.schemas import ACCEL_BATCH_RAW, GYRO_BATCH_RAW, time
 from stillpoint.engine.mcap.stream import iter_messages, read_metadata
 
 from . import constants as C
-from .byteio import check_recording_path, consumed_fraction
+from .byteio import check_recording_path
 from .errors import CorruptRecordingError, UnsupportedFormatError
 
 NOT_A_STILLPOINT_LOG = "MCAP has no 'device' metadata record: not a stillpoint log"
@@ -230,8 +230,14 @@ class McapRawSource:
         self._f.close()
 
     def progress(self) -> Optional[float]:
-        """Share of the log read so far (its position in the file): for progress bars."""
-        return consumed_fraction(self._f)
+        """Share of the log's samples handed out so far (the run summary's sample count; None
+        without one): for progress bars. The messages are read in time order, not in file
+        order, so the file position would not tell."""
+        try:
+            total = int((self.metadata.get("summary") or {}).get("samples") or 0)
+        except (TypeError, ValueError):
+            return None
+        return min(1.0, getattr(self, "_handed", 0) / total) if total > 0 else None
 
     def __iter__(self) -> Iterator[Block]:
         pending_raw: list[tuple] = []
@@ -251,6 +257,7 @@ class McapRawSource:
             nonlocal n_group
             b = group[0] if len(group) == 1 else Block.concat(group)
             group.clear()
+            self._handed = getattr(self, "_handed", 0) + n_group
             n_group = 0
             return b
 

@@ -149,3 +149,18 @@ def test_report_tells_its_steps(tmp_path, capsys):
     assert main(["report", str(mcap)]) == 0
     err = capsys.readouterr().err.splitlines()
     assert any("drawing" in ln for ln in err) and err[-1].startswith("report a.mcap: done in"), err
+
+
+def test_replay_of_a_log_counts_its_samples(tmp_path, capsys):
+    from stillpoint.drivers.mcap_replay import McapRawSource
+    mcap = tmp_path / "a.mcap"
+    assert main(["process", str(GOOD), "-o", str(mcap), "-q"]) == 0
+    src = McapRawSource(mcap)
+    seen = [src.progress()]
+    for _ in src:
+        seen.append(src.progress())
+    src.close()
+    assert seen[0] == 0.0 and seen[-1] == 1.0 and seen == sorted(seen)
+    assert main(["replay", str(mcap), "-o", str(tmp_path / "b.mcap")]) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert err[-2].startswith("replay: 100.0 %") and err[-1].startswith("replay: done in"), err

@@ -103,7 +103,8 @@ def execute(args, settings: RunSettings, out: Path) -> int:
     check_distinct_outputs(named)
     if getattr(args, "store", None) is not None:
         _store(args.store).check()
-    progress = Progress(enabled=False if args.quiet else None)
+    progress = Progress(enabled=False if args.quiet else None,
+                        label=getattr(args, "command", None) or "process")  # or replay
     resolve_static(args, settings)
     if getattr(args, "store", None) is not None and settings.mode == "online" and settings.prior is None:
         from stillpoint.drivers import open_recording

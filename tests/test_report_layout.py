@@ -114,7 +114,7 @@ def test_no_text_over_another_and_everything_on_the_page(any_page):
     fig, r = any_page
     fb = fig.bbox
     texts = [t for t in fig.findobj(lambda o: hasattr(o, "get_text") and hasattr(o, "get_window_extent"))
-             if getattr(o := t, "get_text")() and o.get_visible()]
+             if t.get_text() and t.get_visible()]
     boxes = [(t.get_text(), t.get_window_extent(r)) for t in texts]
     for name, b in boxes:  # nothing cut at the page's edges (the long warning included)
         assert b.x0 >= fb.x0 - 1 and b.x1 <= fb.x1 + 1 and b.y0 >= fb.y0 - 1, name

@@ -1,0 +1,111 @@
+"""Activity outcomes in the tables: the cut-point set's band per epoch and minutes/bouts per day,
+Verisense steps per epoch and per day, the columns named by key and set, the same tables
+whatever the pipeline's block size, and the default tables unchanged."""
+
+import csv
+import gzip
+import subprocess
+import sys
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from stillpoint.engine.outcomes.bouts import ggir_bouts
+from stillpoint.engine.outcomes.daily import OutcomeSettings
+from stillpoint.engine.run import RunSettings, process_file
+from stillpoint.engine.sim import simulate_recording
+from stillpoint.engine.tables import TablesSettings, table_paths
+from stillpoint.engine.tables.writer import EPOCH_COLUMNS
+
+KEY = "hildebrand_adults_geneactiv_wrist"
+SETS = ("original", "rowlands2022")
+
+
+def _run(rec, out, **kw):
+    ep, dp = table_paths(out)
+    ts = TablesSettings(ep, dp, outcomes=OutcomeSettings(cutpoints=KEY, steps=SETS))
+    s = process_file(rec, out, RunSettings(**kw), tables=ts)
+    with gzip.open(ep, "rt") as f:
+        e_text = f.read()
+    with open(dp) as f:
+        d_text = f.read()
+    return s, e_text, d_text
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    d = tmp_path_factory.mktemp("outcomes")
+    rec = d / "r.cwa"
+    simulate_recording(rec, days=1.2, hz=25, seed=11, effects="offset,noise",
+                       truth_path=d / "truth.json", labels_path=False)
+    s, e_text, d_text = _run(rec, d / "a.mcap", max_block_s=600.0)
+    epochs = list(csv.DictReader(e_text.splitlines()))
+    days = list(csv.DictReader(d_text.splitlines()))
+    return SimpleNamespace(dir=d, rec=rec, summary=s, e_text=e_text, d_text=d_text,
+                           epochs=epochs, days=days)
+
+
+def test_columns_carry_the_key_and_the_sets(run):
+    head = run.e_text.splitlines()[0].split(",")
+    assert head[-3:] == [f"band_{KEY}", "steps_verisense_original", "steps_verisense_rowlands2022"]
+    cols = run.days[0].keys()
+    for b in ("light", "moderate", "vigorous", "mvpa"):
+        assert f"min_{b}_{KEY}" in cols
+        for m in (1, 5, 10):
+            assert f"bout_min_{b}_{m}m_{KEY}" in cols
+    assert {"steps_verisense_original", "cadence_max_spm_verisense_rowlands2022"} <= set(cols)
+    assert run.summary["tables"]["outcomes"]["cutpoints"] == KEY
+
+
+def test_day_values_come_from_the_epoch_rows(run):
+    by_day = {}
+    for r in run.epochs:
+        by_day.setdefault(r["time_local"][:10], []).append(r)
+    days = [d for d in run.days if d["date"] != "all"]
+    assert len(days) >= 2
+    total = {s: 0 for s in SETS}
+    for d in days:
+        rows = by_day[d["date"]]
+        band = np.array([r[f"band_{KEY}"] for r in rows])
+        for b, sel in (("light", band == "light"), ("moderate", band == "moderate"),
+                       ("vigorous", band == "vigorous"),
+                       ("mvpa", (band == "moderate") | (band == "vigorous"))):
+            assert float(d[f"min_{b}_{KEY}"]) == pytest.approx(sel.sum() * 5 / 60, abs=1e-3)
+            for m in (1, 5, 10):
+                want = ggir_bouts(sel, 12 * m, 12).sum() * 5 / 60
+                assert float(d[f"bout_min_{b}_{m}m_{KEY}"]) == pytest.approx(want, abs=1e-3)
+                assert float(d[f"bout_min_{b}_{m}m_{KEY}"]) <= float(d[f"min_{b}_{KEY}"]) + 1e-6
+        for s in SETS:
+            n = np.array([int(r[f"steps_verisense_{s}"]) for r in rows])
+            assert int(d[f"steps_verisense_{s}"]) == n.sum()
+            per_min = np.add.reduceat(n, np.arange(0, n.size, 12))
+            assert int(d[f"cadence_max_spm_verisense_{s}"]) == per_min.max()
+            total[s] += n.sum()
+    # a simulated day walks: both sets count thousands of steps
+    assert min(total.values()) > 1000
+
+
+def test_tables_do_not_depend_on_the_block_size(run, tmp_path):
+    _, e_text, d_text = _run(run.rec, tmp_path / "b.mcap", max_block_s=97.0)
+    assert e_text == run.e_text
+    assert d_text == run.d_text
+
+
+def test_default_tables_have_no_outcome_columns(tmp_path):
+    rec = tmp_path / "s.cwa"
+    simulate_recording(rec, days=0.05, hz=12.5, seed=3, truth_path=False, labels_path=False)
+    ep, dp = table_paths(tmp_path / "s.mcap")
+    s = process_file(rec, tmp_path / "s.mcap", RunSettings(), tables=TablesSettings(ep, dp))
+    with gzip.open(ep, "rt") as f:
+        assert f.readline().strip().split(",") == EPOCH_COLUMNS[1:]
+    with open(dp) as f:
+        head = f.readline()
+    assert "steps_" not in head and "bout_min_" not in head and "outcomes" not in s["tables"]
+
+
+def test_cli_unknown_cutpoints_is_a_usage_error(tmp_path):
+    r = subprocess.run([sys.executable, "-m", "stillpoint", "process", str(tmp_path / "x.cwa"),
+                        "--cutpoints", "nope"], capture_output=True, text=True)
+    assert r.returncode == 2
+    assert "unknown cut-point set 'nope'" in r.stderr and "Traceback" not in r.stderr

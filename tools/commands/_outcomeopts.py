@@ -34,7 +34,7 @@ def step_sets(text: str) -> tuple:
 
 def add_outcome_arguments(p) -> None:
     g = p.add_argument_group("activity outcomes (docs/activity-outcomes.md)")
-    g.add_argument("--cutpoints", type=cutpoint_key, default="", metavar="KEY",
+    g.add_argument("--cutpoints", type=cutpoint_key, default=None, metavar="KEY",
                    help="a cut-point set of the registry (e.g. hildebrand_adults_geneactiv_wrist): "
                         "minutes and GGIR bouts per band in the day table, each epoch's band in "
                         "the epoch table; columns carry the key")

@@ -24,7 +24,8 @@ SETS = ("original", "rowlands2022")
 
 def _run(rec, out, **kw):
     ep, dp = table_paths(out)
-    ts = TablesSettings(ep, dp, outcomes=OutcomeSettings(cutpoints=KEY, steps=SETS))
+    ts = TablesSettings(ep, dp, valid_day_hours=4.0,
+                        outcomes=OutcomeSettings(cutpoints=KEY, steps=SETS))
     s = process_file(rec, out, RunSettings(**kw), tables=ts)
     with gzip.open(ep, "rt") as f:
         e_text = f.read()
@@ -109,3 +110,26 @@ def test_cli_unknown_cutpoints_is_a_usage_error(tmp_path):
                         "--cutpoints", "nope"], capture_output=True, text=True)
     assert r.returncode == 2
     assert "unknown cut-point set 'nope'" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_cohort_carries_the_outcome_columns(run, tmp_path):
+    out = tmp_path / "coh"
+    r = subprocess.run([sys.executable, "-m", "stillpoint.tools", "cohort", "run", str(run.rec),
+                        "-o", str(out), "--scheduler", "serial", "--cutpoints", KEY, "--steps",
+                        "--valid-day-hours", "4"],
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    with open(out / "cohort_days.csv") as f:
+        days = list(csv.DictReader(f))
+    with open(out / "cohort_summary.csv") as f:
+        [summary] = list(csv.DictReader(f))
+    with open(out / "cohort_participants.csv") as f:
+        [who] = list(csv.DictReader(f))
+    mine = [d for d in run.days if d["date"] != "all"]
+    assert [d["steps_verisense_rowlands2022"] for d in days] == \
+        [d["steps_verisense_rowlands2022"] for d in mine]
+    assert [d[f"bout_min_mvpa_10m_{KEY}"] for d in days] == [d[f"bout_min_mvpa_10m_{KEY}"] for d in mine]
+    valid = [float(d["steps_verisense_original"]) for d in mine if d["valid_day"] == "1"]
+    assert valid and float(summary["steps_verisense_original"]) == pytest.approx(np.mean(valid), abs=1e-3)
+    assert float(who["steps_verisense_original"]) == pytest.approx(np.mean(valid), abs=1e-3)
+    assert f"min_mvpa_{KEY}" in summary

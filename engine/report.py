@@ -6,6 +6,8 @@ reading tables:
 * **activity per local day**: ENMO per epoch (mg) against the local clock, one row per day, with
   nonwear (grey), clipping (red), QC-flagged data (orange) and gaps (hatched) shaded, the day's
   wear hours and valid-day mark at the right;
+* with activity outcomes in the day table (``engine.outcomes``), each day's steps per Verisense
+  parameter set and MVPA minutes of the cut-point set under its wear hours;
 * **temperature** over the recording (degC, local time);
 * **calibration**: the nonmovement windows' residuals ``|a| - 1`` (mg) before and after the
   applied estimate as histograms (windows beyond the axis range are counted, never dropped
@@ -186,6 +188,21 @@ def _shade(ax, hour, mask, color, label, hatch=None, step_h=5 / 3600):
         label = None
 
 
+_SET_SHORT = {"original": "orig.", "rowlands2022": "R2022"}  # Verisense parameter sets
+
+
+def _outcome_text(day: dict) -> str:
+    """Steps per Verisense set and MVPA minutes of a day row (empty without those columns)."""
+    out = []
+    for k, v in day.items():
+        if k.startswith("steps_verisense_") and v not in (None, ""):
+            name = k[len("steps_verisense_"):]
+            out.append(f"{int(float(v)):,} steps {_SET_SHORT.get(name, name)}")
+        elif k.startswith("min_mvpa_") and v not in (None, ""):
+            out.append(f"MVPA {float(v):.0f} min")
+    return "".join("\n" + x for x in out)
+
+
 def _draw(plt, ep: dict, days: list[dict], windows, est, rec: dict, title: str, epoch_s: float):
     fig = plt.figure(figsize=(8.27, 11.69), dpi=110)
     dates = ep["dates"]
@@ -235,8 +252,8 @@ def _draw(plt, ep: dict, days: list[dict], windows, est, rec: dict, title: str, 
             if float(d.get("day_hours") or 24) != 24:
                 mark += f"\n({float(d['day_hours']):g}-h day)"
             wh = float(d["wear_hours"])
-            ax.text(1.01, 0.5, (f"{wh:.1f} h" if wh >= 1 else f"{wh * 60:.1f} min") + f" wear\n{mark}", transform=ax.transAxes,
-                    fontsize=6.5, va="center")
+            ax.text(1.01, 0.5, (f"{wh:.1f} h" if wh >= 1 else f"{wh * 60:.1f} min") + f" wear\n{mark}"
+                    + _outcome_text(d), transform=ax.transAxes, fontsize=6.5, va="center")
         if i == 0:
             ax.set_title(f"ENMO per epoch (mg) against the {clock} (h), one row per "
                          f"{'device-clock' if device_clock else 'local'} day", fontsize=8, pad=14)
@@ -362,6 +379,9 @@ def _qc_text(rec: dict, days: list[dict]) -> str:
     if reason:
         import textwrap
         lines += ["  " + x for x in textwrap.wrap(reason, 100)[:3]]
+    if any(k.startswith("steps_verisense_") for k in total):
+        lines.append("steps: Verisense algorithm, orig. = original parameters, R2022 = Rowlands "
+                     "et al. 2022's revision")
     return "\n".join(lines)
 
 

@@ -133,3 +133,18 @@ def test_cohort_carries_the_outcome_columns(run, tmp_path):
     assert valid and float(summary["steps_verisense_original"]) == pytest.approx(np.mean(valid), abs=1e-3)
     assert float(who["steps_verisense_original"]) == pytest.approx(np.mean(valid), abs=1e-3)
     assert f"min_mvpa_{KEY}" in summary
+
+
+def test_report_shows_steps_and_mvpa_per_day(run, tmp_path):
+    pytest.importorskip("matplotlib", reason="the report needs matplotlib (the plot extra)")
+    from stillpoint.engine.report import _outcome_text, write_report
+    d = next(x for x in run.days if x["date"] != "all")
+    text = _outcome_text(d)
+    assert f"{int(d['steps_verisense_original']):,} steps orig." in text
+    assert f"{int(d['steps_verisense_rowlands2022']):,} steps R2022" in text
+    assert f"MVPA {float(d[f'min_mvpa_{KEY}']):.0f} min" in text
+    assert _outcome_text({"date": "x", "wear_hours": "3"}) == ""
+    out = write_report(run.dir / "a.mcap", out_png=tmp_path / "r.png", out_html=tmp_path / "r.html")
+    page = (tmp_path / "r.html").read_text()
+    assert "steps_verisense_rowlands2022" in page and f"bout_min_mvpa_10m_{KEY}" in page
+    assert out["report"] == str(tmp_path / "r.png")

@@ -14,7 +14,7 @@ import pytest
 from stillpoint.engine.outcomes.bouts import ggir_bouts
 from stillpoint.engine.outcomes.daily import OutcomeSettings
 from stillpoint.engine.run import RunSettings, process_file
-from stillpoint.engine.sim import simulate_recording
+from stillpoint.engine.sim import WearerParams, simulate_recording
 from stillpoint.engine.tables import TablesSettings, table_paths
 from stillpoint.engine.tables.writer import EPOCH_COLUMNS
 
@@ -25,7 +25,7 @@ SETS = ("original", "rowlands2022")
 def _run(rec, out, **kw):
     ep, dp = table_paths(out)
     ts = TablesSettings(ep, dp, valid_day_hours=4.0,
-                        outcomes=OutcomeSettings(cutpoints=KEY, steps=SETS))
+                        outcomes=OutcomeSettings(cutpoints=KEY, steps=SETS, impute=True))
     s = process_file(rec, out, RunSettings(**kw), tables=ts)
     with gzip.open(ep, "rt") as f:
         e_text = f.read()
@@ -39,7 +39,8 @@ def run(tmp_path_factory):
     d = tmp_path_factory.mktemp("outcomes")
     rec = d / "r.cwa"
     simulate_recording(rec, days=1.2, hz=25, seed=11, effects="offset,noise",
-                       truth_path=d / "truth.json", labels_path=False)
+                       wearer=WearerParams(drawer_per_day=1.0), truth_path=False,
+                       labels_path=False)
     s, e_text, d_text = _run(rec, d / "a.mcap", max_block_s=600.0)
     epochs = list(csv.DictReader(e_text.splitlines()))
     days = list(csv.DictReader(d_text.splitlines()))
@@ -85,6 +86,17 @@ def test_day_values_come_from_the_epoch_rows(run):
             total[s] += n.sum()
     # a simulated day walks: both sets count thousands of steps
     assert min(total.values()) > 1000
+
+
+def test_imputed_columns_are_labelled_and_filled(run):
+    days = [d for d in run.days if d["date"] != "all"]
+    for d in days:
+        assert float(d["enmo_mean_mg_imputed"]) > 0
+        assert float(d[f"min_mvpa_{KEY}_imputed"]) >= 0
+        assert float(d[f"bout_min_mvpa_10m_{KEY}_imputed"]) <= float(d[f"min_mvpa_{KEY}_imputed"]) + 1e-6
+    # a day with nonwear gets values on the imputed epochs: not the clean-epoch mean
+    nw = [d for d in days if float(d["nonwear_hours"]) > 0.2]
+    assert nw and any(d["enmo_mean_mg_imputed"] != d["enmo_mean_mg"] for d in nw)
 
 
 def test_tables_do_not_depend_on_the_block_size(run, tmp_path):

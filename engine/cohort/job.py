@@ -213,7 +213,8 @@ def table_options(settings: dict) -> dict:
         o = t["outcomes"]
         out["outcomes"] = OutcomeSettings(
             cutpoints=o.get("cutpoints") or "", bout_minutes=tuple(o.get("bout_minutes") or ()),
-            bout_criterion=float(o.get("bout_criterion", 0.8)), steps=tuple(o.get("steps") or ()))
+            bout_criterion=float(o.get("bout_criterion", 0.8)), steps=tuple(o.get("steps") or ()),
+            impute=bool(o.get("impute", False)))
     return out
 
 

@@ -11,7 +11,8 @@ minutes and the bout criterion, whether to count steps. ``DailyOutcomes`` turns 
   above): ``min_<band>_<key>`` (minutes of clean epochs with lower <= value < upper) and
   ``bout_min_<band>_<m>m_<key>`` (minutes in GGIR bouts of at least ``m`` minutes,
   ``engine.outcomes.bouts``); per step parameter set ``steps_verisense_<set>`` (steps in the day)
-  and ``cadence_max_spm_verisense_<set>`` (most steps in one clock minute of the day).
+  and ``cadence_max_spm_verisense_<set>`` (most steps in one clock minute of the day); with
+  ``impute``, the ``*_imputed`` columns of ``engine.outcomes.impute`` (GGIR's imputation).
 
 Epochs that are not clean (nonwear, clipping, gap, QC, filter warm-up) never meet a band's
 condition, as GGIR's bouts only see worn time.
@@ -32,7 +33,7 @@ BOUT_MINUTES = (1, 5, 10)  # GGIR params_phyact mvpadur / boutdur.mvpa defaults
 BAND_ORDER = ("light", "moderate", "vigorous", "mvpa")
 # day-table column prefixes of the outcome columns (collation reads them like the ENMO bands)
 DAY_PREFIXES = ("min_light_", "min_moderate_", "min_vigorous_", "min_mvpa_", "bout_min_",
-                "steps_", "cadence_max_spm_")
+                "steps_", "cadence_max_spm_", "enmo_mean_mg_imputed", "mad_mean_mg_imputed")
 
 
 @dataclass
@@ -41,14 +42,16 @@ class OutcomeSettings:
     bout_minutes: tuple = BOUT_MINUTES
     bout_criterion: float = BOUT_CRITERION
     steps: tuple = ()  # Verisense parameter sets; () = no step columns
+    impute: bool = False  # GGIR's nonwear imputation: *_imputed day columns (engine.outcomes.impute)
 
     @property
     def active(self) -> bool:
-        return bool(self.cutpoints or self.steps)
+        return bool(self.cutpoints or self.steps or self.impute)
 
     def to_dict(self) -> dict:
         return {"cutpoints": self.cutpoints, "bout_minutes": list(self.bout_minutes),
-                "bout_criterion": self.bout_criterion, "steps": list(self.steps)}
+                "bout_criterion": self.bout_criterion, "steps": list(self.steps),
+                "impute": self.impute}
 
 
 @dataclass
@@ -72,6 +75,14 @@ class DailyOutcomes:
         return out + [step_column(s) for s in self.settings.steps]
 
     def day_columns(self) -> list:
+        out = self.base_day_columns()
+        if self.settings.impute:
+            from .impute import imputed_columns
+            out += imputed_columns(self)
+        return out
+
+    def base_day_columns(self) -> list:
+        """The day columns computed from the day's own epochs (not the imputed ones)."""
         out = []
         if self.cut:
             bands = [b for b in BAND_ORDER if b in self.cut.bands()]

@@ -150,6 +150,10 @@ class TablesTap:
             from ..outcomes.steps import StepOperator
             self.steps = StepOperator(ts.outcomes.steps)
         self._waiting: list = []  # rows waiting for their steps
+        self.average_day = None
+        if self.outcomes is not None and ts.outcomes.impute:
+            from ..outcomes.impute import AverageDay
+            self.average_day = AverageDay(epoch_s)
         self._step_times = {s: np.zeros(0, np.int64) for s in ts.outcomes.steps}
         self.days = DayAccumulator(ts.zone, epoch_s, valid_day_hours=ts.valid_day_hours,
                                    bands=ts.enmo_bands_mg, mvpa_bout_s=ts.mvpa_bout_s,
@@ -220,6 +224,8 @@ class TablesTap:
             extra.append([str(x) for x in n.tolist()])
         self._gz.write(format_rows(rows, self.ts.zone, self.epoch_ns, extra).encode())
         self.days.push(rows, steps=counts)
+        if self.average_day is not None:
+            self.average_day.push({"enmo_mg": rows.enmo_mg, "mad_mg": rows.mad_mg}, rows.clean)
 
     def push(self, block, batches, metrics) -> None:
         if self.steps is not None:
@@ -236,6 +242,12 @@ class TablesTap:
         self._gz.close()
         self._out.commit()
         days = self.days.close()
+        if self.average_day is not None:  # GGIR's imputation needs the whole average day
+            from ..outcomes.impute import imputed_days
+            imp = imputed_days(self.ts.epochs_path, self.average_day, self.epoch_ns / 1e9,
+                               self.outcomes)
+            for d in days:
+                d.update(imp.get(d["date"], {}))
         summary = self.days.summary()
         for d in days + [summary]:
             d["calibration"] = calibration_status

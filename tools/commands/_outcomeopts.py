@@ -47,6 +47,10 @@ def add_outcome_arguments(p) -> None:
                    default=(), metavar="SET,...",
                    help="count steps with the Verisense algorithm: both parameter sets "
                         "(original, rowlands2022) or the ones named")
+    g.add_argument("--impute", action="store_true",
+                   help="also give day values on epochs where nonwear (and every other flagged "
+                        "epoch) is replaced by the same time of day's mean over the other days, "
+                        "as GGIR's g.impute does: columns ending _imputed")
 
 
 def outcome_settings(args):
@@ -56,4 +60,5 @@ def outcome_settings(args):
         steps = step_sets(steps)
     return OutcomeSettings(cutpoints=args.cutpoints or "",
                            bout_minutes=tuple(float(x) for x in args.bout_minutes),
-                           bout_criterion=float(args.bout_criterion), steps=tuple(steps))
+                           bout_criterion=float(args.bout_criterion), steps=tuple(steps),
+                           impute=bool(getattr(args, "impute", False)))

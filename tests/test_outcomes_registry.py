@@ -26,7 +26,7 @@ QUOTED = {
     "mielke2023_geneactiv_nondominant_wrist": ((36, 92, 283), "215-217"),
     "mielke2023_actigraph_nondominant_wrist": ((25, 78, 249), "219-221"),
     "mielke2023_geneactiv_dominant_wrist": ((30, 85, 270), "223-225"),
-    "mielke2023_actigraph_hip": ((40, 65, 190), "227-229"),
+    "mielke2023_actigraph_hip": ((40, 65, 190), "227-229"),  # "ActiGraph – waist" (GGIR #1417)
     "vahaypya2015_mad_hip": ((None, 91, 414), "231-233"),  # "Light: N/A"
 }
 
@@ -36,8 +36,16 @@ def test_row_matches_the_quoted_table(key):
     (light, moderate, vigorous), lines = QUOTED[key]
     row = lookup(key)
     assert (row.light, row.moderate, row.vigorous) == (light, moderate, vigorous)
-    assert row.transcribed_from.endswith(f"lines {lines}")
+    assert f"CutPoints.Rmd@388064b7 lines {lines}" in row.transcribed_from
     assert row.doi and row.year and row.population and row.device and row.placement
+
+
+def test_mielke_rows_agree_with_the_article_as_quoted_in_ggir_issue_1417():
+    # wadpac/GGIR issue 1417 quotes Mielke et al. 2023's table: GENEActiv non-dominant wrist
+    # 36/92/283, ActiGraph non-dominant wrist 25/78/249, GENEActiv dominant wrist 30/85/270,
+    # ActiGraph waist 40/65/190 (light >= 1.5 MET, moderate >= 3 MET, vigorous >= 6 MET)
+    assert lookup("mielke2023_actigraph_hip").placement == "waist"
+    assert "issue 1417" in lookup("mielke2023_actigraph_hip").transcribed_from
 
 
 def test_every_registry_row_is_quoted():

@@ -1,27 +1,13 @@
 """GGIR's nonwear imputation: the average day per slot over 24-h pieces from the first epoch,
 masked epochs replaced by their slot's mean, day means and band minutes on the imputed epochs."""
 
-import gzip
+import datetime as dt
 
 import numpy as np
 import pytest
 
 from stillpoint.engine.outcomes.daily import DailyOutcomes, OutcomeSettings
 from stillpoint.engine.outcomes.impute import AverageDay, imputed_columns, imputed_days
-
-
-def _table(path, start_min, enmo, mad, nonwear, gap):
-    """A minimal epoch table of 60-s epochs starting ``start_min`` minutes after midnight."""
-    with gzip.open(path, "wt") as f:
-        f.write("time_local,n,enmo_mg,bfen_mg,mad_mg,anglez_deg,temperature_c,"
-                "nonwear,clipping,gap,qc,filter_warmup\n")
-        for i in range(enmo.size):
-            t = start_min + i
-            day, mn = 1 + t // 1440, t % 1440
-            e = "" if gap[i] else f"{enmo[i]:.3f}"
-            m = "" if gap[i] else f"{mad[i]:.3f}"
-            f.write(f"2026-01-{day:02d}T{mn // 60:02d}:{mn % 60:02d}:00,60,{e},0,{m},0,20,"
-                    f"{int(nonwear[i])},0,{int(gap[i])},0,0\n")
 
 
 def _ggir(values, masked, wpd):
@@ -49,17 +35,17 @@ def test_imputed_day_values_follow_ggir(tmp_path):
     nonwear[4000:4100] = True
     gap = np.zeros(n, bool)
     gap[300:320] = True
-    p = tmp_path / "t.epochs.csv.gz"
-    _table(p, 7 * 60, enmo, mad, nonwear, gap)
     av = AverageDay(60.0)
     clean = ~(nonwear | gap)
+    day0 = (dt.date(2026, 1, 1) - dt.date(1970, 1, 1)).days
+    day_no = day0 + (7 * 60 + np.arange(n)) // 1440  # from 07:00 on 1 January
     for a in range(0, n, 777):  # pushed in pieces, as rows stream
         b = min(n, a + 777)
         av.push({"enmo_mg": np.where(gap[a:b], np.nan, enmo[a:b]),
-                 "mad_mg": np.where(gap[a:b], np.nan, mad[a:b])}, clean[a:b])
+                 "mad_mg": np.where(gap[a:b], np.nan, mad[a:b])}, clean[a:b], day_no[a:b])
     outcomes = DailyOutcomes(OutcomeSettings(cutpoints="hildebrand_adults_geneactiv_wrist",
                                              impute=True), 60.0)
-    days = imputed_days(p, av, 60.0, outcomes)
+    days = imputed_days(av, outcomes)
     want_e = _ggir(enmo, ~clean, 1440)
     want_m = _ggir(mad, ~clean, 1440)
     start = 7 * 60
@@ -80,6 +66,7 @@ def test_imputed_day_values_follow_ggir(tmp_path):
 
 def test_one_day_is_not_imputed(tmp_path):
     av = AverageDay(60.0)
-    av.push({"enmo_mg": np.ones(1440), "mad_mg": np.ones(1440)}, np.ones(1440, bool))
+    av.push({"enmo_mg": np.ones(1440), "mad_mg": np.ones(1440)}, np.ones(1440, bool),
+            np.zeros(1440, np.int64))
     assert not av.imputes
-    assert imputed_days(tmp_path / "none.csv.gz", av, 60.0) == {}
+    assert imputed_days(av) == {}

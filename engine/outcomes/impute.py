@@ -10,22 +10,24 @@ when it is not clean (nonwear, clipping, gap, QC, filter warm-up); slots count r
 table (one per epoch from the first, gaps included).
 
 ``AverageDay`` collects the slot sums while the epoch rows stream (memory: two arrays of one day's
-epochs); ``imputed_days`` reads the finished epoch table back a slice at a time and gives, per
-local day, the day values computed on the imputed epochs, each column name ending ``_imputed``:
+epochs) and keeps each epoch's day, values and clean flag in a temporary file (21 bytes an
+epoch); ``imputed_days`` reads that file back a slice at a time and gives, per local day, the day
+values computed on the imputed epochs, each column name ending ``_imputed``:
 ``enmo_mean_mg_imputed``, ``mad_mean_mg_imputed`` (mean over the day's epochs) and, with a
 cut-point set, the band minutes and bout minutes of ``engine.outcomes.daily``.
 """
 
 from __future__ import annotations
 
-import gzip
+import datetime as _dt
+import tempfile
 
 import numpy as np
 
 SUFFIX = "_imputed"
 METRICS = ("enmo_mg", "mad_mg")
-_FLAGS = ("nonwear", "clipping", "gap", "qc", "filter_warmup")
 SLICE_ROWS = 1 << 15
+_RECORD = np.dtype([("day", "<i4"), ("enmo_mg", "<f8"), ("mad_mg", "<f8"), ("clean", "?")])
 
 
 class AverageDay:
@@ -34,15 +36,21 @@ class AverageDay:
         self.rows = 0
         self.sums = {m: np.zeros(self.per_day) for m in METRICS}
         self.counts = {m: np.zeros(self.per_day, np.int64) for m in METRICS}
+        self._spill = tempfile.TemporaryFile(prefix="stillpoint-impute-")
 
-    def push(self, values: dict, clean: np.ndarray) -> None:
+    def push(self, values: dict, clean: np.ndarray, day: np.ndarray) -> None:
+        """One slice of epoch rows: metric values, clean flags and local day numbers."""
         n = clean.shape[0]
         slot = (self.rows + np.arange(n)) % self.per_day
+        rec = np.empty(n, _RECORD)
+        rec["day"], rec["clean"] = day, clean
         for m in METRICS:
             v = values[m]
+            rec[m] = v
             ok = clean & np.isfinite(v)
             np.add.at(self.sums[m], slot[ok], v[ok])
             np.add.at(self.counts[m], slot[ok], 1)
+        self._spill.write(rec.tobytes())
         self.rows += n
 
     @property
@@ -54,29 +62,24 @@ class AverageDay:
         c = self.counts[metric]
         return np.where(c > 0, self.sums[metric] / np.maximum(c, 1), 0.0)
 
-
-def _read_slices(path):
-    """(dates, enmo, mad, clean) arrays of the epoch table, a slice of rows at a time."""
-    with gzip.open(path, "rt", encoding="utf-8") as f:
-        head = f.readline().rstrip("\n").split(",")
-        col = {c: i for i, c in enumerate(head)}
+    def slices(self):
+        """The spilled rows back, in order, a slice at a time."""
+        self._spill.seek(0)
         while True:
-            lines = f.readlines(SLICE_ROWS * 96)
-            if not lines:
+            buf = self._spill.read(SLICE_ROWS * _RECORD.itemsize)
+            if not buf:
                 return
-            cells = [ln.rstrip("\n").split(",") for ln in lines]
-            dates = np.array([c[col["time_local"]][:10] for c in cells])
+            yield np.frombuffer(buf, _RECORD)
 
-            def num(name):
-                return np.array([float(c[col[name]]) if c[col[name]] else np.nan for c in cells])
-
-            flags = np.zeros(len(cells), bool)
-            for fl in _FLAGS:
-                flags |= np.array([c[col[fl]] == "1" for c in cells])
-            yield dates, num("enmo_mg"), num("mad_mg"), ~flags
+    def close(self) -> None:
+        self._spill.close()
 
 
-def imputed_days(epochs_path, average: AverageDay, epoch_s: float, outcomes=None) -> dict:
+def _date(day: int) -> str:
+    return (_dt.date(1970, 1, 1) + _dt.timedelta(days=int(day))).isoformat()
+
+
+def imputed_days(average: AverageDay, outcomes=None) -> dict:
     """date -> {column: value} of the day values on imputed epochs; {} when GGIR would not
     impute (a recording of one day or less)."""
     if not average.imputes:
@@ -86,30 +89,32 @@ def imputed_days(epochs_path, average: AverageDay, epoch_s: float, outcomes=None
     row = 0
     day, parts = None, []
 
-    def finish(date, parts):
+    def finish(day, parts):
         e = np.concatenate([p[0] for p in parts])
         m = np.concatenate([p[1] for p in parts])
         d = {"enmo_mean_mg" + SUFFIX: float(e.mean()), "mad_mean_mg" + SUFFIX: float(m.mean())}
         if outcomes is not None and outcomes.cut is not None:
             v = e if outcomes.cut.column == "enmo_mg" else m
-            for name, val in outcomes.day(v, np.ones(v.shape[0], bool), np.zeros(v.shape[0], np.int64),
-                                          {}).items():
+            for name, val in outcomes.day(v, np.ones(v.shape[0], bool),
+                                          np.zeros(v.shape[0], np.int64), {}).items():
                 if name.startswith(("min_", "bout_min_")):
                     d[name + SUFFIX] = val
-        out[date] = d
+        out[_date(day)] = d
 
-    for dates, enmo, mad, clean in _read_slices(epochs_path):
-        n = dates.shape[0]
+    for rec in average.slices():
+        n = rec.shape[0]
         slot = (row + np.arange(n)) % average.per_day
         row += n
-        e = np.where(clean & np.isfinite(enmo), enmo, prof["enmo_mg"][slot])
-        m = np.where(clean & np.isfinite(mad), mad, prof["mad_mg"][slot])
-        cuts = np.flatnonzero(dates[1:] != dates[:-1]) + 1
+        clean = rec["clean"]
+        e = np.where(clean & np.isfinite(rec["enmo_mg"]), rec["enmo_mg"], prof["enmo_mg"][slot])
+        m = np.where(clean & np.isfinite(rec["mad_mg"]), rec["mad_mg"], prof["mad_mg"][slot])
+        days = rec["day"]
+        cuts = np.flatnonzero(days[1:] != days[:-1]) + 1
         for a, b in zip(np.r_[0, cuts], np.r_[cuts, n]):
-            if day is not None and dates[a] != day:
+            if day is not None and int(days[a]) != day:
                 finish(day, parts)
                 parts = []
-            day = str(dates[a])
+            day = int(days[a])
             parts.append((e[a:b], m[a:b]))
     if day is not None:
         finish(day, parts)

@@ -30,7 +30,7 @@ from stillpoint.drivers.outputs import AtomicOutput, atomic_output, check_output
 from ..operators.nonwear import DEFAULT_VERSION, clip_threshold_g
 from ..outcomes.daily import DailyOutcomes, OutcomeSettings
 from ..timezones import Zone
-from .days import ENMO_BANDS_MG, MVPA_BOUT_S, VALID_DAY_HOURS, DayAccumulator, _slice
+from .days import DAY_NS, ENMO_BANDS_MG, MVPA_BOUT_S, VALID_DAY_HOURS, DayAccumulator, _slice
 from .epochs import FLAGS, EpochAssembler, EpochRows
 
 EPOCH_COLUMNS = ["time_utc", "time_local", "n", "enmo_mg", "bfen_mg", "mad_mg", "anglez_deg",
@@ -225,7 +225,10 @@ class TablesTap:
         self._gz.write(format_rows(rows, self.ts.zone, self.epoch_ns, extra).encode())
         self.days.push(rows, steps=counts)
         if self.average_day is not None:
-            self.average_day.push({"enmo_mg": rows.enmo_mg, "mad_mg": rows.mad_mg}, rows.clean)
+            z = self.ts.zone
+            local = z.local_ns(rows.start_ns) if z.known else rows.start_ns
+            self.average_day.push({"enmo_mg": rows.enmo_mg, "mad_mg": rows.mad_mg}, rows.clean,
+                                  np.floor_divide(local, DAY_NS))
 
     def push(self, block, batches, metrics) -> None:
         if self.steps is not None:
@@ -244,8 +247,8 @@ class TablesTap:
         days = self.days.close()
         if self.average_day is not None:  # GGIR's imputation needs the whole average day
             from ..outcomes.impute import imputed_days
-            imp = imputed_days(self.ts.epochs_path, self.average_day, self.epoch_ns / 1e9,
-                               self.outcomes)
+            imp = imputed_days(self.average_day, self.outcomes)
+            self.average_day.close()
             for d in days:
                 d.update(imp.get(d["date"], {}))
         summary = self.days.summary()
@@ -274,6 +277,8 @@ class TablesTap:
     def abort(self) -> None:
         if self._closed:
             return
+        if self.average_day is not None:
+            self.average_day.close()
         try:
             self._gz.close()
         except Exception:

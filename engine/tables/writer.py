@@ -190,8 +190,8 @@ class TablesTap:
         self._waiting.extend(r for r in slices if len(r))
         if self.steps is not None:
             for s, t in self.steps.take().items():
-                if t.shape[0]:
-                    self._step_times[s] = np.concatenate([self._step_times[s], t])
+                if t.shape[0]:  # sorted: a restart may send the clock back
+                    self._step_times[s] = np.sort(np.concatenate([self._step_times[s], t]))
         fb = None if (final or self.steps is None) else self.steps.final_before_ns
         while self._waiting:
             rows = self._waiting[0]

@@ -108,3 +108,21 @@ def test_resampler_interpolates_linearly_on_the_15hz_grid():
 
 def test_column_names_carry_algorithm_and_set():
     assert step_column("rowlands2022") == "steps_verisense_rowlands2022"
+
+
+def test_the_counted_walk_through_process(real_file, tmp_path):
+    """The real walk of 610 counted steps: each parameter set's count through `process --steps`
+    (quoted in docs/activity-outcomes.md), equal to the reference's on the same samples."""
+    import csv
+    import subprocess
+    import sys
+    rec = real_file("ax3_openmovement_example_610_steps_fw30_nofrac.cwa")
+    out = tmp_path / "walk.mcap"
+    r = subprocess.run([sys.executable, "-m", "stillpoint", "process", str(rec), "-o", str(out),
+                        "-q", "--steps"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    with open(tmp_path / "walk.days.csv") as f:
+        day = next(csv.DictReader(f))
+    assert (int(day["steps_verisense_original"]), int(day["steps_verisense_rowlands2022"])) == (112, 282)
+    _, ref = _fixture("walk610")
+    assert (int(ref["original"].sum()), int(ref["rowlands2022"].sum())) == (112, 282)

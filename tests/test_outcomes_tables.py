@@ -160,3 +160,12 @@ def test_report_shows_steps_and_mvpa_per_day(run, tmp_path):
     page = (tmp_path / "r.html").read_text()
     assert "steps_verisense_rowlands2022" in page and f"bout_min_mvpa_10m_{KEY}" in page
     assert out["report"] == str(tmp_path / "r.png")
+
+
+def test_export_from_the_mcap_gives_the_same_outcome_tables(run, tmp_path):
+    out = tmp_path / "x.days.csv"
+    r = subprocess.run([sys.executable, "-m", "stillpoint", "export", str(run.dir / "a.mcap"),
+                        "-o", str(out), "--table", "days", "--cutpoints", KEY, "--steps",
+                        "--impute", "--valid-day-hours", "4"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert out.read_text() == run.d_text

@@ -78,3 +78,7 @@ def test_day_values_of_a_cut_point_set():
     assert d[f"min_mvpa_{key}"] == pytest.approx(3 * 5 / 60)
     assert d["steps_verisense_original"] == 10 and d["cadence_max_spm_verisense_original"] == 10
     assert set(d) == set(o.day_columns())
+    assert o.epoch_columns() == [f"band_{key}", "steps_verisense_original", f"bouts_{key}"]
+    x = np.r_[np.full(20, 150.0), np.full(5, 10.0)]  # 100 s of moderate, then sedentary
+    labels = o.epoch_bouts(x, np.ones(x.size, bool))
+    assert labels[0] == "moderate_1m;mvpa_1m" and labels[-1] == ""

@@ -50,7 +50,8 @@ def run(tmp_path_factory):
 
 def test_columns_carry_the_key_and_the_sets(run):
     head = run.e_text.splitlines()[0].split(",")
-    assert head[-3:] == [f"band_{KEY}", "steps_verisense_original", "steps_verisense_rowlands2022"]
+    assert head[-4:] == [f"band_{KEY}", "steps_verisense_original", "steps_verisense_rowlands2022",
+                         f"bouts_{KEY}"]
     cols = run.days[0].keys()
     for b in ("light", "moderate", "vigorous", "mvpa"):
         assert f"min_{b}_{KEY}" in cols
@@ -75,8 +76,11 @@ def test_day_values_come_from_the_epoch_rows(run):
                        ("mvpa", (band == "moderate") | (band == "vigorous"))):
             assert float(d[f"min_{b}_{KEY}"]) == pytest.approx(sel.sum() * 5 / 60, abs=1e-3)
             for m in (1, 5, 10):
-                want = ggir_bouts(sel, 12 * m, 12).sum() * 5 / 60
-                assert float(d[f"bout_min_{b}_{m}m_{KEY}"]) == pytest.approx(want, abs=1e-3)
+                inb = ggir_bouts(sel, 12 * m, 12)
+                assert float(d[f"bout_min_{b}_{m}m_{KEY}"]) == pytest.approx(inb.sum() * 5 / 60, abs=1e-3)
+                # the epoch table names the same epochs
+                tagged = np.array([f"{b}_{m}m" in r[f"bouts_{KEY}"].split(";") for r in rows])
+                assert np.array_equal(tagged, inb)
         for s in SETS:
             n = np.array([int(r[f"steps_verisense_{s}"]) for r in rows])
             assert int(d[f"steps_verisense_{s}"]) == n.sum()

@@ -5,8 +5,8 @@ minutes and the bout criterion, whether to count steps. ``DailyOutcomes`` turns 
 
 * epoch table: ``band_<key>`` (``sedentary``, ``light``, ``moderate`` or ``vigorous`` by the
   set's thresholds on its metric; ``below_moderate`` when the set has no light threshold; empty
-  for an epoch that is not clean) and ``steps_verisense_<set>`` (steps whose time falls in the
-  epoch);
+  for an epoch that is not clean), ``steps_verisense_<set>`` (steps whose time falls in the
+  epoch) and ``bouts_<key>`` (the GGIR bouts the epoch is in, e.g. ``moderate_1m;mvpa_1m;mvpa_5m``);
 * day table, per band of the set (``light``, ``moderate``, ``vigorous``, ``mvpa`` = moderate and
   above): ``min_<band>_<key>`` (minutes of clean epochs with lower <= value < upper) and
   ``bout_min_<band>_<m>m_<key>`` (minutes in GGIR bouts of at least ``m`` minutes,
@@ -72,7 +72,8 @@ class DailyOutcomes:
     # ------------------------------------------------------------------ names
     def epoch_columns(self) -> list:
         out = [f"band_{self.cut.key}"] if self.cut else []
-        return out + [step_column(s) for s in self.settings.steps]
+        out += [step_column(s) for s in self.settings.steps]
+        return out + ([f"bouts_{self.cut.key}"] if self.cut else [])
 
     def day_columns(self) -> list:
         out = self.base_day_columns()
@@ -107,6 +108,27 @@ class DailyOutcomes:
                 lab[ok & (v >= lo)] = name
         return lab.tolist()
 
+    def epoch_bouts(self, values: np.ndarray, clean: np.ndarray) -> list:
+        """For one local day's epochs: the bouts each epoch is in, ``<band>_<m>m`` joined by
+        ``;`` (bands in the order light, moderate, vigorous, mvpa; lengths increasing)."""
+        lab = np.full(values.shape[0], "", dtype=object)
+        for b, m, inb in self._bouts(values, clean):
+            lab[inb] = lab[inb] + f";{b}_{m:g}m"
+        return [x[1:] for x in lab.tolist()]
+
+    def _bouts(self, values: np.ndarray, clean: np.ndarray):
+        """(band, minutes, epochs in bouts) of the set's bands and the bout lengths."""
+        v = np.where(clean & np.isfinite(values), values, -np.inf)
+        bands = self.cut.bands()
+        for b in BAND_ORDER:
+            if b not in bands:
+                continue
+            lo, hi = bands[b]
+            mark = (v >= lo) & ((v < hi) if hi is not None else True)
+            for m in self.settings.bout_minutes:
+                yield b, m, ggir_bouts(mark, int(round(m * self.epochs_per_minute)),
+                                       self.epochs_per_minute, self.settings.bout_criterion)
+
     # ------------------------------------------------------------------ one day
     def day(self, values: np.ndarray, clean: np.ndarray, start_ns: np.ndarray,
             steps: dict) -> dict:
@@ -118,10 +140,8 @@ class DailyOutcomes:
             for b, (lo, hi) in self.cut.bands().items():
                 mark = (v >= lo) & ((v < hi) if hi is not None else True)
                 row[f"min_{b}_{self.cut.key}"] = int(mark.sum()) * self.epoch_s / 60.0
-                for m in self.settings.bout_minutes:
-                    inb = ggir_bouts(mark, int(round(m * self.epochs_per_minute)),
-                                     self.epochs_per_minute, self.settings.bout_criterion)
-                    row[f"bout_min_{b}_{m:g}m_{self.cut.key}"] = int(inb.sum()) * self.epoch_s / 60.0
+            for b, m, inb in self._bouts(values, clean):
+                row[f"bout_min_{b}_{m:g}m_{self.cut.key}"] = int(inb.sum()) * self.epoch_s / 60.0
         for s in self.settings.steps:
             n = np.asarray(steps.get(s, np.zeros(start_ns.shape[0], np.int64)))
             row[step_column(s)] = int(n.sum())

@@ -150,6 +150,8 @@ class TablesTap:
             from ..outcomes.steps import StepOperator
             self.steps = StepOperator(ts.outcomes.steps)
         self._waiting: list = []  # rows waiting for their steps
+        self._held: list = []  # (rows, extra columns, step counts) of the local day being read
+        self._held_day = None
         self.average_day = None
         if self.outcomes is not None and ts.outcomes.impute:
             from ..outcomes.impute import AverageDay
@@ -222,13 +224,39 @@ class TablesTap:
             self._step_times[s] = t[edges[-1]:]
             counts[s] = n
             extra.append([str(x) for x in n.tolist()])
+        z = self.ts.zone
+        day = np.floor_divide(z.local_ns(rows.start_ns) if z.known else rows.start_ns, DAY_NS)
+        if self.average_day is not None:
+            self.average_day.push({"enmo_mg": rows.enmo_mg, "mad_mg": rows.mad_mg}, rows.clean, day)
+        if o.cut is None:
+            self._put(rows, extra, counts)
+            return
+        # the bouts column needs the whole local day: the day's rows wait for its end
+        cuts = np.flatnonzero(np.diff(day)) + 1
+        for a, b in zip(np.r_[0, cuts], np.r_[cuts, len(rows)]):
+            if self._held_day is not None and int(day[a]) != self._held_day:
+                self._finish_day()
+            self._held_day = int(day[a])
+            self._held.append((_slice(rows, a, b), [c[a:b] for c in extra],
+                               {k: v[a:b] for k, v in counts.items()}))
+
+    def _finish_day(self) -> None:
+        """Write the held day's rows with each epoch's bouts (``engine.outcomes.daily``)."""
+        if not self._held:
+            return
+        o = self.outcomes
+        vals = np.concatenate([getattr(r, o.cut.column) for r, _, _ in self._held])
+        clean = np.concatenate([r.clean for r, _, _ in self._held])
+        labels = o.epoch_bouts(vals, clean)
+        a = 0
+        for rows, extra, counts in self._held:
+            self._put(rows, extra + [labels[a:a + len(rows)]], counts)
+            a += len(rows)
+        self._held, self._held_day = [], None
+
+    def _put(self, rows, extra, counts) -> None:
         self._gz.write(format_rows(rows, self.ts.zone, self.epoch_ns, extra).encode())
         self.days.push(rows, steps=counts)
-        if self.average_day is not None:
-            z = self.ts.zone
-            local = z.local_ns(rows.start_ns) if z.known else rows.start_ns
-            self.average_day.push({"enmo_mg": rows.enmo_mg, "mad_mg": rows.mad_mg}, rows.clean,
-                                  np.floor_divide(local, DAY_NS))
 
     def push(self, block, batches, metrics) -> None:
         if self.steps is not None:
@@ -240,6 +268,8 @@ class TablesTap:
         if self.steps is not None:
             self.steps.flush()
         self._write(self.assembler.flush(metrics), final=True)
+        if self.outcomes is not None:
+            self._finish_day()
 
     def close(self, calibration_status: str = "") -> dict:
         self._gz.close()

@@ -332,6 +332,16 @@ class ChannelInfo(NamedTuple):
     schema_data: bytes
 
 
+def _record_starts(buf, opcode: int) -> Iterator[int]:
+    """Offsets of the records with ``opcode`` in a run of records (a summary group)."""
+    p = 0
+    while p + 9 <= len(buf):
+        op, ln = _REC.unpack_from(buf, p)
+        if op == opcode:
+            yield p
+        p += 9 + ln
+
+
 def read_channels(f: BinaryIO) -> list[ChannelInfo]:
     """Every channel of a finished log with its schema, in channel-id order, from the summary's
     Schema and Channel records only. Raises ``McapFormatError`` for a file without a footer."""
@@ -341,29 +351,21 @@ def read_channels(f: BinaryIO) -> list[ChannelInfo]:
     schemas: dict[int, tuple[str, str, bytes]] = {}
     if rec.OP_SCHEMA in groups:
         buf = _group(f, groups[rec.OP_SCHEMA], "the summary schemas")
-        p = 0
-        while p + 9 <= len(buf):
-            op, ln = _REC.unpack_from(buf, p)
-            if op == rec.OP_SCHEMA:
-                sid, = struct.unpack_from("<H", buf, p + 9)
-                name, q = _str(buf, p + 11)
-                enc, q = _str(buf, q)
-                n, = struct.unpack_from("<I", buf, q)
-                schemas[sid] = (name, enc, bytes(buf[q + 4:q + 4 + n]))
-            p += 9 + ln
+        for p in _record_starts(buf, rec.OP_SCHEMA):
+            sid, = struct.unpack_from("<H", buf, p + 9)
+            name, q = _str(buf, p + 11)
+            enc, q = _str(buf, q)
+            n, = struct.unpack_from("<I", buf, q)
+            schemas[sid] = (name, enc, bytes(buf[q + 4:q + 4 + n]))
     out: list[tuple[int, ChannelInfo]] = []
     if rec.OP_CHANNEL in groups:
         buf = _group(f, groups[rec.OP_CHANNEL], "the summary channels")
-        p = 0
-        while p + 9 <= len(buf):
-            op, ln = _REC.unpack_from(buf, p)
-            if op == rec.OP_CHANNEL:
-                cid, sid = struct.unpack_from("<HH", buf, p + 9)
-                topic, q = _str(buf, p + 13)
-                enc, q = _str(buf, q)
-                name, senc, data = schemas.get(sid, ("", "", b""))
-                out.append((cid, ChannelInfo(topic, enc, name, senc, data)))
-            p += 9 + ln
+        for p in _record_starts(buf, rec.OP_CHANNEL):
+            cid, sid = struct.unpack_from("<HH", buf, p + 9)
+            topic, q = _str(buf, p + 13)
+            enc, q = _str(buf, q)
+            name, senc, data = schemas.get(sid, ("", "", b""))
+            out.append((cid, ChannelInfo(topic, enc, name, senc, data)))
     return [c for _cid, c in sorted(out, key=lambda x: x[0])]
 
 

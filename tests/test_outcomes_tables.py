@@ -172,3 +172,23 @@ def test_export_from_the_mcap_gives_the_same_outcome_tables(run, tmp_path):
                         "--impute", "--valid-day-hours", "4"], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     assert out.read_text() == run.d_text
+
+
+def test_cli_outcome_options_parse():
+    from stillpoint.tools import cli
+    from stillpoint.tools.commands._outcomeopts import outcome_settings
+
+    def parse(*extra):
+        argv = ["process", "rec.cwa", *extra]
+        return outcome_settings(cli.build_parser(cli._only_requested(argv)).parse_args(argv))
+
+    assert not parse().active
+    o = parse("--cutpoints", KEY, "--steps", "--step-sets", "rowlands2022", "--bout-minutes",
+              "2,10", "--bout-criterion", "0.9", "--impute")
+    assert (o.cutpoints, o.steps, o.bout_minutes, o.bout_criterion, o.impute) == \
+        (KEY, ("rowlands2022",), (2.0, 10.0), 0.9, True)
+    assert parse("--steps").steps == SETS
+    assert parse("--step-sets", "original").steps == ()  # sets without --steps count nothing
+    r = subprocess.run([sys.executable, "-m", "stillpoint", "process", "rec.cwa", "--step-sets",
+                        "bad"], capture_output=True, text=True)
+    assert r.returncode == 2 and "Verisense parameter sets are original, rowlands2022" in r.stderr

@@ -40,13 +40,15 @@ def add_outcome_arguments(p) -> None:
                         "the epoch table; columns carry the key")
     g.add_argument("--bout-minutes", type=BOUT_MINUTES, default=(1.0, 5.0, 10.0), metavar="MIN,...",
                    help="GGIR bout lengths in minutes for --cutpoints (default 1,5,10)")
-    g.add_argument("--bout-criterion", type=CRITERION, default=0.8,
+    g.add_argument("--bout-criterion", type=CRITERION, default=0.8, metavar="F",
                    help="share of a bout's epochs that must meet the band (GGIR boutcriter, "
                         "default 0.8)")
-    g.add_argument("--steps", type=step_sets, nargs="?", const="original,rowlands2022",
-                   default=(), metavar="SET,...",
-                   help="count steps with the Verisense algorithm: both parameter sets "
-                        "(original, rowlands2022) or the ones named")
+    g.add_argument("--steps", action="store_true",
+                   help="count steps with the Verisense algorithm (parameter sets: --step-sets)")
+    g.add_argument("--step-sets", type=step_sets, default=("original", "rowlands2022"),
+                   metavar="SET,...",
+                   help="the Verisense parameter sets for --steps (default: both, "
+                        "original,rowlands2022)")
     g.add_argument("--impute", action="store_true",
                    help="also give day values on epochs where nonwear (and every other flagged "
                         "epoch) is replaced by the same time of day's mean over the other days, "
@@ -55,9 +57,7 @@ def add_outcome_arguments(p) -> None:
 
 def outcome_settings(args):
     from stillpoint.engine.outcomes.daily import OutcomeSettings
-    steps = args.steps
-    if isinstance(steps, str):  # the const
-        steps = step_sets(steps)
+    steps = tuple(args.step_sets) if args.steps else ()
     return OutcomeSettings(cutpoints=args.cutpoints or "",
                            bout_minutes=tuple(float(x) for x in args.bout_minutes),
                            bout_criterion=float(args.bout_criterion), steps=tuple(steps),

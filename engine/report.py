@@ -190,18 +190,17 @@ def _shade(ax, hour, mask, color, label, hatch=None, step_h=5 / 3600):
         label = None
 
 
-_SET_SHORT = {"original": "orig.", "rowlands2022": "R2022"}  # Verisense parameter sets
-
-
 def _outcome_text(day: dict) -> str:
-    """Steps per Verisense set and MVPA minutes of a day row (empty without those columns)."""
+    """MVPA minutes and steps of a day row (the Verisense sets' counts joined by `` / ``, in the
+    table's order), one line each; empty without those columns."""
     out = []
-    for k, v in day.items():
-        if k.startswith("steps_verisense_") and v not in (None, ""):
-            name = k[len("steps_verisense_"):]
-            out.append(f"{int(float(v)):,} steps {_SET_SHORT.get(name, name)}")
-        elif k.startswith("min_mvpa_") and v not in (None, ""):
-            out.append(f"MVPA {float(v):.0f} min")
+    mvpa = [v for k, v in day.items() if k.startswith("min_mvpa_") and v not in (None, "")]
+    if mvpa:
+        out.append(f"MVPA {float(mvpa[0]):.0f} min")
+    steps = [f"{int(float(v)):,}" for k, v in day.items()
+             if k.startswith("steps_verisense_") and v not in (None, "")]
+    if steps:
+        out.append("steps " + " / ".join(steps))
     return "".join("\n" + x for x in out)
 
 
@@ -275,8 +274,9 @@ def _draw(plt, ep: dict, days: list[dict], windows, est, rec: dict, title: str, 
             if float(d.get("day_hours") or 24) != 24:
                 mark += f"\n({float(d['day_hours']):g}-h day)"
             wh = float(d["wear_hours"])
+            more = _outcome_text(d)  # smaller type: the lines fit the row of a 14-day page
             ax.text(1.01, 0.5, (f"{wh:.1f} h" if wh >= 1 else f"{wh * 60:.1f} min") + f" wear\n{mark}"
-                    + _outcome_text(d), transform=ax.transAxes, fontsize=6.5, va="center")
+                    + more, transform=ax.transAxes, fontsize=5.5 if more else 6.5, va="center")
         if i == 0:
             ax.set_title(f"ENMO per epoch (mg) against the {clock}, one row per "
                          f"{'device-clock' if device_clock else 'local'} day", fontsize=8, pad=14)
@@ -405,9 +405,9 @@ def _qc_text(rec: dict, days: list[dict]) -> str:
     if reason:
         import textwrap
         lines += ["  " + x for x in textwrap.wrap(reason, 104)]  # in full, never cut
-    if any(k.startswith("steps_verisense_") for k in total):
-        lines.append("steps: Verisense algorithm, orig. = original parameters, R2022 = Rowlands "
-                     "et al. 2022's revision")
+    sets = [k[len("steps_verisense_"):] for k in total if k.startswith("steps_verisense_")]
+    if sets:
+        lines.append("steps per day (Verisense algorithm): " + " / ".join(sets) + " parameters")
     return "\n".join(lines)
 
 

@@ -4,6 +4,7 @@ whatever the pipeline's block size, and the default tables unchanged."""
 
 import csv
 import gzip
+import os
 import subprocess
 import sys
 from types import SimpleNamespace
@@ -150,19 +151,57 @@ def test_cohort_carries_the_outcome_columns(run, tmp_path):
     assert f"min_mvpa_{KEY}" in summary
 
 
+def _need_matplotlib():
+    if os.environ.get("CI") != "true":  # CI installs the plot extra: there it must run
+        pytest.importorskip("matplotlib", reason="the report needs matplotlib (the plot extra)")
+
+
 def test_report_shows_steps_and_mvpa_per_day(run, tmp_path):
-    pytest.importorskip("matplotlib", reason="the report needs matplotlib (the plot extra)")
-    from stillpoint.engine.report import _outcome_text, write_report
+    _need_matplotlib()
+    from stillpoint.engine.report import _outcome_text, _qc_text, write_report
     d = next(x for x in run.days if x["date"] != "all")
     text = _outcome_text(d)
-    assert f"{int(d['steps_verisense_original']):,} steps orig." in text
-    assert f"{int(d['steps_verisense_rowlands2022']):,} steps R2022" in text
-    assert f"MVPA {float(d[f'min_mvpa_{KEY}']):.0f} min" in text
+    assert text == (f"\nMVPA {float(d[f'min_mvpa_{KEY}']):.0f} min\nsteps "
+                    f"{int(d['steps_verisense_original']):,} / "
+                    f"{int(d['steps_verisense_rowlands2022']):,}")
     assert _outcome_text({"date": "x", "wear_hours": "3"}) == ""
+    assert "steps per day (Verisense algorithm): original / rowlands2022 parameters" in \
+        _qc_text({"summary": {}}, run.days)
     out = write_report(run.dir / "a.mcap", out_png=tmp_path / "r.png", out_html=tmp_path / "r.html")
     page = (tmp_path / "r.html").read_text()
     assert "steps_verisense_rowlands2022" in page and f"bout_min_mvpa_10m_{KEY}" in page
     assert out["report"] == str(tmp_path / "r.png")
+
+
+def test_report_outcome_lines_fit_a_14_day_page():
+    _need_matplotlib()
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from stillpoint.engine import report
+    n_day, per = 14, 17280
+    dates = [f"2025-03-{3 + i:02d}" for i in range(n_day)]
+    hour = np.tile(np.arange(per) * 5 / 3600, n_day)
+    ep = {"dates": dates, "date": np.repeat(dates, per), "hour": hour,
+          "enmo_mg": np.full(n_day * per, 30.0), "temp_c": np.zeros(0), "temp_local": np.zeros(0)}
+    for k in report._FLAG_COLUMNS:
+        ep[k] = np.zeros(n_day * per, bool)
+    days = [{"date": d, "valid_day": "0", "day_hours": "23", "wear_hours": "20.5",
+             "timezone": "Europe/London", f"min_mvpa_{KEY}": "135.2",
+             "steps_verisense_original": "123,456".replace(",", ""),
+             "steps_verisense_rowlands2022": "110234"} for d in dates]
+    fig = report._draw(plt, ep, days, None, None, {"summary": {}}, "t", 5.0)
+    try:
+        fig.canvas.draw()
+        r = fig.canvas.get_renderer()
+        boxes = [t.get_window_extent(r) for t in fig.findobj(
+            lambda o: hasattr(o, "get_text") and hasattr(o, "get_window_extent"))
+            if "steps" in (t.get_text() or "")]
+        assert len(boxes) == n_day
+        assert not any(a.overlaps(b) for i, a in enumerate(boxes) for b in boxes[i + 1:])
+        assert all(b.x1 <= fig.bbox.x1 + 1 for b in boxes)
+    finally:
+        plt.close(fig)
 
 
 def test_export_from_the_mcap_gives_the_same_outcome_tables(run, tmp_path):

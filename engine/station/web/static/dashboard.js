@@ -12,7 +12,7 @@
   }
   if (view && view.dataset.live === "1" && window.EventSource) {
     var es = new EventSource("/events");
-    es.onopen = function () { if (live) { live.textContent = "live"; live.className = "on"; } };
+    es.onopen = function () { if (live) { live.textContent = "connected"; live.className = "on"; } };
     es.onerror = function () { if (live) { live.textContent = "reconnecting…"; live.className = "off"; } };
     es.onmessage = function (ev) { pending = JSON.parse(ev.data).html; apply(); };
     document.addEventListener("focusout", function () { setTimeout(apply, 0); });

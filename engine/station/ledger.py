@@ -380,6 +380,17 @@ class Ledger:
                        f"readback FROM clears WHERE (? IS NULL OR device_id=?) AND {_OF_TYPE} "
                        "ORDER BY id", (device_id, device_id, device_type, device_type))
 
+    def configuration_of(self, device_id: int, session_id: int,
+                         device_type: Optional[str] = None) -> Optional[dict]:
+        """The settings of the latest successful configuration of this device and session."""
+        rows = self._q("SELECT settings FROM configurations WHERE device_id=? AND session_id=? "
+                       f"AND result='ok' AND {_OF_TYPE} ORDER BY id DESC LIMIT 1",
+                       (device_id, session_id, device_type, device_type))
+        try:
+            return json.loads(rows[0][0]) if rows and rows[0][0] else None
+        except ValueError:
+            return None
+
     def events(self, device_id: Optional[int] = None) -> list[tuple]:
         if device_id is None:
             return self._q("SELECT device_id, state, reason FROM events ORDER BY id")

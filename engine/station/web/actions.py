@@ -7,11 +7,13 @@ ledger (``actions``: who, from where, the result) and carried out by the station
 * ``clear``: only after a verified download of the device's session; the flow runs again with
   the clear after verification, i.e. through the one clear path (``clearing.clear_verified``,
   which checks the bytes once more right before the erase).
-* ``configure``: only with a study profile and a cleared or empty device; the flow runs again
-  with the configuration, the subject id (typed or scanned) added to the profile's metadata so
-  it is written to the device's annotations and the ledger's configuration row.
+* ``configure``: only a cleared or empty device, from the station's study profile or a setting
+  code (``study.profile_from_code``: typed or scanned, checked by the profile's rules); the flow
+  runs again with the configuration, the subject id (typed or scanned) added to the metadata so
+  it is written to the device's annotations, the ledger's configuration row and, with a
+  profile's ``file_name`` template, the name of the device's next download.
 
-``Actions(station).ask(action, device_key, who=, origin=, subject=)`` -> (HTTP status, message).
+``Actions(station).ask(action, device_key, who=, origin=, subject=, code=)`` -> (HTTP status, message).
 A refusal touches no device.
 """
 
@@ -50,21 +52,22 @@ class Actions:
         raise Refused(409, f"{key} is not attached to this station")
 
     def ask(self, action: str, key: str, *, who: str, origin: str,
-            subject: Optional[str] = None) -> tuple[int, str]:
+            subject: Optional[str] = None, code: Optional[str] = None) -> tuple[int, str]:
         if action not in ACTIONS:
             return 404, f"no action {action!r} (one of {', '.join(ACTIONS)})"
         dev = parse_device_key(key)
         if dev is None:
             return 404, f"no device {key!r}"
         ledger = self.station.ledger
-        detail = {"subject": subject} if subject else None
+        detail = {k: v for k, v in (("subject", subject), ("code", code)) if v} or None
         aid = ledger.action_asked(dev[1], dev[0], action, who=who, origin=origin, detail=detail)
         try:
             flow = self._flow(key)
             with self._lock:
                 if flow.att.serial in self._busy or not flow.finished.is_set():
                     raise Refused(409, f"{key} is busy ({flow.state}); try again when it has ended")
-            msg = getattr(self, "_" + action)(flow, subject)
+            msg = (self._configure(flow, subject, code) if action == "configure"
+                   else getattr(self, "_" + action)(flow, subject))
         except Refused as e:
             ledger.action_result(aid, "refused", e.reason)
             return e.status, f"{action} {key} refused: {e.reason}"
@@ -134,11 +137,21 @@ class Actions:
         self.station.rerun(flow.att.serial, clear_after_verify=True)
         return f"clear of {flow.att.device_type}-{flow.att.device_id} started (after the byte check)"
 
-    def _configure(self, flow, subject) -> str:
+    def _configure(self, flow, subject, code=None) -> str:
+        from ..study import StudyRecordError, profile_from_code
         prof = self.station.opts.profile
+        if code:
+            try:
+                prof = profile_from_code(code, prof)
+            except StudyRecordError as e:
+                raise Refused(400, str(e)) from None
         if prof is None:
-            raise Refused(409, "the station runs without a study profile (--profile): nothing to "
-                               "configure from")
+            raise Refused(409, "the station runs without a study profile (--profile) and no "
+                               "setting code was given: nothing to configure from")
+        try:
+            prof.check_device(flow.att.device_type)
+        except Exception as e:  # noqa: BLE001 - ProfileError: the profile's own one-line reason
+            raise Refused(400, str(e)) from None
         if flow.state not in ("cleared", "empty", "configured"):
             raise Refused(409, f"the device is {flow.state}: only a cleared or empty device is "
                                "configured")

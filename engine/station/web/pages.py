@@ -61,7 +61,7 @@ def sort_rows(rows: list[dict]) -> list[dict]:
     return sorted(rows, key=key)
 
 
-def _actions(r: dict, token: Optional[str], profile: bool) -> str:
+def _actions(r: dict, token: Optional[str]) -> str:
     if not token or r.get("running") or r.get("detached"):
         return ""
     key = device_key(r["device_type"], r["device_id"])
@@ -78,15 +78,16 @@ def _actions(r: dict, token: Optional[str], profile: bool) -> str:
         if st == "verified":
             form("verify", "Verify again")
             form("clear", "Clear")
-    if profile and st in ("cleared", "empty", "configured"):
+    if st in ("cleared", "empty", "configured"):
         form("configure", "Configure",
              "<input name=subject placeholder='subject id' size=10 autocomplete=off "
-             "pattern='[A-Za-z0-9._-]*' title='letters, digits, . _ -'>")
+             "pattern='[A-Za-z0-9._-]*' title='letters, digits, . _ -'>"
+             "<input name=code placeholder='setting code (or the profile)' size=16 "
+             "autocomplete=off>")
     return "".join(out)
 
 
-def dock_fragment(rows: list[dict], disk: dict, *, token: Optional[str], profile: bool,
-                  live: bool) -> str:
+def dock_fragment(rows: list[dict], disk: dict, *, token: Optional[str], live: bool) -> str:
     """The part of the dock page the live stream replaces: counts, disk, the table."""
     rows = sort_rows(rows)
     counts: dict[str, int] = {}
@@ -126,17 +127,19 @@ def dock_fragment(rows: list[dict], disk: dict, *, token: Optional[str], profile
             f"<td>{prog}</td><td>{'' if not r.get('mbps') else format(r['mbps'], '.2f')}</td>"
             f"<td>{'-' if batt is None else f'{batt} %'}</td>"
             f"<td>{'-' if clk is None else f'{clk:+.1f} s'}</td><td class=detail>{E(detail or '')}</td>"
-            + (f"<td>{_actions(r, token, profile)}</td>" if token else "") + "</tr>")
+            + (f"<td>{_actions(r, token)}</td>" if token else "") + "</tr>")
     out.append("</tbody></table>")
     return "".join(out)
 
 
-def dock_page(fragment: str, *, folder: str, live: bool, read_only: bool, message: str = "") -> str:
+def dock_page(fragment: str, *, folder: str, live: bool, read_only: bool, message: str = "",
+              code: Optional[str] = None) -> str:
     mode = ("live" if live else "from the ledger (no station running)") + \
         (", read-only" if read_only else "")
     return (_head("stillpoint station")
             + f"<header><h1>Station dock</h1><p class=meta>{E(folder)} · {E(mode)}"
-            + (" · <span id=live>connecting…</span>" if live else "") + "</p>"
+            + (" · <span id=live>connecting…</span>" if live else "")
+            + (f" · profile setting code <code id=code>{E(code)}</code>" if code else "") + "</p>"
             + ("" if read_only else "<p class=noprint><label>operator <input id=who size=12 "
                "autocomplete=off placeholder='name or initials'></label> (recorded with each "
                "action)</p>") + "</header>"

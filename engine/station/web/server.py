@@ -14,7 +14,8 @@ GET  /device/<type>-<id>/sheet         its printable handover sheet
 GET  /files/<path>                     a file inside the output folder (raw copy, MCAP, report)
 GET  /static/<name>                    the page's own CSS and script
 POST /action/<action>/<type>-<id>      retry | verify | clear | configure (form: token, confirm=yes,
-                                       who, subject); 303 back to the dock, or the refusal's status
+                                       who, subject, code); 303 back to the dock, or the refusal's
+                                       status
 =====================================  ===============================================================
 
 Refusals answer with one line (in a small page): 403 without the token or in read-only mode,
@@ -120,11 +121,31 @@ class Dashboard:
             r.update(facts.get((r["device_type"], r["device_id"]), {}))
         return rows, disk
 
+    def setting_code(self) -> Optional[str]:
+        prof = self.station.opts.profile if self.station is not None else None
+        if prof is None:
+            return None
+        from ..study import setting_code
+        return setting_code(prof)
+
+    def return_file_name(self, hist: dict) -> Optional[str]:
+        """The raw copy's name when the device comes back (the profile's ``file_name``)."""
+        prof = self.station.opts.profile if self.station is not None else None
+        ok = [c for c in hist["configurations"] if c.get("result") == "ok"]
+        if prof is None or not prof.file_name or not ok:
+            return None
+        from ..study import file_stem
+        s = ok[-1].get("settings") or {}
+        if s.get("session") is None:
+            return None
+        return file_stem(prof.file_name, device_type=hist["device_type"],
+                         device_id=hist["device_id"], session=int(s["session"]),
+                         metadata={**prof.metadata, **(s.get("metadata") or {})}) + ".cwa"
+
     def fragment(self, with_token: bool) -> str:
         rows, disk = self.dock_rows()
         token = self.token if (with_token and not self.read_only) else None
-        return pages.dock_fragment(rows, disk, token=token, live=self.live is not None,
-                                   profile=bool(self.station and self.station.opts.profile))
+        return pages.dock_fragment(rows, disk, token=token, live=self.live is not None)
 
 
 class _Handler(BaseHTTPRequestHandler):
@@ -200,7 +221,7 @@ class _Handler(BaseHTTPRequestHandler):
         if path == "/":
             msg = (query.get("done") or [""])[0][:300]
             body = pages.dock_page(d.fragment(ok), folder=str(d.folder), live=d.live is not None,
-                                   read_only=d.read_only, message=msg)
+                                   read_only=d.read_only, message=msg, code=d.setting_code())
             return self._page(200, body, hdr)
         if path == "/events":
             return self._events(ok)
@@ -220,7 +241,8 @@ class _Handler(BaseHTTPRequestHandler):
             if not hist["known"]:
                 return self._refuse(404, f"the ledger knows no device {key}")
             if sub == "sheet":
-                return self._page(200, pages.sheet_page(hist), hdr)
+                return self._page(200, pages.sheet_page(hist, file_name=d.return_file_name(hist)),
+                                  hdr)
             return self._page(200, pages.device_page(d.records, hist), hdr)
         if path.startswith("/files/"):
             return self._file(path[len("/files/"):])
@@ -321,7 +343,7 @@ class _Handler(BaseHTTPRequestHandler):
         who = field("who")[:60] or "dashboard user"
         origin = f"{self.client_address[0]} ({(self.headers.get('User-Agent') or '-')[:80]})"
         status, msg = d.actions.ask(parts[1], parts[2], who=who, origin=origin,
-                                    subject=field("subject") or None)
+                                    subject=field("subject") or None, code=field("code") or None)
         if status >= 400:
             return self._refuse(status, msg)
         self._send(303, b"", headers={"Location": "/?done=" + quote(msg)})

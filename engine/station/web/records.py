@@ -11,11 +11,13 @@ the two texts the pages show.
 
 from __future__ import annotations
 
+import contextlib
 import datetime as _dt
 import json
 import os
 import shutil
 import sqlite3
+import threading
 import time
 from pathlib import Path
 from typing import Optional
@@ -52,6 +54,7 @@ class Records:
     def __init__(self, folder):
         self.folder = Path(folder)
         self.path = self.folder / LEDGER_NAME
+        self._local = threading.local()
 
     def _db(self) -> Optional[sqlite3.Connection]:
         if not self.path.is_file():
@@ -64,7 +67,10 @@ class Records:
         return db
 
     def _rows(self, sql: str, args=()) -> list[dict]:
-        db = self._db()
+        db = getattr(self._local, "db", None)
+        own = db is None
+        if own:
+            db = self._db()
         if db is None:
             return []
         try:
@@ -76,7 +82,25 @@ class Records:
         except sqlite3.Error as e:
             raise LedgerError(f"{self.path}: cannot read the ledger: {e}") from None
         finally:
-            db.close()
+            if own:
+                db.close()
+
+    @contextlib.contextmanager
+    def reading(self):
+        """One connection (one snapshot) for the reads of one page, on this thread."""
+        if getattr(self._local, "db", None) is not None:
+            yield
+            return
+        db = self._db()
+        self._local.db = db
+        try:
+            if db is not None:
+                db.execute("BEGIN")  # one consistent snapshot of the ledger for the page
+            yield
+        finally:
+            self._local.db = None
+            if db is not None:
+                db.close()
 
     # ------------------------------------------------------------------ the dock
     def devices(self) -> list[dict]:

@@ -7,7 +7,7 @@ the ledger and nothing can be changed.
 
 =====================================  ===============================================================
 GET  /                                 the dock (``?token=`` sets the token cookie)
-GET  /events                           server-sent events: the dock's changing part, at most 4 a second
+GET  /events                           server-sent events: the dock's changing part, at most 2 a second
 GET  /api/dock                         the dock's rows and disk as JSON
 GET  /device/<type>-<id>               one device's history and trends
 GET  /device/<type>-<id>/sheet         its printable handover sheet
@@ -41,7 +41,7 @@ from .actions import Actions
 from .live import LiveDock
 from .records import Records, parse_device_key
 
-PUSH_MIN_S = 0.25  # the live stream sends at most this often (a change is shown within 1 s)
+PUSH_MIN_S = 0.5  # the live stream sends at most this often (a change is shown within 1 s)
 KEEPALIVE_S = 15.0
 FORM_MAX_BYTES = 4096
 
@@ -207,6 +207,12 @@ class _Handler(BaseHTTPRequestHandler):
     do_HEAD = do_GET
 
     def _get(self):
+        if urlsplit(self.path).path == "/events":
+            return self._get_page()  # the stream lasts: each push reads the ledger afresh
+        with self.dash.records.reading():  # a page: one snapshot of the ledger
+            self._get_page()
+
+    def _get_page(self):
         d = self.dash
         u = urlsplit(self.path)
         query = parse_qs(u.query)
@@ -287,7 +293,8 @@ class _Handler(BaseHTTPRequestHandler):
         self.end_headers()
         self.close_connection = True
         version = d.live.version
-        self.wfile.write(pages.sse_payload(d.fragment(with_token)))
+        sent = d.fragment(with_token)
+        self.wfile.write(pages.sse_payload(sent))
         self.wfile.flush()
         last = time.monotonic()
         while not d.stopping.is_set():
@@ -302,8 +309,11 @@ class _Handler(BaseHTTPRequestHandler):
             if wait > 0:
                 d.stopping.wait(wait)
             version = d.live.version
-            self.wfile.write(pages.sse_payload(d.fragment(with_token)))
-            self.wfile.flush()
+            frag = d.fragment(with_token)
+            if frag != sent:  # progress that does not change the page sends nothing
+                self.wfile.write(pages.sse_payload(frag))
+                self.wfile.flush()
+                sent = frag
             last = time.monotonic()
 
     # ------------------------------------------------------------------ POST

@@ -66,6 +66,7 @@ def trend_svg(points, title: str, unit: str, width: int = 340, height: int = 150
     if series != [""]:
         for i, name in enumerate(series):
             out.append(f'<text x="{left + w - 10 - 14 * (len(series) - 1 - i)}" y="{top + 12}" '
-                       f'fill="{COLOURS.get(name, "#555")}" class="cl">{html.escape(name)}</text>')
+                       f'fill="{COLOURS.get(name, "#555")}" font-size="11" font-weight="bold">'
+                       f'{html.escape(name)}</text>')
     out.append("</svg>")
     return "".join(out)

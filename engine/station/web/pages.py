@@ -54,6 +54,22 @@ def _calibration_text(cal: Optional[dict]) -> str:
     return t
 
 
+def _calibration_terms(cal: dict) -> str:
+    """Offset (mg) and gain (%) per axis with their standard errors, when estimated."""
+    if not cal or cal.get("status") in (None, "identity") or not cal.get("offset"):
+        return ""
+    unc = cal.get("uncertainty") or {}
+
+    def terms(vals, ses, k, fmt):
+        ses = ses or [None] * 3
+        return ", ".join(f"{a} {fmt(k(v))}" + (f" ± {fmt(abs(k(se) - k(0)))}" if se is not None else "")
+                         for a, v, se in zip("xyz", vals, ses))
+    off = terms(cal["offset"], unc.get("offset"), lambda v: 1000.0 * v, lambda v: f"{v:.1f}")
+    gain = terms(cal.get("scale") or [1, 1, 1], unc.get("scale"), lambda v: 100.0 * (v - 1.0),
+                 lambda v: f"{v:.2f}")
+    return f"<br><small>offset mg: {E(off)}<br>gain − 1 %: {E(gain)}</small>"
+
+
 def sort_rows(rows: list[dict]) -> list[dict]:
     def key(r):
         st = "detached" if r.get("detached") and r["state"] not in ("error",) else r["state"]
@@ -192,7 +208,8 @@ def device_page(records, hist: dict, *, message: str = "") -> str:
             E((d.get("sha256") or "-")[:16]), E(str(d.get("bad_sectors") if d.get("bad_sectors") is not None else "-")),
             "-" if d.get("battery_pct") is None else f"{d['battery_pct']} %",
             "-" if d.get("clock_offset_s") is None else f"{d['clock_offset_s']:+.2f} s",
-            E(_calibration_text(cal) or "-"), E(d.get("reason") or ""), _files(records, d)])
+            E(_calibration_text(cal) or "-") + _calibration_terms(cal), E(d.get("reason") or ""),
+            _files(records, d)])
     cl_rows = [[_when(c.get("time")), str(c["session_id"]), E(c.get("erase") or "-"),
                 f"<span class='state s-{'cleared' if c.get('result') == 'ok' else 'error'}'>"
                 f"{E(c.get('result') or '-')}</span>",

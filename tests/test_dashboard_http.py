@@ -158,6 +158,13 @@ def test_live_actions_and_refusals(live):
     assert "/action/clear/AX3-10001" in body and tok in body
     s, h, body = request(dash, "GET", "/")
     assert s == 200 and "<form" not in body  # loopback: readable, but no action without the token
+    for host in ("localhost:1", "[::1]:8080", "127.0.0.1"):
+        assert request(dash, "GET", "/api/dock", headers={"Host": host})[0] == 200, host
+    # a page of another site whose name points at 127.0.0.1 cannot read the dock
+    for host in ("evil.example:8080", "", "127.0.0.1.evil.example"):
+        s, _, body = request(dash, "GET", "/api/dock", headers={"Host": host})
+        assert s == 403 and "token" in body, host
+    assert request(dash, "GET", f"/api/dock?token={tok}", headers={"Host": "x.example"})[0] == 200
 
     # refused before any device is touched
     def post(action, key, **form):
@@ -248,7 +255,7 @@ def test_not_loopback_needs_the_token(live):
         dash.close()
 
 
-def test_given_token_and_cli_refusals(tmp_path, capsys):
+def test_given_token_and_cli_refusals(tmp_path, capsys, monkeypatch):
     out = tmp_path / "empty"
     out.mkdir()
     assert main(["dashboard", str(out)]) == 2
@@ -260,3 +267,17 @@ def test_given_token_and_cli_refusals(tmp_path, capsys):
         assert main(["station", str(out), "--web", bad, "--once", "--plain"]) == 2
         err = capsys.readouterr().err
         assert "--web" in err and "Traceback" not in err, bad
+    # a port already taken: one line naming it, exit code 2
+    import socket
+    monkeypatch.setenv("STILLPOINT_RUNTIME_DIR", str(tmp_path / "runtime"))
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen(1)
+        port = taken.getsockname()[1]
+        assert main(["station", str(out), "--web", f"127.0.0.1:{port}", "--once", "--plain"]) == 2
+        err = capsys.readouterr().err
+        assert f"127.0.0.1:{port}: cannot serve there" in err and len(err.strip().splitlines()) == 1
+    # a given token is the one used
+    dash = Dashboard(tmp_path / "empty", token="my-secret-token-123")
+    assert dash.token == "my-secret-token-123"
+    dash.httpd.server_close()

@@ -3,8 +3,10 @@
 * The address: ``[HOST:]PORT`` (``parse_address``); the host is 127.0.0.1 unless given, the port
   0 (or omitted) asks the system for a free one.
 * The token: every dashboard has one (given with ``--token`` or made here, 128 random bits,
-  printed at start with the address). On a loopback address the pages can be read without it;
-  on any other address every request needs it (``?token=`` once, then a same-site cookie).
+  printed at start with the address). On a loopback address the pages can be read without it,
+  if the request names a loopback host (``Host``: a page of another site whose name was made to
+  point at 127.0.0.1 cannot read them); on any other address every request needs it
+  (``?token=`` once, then a same-site cookie).
 * Actions are POST requests whose form carries the token (the cookie alone is never enough, so
   another site cannot make a browser act); a read-only dashboard refuses every action.
 * Files are served only from inside the output folder (``Records.inside``).
@@ -47,6 +49,16 @@ def is_loopback(host: str) -> bool:
         return ipaddress.ip_address(host).is_loopback
     except ValueError:
         return False
+
+
+def loopback_host(header: Optional[str]) -> bool:
+    """The ``Host`` header names a loopback host (``127.0.0.1:8080``, ``localhost``, ``[::1]``)."""
+    h = (header or "").strip()
+    if h.startswith("["):
+        h = h[1:h.find("]")] if "]" in h else h
+    else:
+        h = h.rsplit(":", 1)[0] if h.count(":") == 1 else h
+    return bool(h) and is_loopback(h)
 
 
 def new_token() -> str:

@@ -24,7 +24,9 @@ from typing import Optional
 
 from ..ledger import LEDGER_NAME, LedgerError
 
-AX3_FULL_BYTES = 512 * 1024 * 1024  # an AX3/AX6 data file at its largest (the 512 MB drive)
+# a device's data file at its largest: the AX3's 512 MB of flash (Axivity AX3 data sheet,
+# "512 MB memory"); used for the AX6 too, as an estimate of how many downloads fit
+AX3_FULL_BYTES = 512 * 1024 * 1024
 
 
 def local_utc(t: Optional[float]) -> tuple[str, str]:

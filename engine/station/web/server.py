@@ -220,7 +220,7 @@ class _Handler(BaseHTTPRequestHandler):
         ok, set_tok = self._token(query)
         if path.startswith("/static/"):
             return self._static(path[len("/static/"):])
-        if not ok and not d.loopback:
+        if not ok and not (d.loopback and access.loopback_host(self.headers.get("Host"))):
             return self._refuse(403, "this dashboard needs its token: open the address the "
                                      "station printed (…/?token=…)")
         hdr = self._cookie(set_tok)

@@ -48,6 +48,12 @@ class LiveDock:
             r["eta_s"] = eta_s(r)
         return out
 
+    def wake(self) -> None:
+        """Wake every waiting stream (the server is stopping)."""
+        with self._cond:
+            self.version += 1
+            self._cond.notify_all()
+
     def wait(self, version: int, timeout: float) -> int:
         """Wait until ``version`` is passed (or ``timeout``); returns the current version."""
         with self._cond:

@@ -89,9 +89,7 @@ class Dashboard:
     def close(self) -> None:
         self.stopping.set()
         if self.live is not None:
-            with self.live._cond:
-                self.live.version += 1
-                self.live._cond.notify_all()
+            self.live.wake()
         self.httpd.shutdown()
         self.httpd.server_close()
 
@@ -292,6 +290,8 @@ class _Handler(BaseHTTPRequestHandler):
         self.send_header("Connection", "close")
         self.end_headers()
         self.close_connection = True
+        if self.command == "HEAD":
+            return
         version = d.live.version
         sent = d.fragment(with_token)
         self.wfile.write(pages.sse_payload(sent))

@@ -8,8 +8,10 @@ Epoch table columns: ``time_utc`` (ISO 8601, ``Z``; only when the zone is known:
 a recording whose zone is unknown has no UTC column), ``time_local`` (ISO 8601 with the offset
 in force, or without offset when the zone is unknown: the device clock), ``n`` (samples),
 ``enmo_mg``, ``bfen_mg``, ``mad_mg``, ``anglez_deg``, ``temperature_c`` (empty without data),
-then the flags ``nonwear``, ``clipping``, ``gap``, ``qc``, ``filter_warmup`` (0/1). Times are
-epoch starts.
+then the flags ``nonwear``, ``clipping``, ``gap``, ``qc``, ``filter_warmup`` (0/1), and with sleep
+on (a known zone; engine/sleep) ``spt`` (inside a night's sleep period) and ``sib`` (a sustained
+inactivity bout), 0/1. Times are epoch starts. With sleep on, rows wait for their night's
+decision (at most about 30 h of epochs) and ``<stem>.nights.csv`` is written too.
 """
 
 from __future__ import annotations
@@ -60,12 +62,17 @@ class TablesSettings:
     valid_day_hours: float = VALID_DAY_HOURS
     enmo_bands_mg: tuple = ENMO_BANDS_MG
     mvpa_bout_s: float = MVPA_BOUT_S
+    sleep: Optional[object] = None  # engine.sleep.SleepOptions: sleep on when the zone is known
+    nights_path: Optional[Path] = None
 
     def to_dict(self) -> dict:
-        return {"epochs": str(self.epochs_path), "days": str(self.days_path),
-                "timezone": self.zone.label, "nonwear_version": self.nonwear_version,
-                "valid_day_hours": self.valid_day_hours, "enmo_bands_mg": list(self.enmo_bands_mg),
-                "mvpa_bout_s": self.mvpa_bout_s}
+        d = {"epochs": str(self.epochs_path), "days": str(self.days_path),
+             "timezone": self.zone.label, "nonwear_version": self.nonwear_version,
+             "valid_day_hours": self.valid_day_hours, "enmo_bands_mg": list(self.enmo_bands_mg),
+             "mvpa_bout_s": self.mvpa_bout_s}
+        if self.sleep is not None:
+            d["sleep"] = self.sleep.to_dict()
+        return d
 
 
 def _num(v: np.ndarray, decimals: int) -> list:
@@ -96,7 +103,7 @@ def _offset_text(off_s: np.ndarray) -> np.ndarray:
     return out.astype(str)
 
 
-def format_rows(rows: EpochRows, zone: Zone, epoch_ns: int) -> str:
+def format_rows(rows: EpochRows, zone: Zone, epoch_ns: int, extra=()) -> str:
     if not len(rows):
         return ""
     unit = "s" if epoch_ns % 10**9 == 0 else "ms"
@@ -113,6 +120,8 @@ def format_rows(rows: EpochRows, zone: Zone, epoch_ns: int) -> str:
         cols.append(_num(getattr(rows, name), _DECIMALS[name]))
     for f in FLAGS:
         cols.append(_flag(getattr(rows, f)))
+    for v in extra:  # the sleep columns
+        cols.append(_flag(v.astype(bool)))
     return "\n".join(map(",".join, zip(*cols))) + "\n"
 
 
@@ -127,11 +136,17 @@ def _cell(v) -> str:
 class TablesTap:
     """Pushed by the output stage; writes both tables; ``close()`` returns the table summary."""
 
-    def __init__(self, ts: TablesSettings, rate_hz: float, epoch_s: float, band, source, info):
+    def __init__(self, ts: TablesSettings, rate_hz: float, epoch_s: float, band, source, info,
+                 sink=None):
         self.ts = ts
         self.epoch_ns = int(round(epoch_s * 1e9))
         check_output_path(ts.epochs_path, what="epoch table")
         check_output_path(ts.days_path, what="day table")
+        self.sleep = None
+        self.sink = sink
+        if ts.sleep is not None:
+            from ..sleep.tap import open_sleep
+            self.sleep = open_sleep(ts, epoch_s)
         self.assembler = EpochAssembler(rate_hz, epoch_s, band, source=source,
                                         nonwear_version=ts.nonwear_version,
                                         clip_g=clip_threshold_g(getattr(info, "accel_range_g", None)))
@@ -140,28 +155,34 @@ class TablesTap:
         self._out = AtomicOutput(ts.epochs_path, what="epoch table")
         self._gz = gzip.GzipFile(filename="", mode="wb", fileobj=self._out.file, mtime=0,
                                  compresslevel=GZIP_LEVEL)
-        self._gz.write((",".join(epoch_columns(ts.zone)) + "\n").encode())
+        head = epoch_columns(ts.zone) + (["spt", "sib"] if self.sleep is not None else [])
+        self._gz.write((",".join(head) + "\n").encode())
         self.rows = 0
         self.flag_counts = {f: 0 for f in FLAGS}
         self.clean = 0
         self._closed = False
 
-    def _write(self, slices) -> None:
+    def _write(self, slices, final: bool = False) -> None:
+        if self.sleep is not None:
+            slices = self.sleep.rows(slices, final)
         for rows in slices:
+            extra = ()
+            if self.sleep is not None:
+                rows, extra = rows[0], rows[1:]
             if not len(rows):
                 continue
             self.rows += len(rows)
             for f in FLAGS:
                 self.flag_counts[f] += int(getattr(rows, f).sum())
             self.clean += int(rows.clean.sum())
-            self._gz.write(format_rows(rows, self.ts.zone, self.epoch_ns).encode())
+            self._gz.write(format_rows(rows, self.ts.zone, self.epoch_ns, extra).encode())
             self.days.push(rows)
 
     def push(self, block, batches, metrics) -> None:
         self._write(self.assembler.push(block, batches, metrics))
 
     def flush(self, metrics=None) -> None:
-        self._write(self.assembler.flush(metrics))
+        self._write(self.assembler.flush(metrics), final=True)
 
     def close(self, calibration_status: str = "") -> dict:
         self._gz.close()
@@ -171,6 +192,8 @@ class TablesTap:
         for d in days + [summary]:
             d["calibration"] = calibration_status
         cols = self.days.columns
+        if self.sleep is not None:
+            cols = self.sleep.close(days, self.sink, self.ts.zone, cols)
         with atomic_output(self.ts.days_path, binary=False, what="day table") as f:
             w = csv.writer(f, lineterminator="\n")
             w.writerow(cols)
@@ -186,6 +209,8 @@ class TablesTap:
                "day_rows": len(days), "file": summary}
         if self.assembler.epochs_not_in_table:
             out["epochs_not_in_table"] = self.assembler.epochs_not_in_table
+        if self.sleep is not None:
+            out["sleep"] = self.sleep.summary()
         return out
 
     def abort(self) -> None:

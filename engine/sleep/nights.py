@@ -59,6 +59,7 @@ class Night:
     estimate_base: int = 0  # window start the estimate's indices count from
     daysleeper: bool = False
     window_hours: float = 24.0
+    dst: bool = False  # the night's noon-to-noon local day is 23 or 25 h long
     sleep_epochs: int = 0
     awakenings: int = 0
     nonwear_epochs: int = 0
@@ -134,6 +135,15 @@ class SleepStage:
     def _local_date(self, t_ns: int) -> _dt.date:
         local = t_ns + int(self.zone.offsets_s(np.array([t_ns]))[0]) * 10**9
         return (_dt.datetime(1970, 1, 1) + _dt.timedelta(microseconds=local // 1000)).date()
+
+    def _noon_ns(self, date: _dt.date) -> tuple:
+        """UTC of the local noons that open and close the night of ``date``."""
+        out = []
+        for d in (date, date + _dt.timedelta(days=1)):
+            local = int((_dt.datetime.combine(d, _dt.time(12)) - _dt.datetime(1970, 1, 1)).total_seconds()) * 10**9
+            guess = local - int(self.zone.offsets_s(np.array([local]))[0]) * 10**9
+            out.append(local - int(self.zone.offsets_s(np.array([guess]))[0]) * 10**9)
+        return tuple(out)
 
     def _local_hour(self, i: int) -> int:
         t = self.first_ns + i * self.epoch_ns
@@ -222,8 +232,10 @@ class SleepStage:
             span, guider = (base + s0, base + s1), est.guider
         if span is None:
             span, guider = self._l5_span(first, last), "L512"
+        noon = self._noon_ns(date)
         night = Night(date, (first, last), guider, span, None, est, base, daysleeper,
-                      round((last - first + 1) / self.per_h, 4))
+                      round((last - first + 1) / self.per_h, 4),
+                      noon[1] - noon[0] != DAY_NS)
         if span is not None:
             self._refine(night)
         return night

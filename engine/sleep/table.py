@@ -6,7 +6,8 @@ HDCZA+invalid, L512 or none), ``onset_local`` / ``wake_local`` (ISO 8601 with of
 ``onset_utc`` / ``wake_utc``, ``spt_hours`` (wake - onset), ``sleep_hours`` (SIB time inside),
 ``waso_hours`` (spt - sleep), ``awakenings`` (wake runs between SIBs inside), ``efficiency``
 (sleep / spt), ``nonwear_spt_hours`` (nonwear or gap epochs inside), ``window_hours`` (the
-noon-to-noon window: 23 or 25 across a DST change), ``dst`` (1 when it is not 24),
+noon-to-noon window in the data: 23 or 25 h across a DST change, less at the recording's ends),
+``dst`` (1 when the night's local noon-to-noon day is 23 or 25 h),
 ``daysleeper`` (the HDCZA window came from the re-run 6 h later), ``guider_onset_local`` /
 ``guider_wake_local`` and ``hdcza_threshold_deg``.
 """
@@ -46,7 +47,7 @@ def night_record(night, first_ns: int, epoch_ns: int, zone: Zone) -> dict:
     epoch_s = epoch_ns / 1e9
     t = lambda i: first_ns + int(i) * epoch_ns  # noqa: E731
     d = {"night": night.date.isoformat(), "guider": night.guider, "window_hours": night.window_hours,
-         "dst": int(abs(night.window_hours - 24.0) > 1e-9), "daysleeper": int(night.daysleeper)}
+         "dst": int(night.dst), "daysleeper": int(night.daysleeper)}
     est = night.estimate
     d["hdcza_threshold_deg"] = None if est is None else round(float(est.threshold), 6)
     if night.guider_span is not None:

@@ -88,7 +88,9 @@ def _sleep_settings(args, tables, out: Path) -> None:
     ign = {"false": False, "true": True, "na": None}[args.hdcza_ignore_invalid]
     tables.sleep = SleepOptions(hdcza=HdczaOptions(ignore_invalid=ign), sleep_log=log)
     tables.nights_path = nights_path(out)
-(arg):
+
+
+def _store(arg):
     from stillpoint.engine.calibration import CalibrationStore
     return CalibrationStore(arg or None)
 

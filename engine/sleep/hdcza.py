@@ -35,7 +35,7 @@ class SptEstimate:
     start: Optional[int]  # GGIR's SPTE_start (None: no window found)
     end: Optional[int]  # GGIR's SPTE_end
     threshold: float
-    guider: str  # "HDCZA", "HDCZA+invalid" or "none"
+    guider: str  # "HDCZA", "HDCZA+invalid" or "none" (all nonwear)
 
     def epochs(self) -> Optional[tuple]:
         """The SPT as window epoch indices [first, stop) (None without a window)."""
@@ -118,13 +118,13 @@ def hdcza(anglez: np.ndarray, invalid: np.ndarray, opts: HdczaOptions = HdczaOpt
     # step -1: the longest block (the first of equal ones)
     v, s, ln = _runs(seq)
     ones = np.flatnonzero(v == 1)
-    guider = "HDCZA"
+    guider = "HDCZA"  # GGIR names the guider even when no block is found
     if not ones.shape[0]:
-        return SptEstimate(None, None, thr, "none")
+        return SptEstimate(None, None, thr, guider)
     best = ones[np.argmax(ln[ones])]
     start, stop = int(s[best]), int(s[best] + ln[best])
     if start >= n:  # the block lies in the padding only
-        return SptEstimate(None, None, thr, "none")
+        return SptEstimate(None, None, thr, guider)
     stop = min(stop, n)
     if opts.ignore_invalid is None:
         lo, hi = max(start - 1, 0), max(stop - 1, 0)

@@ -45,7 +45,16 @@ write.csv(do.call(rbind, calls), paste0(out, ".calls.csv"), row.names = FALSE)
 write.csv(data.frame(spte_start_h = sprintf("%.17g", SLE$SPTE_start),
                      spte_end_h = sprintf("%.17g", SLE$SPTE_end),
                      guider = SLE$part3_guider), paste0(out, ".nights.csv"), row.names = FALSE)
-s = as.numeric(SLE$output[, 4])
+if (is.null(SLE$output)) {
+  # shorter than g.sib.det's 0.2-day minimum: no nights; GGIR's HASIB on the whole series
+  a = d$anglez
+  a[is.na(a)] = 0
+  s = as.numeric(HASIB(HASIB.algo = "vanHees2015", timethreshold = params_sleep[["timethreshold"]],
+                       anglethreshold = params_sleep[["anglethreshold"]], time = d$timestamp,
+                       anglez = a, ws3 = 5, activity = d$ENMO)[, 1])
+} else {
+  s = as.numeric(SLE$output[, 4])
+}
 r = rle(s)
 ends = cumsum(r$lengths)
 starts = ends - r$lengths

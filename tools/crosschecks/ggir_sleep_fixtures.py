@@ -109,6 +109,7 @@ def main(argv=None) -> int:
     ap.add_argument("--ggir", type=Path, required=True, help="wadpac/GGIR checkout")
     ap.add_argument("--ggir-commit", help="the GGIR commit (default: git rev-parse in --ggir)")
     ap.add_argument("--real", type=Path, help="folder of real recordings")
+    ap.add_argument("--real-only", action="store_true", help="only the real recordings")
     ap.add_argument("--check", action="store_true", help="print agreement, write nothing")
     a = ap.parse_args(argv)
     from stillpoint.engine.sim.sleep import sleep_scenario
@@ -117,7 +118,7 @@ def main(argv=None) -> int:
     OUT.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory() as td:
         tmp = Path(td)
-        for name, (spec, ignore) in scenarios().items():
+        for name, (spec, ignore) in ({} if a.real_only else scenarios()).items():
             s = sleep_scenario(spec)
             write_series(tmp / f"{name}.csv", s.t_ns, s.zone, s.anglez, s.nonwear)
             res = run_ggir(a.ggir, tmp / f"{name}.csv", spec.timezone, ignore, tmp / name)

@@ -140,3 +140,18 @@ def test_sleep_log_refusals_name_the_row(tmp_path):
     adv.write_text("ID,D1_date,D1_wakeup,D1_onset\np1,4 May,07:00,23:00\n")
     with pytest.raises(SleepLogError, match=r"row 2, column 'D1_date'.*not a date"):
         read_sleep_log(adv, "p1")
+
+
+def test_cohort_collates_nights_tables(tmp_path):
+    from stillpoint.engine.cohort.collate import Collation, _night_rows
+    a, b = tmp_path / "a", tmp_path / "b"
+    a.mkdir()
+    b.mkdir()
+    (a / "recording.nights.csv").write_text("night,guider,spt_hours\n2026-05-04,HDCZA,7.5\n"
+                                            "2026-05-05,sleeplog,8\n")
+    out = Collation(rows=[{"participant": "p1", "file": "a.cwa", "key": "k1", "folder": str(a)},
+                          {"participant": "p2", "file": "b.cwa", "key": "k2", "folder": str(b)}])
+    cols = _night_rows(out)
+    assert cols == ["night", "guider", "spt_hours"]
+    assert [(n["participant"], n["night"], n["guider"]) for n in out.nights] == [
+        ("p1", "2026-05-04", "HDCZA"), ("p1", "2026-05-05", "sleeplog")]

@@ -64,6 +64,9 @@ def add_arguments(p) -> None:
     add_timezone_argument(r)
     add_setting_arguments(r)
     add_table_arguments(r, with_switch=False)
+    r.add_argument("--sleep", action="store_true",
+                   help="also sleep (engine/sleep): spt/sib epoch columns and each file's nights "
+                        "table, collated into cohort_nights.csv (needs the zone)")
     s = sub.add_parser("status", help="done / failed by class / pending")
     s.add_argument("outdir", type=Path)
     s.add_argument("--json", action="store_true", help="one JSON object")
@@ -160,6 +163,8 @@ def _run(args) -> int:
     settings["tables"] = {"nonwear_version": args.nonwear, "valid_day_hours": args.valid_day_hours,
                           "enmo_bands_mg": [float(x) for x in args.enmo_bands],
                           "mvpa_bout_s": args.mvpa_bout_s}  # part of every file's key
+    if getattr(args, "sleep", False):  # only when asked: older plans' keys stay the same
+        settings["tables"]["sleep"] = True
     attributes: dict = {}  # a manifest's per-file timezone / participant
     files = discover_inputs(args.inputs, attributes)
     if not files:

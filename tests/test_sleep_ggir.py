@@ -88,10 +88,10 @@ def _stage(s, options=SleepOptions(), chunk=997):
 
 @pytest.mark.parametrize("name", SCENARIOS)
 def test_nights_use_ggirs_window(name):
-    """Per night, the HDCZA window we keep is the call GGIR keeps, and its onset / wake hours
-    (GGIR: hours since the night's first midnight... as g.sib.det reports them) are our epochs'
-    local clock times; on the first night of a recording that starts after noon GGIR's hours
-    count from the first epoch, 5 s (one epoch) before ours (docs/sleep.md)."""
+    """Per night, the HDCZA window we keep is the call GGIR keeps, and its onset / wake hours (as
+    g.sib.det reports them: hours since the midnight before the night's window) are our epochs'
+    local clock times; on a first night whose window starts at the recording's first epoch GGIR's
+    hours count from that epoch, 5 s (one epoch) before ours (docs/sleep.md)."""
     fx = _fixture(name)
     s = _series(fx)
     opts = SleepOptions(hdcza=HdczaOptions(ignore_invalid=IGNORE[fx["ignore_invalid"]]))

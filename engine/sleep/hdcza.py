@@ -16,6 +16,8 @@ import numpy as np
 
 from . import rules
 
+MEDIAN_ROWS = 2048  # windows whose median is taken at once (about 1 MB of scratch)
+
 
 @dataclass(frozen=True)
 class HdczaOptions:
@@ -52,9 +54,12 @@ def movement(anglez: np.ndarray, epoch_s: float = rules.EPOCH_S) -> np.ndarray:
     x = np.zeros(n)
     if n < k:
         return x
-    win = np.lib.stride_tricks.sliding_window_view(anglez, k)
-    d = np.abs(np.diff(win, axis=1))
-    x[(k - 1) // 2:(k - 1) // 2 + win.shape[0]] = np.median(d, axis=1)
+    ad = np.abs(np.diff(anglez))  # the window at i holds ad[i .. i + k - 2]
+    win = np.lib.stride_tricks.sliding_window_view(ad, k - 1)
+    h = (k - 1) // 2
+    for a in range(0, win.shape[0], MEDIAN_ROWS):  # bounded scratch: MEDIAN_ROWS x (k - 1)
+        b = min(a + MEDIAN_ROWS, win.shape[0])
+        x[h + a:h + b] = np.median(win[a:b], axis=1)
     return x
 
 

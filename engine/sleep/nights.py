@@ -68,6 +68,7 @@ class Night:
 
 class SleepStage:
     HOLD_EPOCHS = 36 * 720  # a still stretch held undecided at most this long (36 h)
+    TAKE_EPOCHS = 720  # rows are taken in batches of about an hour
 
     def __init__(self, zone: Zone, epoch_s: float, options: SleepOptions = SleepOptions()):
         self.zone = zone
@@ -91,15 +92,31 @@ class SleepStage:
         self.nights: list[Night] = []
         self._spans = []  # [onset, wake) of decided nights
         self.diary = {}  # night date -> (onset, wake) local datetimes
+        self._pending = []  # rows not taken yet (less than TAKE_EPOCHS)
+        self._pending_n = 0
 
     # ------------------------------------------------------------------ input
     def push(self, rows):
+        """Rows are gathered and taken an hour at a time (the per-call numpy overhead of a few
+        epochs at a time would cost more than the work)."""
         if len(rows):
-            self._take(rows)
-            self._decide(final=False)
+            self._pending.append(rows)
+            self._pending_n += len(rows)
+        if self._pending_n < self.TAKE_EPOCHS:
+            return []
+        self._take_pending()
+        self._decide(final=False)
         return self._emit(final=False)
 
+    def _take_pending(self) -> None:
+        if self._pending:
+            first = self._pending[0]
+            rows = first if len(self._pending) == 1 else type(first).concat(self._pending)
+            self._pending, self._pending_n = [], 0
+            self._take(rows)
+
     def flush(self):
+        self._take_pending()
         self._sib = np.concatenate([self._sib, self.sib.flush()])
         self._decide(final=True)
         return self._emit(final=True)

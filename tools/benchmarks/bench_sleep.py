@@ -7,6 +7,10 @@ to 14 days.
   topics) against the same with ``--no-sleep``, on a simulated AX3 wrist recording (``stillpoint
   simulate``), run interleaved ``--repeat`` times, best CPU time of each (``benchlib.best_of``);
   target: sleep adds at most 5 %.
+* the same run in one process with the sleep work timed where it happens (the epoch rows through
+  the sleep stage, the nights table and MCAP records; ``time.process_time`` around the sleep
+  tap's calls): its share of the run's CPU. On a busy shared machine this in-run share is the
+  steadier figure; the A/B difference above swings by +-10 % from run to run.
 * the sleep stage alone on simulated 5 s epochs (engine/sim/sleep.py) of 1, 7 and 14 days: the
   most epochs it held at once and the peak of the memory Python allocated while it ran
   (tracemalloc): both must not grow with the recording's length.
@@ -29,6 +33,46 @@ try:
 except ImportError:  # tools/benchlib.py beside the parent folder
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
     from benchlib import best_of
+
+
+PROBE = r"""
+import json, sys, time
+from pathlib import Path
+from stillpoint.engine.run import RunSettings, process_file
+from stillpoint.engine.sleep import SleepOptions, nights_path
+from stillpoint.engine.sleep import tap as T
+from stillpoint.engine.tables import TablesSettings, table_paths
+spent = [0.0]
+rows0, close0 = T.SleepTap.rows, T.SleepTap.close
+def rows(self, slices, final):
+    slices = iter(slices)
+    while True:  # the assembler's own work (pulling slices) is not sleep's
+        try:
+            sl = next(slices)
+        except StopIteration:
+            break
+        t = time.process_time()
+        out = list(rows0(self, [sl], False))
+        spent[0] += time.process_time() - t
+        yield from out
+    if final:
+        t = time.process_time()
+        out = list(rows0(self, [], True))
+        spent[0] += time.process_time() - t
+        yield from out
+def close(self, *a):
+    t = time.process_time()
+    try:
+        return close0(self, *a)
+    finally:
+        spent[0] += time.process_time() - t
+T.SleepTap.rows, T.SleepTap.close = rows, close
+out = Path(sys.argv[2])
+ts = TablesSettings(*table_paths(out), sleep=SleepOptions(), nights_path=nights_path(out))
+t0 = time.process_time()
+process_file(sys.argv[1], out, RunSettings(timezone="UTC"), tables=ts)
+print(json.dumps({"sleep_cpu_s": spent[0], "run_cpu_s": time.process_time() - t0}))
+"""
 
 
 def stage_memory(days: float) -> dict:
@@ -82,6 +126,17 @@ def main(argv=None) -> int:
                               "rss_mb": round(v["rss_mb"], 1)} for k, v in r.items()}
         out["sleep_cpu_added_pct"] = round(100 * (r["sleep"]["cpu"] / r["no_sleep"]["cpu"] - 1), 2)
         out["file"] = {"days": a.days, "hz": a.hz}
+        shares = []
+        for _ in range(max(1, a.repeat)):
+            for p in wd.glob("probe*"):
+                p.unlink()
+            r = subprocess.run([sys.executable, "-c", PROBE, str(f), str(wd / "probe.mcap")],
+                               capture_output=True, text=True, check=True)
+            shares.append(json.loads(r.stdout.strip().splitlines()[-1]))
+        best = min(shares, key=lambda d: d["sleep_cpu_s"])
+        out["in_run"] = {"sleep_cpu_s": round(best["sleep_cpu_s"], 3),
+                         "run_cpu_s": round(best["run_cpu_s"], 2),
+                         "sleep_share_pct": round(100 * best["sleep_cpu_s"] / best["run_cpu_s"], 2)}
     print(json.dumps(out, indent=1))
     return 0
 

@@ -253,7 +253,8 @@ def _draw(plt, ep: dict, days: list[dict], windows, est, rec: dict, title: str, 
         _shade(ax, h, ep["clipping"][sel], "tab:red", "clipping", step_h=step_h)
         _shade(ax, h, ep["qc"][sel], "tab:orange", "QC-flagged", step_h=step_h)
         _shade(ax, h, ep["gap"][sel], "tab:blue", "gap (no data)", hatch="///", step_h=step_h)
-        _sleep_marks(ax, h, ep["spt"][sel], ep["sib"][sel], ymax, step_h)
+        if "spt" in ep:
+            _sleep_marks(ax, h, ep["spt"][sel], ep["sib"][sel], ymax, step_h)
         ax.plot(h, np.minimum(e, ymax), lw=0.5, color="k", label="ENMO")
         over = e > ymax
         if over.any():
@@ -295,7 +296,7 @@ def _draw(plt, ep: dict, days: list[dict], windows, est, rec: dict, title: str, 
                Patch(color="tab:red", alpha=0.35, label="clipping"),
                Patch(color="tab:orange", alpha=0.35, label="QC-flagged"),
                Patch(facecolor="none", edgecolor="tab:blue", hatch="///", label="gap (no data)")]
-    if ep["spt"].any() or ep["sib"].any():
+    if "spt" in ep and (ep["spt"].any() or ep["sib"].any()):
         handles += [Patch(color="tab:cyan", alpha=0.25, label="sleep period"),
                     Line2D([], [], color="tab:blue", lw=2.5, label="inactivity bout")]
     if fig.axes:

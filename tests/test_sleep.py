@@ -155,3 +155,34 @@ def test_cohort_collates_nights_tables(tmp_path):
     assert cols == ["night", "guider", "spt_hours"]
     assert [(n["participant"], n["night"], n["guider"]) for n in out.nights] == [
         ("p1", "2026-05-04", "HDCZA"), ("p1", "2026-05-05", "sleeplog")]
+
+
+def test_report_draws_sleep_and_its_legend_fits():
+    pytest.importorskip("matplotlib", reason="the report's plots need matplotlib (optional extra)")
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from stillpoint.engine import report
+    n_day, per = 3, 17280
+    dates = [f"2025-03-{3 + i:02d}" for i in range(n_day)]
+    hour = np.tile(np.arange(per) * 5 / 3600, n_day)
+    ep = {"dates": dates, "date": np.repeat(dates, per), "hour": hour,
+          "enmo_mg": np.full(n_day * per, 20.0), "temp_local": np.zeros(0, "M8[s]"),
+          "temp_c": np.zeros(0)}
+    for k in report._FLAG_COLUMNS:
+        ep[k] = np.zeros(n_day * per, bool)
+    ep["spt"] = (hour >= 23) | (hour < 7)
+    ep["sib"] = ep["spt"] & (hour % 1 < 0.8)
+    days = [{"date": d, "valid_day": "1", "day_hours": "24", "wear_hours": "24"} for d in dates]
+    fig = report._draw(plt, ep, days, None, None, {"summary": {}}, "title", 5.0)
+    fig.canvas.draw()
+    r = fig.canvas.get_renderer()
+    ax = fig.axes[0]
+    labels = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert "sleep period" in labels and "inactivity bout" in labels
+    lb, fb, tb = ax.get_legend().get_window_extent(r), fig.bbox, ax.title.get_window_extent(r)
+    assert lb.x0 >= fb.x0 and lb.x1 <= fb.x1
+    assert not (lb.x0 < tb.x1 and tb.x0 < lb.x1 and lb.y0 < tb.y1 and tb.y0 < lb.y1)
+    spans = [p for p in ax.patches if abs(p.get_facecolor()[3] - 0.25) < 1e-6]
+    assert len(spans) == 2  # the first day: 00-07 h and 23-24 h
+    plt.close(fig)

@@ -83,3 +83,14 @@ def test_sleep_log_needs_the_zone(run, tmp_path, capsys):
     code = main(["process", str(cwa), "-o", str(tmp_path / "x.mcap"), "--sleep-log", str(log), "-q"])
     err = capsys.readouterr().err.strip()
     assert code == 2 and "--timezone" in err and len(err.splitlines()) == 1
+
+
+def test_text_summary_names_the_nights():
+    from stillpoint.tools.commands._tableopts import tables_text
+    t = {"epoch_rows": 10, "clean_epochs": 10, "day_rows": 1, "nonwear_version": "2023",
+         "flags": {k: 0 for k in ("nonwear", "clipping", "gap", "qc", "filter_warmup")},
+         "file": {"valid_day": 0, "enmo_mean_mg": None},
+         "sleep": {"nights": "a.nights.csv", "night_rows": 2, "guiders": {"HDCZA": 1, "sleeplog": 1},
+                   "sib_bouts": 40}}
+    text = tables_text({"timezone": "UTC", "tables": t})
+    assert "sleep: 2 night(s) (guider: HDCZA 1, sleeplog 1), 40 inactivity bouts; nights table a.nights.csv" in text

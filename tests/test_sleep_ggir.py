@@ -5,6 +5,7 @@ by tools/crosschecks/ggir_sleep_fixtures.py with GGIR's R code; CI needs no R): 
 from __future__ import annotations
 
 import datetime as _dt
+import hashlib
 import json
 from pathlib import Path
 
@@ -28,7 +29,12 @@ def _fixture(name):
 def _series(fx):
     spec = dict(fx["spec"])
     spec["awakening_min"] = tuple(spec["awakening_min"])
-    return sleep_scenario(SleepSpec(**spec))
+    s = sleep_scenario(SleepSpec(**spec))
+    digest = hashlib.sha256(s.anglez.astype(np.float64).tobytes() + s.nonwear.astype(bool).tobytes())
+    assert digest.hexdigest() == fx["series_sha256"], (
+        "the simulated series is not the one GGIR was given (engine/sim/sleep.py or numpy's "
+        "random streams changed): regenerate with tools/crosschecks/ggir_sleep_fixtures.py")
+    return s
 
 
 def _ggir_sib(fx, n):

@@ -61,6 +61,14 @@ def write_series(path: Path, t_ns, zone, anglez, invalid) -> None:
             f.write(f"{tt}{sign}{m // 60:02d}{m % 60:02d},{float(a)!r},{i + 1},{int(nw)}\n")
 
 
+def series_digest(anglez, invalid) -> str:
+    """SHA-256 of the series GGIR was given (anglez as float64, then the invalid flags as bytes):
+    the tests rebuild the series from the spec and check it is the same."""
+    import hashlib
+    return hashlib.sha256(np.asarray(anglez, np.float64).tobytes()
+                          + np.asarray(invalid, bool).tobytes()).hexdigest()
+
+
 def run_ggir(ggir: Path, series: Path, tz: str, ignore: str, prefix: Path) -> dict:
     cmd = ["Rscript", str(HERE / "ggir_sleep_fixtures.R"), str(ggir / "R"), str(series), tz, ignore,
            str(prefix)]
@@ -122,7 +130,8 @@ def main(argv=None) -> int:
             s = sleep_scenario(spec)
             write_series(tmp / f"{name}.csv", s.t_ns, s.zone, s.anglez, s.nonwear)
             res = run_ggir(a.ggir, tmp / f"{name}.csv", spec.timezone, ignore, tmp / name)
-            fx = {"ggir_commit": commit, "spec": asdict(spec), "ignore_invalid": ignore, **res}
+            fx = {"ggir_commit": commit, "spec": asdict(spec), "ignore_invalid": ignore,
+                  "series_sha256": series_digest(s.anglez, s.nonwear), **res}
             report(name, fx, s.anglez, s.nonwear, s.t_ns, s.zone)
             if not a.check:
                 (OUT / f"{name}.json").write_text(json.dumps(fx, indent=1) + "\n")

@@ -186,3 +186,17 @@ def test_report_draws_sleep_and_its_legend_fits():
     spans = [p for p in ax.patches if abs(p.get_facecolor()[3] - 0.25) < 1e-6]
     assert len(spans) == 2  # the first day: 00-07 h and 23-24 h
     plt.close(fig)
+
+
+def test_guider_falls_back_to_l5_when_hdcza_has_no_window():
+    from stillpoint.engine.sleep import HdczaOptions
+    s = sleep_scenario(SleepSpec("2026-05-04T09:00:00", "UTC", 4.0, seed=31))
+    a = int(_dt.datetime(2026, 5, 5, 12, tzinfo=_dt.timezone.utc).timestamp()) * 10**9
+    # the whole noon-to-noon window of the night of 2026-05-05 flagged nonwear; nonwear counted
+    # as movement (GGIR's HASPT.ignore.invalid = TRUE), so HDCZA finds nothing there
+    s.nonwear[:] = (s.t_ns >= a) & (s.t_ns <= a + 86400 * 10**9)
+    st, _ = _run(s, SleepOptions(hdcza=HdczaOptions(ignore_invalid=True)))
+    g = {n.date.isoformat(): n.guider for n in st.nights}
+    assert g["2026-05-05"] == "L512" and g["2026-05-04"] == "HDCZA" and g["2026-05-06"] == "HDCZA"
+    n = [x for x in st.nights if x.guider == "L512"][0]
+    assert n.guider_span[1] - n.guider_span[0] == 12 * 720  # L5's centre +- 6 h

@@ -94,3 +94,17 @@ def test_text_summary_names_the_nights():
                    "sib_bouts": 40}}
     text = tables_text({"timezone": "UTC", "tables": t})
     assert "sleep: 2 night(s) (guider: HDCZA 1, sleeplog 1), 40 inactivity bouts; nights table a.nights.csv" in text
+
+
+def test_sleep_with_activity_outcomes(run, tmp_path):
+    _, cwa, _, _ = run
+    out = tmp_path / "o.mcap"
+    assert main(["process", str(cwa), "-o", str(out), "--timezone", "UTC", "--cutpoints",
+                 "hildebrand_adults_geneactiv_wrist", "--steps", "-q"]) == 0
+    with gzip.open(tmp_path / "o.epochs.csv.gz", "rt") as f:
+        rows = list(csv.DictReader(f))
+    head = list(rows[0])
+    assert head[-2:] == ["spt", "sib"] and "band_hildebrand_adults_geneactiv_wrist" in head
+    nights = list(csv.DictReader(open(tmp_path / "o.nights.csv")))
+    spt_h = sum(r["spt"] == "1" for r in rows) * 5 / 3600
+    assert nights and spt_h == pytest.approx(sum(float(n["spt_hours"]) for n in nights), abs=1e-3)

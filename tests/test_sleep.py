@@ -200,3 +200,23 @@ def test_guider_falls_back_to_l5_when_hdcza_has_no_window():
     assert g["2026-05-05"] == "L512" and g["2026-05-04"] == "HDCZA" and g["2026-05-06"] == "HDCZA"
     n = [x for x in st.nights if x.guider == "L512"][0]
     assert n.guider_span[1] - n.guider_span[0] == 12 * 720  # L5's centre +- 6 h
+
+
+@pytest.mark.parametrize("chunk", [997, 4096])
+def test_tap_bouts_are_the_sib_runs_whatever_the_cut(chunk, tmp_path):
+    from types import SimpleNamespace
+    from stillpoint.engine.sleep.tap import SleepTap
+    s = sleep_scenario(SleepSpec("2026-03-25T10:00:00", "Europe/London", 3.0, seed=8))
+    ts = SimpleNamespace(nights_path=tmp_path / "n.csv", zone=s.zone, sleep=SleepOptions())
+    tap = SleepTap(ts, 5.0)
+    out = []
+    n = s.t_ns.shape[0]
+    for a in range(0, n, chunk):
+        out += tap.feed([(_rows(s, a, min(a + chunk, n)), ["x"], None)], False)
+    out += tap.feed([], True)
+    assert sum(len(r) for r, _, _ in out) == n and all(x[0] == "x" for _, x, _ in out)
+    sib = np.array([c == "1" for _, x, _ in out for c in x[2]])
+    d = np.diff(np.concatenate([[0], sib.astype(np.int8), [0]]))
+    runs = [(int(s.t_ns[a]), int(s.t_ns[0]) + int(b) * 5 * 10**9)
+            for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1))]
+    assert tap.bouts == runs and len(runs) > 10

@@ -17,7 +17,8 @@ with each thread's own CPU clock (``time.thread_time``), every stage of the run:
 
 With ``--repeat N`` the run with the least total CPU is kept (the machine may be shared: CPU
 time, not wall, and the minimum over repeats). ``--markdown`` prints the table as Markdown for
-docs/performance.md. Only the run's own process is measured; the first run also pays the
+docs/performance.md. ``--max-block-s`` runs with another pipeline step (the reader's read size
+scaled with it), to see which stages cost per step rather than per sample. Only the run's own process is measured; the first run also pays the
 imports.
 """
 
@@ -110,15 +111,18 @@ def install(meter: Meter) -> dict:
     return threads
 
 
-def one_run(path: Path, mode: str) -> dict:
+def one_run(path: Path, mode: str, block_s: float) -> dict:
+    import stillpoint.engine.run as run_mod
     from stillpoint.engine.run import RunSettings, process_file
     from stillpoint.engine.tables import TablesSettings, table_paths
+    if block_s != 600.0:  # the reader's read size follows the step (500 sectors = 600 s at 100 Hz)
+        run_mod.OUTPUT_BATCH_SECTORS = int(round(run_mod.OUTPUT_BATCH_SECTORS * block_s / 600.0))
     meter = Meter()
     threads = install(meter)
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "profile.mcap"
         w, c, m0 = time.perf_counter(), time.process_time(), time.thread_time()
-        process_file(path, out, RunSettings(mode=mode), tables=TablesSettings(*table_paths(out)))
+        process_file(path, out, RunSettings(mode=mode, max_block_s=block_s), tables=TablesSettings(*table_paths(out)))
         wall, cpu, main = (time.perf_counter() - w, time.process_time() - c,
                            time.thread_time() - m0)
     return {"wall": wall, "cpu": cpu, "main": main, "stages": meter.spent, "threads": threads}
@@ -130,6 +134,8 @@ def main(argv=None) -> int:
     ap.add_argument("--mode", choices=("batch", "online"), default="batch")
     ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--markdown", action="store_true")
+    ap.add_argument("--max-block-s", type=float, default=600.0,
+                    help="pipeline step in data seconds (default 600, the engine's): how much is per step")
     a = ap.parse_args(argv)
     import subprocess
     import json
@@ -138,7 +144,7 @@ def main(argv=None) -> int:
     for p in a.recordings:
         runs = []
         for _ in range(max(1, a.repeat)):  # each run in a fresh process: no patched state kept
-            r = subprocess.run([sys.executable, __file__, "--child", str(p), a.mode],
+            r = subprocess.run([sys.executable, __file__, "--child", str(p), a.mode, str(a.max_block_s)],
                                capture_output=True, text=True)
             if r.returncode != 0:
                 raise SystemExit(f"{p}: profile run failed\n{r.stderr[-2000:]}")
@@ -179,8 +185,8 @@ def main(argv=None) -> int:
 
 if __name__ == "__main__":
     import sys
-    if len(sys.argv) == 4 and sys.argv[1] == "--child":
+    if len(sys.argv) == 5 and sys.argv[1] == "--child":
         import json
-        print(json.dumps(one_run(Path(sys.argv[2]), sys.argv[3])))
+        print(json.dumps(one_run(Path(sys.argv[2]), sys.argv[3], float(sys.argv[4]))))
         raise SystemExit(0)
     raise SystemExit(main())

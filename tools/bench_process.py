@@ -117,6 +117,9 @@ def run_file(path: Path, wd: Path, args, peers_py, bt) -> dict:
             "process": sp + ["process", path, "-o", out, "--mode", "batch", "-q", "--summary", summ,
                              "--overwrite"]}
     res = best_of(cmds, args.repeat)
+    for name, r in res.items():
+        if r["rc"] != 0:
+            raise SystemExit(f"{name} failed on {path}:\n{r['err']}")
     mcap_mb = out.stat().st_size / 1e6
     s = json.loads(summ.read_text())
     more = {"process60": sp + ["process", path, "-o", out, "--mode", "batch", "-q",

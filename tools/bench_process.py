@@ -206,6 +206,9 @@ def main(argv=None) -> int:
         ratio("skdh / process (target >= 1.5x CPU, 2x wall)",
               lambda r: f"{r['skdh']['cpu'] / r['process']['cpu']:.2f}x cpu {r['skdh']['wall'] / r['process']['wall']:.2f}x wall")
         ratio("peak RSS skdh / process", lambda r: f"{r['skdh']['rss_mb'] / r['process']['rss_mb']:.1f}x")
+        # skdh skips its calibration on recordings under 72 h (CalibrateAccelerometer min_hours)
+        ratio("skdh calibrated the file", lambda r: "no: read + ENMO only" if "not-calibrated" in r["skdh"]["out"]
+              else "yes")
     if bt:
         ratio("before / now", lambda r: f"{r['before']['cpu'] / r['process']['cpu']:.2f}x cpu {r['before']['wall'] / r['process']['wall']:.2f}x wall")
     ratio("process / same-work bound",

@@ -73,7 +73,8 @@ r = CalibrateAccelerometer().predict(time=d["time"], accel=d["accel"], fs=d.get(
                                      temperature=d.get("temperature"))
 a = r.get("accel", d["accel"])
 enmo = np.maximum(np.linalg.norm(a, axis=1) - 1.0, 0.0)
-print(a.shape[0], float(enmo.mean()))
+# skdh calibrates only recordings of min_hours (72 h by default) or more: say whether it did
+print(a.shape[0], float(enmo.mean()), "calibrated" if "accel" in r else "not-calibrated")
 """
 
 

@@ -103,7 +103,8 @@ def execute(args, settings: RunSettings, out: Path) -> int:
     check_distinct_outputs(named)
     if getattr(args, "store", None) is not None:
         _store(args.store).check()
-    progress = Progress(enabled=False if args.quiet else None)
+    progress = Progress(enabled=False if args.quiet else None,
+                        label=getattr(args, "command", None) or "process")  # or replay
     resolve_static(args, settings)
     if getattr(args, "store", None) is not None and settings.mode == "online" and settings.prior is None:
         from stillpoint.drivers import open_recording
@@ -125,8 +126,10 @@ def execute(args, settings: RunSettings, out: Path) -> int:
             opts = {"follow": True, "follow_idle_s": args.follow}
         summary = process_file(args.file, out, settings, progress=progress, tables=tables,
                                source_options=opts)
-    finally:
-        progress.done()
+    except BaseException:
+        progress.done(completed=False)
+        raise
+    progress.done()
     if getattr(args, "report", False):
         from stillpoint.engine.report import write_report
         summary["outputs"].update(write_report(out, summary=summary))

@@ -121,8 +121,9 @@ def main() -> int:
     print(f"speed-up            : {base['wall'] / coh['wall']:.2f}x (goal >= 1.7x); the serial run "
           f"already keeps {base['cpu'] / base['wall']:.2f} cores busy, so {a.jobs} workers on "
           f"{os.cpu_count()} cores can gain at most "
-          f"{min(a.jobs, os.cpu_count() or 1) / (base['cpu'] / base['wall']):.2f}x over it; CPU cohort / serial "
-          f"{coh['cpu'] / base['cpu']:.2f}x")
+          f"{min(a.jobs, os.cpu_count() or 1) / max(1.0, base['cpu'] / base['wall']):.2f}x over it; CPU cohort / "
+          f"serial {coh['cpu'] / base['cpu']:.2f}x, so at most "
+          f"{min(a.jobs, os.cpu_count() or 1) * base['cpu'] / coh['cpu']:.2f}x on an idle machine")
     over = (coh["wall"] * a.jobs - job_wall) / a.files
     print(f"Dask overhead       : {over:.2f} s of worker time per file outside the jobs "
           f"((wall x {a.jobs} - {job_wall:.2f} s of jobs) / {a.files}); bare LocalCluster(2) start "

@@ -6,6 +6,8 @@ reading tables:
 * **activity per local day**: ENMO per epoch (mg) against the local clock, one row per day, with
   nonwear (grey), clipping (red), QC-flagged data (orange) and gaps (hatched) shaded, the day's
   wear hours and valid-day mark at the right;
+* with activity outcomes in the day table (``engine.outcomes``), each day's steps per Verisense
+  parameter set and MVPA minutes of the cut-point set under its wear hours;
 * **temperature** over the recording (degC, local time);
 * **calibration**: the nonmovement windows' residuals ``|a| - 1`` (mg) before and after the
   applied estimate as histograms (windows beyond the axis range are counted, never dropped
@@ -188,6 +190,20 @@ def _shade(ax, hour, mask, color, label, hatch=None, step_h=5 / 3600):
         label = None
 
 
+def _outcome_text(day: dict) -> str:
+    """MVPA minutes and steps of a day row (the Verisense sets' counts joined by `` / ``, in the
+    table's order), one line each; empty without those columns."""
+    out = []
+    mvpa = [v for k, v in day.items() if k.startswith("min_mvpa_") and v not in (None, "")]
+    if mvpa:
+        out.append(f"MVPA {float(mvpa[0]):.0f} min")
+    steps = [f"{int(float(v)):,}" for k, v in day.items()
+             if k.startswith("steps_verisense_") and v not in (None, "")]
+    if steps:
+        out.append("steps " + " / ".join(steps))
+    return "".join("\n" + x for x in out)
+
+
 def _clock_label(hour: float, _pos=None) -> str:
     """Hours since local midnight as a clock time (``13:30``; 24 h as ``24:00``)."""
     m = int(round(hour * 60))
@@ -258,8 +274,9 @@ def _draw(plt, ep: dict, days: list[dict], windows, est, rec: dict, title: str, 
             if float(d.get("day_hours") or 24) != 24:
                 mark += f"\n({float(d['day_hours']):g}-h day)"
             wh = float(d["wear_hours"])
-            ax.text(1.01, 0.5, (f"{wh:.1f} h" if wh >= 1 else f"{wh * 60:.1f} min") + f" wear\n{mark}", transform=ax.transAxes,
-                    fontsize=6.5, va="center")
+            more = _outcome_text(d)  # smaller type: the lines fit the row of a 14-day page
+            ax.text(1.01, 0.5, (f"{wh:.1f} h" if wh >= 1 else f"{wh * 60:.1f} min") + f" wear\n{mark}"
+                    + more, transform=ax.transAxes, fontsize=5.5 if more else 6.5, va="center")
         if i == 0:
             ax.set_title(f"ENMO per epoch (mg) against the {clock}, one row per "
                          f"{'device-clock' if device_clock else 'local'} day", fontsize=8, pad=14)
@@ -388,6 +405,9 @@ def _qc_text(rec: dict, days: list[dict]) -> str:
     if reason:
         import textwrap
         lines += ["  " + x for x in textwrap.wrap(reason, 104)]  # in full, never cut
+    sets = [k[len("steps_verisense_"):] for k in total if k.startswith("steps_verisense_")]
+    if sets:
+        lines.append("steps per day (Verisense algorithm): " + " / ".join(sets) + " parameters")
     return "\n".join(lines)
 
 

@@ -237,6 +237,13 @@ def table_options(settings: dict) -> dict:
     out = {k: t[k] for k in TABLE_OPTIONS if t.get(k) is not None}
     if "enmo_bands_mg" in out:
         out["enmo_bands_mg"] = tuple(float(x) for x in out["enmo_bands_mg"])
+    if t.get("outcomes"):  # --cutpoints / --steps (engine.outcomes.daily.OutcomeSettings)
+        from stillpoint.engine.outcomes.daily import OutcomeSettings
+        o = t["outcomes"]
+        out["outcomes"] = OutcomeSettings(
+            cutpoints=o.get("cutpoints") or "", bout_minutes=tuple(o.get("bout_minutes") or ()),
+            bout_criterion=float(o.get("bout_criterion", 0.8)), steps=tuple(o.get("steps") or ()),
+            impute=bool(o.get("impute", False)))
     return out
 
 

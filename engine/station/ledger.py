@@ -3,7 +3,9 @@
 It records the devices seen (by id and type: an AX3 and an AX6 may share an id), every download
 (device type and id, session, bytes, SHA-256, verified, times, clock offset, host time zone,
 station id, battery, bad sectors), every clear and configuration (with the device type), and
-every state change of a device (``events``, with its USB serial). WAL journal, one transaction
+every state change of a device (``events``, with its USB serial), every action asked for from the
+dashboard (``actions``: retry, verify, clear, configure; who asked, from which address, with
+what result). WAL journal, one transaction
 per state change, so a crash at any moment leaves it consistent. The clear rule
 (``clearing``) asks it for a verified download of the exact device type, id and session.
 
@@ -71,6 +73,9 @@ CREATE TABLE IF NOT EXISTS configurations (
 CREATE TABLE IF NOT EXISTS events (
     id INTEGER PRIMARY KEY AUTOINCREMENT, time REAL, device_id INTEGER, serial TEXT,
     state TEXT, reason TEXT);
+CREATE TABLE IF NOT EXISTS actions (
+    id INTEGER PRIMARY KEY AUTOINCREMENT, time REAL, device_id INTEGER, device_type TEXT,
+    action TEXT, who TEXT, origin TEXT, result TEXT, reason TEXT, detail TEXT);
 """
 
 
@@ -295,6 +300,18 @@ class Ledger:
                  (device_id, session_id, time.time(), json.dumps(settings, default=str), result,
                   reason, device_type))
 
+    def action_asked(self, device_id: int, device_type: str, action: str, *, who: str,
+                     origin: str, detail: Optional[dict] = None) -> int:
+        """An action asked for from the dashboard (``result`` 'asked' until ``action_result``)."""
+        return self._tx("INSERT INTO actions(time, device_id, device_type, action, who, origin, "
+                        "result, detail) VALUES (?,?,?,?,?,?,?,?)",
+                        (time.time(), device_id, device_type, action, who, origin, "asked",
+                         json.dumps(detail, default=str) if detail else None))
+
+    def action_result(self, action_id: int, result: str, reason: Optional[str] = None) -> None:
+        """``result``: 'started' (a flow runs it), 'ok', 'refused' or 'error' (with the reason)."""
+        self._tx("UPDATE actions SET result=?, reason=? WHERE id=?", (result, reason, action_id))
+
     # ------------------------------------------------------------------ reads
     def _rec(self, row) -> DownloadRecord:
         return DownloadRecord(row[0], row[1], row[2], row[3], row[4], row[5], bool(row[6]),
@@ -362,6 +379,17 @@ class Ledger:
         return self._q("SELECT device_id, session_id, download_id, sha256, result, reason, erase, "
                        f"readback FROM clears WHERE (? IS NULL OR device_id=?) AND {_OF_TYPE} "
                        "ORDER BY id", (device_id, device_id, device_type, device_type))
+
+    def configuration_of(self, device_id: int, session_id: int,
+                         device_type: Optional[str] = None) -> Optional[dict]:
+        """The settings of the latest successful configuration of this device and session."""
+        rows = self._q("SELECT settings FROM configurations WHERE device_id=? AND session_id=? "
+                       f"AND result='ok' AND {_OF_TYPE} ORDER BY id DESC LIMIT 1",
+                       (device_id, session_id, device_type, device_type))
+        try:
+            return json.loads(rows[0][0]) if rows and rows[0][0] else None
+        except ValueError:
+            return None
 
     def events(self, device_id: Optional[int] = None) -> list[tuple]:
         if device_id is None:

@@ -80,6 +80,8 @@ def add_arguments(parser) -> None:
                              "(OUT.csv) made from the log")
     from ._tableopts import add_table_arguments
     add_table_arguments(parser, with_switch=False)
+    from ._outcomeopts import add_outcome_arguments
+    add_outcome_arguments(parser)
 
 
 # ---------------------------------------------------------------------------- per-sample columns
@@ -435,6 +437,10 @@ def run(args) -> int:
     ts = table_settings(args, Path(args.output))
     opts = {"nonwear_version": ts.nonwear_version, "valid_day_hours": ts.valid_day_hours,
             "enmo_bands_mg": ts.enmo_bands_mg, "mvpa_bout_s": ts.mvpa_bout_s}
+    from ._outcomeopts import outcome_settings
+    outcomes = outcome_settings(args)
+    if outcomes.active:
+        opts["outcomes"] = outcomes
     from stillpoint.engine.progress import Progress
     with Progress("export", quiet=args.quiet) as bar:
         rep = export_recording(args.file, args.output, time_format=args.time,

@@ -141,6 +141,16 @@ def test_day_columns_are_documented():
     assert _documented("day-table") == day_columns()
 
 
+def test_night_columns_are_documented():
+    from stillpoint.engine.sleep import table
+    text = (DOCS / "columns.md").read_text(encoding="utf-8")
+    section = text[text.index("{#nights-table}"):].split("\n## ", 1)[0]
+    tables = section.split("| column | unit | meaning |")[1:]
+    names = [re.findall(r"^\| `([^`]+)`", t, flags=re.M) for t in tables]
+    assert names[0] == table.NIGHT_COLUMNS
+    assert names[1] == table.DAY_NIGHT_COLUMNS
+
+
 def test_cohort_table_columns_are_documented():
     c = importlib.import_module("stillpoint.engine.cohort.collate")
     assert _documented("cohort-summary") == _expand(c.SUMMARY_FIELDS)

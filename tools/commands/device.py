@@ -32,6 +32,8 @@ def add_arguments(p) -> None:
     s.add_argument("-o", "--output", type=Path, required=True, help="output folder (holds the ledger)")
     s.add_argument("--stall-s", type=SECONDS_DAY, default=30.0,
                    help="stop a download without progress this long")
+    from .station import add_store_arguments
+    add_store_arguments(s)
     s = dev("verify", "re-read the device (bypassing the cache) and the raw copy on disk and compare "
                       "both with the ledger's verified download")
     s.add_argument("-o", "--output", type=Path, required=True, help="the station output folder")
@@ -128,8 +130,8 @@ def run(args) -> int:
             ledger = None
             session_now = ident.session_id
             if args.output:
-                from stillpoint.engine.station.ledger import Ledger
-                ledger = Ledger(args.output)
+                from stillpoint.engine.station.ledger import Ledger, check_station_folder
+                ledger = Ledger(check_station_folder(args.output))
                 from stillpoint.engine.station.clearing import session_before_clear
                 session_now = session_before_clear(ledger, att.device_id, session_now,
                                                    att.device_type)
@@ -156,10 +158,9 @@ def _volume_waiter(att):
 
 
 def _with_ledger(args, att) -> int:
-    from stillpoint.drivers.outputs import check_output_folder
     from stillpoint.engine.station.flow import DeviceFlow, StationOptions
-    from stillpoint.engine.station.ledger import Ledger, acquire_station_lock
-    out = check_output_folder(args.output)
+    from stillpoint.engine.station.ledger import Ledger, acquire_station_lock, check_station_folder
+    out = check_station_folder(args.output)
     fd = acquire_station_lock(out)
     ledger = Ledger(out)
     from stillpoint.engine.station.completion import reconcile
@@ -167,7 +168,8 @@ def _with_ledger(args, att) -> int:
         print(f"ledger: {line}", file=sys.stderr)
     # the device's flow: a download runs it; verify and clear use its bounded re-read and its
     # wait for the drive
-    flow = DeviceFlow(att, StationOptions(str(out), stall_s=getattr(args, "stall_s", 30.0)), ledger,
+    flow = DeviceFlow(att, StationOptions(str(out), stall_s=getattr(args, "stall_s", 30.0),
+                                          store=getattr(args, "store", None)), ledger,
                       on_change=_progress_printer())
     try:
         if args.action == "download":
@@ -184,6 +186,8 @@ def _with_ledger(args, att) -> int:
             r = flow.result
             _say(f"device {att.device_id}: {flow.state}: {flow.reason or flow.info}"
                  + (f" -> {r.cwa_path}, {r.mcap_path}" if r is not None else ""))
+            if flow.outputs:
+                _say(f"device {att.device_id}: outputs: {flow.outputs}")
             return 0
         if args.action == "verify":
             return _verify(att, ledger, flow.reread)

@@ -29,6 +29,9 @@ from typing import Optional
 
 TABLES = "tables"
 REPORT = "report"
+# matplotlib is not thread-safe: reports made on threads of one process (downloads run inline)
+# are drawn one at a time (in worker processes, the default, each has its own)
+_PLOT_LOCK = threading.Lock()
 
 
 def _paths(mcap: Path) -> dict:
@@ -94,7 +97,8 @@ def make_products(job: dict, progress=None, cancel=None) -> dict:
         else:
             try:
                 from stillpoint.engine.report import write_report
-                write_report(mcap)
+                with _PLOT_LOCK:
+                    write_report(mcap)
                 out.append({"product": REPORT, "path": str(png), "result": "written",
                             "reason": None})
             except Exception as e:  # noqa: BLE001 - recorded with its reason, never raised

@@ -170,3 +170,25 @@ def test_without_a_store_the_ledger_says_so(emu, tmp_path):
         assert "no calibration store" in lg.prior_of(dl.id)["detail"]
     finally:
         lg.close()
+
+
+def test_a_verified_downloads_refit_goes_to_the_store_for_the_next_download(tmp_path):
+    """The final estimate of a download (a refit was accepted) is added to the store, with the
+    raw copy as its source; a failed fit is not."""
+    from types import SimpleNamespace
+    from stillpoint.engine.station.flow import DeviceFlow
+    att = SimpleNamespace(device_type="AX3", device_id=10001, serial="CWA17_10001")
+    flow = DeviceFlow(att, StationOptions(str(tmp_path), store=str(tmp_path / "store")), None)
+    fit = CalibrationEstimate(offset=[0.01, 0, 0], status="ok", method="autocal-c1",
+                              fit_start_ns=0, fit_end_ns=int(12 * 3600e9), error_after_mg=3.0)
+    row = flow._store_final({"calibration": fit.to_dict()}, str(tmp_path / "AX3-10001_1.cwa"))
+    assert row["result"] == "written"
+    store = CalibrationStore(tmp_path / "store")
+    (rec,) = store.records("AX3-10001")
+    assert rec["source"].endswith("AX3-10001_1.cwa")
+    assert store.prior_for("AX3-10001").offset.tolist() == [0.01, 0, 0]
+    failed = CalibrationEstimate.identity("online: no estimate accepted yet")
+    row = flow._store_final({"calibration": failed.to_dict()}, "x.cwa")
+    assert row["result"] == "skipped" and len(store.records("AX3-10001")) == 1
+    flow.opts.store = None
+    assert flow._store_final({"calibration": fit.to_dict()}, "x.cwa") is None

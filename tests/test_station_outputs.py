@@ -192,3 +192,39 @@ def test_a_verified_downloads_refit_goes_to_the_store_for_the_next_download(tmp_
     assert row["result"] == "skipped" and len(store.records("AX3-10001")) == 1
     flow.opts.store = None
     assert flow._store_final({"calibration": fit.to_dict()}, "x.cwa") is None
+
+
+def test_products_stopped_with_the_station_are_not_recorded_and_made_next_time(emu, tmp_path,
+                                                                                monkeypatch):
+    import threading
+    import stillpoint.engine.tables as tables
+    real = tables.tables_from_mcap
+    started, release = threading.Event(), threading.Event()
+
+    def slow(*a, **k):
+        started.set()
+        release.wait(20)
+        return real(*a, **k)
+    monkeypatch.setattr(tables, "tables_from_mcap", slow)
+    emu(10001)
+    out = tmp_path / "out"
+    out.mkdir()
+    import io
+    stop = threading.Event()
+    with Station(StationOptions(str(out), inline=True), EmulatedBackend(), tty=False,
+                 out=io.StringIO(), poll_s=0.05) as st:
+        th = threading.Thread(target=st.run, kwargs={"stop": stop})
+        th.start()
+        assert started.wait(30)
+        stop.set()  # Ctrl-C while the tables are being made
+        th.join(30)
+        (f,) = st.flows.values()
+        f.finished.wait(10)
+        assert f.state == "verified" and f.outputs is None
+        release.set()
+        f.products_worker._thread.join(30)  # a thread cannot be killed as a worker process is
+    assert _products(out) == {}  # nothing recorded as failed
+    monkeypatch.setattr(tables, "tables_from_mcap", real)
+    assert _run(out) == 0 and "already downloaded" in _run.text
+    got = _products(out)
+    assert got["tables"][0] == "kept" and got["report"][0] == "written"

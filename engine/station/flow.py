@@ -165,11 +165,11 @@ class DeviceFlow:
         w = self.products_worker
         if w is None:
             return
-        while not w.finished:
-            if self.cancel.is_set():
-                w.cancel()
-                return  # not recorded: made when the device comes back
+        while not w.finished and not self.cancel.is_set():
             w.poll(0.2)
+        if self.cancel.is_set():  # stopped: not recorded, made when the device comes back
+            w.cancel()
+            return
         download_id, mcap_path = self._products_for
         r = w.result or {}
         products = r.get("products") or [

@@ -83,6 +83,8 @@ def make_products(job: dict, progress=None, cancel=None) -> dict:
             except Exception as e:  # noqa: BLE001 - recorded with its reason, never raised
                 out.append({"product": TABLES, "path": str(ep), "result": "failed",
                             "reason": _reason(e)})
+        if cancel is not None and cancel.is_set():  # stopped (a worker thread): no report
+            return {"products": out, "stopped": True}
         png, page = paths[REPORT]
         from stillpoint.engine.report import ReportUnavailableError, require_matplotlib
         try:

@@ -28,6 +28,24 @@ def open_bytes(path) -> BinaryIO:
     return open(path, "rb", buffering=0)
 
 
+def consumed_fraction(f) -> Optional[float]:
+    """How far a stream from ``open_bytes`` (or any opened file) has read its file: the byte
+    position of the file under it (a gzip's compressed bytes) over the file's size, in [0, 1];
+    None when it cannot tell (not a file); a file still growing in follow mode is read
+    against its current size. A closed stream counts as read to the end (readers close
+    their file when they finish)."""
+    if f is None:
+        return None
+    if getattr(f, "closed", False):
+        return 1.0
+    raw = getattr(f, "_f", f)
+    try:
+        size = os.fstat(raw.fileno()).st_size
+        return min(1.0, raw.tell() / size) if size > 0 else None
+    except (AttributeError, OSError, ValueError):
+        return None
+
+
 def stream_damage(f) -> Optional[str]:
     """Why a stream from ``open_bytes`` ended early (a damaged or truncated gzip), else None."""
     return getattr(f, "damage", None) or getattr(f, "idle_stop", None)

@@ -60,7 +60,7 @@ import numpy as np
 
 from ..engine.blocks import Block, DeviceInfo, QCEvent, QCReport
 from . import constants as C
-from .byteio import (FollowingReader, check_recording_path, is_gzip, open_bytes, read_exact,
+from .byteio import (FollowingReader, check_recording_path, consumed_fraction, is_gzip, open_bytes, read_exact,
                      stream_damage)
 from .cwa_decode import (EMPTY, ERASED, REASONS, SampleClock, classify, decode_samples,
                          interpolate_times, max_samples, sector_anchors)
@@ -275,6 +275,14 @@ class CwaReader:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+    def progress(self) -> Optional[float]:
+        """Share of the file read so far (None before the first read, 1 once read and closed):
+        for progress bars."""
+        stream = getattr(self, "_stream", None)
+        if stream is None:
+            return 1.0 if getattr(self, "_started", False) else None
+        return consumed_fraction(stream)
 
     def __iter__(self) -> Iterator[Block]:
         if self._started:

@@ -43,7 +43,7 @@ import numpy as np
 
 from ..engine.blocks import (PER_SAMPLE_BUTTON, PER_SAMPLE_LIGHT_RAW, Block, DeviceInfo, QCEvent,
                              QCReport)
-from .byteio import (FollowingReader, check_recording_path, is_gzip, open_bytes, read_exact,
+from .byteio import (FollowingReader, check_recording_path, consumed_fraction, is_gzip, open_bytes, read_exact,
                      stream_damage)
 from .constants import (GNA_GAIN_MAX, GNA_HEX_PER_SAMPLE, GNA_LIGHT_CAL_RANGE, GNA_LIGHT_SHIFT,
                         GNA_OFFSET_MAX, GNA_PAGE_MARKER, GNA_RATE_85_7, GNA_SAMPLES_PER_PAGE,
@@ -275,6 +275,10 @@ class GeneactivReader:
             self._f.close()
         except Exception:  # pragma: no cover - closing must never mask the real error
             pass
+
+    def progress(self) -> Optional[float]:
+        """Share of the file read so far: for progress bars."""
+        return consumed_fraction(self._f)
 
     def __iter__(self) -> Iterator[Block]:
         if self._iterated:

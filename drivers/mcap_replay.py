@@ -229,6 +229,16 @@ class McapRawSource:
     def close(self) -> None:
         self._f.close()
 
+    def progress(self) -> Optional[float]:
+        """Share of the log's samples handed out so far (the run summary's sample count; None
+        without one): for progress bars. The messages are read in time order, not in file
+        order, so the file position would not tell."""
+        try:
+            total = int((self.metadata.get("summary") or {}).get("samples") or 0)
+        except (TypeError, ValueError):
+            return None
+        return min(1.0, getattr(self, "_handed", 0) / total) if total > 0 else None
+
     def __iter__(self) -> Iterator[Block]:
         pending_raw: list[tuple] = []
         pending_gyro: list[tuple] = []
@@ -247,6 +257,7 @@ class McapRawSource:
             nonlocal n_group
             b = group[0] if len(group) == 1 else Block.concat(group)
             group.clear()
+            self._handed = getattr(self, "_handed", 0) + n_group
             n_group = 0
             return b
 

@@ -6,6 +6,8 @@ reading tables:
 * **activity per local day**: ENMO per epoch (mg) against the local clock, one row per day, with
   nonwear (grey), clipping (red), QC-flagged data (orange) and gaps (hatched) shaded, the day's
   wear hours and valid-day mark at the right;
+* with activity outcomes in the day table (``engine.outcomes``), each day's steps per Verisense
+  parameter set and MVPA minutes of the cut-point set under its wear hours;
 * **temperature** over the recording (degC, local time);
 * **calibration**: the nonmovement windows' residuals ``|a| - 1`` (mg) before and after the
   applied estimate as histograms (windows beyond the axis range are counted, never dropped
@@ -124,7 +126,7 @@ def _read_days(path) -> list[dict]:
         return list(csv.DictReader(f))
 
 
-def _sphere(mcap, est_json: Optional[dict], settings: dict):
+def _sphere(mcap, est_json: Optional[dict], settings: dict, progress=None):
     """Nonmovement window means (raw g), temperatures, and the estimate to apply."""
     from stillpoint.drivers.mcap_replay import McapRawSource
     from .calibration.estimate import CalibrationEstimate
@@ -143,6 +145,8 @@ def _sphere(mcap, est_json: Optional[dict], settings: dict):
         from .tables.from_mcap import _coalesced
         for b in _coalesced(src):  # 10-min blocks instead of the log's 10-s messages
             nm.push(win.push(b))
+            if progress is not None and callable(getattr(src, "progress", None)):
+                progress.update(fraction=src.progress())
         nm.push(win.flush())
     finally:
         src.close()
@@ -186,13 +190,46 @@ def _shade(ax, hour, mask, color, label, hatch=None, step_h=5 / 3600):
         label = None
 
 
+def _outcome_text(day: dict) -> str:
+    """MVPA minutes and steps of a day row (the Verisense sets' counts joined by `` / ``, in the
+    table's order), one line each; empty without those columns."""
+    out = []
+    mvpa = [v for k, v in day.items() if k.startswith("min_mvpa_") and v not in (None, "")]
+    if mvpa:
+        out.append(f"MVPA {float(mvpa[0]):.0f} min")
+    steps = [f"{int(float(v)):,}" for k, v in day.items()
+             if k.startswith("steps_verisense_") and v not in (None, "")]
+    if steps:
+        out.append("steps " + " / ".join(steps))
+    return "".join("\n" + x for x in out)
+
+
+def _clock_label(hour: float, _pos=None) -> str:
+    """Hours since local midnight as a clock time (``13:30``; 24 h as ``24:00``)."""
+    m = int(round(hour * 60))
+    return f"{m // 60:02d}:{m % 60:02d}"
+
+
+def _clock_ticks(h0: float, h1: float) -> np.ndarray:
+    """Clock-time ticks over a span of hours: every 3 h for a day, finer for a short span
+    (15 min, 30 min, 1 h or 2 h steps), about 4-10 ticks."""
+    span = h1 - h0
+    step = next((s for s in (0.25, 0.5, 1.0, 2.0) if span / s <= 10), 3.0)
+    return np.arange(np.ceil(h0 / step) * step, h1 + 1e-9, step)
+
+
+def _qc_lines(rec: dict, days: list[dict]) -> int:
+    return _qc_text(rec, days).count("\n") + 1
+
+
 def _draw(plt, ep: dict, days: list[dict], windows, est, rec: dict, title: str, epoch_s: float):
     fig = plt.figure(figsize=(8.27, 11.69), dpi=110)
     dates = ep["dates"]
     shown = dates[:DAYS_SHOWN]
     n_day = max(len(shown), 1)
     day_h = 1.0 if n_day > 4 else 1.4
-    gs = fig.add_gridspec(n_day + 6, 4, height_ratios=[day_h] * n_day + [0.3, 1.3, 0.3, 1.8, 0.25, 1.2],
+    qc_h = max(1.2, 0.16 * _qc_lines(rec, days))  # the QC box grows with its (wrapped) lines
+    gs = fig.add_gridspec(n_day + 6, 4, height_ratios=[day_h] * n_day + [0.55, 1.3, 0.35, 1.8, 0.3, qc_h],
                           hspace=0.25, wspace=0.45, left=0.08, right=0.88, top=0.91, bottom=0.03)
     fig.suptitle(title, fontsize=9.5)
     step_h = epoch_s / 3600
@@ -222,9 +259,11 @@ def _draw(plt, ep: dict, days: list[dict], windows, est, rec: dict, title: str, 
         ax.set_ylim(0, ymax * 1.05)
         if short:  # a recording of a few hours: show its span, not the whole day
             ax.set_xlim(h0, h1)
+            ax.set_xticks(_clock_ticks(h0, h1))
         else:
             ax.set_xlim(0, 24)
             ax.set_xticks(range(0, 25, 3))
+        ax.xaxis.set_major_formatter(_clock_label)
         ax.tick_params(labelsize=6.5, length=2)
         if i < len(shown) - 1:
             ax.set_xticklabels([])
@@ -235,15 +274,16 @@ def _draw(plt, ep: dict, days: list[dict], windows, est, rec: dict, title: str, 
             if float(d.get("day_hours") or 24) != 24:
                 mark += f"\n({float(d['day_hours']):g}-h day)"
             wh = float(d["wear_hours"])
-            ax.text(1.01, 0.5, (f"{wh:.1f} h" if wh >= 1 else f"{wh * 60:.1f} min") + f" wear\n{mark}", transform=ax.transAxes,
-                    fontsize=6.5, va="center")
+            more = _outcome_text(d)  # smaller type: the lines fit the row of a 14-day page
+            ax.text(1.01, 0.5, (f"{wh:.1f} h" if wh >= 1 else f"{wh * 60:.1f} min") + f" wear\n{mark}"
+                    + more, transform=ax.transAxes, fontsize=5.5 if more else 6.5, va="center")
         if i == 0:
-            ax.set_title(f"ENMO per epoch (mg) against the {clock} (h), one row per "
+            ax.set_title(f"ENMO per epoch (mg) against the {clock}, one row per "
                          f"{'device-clock' if device_clock else 'local'} day", fontsize=8, pad=14)
     if len(dates) > DAYS_SHOWN:
         fig.text(0.5, 0.945, f"first {DAYS_SHOWN} of {len(dates)} days shown", ha="center", fontsize=7)
     if shown:
-        fig.axes[len(shown) - 1].set_xlabel(f"{clock} (h)", fontsize=7, labelpad=1)
+        fig.axes[len(shown) - 1].set_xlabel(clock, fontsize=7, labelpad=1)
     # legend entries for every shading kind, present or not
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
@@ -305,14 +345,17 @@ def _calibration_panels(fig, spec, windows, est):
             continue
         off = int((np.abs(vals) > r).sum())
         ax.hist(np.clip(vals, -r, r), bins=bins, color=color, alpha=0.6,
-                label=f"{lab} (RMS {np.sqrt(np.mean(vals ** 2)):.1f} mg)" +
-                      (f", {off} beyond +-{r:.0f} in end bins" if off else ""))
+                label=f"{lab}\nRMS {np.sqrt(np.mean(vals ** 2)):.1f} mg" +
+                      (f", {off} in\nend bins (beyond +-{r:.0f})" if off else ""))
     ax.set_xlabel("|a| - 1 (mg)", fontsize=7)
     ax.set_ylabel("windows", fontsize=7)
     ax.set_title(f"{len(before):,} nonmovement windows", fontsize=7.5)
     ax.tick_params(labelsize=6.5)
-    ax.set_ylim(top=ax.get_ylim()[1] * 1.45)  # room for the legend above the bars
-    ax.legend(fontsize=5.5, loc="upper left", frameon=False)
+    ax.set_ylim(top=ax.get_ylim()[1] * 1.9)  # room for the legend above the bars
+    from matplotlib.ticker import MaxNLocator
+    ax.yaxis.set_major_locator(MaxNLocator(integer=True))  # window counts
+    ax.legend(fontsize=5, loc="upper left", frameon=False, handlelength=1.0, handletextpad=0.4,
+              borderaxespad=0.2, labelspacing=0.3)
     lim = max(r, float(np.percentile(np.abs(before), 99)) * 1.1)
     for j, name in enumerate("xyz"):
         a = fig.add_subplot(sub[0, j + 1])
@@ -361,13 +404,19 @@ def _qc_text(rec: dict, days: list[dict]) -> str:
     reason = str(cal.get("reason", ""))
     if reason:
         import textwrap
-        lines += ["  " + x for x in textwrap.wrap(reason, 100)[:3]]
+        lines += ["  " + x for x in textwrap.wrap(reason, 104)]  # in full, never cut
+    sets = [k[len("steps_verisense_"):] for k in total if k.startswith("steps_verisense_")]
+    if sets:
+        lines.append("steps per day (Verisense algorithm): " + " / ".join(sets) + " parameters")
     return "\n".join(lines)
 
 
 # ---------------------------------------------------------------------------- the job
-def write_report(mcap, *, summary: Optional[dict] = None, out_png=None, out_html=None) -> dict:
-    """Write the PNG page and the HTML page for a processed recording's MCAP."""
+def write_report(mcap, *, summary: Optional[dict] = None, out_png=None, out_html=None,
+                 progress=None) -> dict:
+    """Write the PNG page and the HTML page for a processed recording's MCAP. ``progress``: an
+    ``engine.progress.Progress`` told of the three steps (tables, the calibration sphere read
+    from the raw stream, drawing)."""
     plt = require_matplotlib()
     mcap = Path(mcap)
     png, page = report_paths(mcap)
@@ -381,6 +430,9 @@ def write_report(mcap, *, summary: Optional[dict] = None, out_png=None, out_html
         rec["summary"] = summary
     settings = rec.get("settings") or {}
     with tempfile.TemporaryDirectory(prefix=".report-", dir=str(png.parent)) as tmp:
+        if progress is not None:
+            progress.phase(0, 3)
+            progress.update(fraction=0.0, detail="tables")
         if not (ep_path.is_file() and days_path.is_file()):
             ep_path = Path(tmp) / "t.epochs.csv.gz"
             days_path = Path(tmp) / "t.days.csv"
@@ -388,7 +440,13 @@ def write_report(mcap, *, summary: Optional[dict] = None, out_png=None, out_html
         ep = _read_epochs(ep_path)
         days = _read_days(days_path)
     est_json = (rec.get("summary") or {}).get("calibration") or rec.get("calibration")
-    windows, est = _sphere(mcap, est_json, settings)
+    if progress is not None:
+        progress.phase(1, 3)
+        progress.update(fraction=0.0, detail="nonmovement windows")
+    windows, est = _sphere(mcap, est_json, settings, progress)
+    if progress is not None:
+        progress.phase(2, 3)
+        progress.update(fraction=0.0, detail="drawing")
     dev = (rec.get("summary") or {}).get("device") or {}
     title = (f"{mcap.name}: {dev.get('type', '')} {dev.get('id', '')}, "
              f"{ep['dates'][0] if ep['dates'] else '?'} to {ep['dates'][-1] if ep['dates'] else '?'}")

@@ -53,3 +53,11 @@ def test_python_m_stillpoint_is_the_command():
                          capture_output=True, text=True, check=True).stdout
     import stillpoint
     assert out.strip() == f"stillpoint {stillpoint.__version__}"
+
+
+def test_cutpoint_registry_is_package_data():
+    import tomllib
+    conf = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
+    assert "cutpoints.csv" in conf["package-data"]["stillpoint.engine.outcomes"]
+    from stillpoint.engine.outcomes.cutpoints import REGISTRY, registry
+    assert REGISTRY.is_file() and len(registry()) >= 13

@@ -63,3 +63,35 @@ def test_a_folder_as_the_input_is_one_line(tmp_path, capsys, command):
     assert main(args) == 2
     _one_line(capsys, str(folder), "directory")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["looks_like.cwa"]
+
+
+@pytest.mark.parametrize("argv, existing", [
+    (["calibrate", str(GOOD), "--plot", "{d}/e.png"], "e.png"),
+    (["calibration", "--store-dir", "{d}/store", "export", "-o", "{d}/e.json"], "e.json"),
+    (["align", str(GOOD), str(GOOD), "-o", "{d}/e.mcap"], "e.mcap"),
+    (["align", str(GOOD), str(GOOD), "--plot", "{d}/e.png"], "e.png"),
+    (["movements", str(GOOD), "-o", "{d}/e.csv"], "e.csv"),
+    (["static-calibrate", str(GOOD), "-o", "{d}/e.json"], "e.json"),
+    (["discrepancy", str(GOOD), "-o", "{d}/rep"], "rep/report.json"),
+])
+def test_every_writing_command_keeps_an_existing_output(tmp_path, capsys, argv, existing):
+    target = tmp_path / existing
+    target.parent.mkdir(exist_ok=True)
+    target.write_text("mine\n")
+    argv = [a.format(d=tmp_path) for a in argv]
+    assert main(argv) == 2
+    _one_line(capsys, existing, "already exists", "--overwrite")
+    assert target.read_text() == "mine\n"
+
+
+def test_calibration_export_and_calibrate_plot_replace_with_overwrite(tmp_path, capsys):
+    pytest.importorskip("matplotlib", reason="calibrate --plot draws with matplotlib")
+    out = tmp_path / "e.json"
+    out.write_text("mine\n")
+    assert main(["calibration", "--store-dir", str(tmp_path / "store"), "export", "-o", str(out),
+                 "--overwrite"]) == 0
+    assert out.read_text() != "mine\n"
+    png = tmp_path / "e.png"
+    png.write_text("mine\n")
+    main(["calibrate", str(GOOD), "--plot", str(png), "--overwrite"])
+    assert png.read_bytes()[:4] == b"\x89PNG"

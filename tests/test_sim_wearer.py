@@ -150,3 +150,72 @@ def test_worn_micromotion_at_rest():
     f, _ = on.render(t)
     assert np.allclose(np.linalg.norm(f, axis=1), 1.0, atol=1e-6)  # off the body: still
     assert on.micromotion(i) is None
+
+
+def _wrist_epoch_enmo_mg(sch, seed, days, hz=25.0):
+    """5 s epoch ENMO (mg) of the rendered wrist and the activity at each epoch's start."""
+    sm = SiteModel(sch, "wrist", seed)
+    ep = int(5 * hz)
+    out, act = [], []
+    n = int(days * 86400 * hz)
+    for i0 in range(0, n, ep * 720):  # an hour at a time
+        t = np.arange(i0, min(n, i0 + ep * 720)) / hz
+        f = sm.render(t)
+        f = f[0] if isinstance(f, tuple) else f
+        e = np.maximum(np.linalg.norm(f, axis=1) - 1.0, 0.0)
+        k = e.shape[0] // ep
+        out.append(e[:k * ep].reshape(k, ep).mean(axis=1) * 1000.0)
+        act.append(sch.activity[sch.segment_at(t[:k * ep:ep])])
+    return np.concatenate(out), np.concatenate(act)
+
+
+def test_default_wearer_spends_free_living_time_in_every_intensity_band():
+    # Free-living wrist data (engine/sim/wearer.py REALISM_SOURCES): mean ENMO ~25-35 mg, light
+    # activity (40-100 mg) about as common as MVPA (100-400 mg); the former wearer spent ~1 min a
+    # day at 40-100 mg.
+    days = 3
+    sch = make_schedule(WearerParams(), days * 86400.0, seed=3)
+    e, act = _wrist_epoch_enmo_mg(sch, 3, days)
+    worn = act > 1
+    per_day = lambda m: m.sum() * 5 / 60 / days  # noqa: E731
+    light = per_day(worn & (e >= 40) & (e < 100))
+    mvpa = per_day(worn & (e >= 100) & (e < 400))
+    assert 60 < light < 300, light
+    assert 40 < mvpa < 180, mvpa
+    assert light > 0.5 * mvpa
+    assert 20 < e[worn].mean() < 50
+
+
+def test_default_wearer_takes_the_device_off_and_the_truth_says_how_long():
+    from stillpoint.engine.sim.wearer import nonwear_summary
+    days = 14
+    sch = make_schedule(WearerParams(), days * 86400.0, seed=3)
+    nw = nonwear_summary(sch)
+    eps = nw["episodes"]
+    # showers every day, and off-wrist episodes of 1-3 h in the day (on a table: flat, still)
+    long_eps = [x for x in eps if x["end_s"] - x["start_s"] >= 3600]
+    assert len(long_eps) >= 1 and nw["hours_in_episodes_ge_60_min"] >= 1.0
+    assert abs(nw["hours"] - sum(x["end_s"] - x["start_s"] for x in eps) / 3600) < 1e-3
+    # no nonwear during sleep; a week holds 1-20 h of it (Doherty 2017 Table 1: median ~1-3 h,
+    # 7-18 h at the lower quartile of wear time)
+    sleep = sch.activity == ACTIVITIES.index("sleep")
+    for x in eps:
+        assert not ((sch.start < x["end_s"]) & (sch.end > x["start_s"]) & sleep).any()
+    assert 1.0 * days / 7 < nw["hours"] < 20.0 * days / 7
+    off = (sch.activity == ACTIVITIES.index("nonwear_table"))
+    assert set(MOTIONS[m] for m in sch.motion[off]) == {"still"}
+    # the off-wrist episodes do not change the behaviour drawn around them
+    plain = make_schedule(WearerParams(offwrist_per_week=0.0), days * 86400.0, seed=3)
+    t = np.array([x["start_s"] - 600.0 for x in long_eps if x["start_s"] > 600])
+    assert np.array_equal(plain.activity[plain.segment_at(t)], sch.activity[sch.segment_at(t)])
+
+
+def test_simulated_truth_json_records_the_nonwear(tmp_path):
+    import json
+    from stillpoint.engine.sim import simulate_recording
+    simulate_recording(tmp_path / "a.cwa", device="ax3", site="wrist", days=0.25, hz=12.5, seed=3)
+    truth = json.loads((tmp_path / "a.truth.json").read_text())
+    nw = truth["summary"]["nonwear"]
+    assert set(nw) == {"hours", "hours_in_episodes_ge_60_min", "episodes"}
+    assert nw["hours"] == pytest.approx(truth["summary"]["activity_hours"]["nonwear_table"]
+                                        + truth["summary"]["activity_hours"]["nonwear_drawer"], abs=0.02)

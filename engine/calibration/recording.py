@@ -109,13 +109,14 @@ def calibrate_source(source, *, first_hours: float = FIRST_HOURS, chunk_hours: f
                                 read_to_end=not stopped_early, qc=getattr(source, "qc", None))
 
 
-def calibrate_recording(path, *, open_options: Optional[dict] = None,
+def calibrate_recording(path, *, open_options: Optional[dict] = None, progress=None,
                         **kwargs) -> RecordingCalibration:
     """Open a recording (``.cwa``, ``.bin``, MCAP) and run :func:`calibrate_source` on it.
 
     A ``.cwa`` is read without per-sample times (``sample_times=False``: the windows are cut
     at the same samples from the sector anchors, ``drivers.cwa_decode.SampleClock``) and into
-    column-major counts (``column_major=True``)."""
+    column-major counts (``column_major=True``). ``progress(fraction=...)`` is told the share
+    of the file read after each block."""
     from stillpoint.drivers import open_recording, sniff_format
 
     options = dict(open_options or {})
@@ -123,6 +124,9 @@ def calibrate_recording(path, *, open_options: Optional[dict] = None,
         options.setdefault("sample_times", False)
         options.setdefault("column_major", True)
     src = open_recording(path, **options)
+    if progress is not None:
+        from ..progress import Reporting
+        src = Reporting(src, progress)
     try:
         return calibrate_source(src, **kwargs)
     finally:

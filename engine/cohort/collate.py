@@ -47,6 +47,13 @@ PARTICIPANTS_CSV = "cohort_participants.csv"
 _BAND_PREFIX = "min_enmo_"
 _ACTIVITY = ("mvpa_bout_min", "m10_mg", "l5_mg")
 
+
+def _is_band(column: str) -> bool:
+    """A per-day minutes/steps column taken like the ENMO bands: the ENMO bands and the activity
+    outcome columns (engine.outcomes.daily.DAY_PREFIXES)."""
+    from stillpoint.engine.outcomes.daily import DAY_PREFIXES
+    return column.startswith(_BAND_PREFIX) or column.startswith(DAY_PREFIXES)
+
 SUMMARY_FIELDS = (
     "participant", "file", "key", "device_type", "device_id", "session", "rate_hz", "timezone",
     "start_utc", "end_utc", "start_local", "end_local",
@@ -122,7 +129,7 @@ def summary_row(entry, final: Path, done: dict, summary: dict) -> dict:
         "valid_days": day.get("valid_day"), "enmo_mean_mg": day.get("enmo_mean_mg"),
         "mad_mean_mg": day.get("mad_mean_mg"), "enmo_all_epochs_mg": summary.get("enmo_mean_mg"),
         **{k: day.get(k) for k in _ACTIVITY},
-        **{k: v for k, v in day.items() if k.startswith(_BAND_PREFIX)},
+        **{k: v for k, v in day.items() if _is_band(k)},
         "mcap": str(final / summary["outputs"]["mcap"]), "summary": str(final / SUMMARY_NAME),
         "epochs": str(final / outs["epochs"]) if outs.get("epochs") else None,
         "days": str(final / outs["days"]) if outs.get("days") else None,
@@ -280,9 +287,9 @@ def collate(outdir, *, verify: bool = False, write: bool = True) -> Collation:
         days.extend(rows)
         day_cols.extend(c for c in cols if c not in day_cols)
     out.rows = kept
-    bands = [c for c in day_cols if c.startswith(_BAND_PREFIX)]
+    bands = [c for c in day_cols if _is_band(c)]
     if not bands:
-        bands = sorted({k for r in kept for k in r if k.startswith(_BAND_PREFIX)})
+        bands = sorted({k for r in kept for k in r if _is_band(k)})
     out.participants = participant_rows(kept, days, bands)
     if write:
         out.summary_csv = _write_csv(outdir / SUMMARY_CSV, _fields(SUMMARY_FIELDS, bands), out.rows)

@@ -35,7 +35,8 @@ from typing import Optional
 from stillpoint.drivers.errors import StillpointError
 
 from ..prefetch import cores_available
-from .job import DONE, FAILED, MAX_ATTEMPTS, one_line, paths, read_marker, run_job, write_failure
+from .job import (DONE, FAILED, MAX_ATTEMPTS, one_line, paths, read_marker, read_progress, run_job,
+                  write_failure)
 from .plan import Entry, Plan
 
 INSTALL_HINT = "pip install 'stillpoint[cohort]'"
@@ -84,8 +85,8 @@ class CohortResult:
 
 # ---------------------------------------------------------------------------- progress
 def _hms(s: float) -> str:
-    s = int(max(0, s))
-    return f"{s // 3600}h{s // 60 % 60:02d}m" if s >= 3600 else f"{s // 60}m{s % 60:02d}s"
+    from ..progress import hms
+    return hms(s)
 
 
 class CohortProgress:
@@ -93,7 +94,8 @@ class CohortProgress:
     seconds otherwise. Failures are printed as they happen."""
 
     def __init__(self, total_files: int, total_bytes: int, stream=None, tty=None,
-                 interval: Optional[float] = None, enabled: bool = True):
+                 interval: Optional[float] = None, enabled: bool = True, partial=None,
+                 clock=time.monotonic):
         self.stream = stream or sys.stderr
         self.tty = self.stream.isatty() if tty is None else tty
         self.interval = interval if interval is not None else (0.25 if self.tty else 10.0)
@@ -101,14 +103,18 @@ class CohortProgress:
         self.total_files, self.total_bytes = total_files, total_bytes
         self.files = self.failed = 0
         self.bytes = 0
-        self.t0 = time.monotonic()
+        self.partial = partial  # () -> bytes done of the files still running (their share read)
+        self.clock = clock
+        self.t0 = clock()
         self._last = 0.0
         self._drawn = False
 
     def line(self) -> str:
-        el = time.monotonic() - self.t0
-        rate = self.bytes / el / 1e6 if el > 0 else 0.0
-        left = max(0, self.total_bytes - self.bytes)
+        """The ETA is by bytes: files done plus the share read of the files still running."""
+        el = self.clock() - self.t0
+        done = self.bytes + (self.partial() if self.partial is not None else 0)
+        rate = done / el / 1e6 if el > 0 else 0.0
+        left = max(0, self.total_bytes - done)
         eta = _hms(left / (rate * 1e6)) if rate > 0 and left else ("0m00s" if not left else "?")
         return (f"{self.files + self.failed}/{self.total_files} files: {self.files} done, "
                 f"{self.failed} failed | {rate:.1f} MB/s | elapsed {_hms(el)} | ETA {eta}")
@@ -137,7 +143,7 @@ class CohortProgress:
     def tick(self, force: bool = False) -> None:
         if not self.enabled:
             return
-        now = time.monotonic()
+        now = self.clock()
         if not force and now - self._last < self.interval:
             return
         self._last = now
@@ -429,8 +435,13 @@ def run_cohort(plan: Plan, outdir, *, scheduler: str = "local", jobs: Optional[i
                 stream.write(f"FAILED {e.path} (corrupt_input): {e.error}\n")
         else:
             todo.append(e)
+    inflight: dict = {}
+
+    def running_bytes() -> int:
+        return int(sum(read_progress(outdir, e.folder) * e.size for e, _, _ in inflight.values()))
+
     prog = CohortProgress(len(todo), sum(e.size for e in todo), stream=stream, tty=tty,
-                          interval=interval, enabled=progress)
+                          interval=interval, enabled=progress, partial=running_bytes)
     if not todo:
         res.wall_s = time.perf_counter() - t0
         return res
@@ -460,11 +471,10 @@ def run_cohort(plan: Plan, outdir, *, scheduler: str = "local", jobs: Optional[i
                      f"{res.already_failed} failed earlier")
     if on_start is not None:
         on_start(backend)
-    prog.t0 = time.monotonic()
+    prog.t0 = prog.clock()
 
     queue = deque((e, 1) for e in todo)
     delayed: list = []  # (entry, attempt, not before): transient_io retries wait a little
-    inflight: dict = {}
     settings, code = plan.settings, plan.code_version
     latch = _InterruptLatch()
     try:

@@ -60,6 +60,7 @@ except ImportError:  # pragma: no cover - non-POSIX: no cross-process guard
 DONE = "_DONE.json"
 FAILED = "_FAILED.json"
 RUNNING = "_RUNNING.json"
+PROGRESS = "_PROGRESS.txt"  # while running: the share of the file's run done (0-1), every ~2 s
 MCAP_NAME = "recording.mcap"
 SUMMARY_NAME = "summary.json"
 TMP_SUFFIX = ".tmp"
@@ -86,6 +87,34 @@ def write_json(path: Path, obj: dict) -> None:
     from stillpoint.engine.jsonsafe import jsonable
     with atomic_output(path, binary=False, what="cohort marker") as f:
         f.write(json.dumps(jsonable(obj), indent=2, sort_keys=True) + "\n")
+
+
+def _progress_writer(path: Path, every_s: float = 2.0):
+    """A ``process_file`` progress callback that writes the share done to ``path`` (replaced
+    atomically, at most every ``every_s``) for the runner's byte-weighted ETA."""
+    from stillpoint.engine.progress import run_fraction
+    last = [-1e18]
+
+    def write(label, st):
+        now = time.monotonic()
+        if st.fraction is None or now - last[0] < every_s:
+            return
+        last[0] = now
+        part = path.with_name(path.name + ".part")
+        try:
+            part.write_text(f"{run_fraction(label, st.fraction):.4f}\n")
+            os.replace(part, path)
+        except OSError:
+            pass  # progress is advisory: never fails the file
+    return write
+
+
+def read_progress(outdir, folder: str) -> float:
+    """The share done of an entry being processed (0 when unknown)."""
+    try:
+        return min(max(float((paths(outdir, folder)[1] / PROGRESS).read_text()), 0.0), 1.0)
+    except (OSError, ValueError):
+        return 0.0
 
 
 def paths(outdir, folder: str) -> tuple[Path, Path, Path]:
@@ -208,6 +237,13 @@ def table_options(settings: dict) -> dict:
     out = {k: t[k] for k in TABLE_OPTIONS if t.get(k) is not None}
     if "enmo_bands_mg" in out:
         out["enmo_bands_mg"] = tuple(float(x) for x in out["enmo_bands_mg"])
+    if t.get("outcomes"):  # --cutpoints / --steps (engine.outcomes.daily.OutcomeSettings)
+        from stillpoint.engine.outcomes.daily import OutcomeSettings
+        o = t["outcomes"]
+        out["outcomes"] = OutcomeSettings(
+            cutpoints=o.get("cutpoints") or "", bout_minutes=tuple(o.get("bout_minutes") or ()),
+            bout_criterion=float(o.get("bout_criterion", 0.8)), steps=tuple(o.get("steps") or ()),
+            impute=bool(o.get("impute", False)))
     return out
 
 
@@ -270,7 +306,7 @@ def run_job(entry: dict, outdir: str, settings: dict, code: str, attempt: int = 
             summary = process_file(path, tmp / MCAP_NAME, RunSettings.from_dict(settings),
                                    tables=TablesSettings(*table_paths(tmp / MCAP_NAME),
                                                          **table_options(settings)),
-                                   prefetch=False)
+                                   prefetch=False, progress=_progress_writer(tmp / PROGRESS))
             t_engine = time.perf_counter() - t0
             rss = peak_rss_mb()
             summary = {k: v for k, v in summary.items() if k not in _VOLATILE}
@@ -282,6 +318,8 @@ def run_job(entry: dict, outdir: str, settings: dict, code: str, attempt: int = 
                     summary["tables"][k] = summary["outputs"][k] = Path(summary["tables"][k]).name
             write_json(tmp / SUMMARY_NAME, summary)
             os.unlink(tmp / RUNNING)
+            if os.path.lexists(tmp / PROGRESS):
+                os.unlink(tmp / PROGRESS)
             outputs = {}
             for f in sorted(tmp.iterdir()):
                 _fsync(f)

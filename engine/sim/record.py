@@ -34,7 +34,7 @@ from .model import ModelError, SensorModel  # noqa: F401
 from .temperature import TRACK_STEP_S, TemperatureParams
 from .truth import (LABEL_COLUMNS, TRUTH_FORMAT, WINDOW_S, Truth, _write_label_rows,  # noqa: F401
                     load_labels, load_truth, relative_clock_s, truth_device_time, write_labels)
-from .wearer import ACTIVITIES, WearerParams
+from .wearer import ACTIVITIES, WearerParams, nonwear_summary
 
 
 # ----------------------------------------------------------------------------- writing
@@ -301,6 +301,7 @@ def _finish(sim: DeviceSim, sink: _FileSink, corrupt: list, truth_path: Optional
                                       if worn_T.size else None),
         "activity_hours": {a: float(st["activity"][i] * WINDOW_S / 3600.0) for i, a in enumerate(ACTIVITIES)},
         "steps": int(np.count_nonzero((sim.schedule.steps >= 0) & (sim.schedule.steps < sim.duration_s))),
+        "nonwear": nonwear_summary(sim.schedule),
     }
     truth = Truth(path=str(sink.path), device=dict(sim.spec.to_dict(), device_id=sim.device_id),
                   site=sim.site, seed=sim.seed, start_ns=sim.start_ns, duration_s=sim.duration_s,
@@ -340,11 +341,13 @@ def simulate_recording(path, *, device: str = "ax3", site: str = "wrist", days: 
                        labels_path=None, start=None, range_g=None, packed=None,
                        gyro_range_dps=None, wearer: Optional[WearerParams] = None,
                        temperature: Optional[TemperatureParams] = None,
-                       device_id: Optional[int] = None, session_id: int = 1) -> Truth:
+                       device_id: Optional[int] = None, session_id: int = 1,
+                       progress=None) -> Truth:
     """Simulate one device and write it to ``path`` (.cwa for ax3/ax6, .bin for geneactiv) plus
     the truth JSON (default: beside the file, ``<name>.truth.json``; ``truth_path=False``: none)
     and the per-window labels CSV (``<name>.labels.csv``). ``device_id`` (default: drawn from
-    the seed) and ``session_id`` go into the file's header and sectors."""
+    the seed) and ``session_id`` go into the file's header and sectors. ``progress(fraction)`` is
+    called after each chunk (an ``engine.progress.Progress``'s ``update``, or None)."""
     [sim] = make_devices(sites=[site], devices=[device], days=days, hz=hz, effects=effects, seed=seed,
                          start=start, range_g=range_g, packed=packed, gyro_range_dps=gyro_range_dps,
                          wearer=wearer, temperature=temperature)
@@ -353,8 +356,10 @@ def simulate_recording(path, *, device: str = "ax3", site: str = "wrist", days: 
     tp, lp = _paths(path, truth_path, labels_path)
     sink = _FileSink(sim, path, labels_path=lp, truth_path=tp, session_id=session_id)
     try:
-        for c in sim.chunks():
+        for k, c in enumerate(sim.chunks()):
             sink.push(c)
+            if progress is not None:
+                progress(fraction=(k + 1) / max(sim.n_chunks, 1))
         corrupt = sink.close()
         truth = _finish(sim, sink, corrupt, tp)
         sink.commit()
@@ -381,9 +386,11 @@ def simulate_pair(path_a, path_b, *, site_a: str = "wrist", site_b: str = "hip",
                   hz: float = 100.0, hz_b: Optional[float] = None, effects=None, effects_b=None,
                   seed: int = 1, truth_a=None, truth_b=None, start=None, range_g=None,
                   packed=None, gyro_range_dps=None, wearer: Optional[WearerParams] = None,
-                  temperature: Optional[TemperatureParams] = None) -> tuple[Truth, Truth]:
+                  temperature: Optional[TemperatureParams] = None,
+                  progress=None) -> tuple[Truth, Truth]:
     """Two devices on one body (same movement and step times; own orientation, dynamics,
-    sensor errors and clock each). Written chunk by chunk in lockstep."""
+    sensor errors and clock each). Written chunk by chunk in lockstep; ``progress(fraction)``
+    as in ``simulate_recording``."""
     device_b = device_b or device_a
     m_a = build_model(effects)
     m_b = build_model(effects_b) if effects_b is not None else build_model(effects)
@@ -401,11 +408,14 @@ def simulate_pair(path_a, path_b, *, site_a: str = "wrist", site_b: str = "hip",
     try:
         sinks.append(_FileSink(sims[1], path_b, labels_path=paths[1][1], truth_path=paths[1][0]))
         _tune_malloc()
-        for k in range(max(s.n_chunks for s in sims)):
+        n_chunks = max(s.n_chunks for s in sims)
+        for k in range(n_chunks):
             for s, sink in zip(sims, sinks):
                 c = s.chunk(k) if k < s.n_chunks else None
                 if c is not None and c.n:
                     sink.push(c)
+            if progress is not None:
+                progress(fraction=(k + 1) / max(n_chunks, 1))
         corrupt = [sink.close() for sink in sinks]
         pair = {"sites": [site_a, site_b], "paths": [str(path_a), str(path_b)]}
         ta = _finish(sims[0], sinks[0], corrupt[0], paths[0][0], dict(pair, this=0))

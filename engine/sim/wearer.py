@@ -45,6 +45,26 @@ P = {n: i for i, n in enumerate(POSTURES)}
 M = {n: i for i, n in enumerate(MOTIONS)}
 
 
+# Where the default wearer's intensity and wear figures come from (one place):
+# * Doherty A et al. 2017, "Large scale population assessment of physical activity using wrist
+#   worn accelerometers: the UK Biobank study", PLoS ONE 12(2):e0169649, Table 1: mean
+#   acceleration vector magnitude (ENMO, mg) 31.2/31.1 (women/men, 45-54 y), 29.1/28.8
+#   (55-64 y), 26.6/25.6 (65-74 y); wear time per 7-day wear median 164.9-166.8 h (IQR from
+#   149.5-160.8 h to 167.0-168.0 h), i.e. a median of ~1-3 h of nonwear per week, 7-18 h
+#   at the lower quartile. The default wearer (a week, seeds 1-4): mean ENMO 28-46 mg (the
+#   upper seeds run twice a week), nonwear (showers, a drawer, off-wrist on a table) 6-11 h.
+# * Hildebrand M et al. 2014, "Age group comparability of raw accelerometer output from wrist-
+#   and hip-worn monitors", Med Sci Sports Exerc 46(9):1816-24, Table 3 (non-dominant wrist,
+#   adults): MVPA from 100.6 mg (ActiGraph) / 93.2 mg (GENEActiv), vigorous from 428.8 mg;
+#   Hildebrand M et al. 2017, Scand J Med Sci Sports 27(12):1814-23: sedentary below 44.8 mg.
+#   Free-living wrist data spend time at every intensity between these: light activity
+#   (40-100 mg: chores, cooking, slow walking) is as common as MVPA (a week of the default
+#   wearer, 5 s epochs: 100-150 min/day at 40-100 mg, 80-100 min/day at 100-400 mg), not ~1 min/day.
+REALISM_SOURCES = ("Doherty et al. 2017 PLoS ONE 12(2):e0169649 Table 1",
+                   "Hildebrand et al. 2014 Med Sci Sports Exerc 46(9):1816-24 Table 3",
+                   "Hildebrand et al. 2017 Scand J Med Sci Sports 27(12):1814-23")
+
+
 @dataclass
 class WearerParams:
     """Behaviour of the simulated adult (defaults: a typical adult wearing the device on the
@@ -80,6 +100,15 @@ class WearerParams:
     # gives worn still-window SDs (median 6-8 mg on packed +-8 g AX3 at 100 Hz) like those of
     # the real wrist recordings in shared/data/real (tools/still_window_sd.py).
     still_micromotion_mg: float = 6.0
+    # Free-living intensity and wear (figures and sources: ``REALISM_SOURCES`` below).
+    light_share_standing: float = 0.6  # share of standing fidget segments that are light
+    light_share_sitting: float = 0.2  # activity (chores, cooking, tidying: 40-100 mg at the wrist)
+    light_vigour: float = 9.0  # median motion multiplier of a light-activity segment (lognormal)
+    stroll_share: float = 0.45  # share of walking bouts at a slow stroll (arm swing and trunk
+    stroll_vigour: float = 0.5  # acceleration times this: 50-100 mg at the wrist)
+    offwrist_per_week: float = 1.5  # episodes with the device off the wrist, flat on a table,
+    offwrist_min_h: float = 1.0  # 1-3 h, in the day (detectable nonwear: >= 60 min still)
+    offwrist_max_h: float = 3.0
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -101,6 +130,8 @@ class Schedule:
     start_hour: float  # time of day (h) at t = 0
     duration_s: float
     params: WearerParams = field(default_factory=WearerParams)
+    # (k,) multiplier of each segment's motion amplitudes (fidget and gait); None = all ones
+    vigour: Optional[np.ndarray] = None
 
     def __len__(self) -> int:
         return int(self.start.shape[0])
@@ -213,14 +244,112 @@ def make_schedule(params: WearerParams, duration_s: float, seed: int,
             st = s - rng.uniform(0.0, 1.0 / hz) + np.cumsum(iv) - iv[0]
             steps.append(st[st < e + 2.0 / hz])
     steps_arr = np.sort(np.concatenate(steps)) if steps else np.zeros(0)
-    return Schedule(start=np.asarray(seg["start"]), end=np.asarray(seg["end"]),
-                    activity=np.asarray(seg["activity"], np.int8),
-                    posture=np.asarray(seg["posture"], np.int8),
-                    motion=np.asarray(seg["motion"], np.int8),
-                    trans_s=np.asarray(seg["trans"]), step_hz=np.asarray(seg["hz"]),
-                    group=np.asarray(seg["group"], np.int64),
-                    steps=steps_arr, start_hour=float(start_hour), duration_s=float(duration_s),
-                    params=params)
+    sch = Schedule(start=np.asarray(seg["start"]), end=np.asarray(seg["end"]),
+                   activity=np.asarray(seg["activity"], np.int8),
+                   posture=np.asarray(seg["posture"], np.int8),
+                   motion=np.asarray(seg["motion"], np.int8),
+                   trans_s=np.asarray(seg["trans"]), step_hz=np.asarray(seg["hz"]),
+                   group=np.asarray(seg["group"], np.int64),
+                   steps=steps_arr, start_hour=float(start_hour), duration_s=float(duration_s),
+                   params=params)
+    # intensity and off-wrist episodes from streams of their own: the behaviour above is drawn
+    # exactly as without them
+    sch = _with_offwrist(sch, np.random.default_rng(np.random.SeedSequence([int(seed), 2])))
+    sch.vigour = _vigour(sch, np.random.default_rng(np.random.SeedSequence([int(seed), 1])))
+    return sch
+
+
+def nonwear_summary(sch: Schedule) -> dict:
+    """How much nonwear the schedule holds (for the truth JSON): total hours, the episodes
+    (contiguous nonwear segments: start/end s since the start, kind) and the hours in episodes
+    of at least 60 min (what a 60-min nonwear rule such as GGIR's can find)."""
+    off = np.isin(sch.activity, [A["nonwear_table"], A["nonwear_drawer"]])
+    s = np.clip(sch.start, 0.0, sch.duration_s)
+    e = np.clip(sch.end, 0.0, sch.duration_s)
+    eps = []
+    for i in np.flatnonzero(off):
+        kind = ACTIVITIES[sch.activity[i]]
+        if eps and abs(eps[-1][1] - s[i]) < 1e-6 and eps[-1][2] == kind:
+            eps[-1][1] = float(e[i])
+        elif e[i] > s[i]:
+            eps.append([float(s[i]), float(e[i]), kind])
+    hours = sum(b - a for a, b, _ in eps) / 3600.0
+    long_h = sum(b - a for a, b, _ in eps if b - a >= 3600.0) / 3600.0
+    return {"hours": round(hours, 4), "hours_in_episodes_ge_60_min": round(long_h, 4),
+            "episodes": [{"start_s": round(a, 3), "end_s": round(b, 3), "kind": k} for a, b, k in eps]}
+
+
+def _vigour(sch: Schedule, rng: np.random.Generator) -> np.ndarray:
+    """Per-segment motion multipliers: light activity among standing and sitting fidgets,
+    slow strolls among walks (one draw per segment, so the stream does not depend on which
+    segments qualify)."""
+    p = sch.params
+    k = len(sch)
+    u = rng.random(k)
+    mult = rng.lognormal(0.0, 0.25, k)
+    v = np.ones(k)
+    fid = sch.motion == M["fidget"]
+    light = fid & (((sch.activity == A["standing"]) & (u < p.light_share_standing))
+                   | ((sch.activity == A["sitting"]) & (u < p.light_share_sitting)))
+    v[light] = p.light_vigour * mult[light]
+    stroll = (sch.activity == A["walking"]) & (u < p.stroll_share)
+    v[stroll] = p.stroll_vigour * mult[stroll]
+    return v
+
+
+def _with_offwrist(sch: Schedule, rng: np.random.Generator) -> Schedule:
+    """``sch`` with off-wrist episodes (device flat on a table, ``nonwear_table``) laid over the
+    waking day: Poisson(``offwrist_per_week`` per 7 days) episodes of ``offwrist_min_h`` to
+    ``offwrist_max_h`` hours starting 08:00-20:00, never over sleep or another nonwear."""
+    p = sch.params
+    days = sch.duration_s / 86400.0
+    n = int(rng.poisson(max(p.offwrist_per_week, 0.0) * days / 7.0))
+    nd = max(int(np.ceil(days + sch.start_hour / 24.0)), 1)
+    cand = []
+    for _ in range(n):  # fixed number of draws per episode
+        day = int(rng.integers(0, nd))
+        a = (day * 24.0 + rng.uniform(8.0, 20.0) - sch.start_hour) * 3600.0
+        b = a + rng.uniform(p.offwrist_min_h, max(p.offwrist_max_h, p.offwrist_min_h)) * 3600.0
+        cand.append((a, b))
+    keep: list[tuple[float, float]] = []
+    sleepish = np.isin(sch.activity, [A["sleep"], A["nonwear_table"], A["nonwear_drawer"]])
+    for a, b in sorted(cand):
+        a, b = max(a, 0.0), min(b, sch.duration_s)
+        if b - a < 600.0 or (keep and a < keep[-1][1] + 1800.0):
+            continue
+        over = (sch.start < b) & (sch.end > a)
+        if (over & sleepish).any():
+            continue
+        keep.append((a, b))
+    if not keep:
+        return sch
+    cols = ("start", "end", "activity", "posture", "motion", "trans_s", "step_hz", "group")
+    parts = {c: [] for c in cols}
+    next_group = int(sch.group.max()) + 1
+    edges = [0.0] + [x for ab in keep for x in ab] + [np.inf]
+    for j in range(len(keep) + 1):
+        lo, hi = edges[2 * j], edges[2 * j + 1]
+        m = (sch.end > lo) & (sch.start < hi)  # the worn segments between episodes, clipped
+        idx = np.flatnonzero(m)
+        for c in cols:
+            parts[c].append(getattr(sch, c)[idx].copy())
+        parts["start"][-1] = np.maximum(parts["start"][-1], lo)
+        parts["end"][-1] = np.minimum(parts["end"][-1], hi)
+        if j < len(keep):
+            a, b = keep[j]
+            for c, val in zip(cols, (a, b, A["nonwear_table"], P["none"], M["still"], 3.0, 0.0,
+                                     next_group)):
+                parts[c].append(np.array([val], dtype=getattr(sch, c).dtype))
+            next_group += 1
+    new = {c: np.concatenate(parts[c]) for c in cols}
+    ok = new["end"] - new["start"] > 0.05
+    new = {c: v[ok] for c, v in new.items()}
+    new["trans_s"] = np.minimum(new["trans_s"], 0.4 * (new["end"] - new["start"]))
+    steps = sch.steps
+    for a, b in keep:
+        steps = steps[(steps < a) | (steps >= b)]
+    return Schedule(**new, steps=steps, start_hour=sch.start_hour, duration_s=sch.duration_s,
+                    params=p)
 
 
 def _awake_day(bouts, rng, p: WearerParams, t: float, sleep: float, wake: float) -> float:
@@ -578,6 +707,9 @@ class SiteModel:
             gait_amp = np.zeros(3)
             heel = 0.0
             radius = 0.0
+        if sch.vigour is not None and sch.vigour[i] != 1.0:  # light activity, strolls
+            v = float(sch.vigour[i])  # linear accelerations scale fully, angles up to 3x
+            amp, lin_amp, gait_amp, heel = amp * min(v, 3.0), lin_amp * v, gait_amp * v, heel * v
         sp = _SegParams(R, axis, amp, freq, phase, lin_dir, lin_amp, gait_amp, heel, radius)
         self._cache[i] = sp
         return sp

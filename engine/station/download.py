@@ -79,10 +79,11 @@ class DownloadJob:
     throttle_bps: Optional[float] = None  # emulate USB full speed (bytes/s); None: as fast as read
     chunk_bytes: int = CHUNK_BYTES
     pipeline: bool = True
+    file_stem: Optional[str] = None  # a study's file name (study.download_stem); None: names.stem
 
     @property
     def stem(self) -> str:
-        return names.stem(self.device_type, self.device_id, self.session_id)
+        return self.file_stem or names.stem(self.device_type, self.device_id, self.session_id)
 
 
 @dataclass

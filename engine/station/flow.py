@@ -59,6 +59,7 @@ from .device_read import DeviceDigest, device_digest
 from .download import DownloadJob
 from .ledger import Ledger, host_timezone, kill_point, station_id
 from .profile import StudyProfile
+from .study import download_stem
 from .worker import DownloadWorker
 
 @dataclass
@@ -381,7 +382,7 @@ class DeviceFlow:
     def _download(self, data_file: Path, session: int, offset: float, battery: int) -> None:
         att, opts = self.att, self.opts
         out = Path(opts.out_dir)
-        stem = names.stem(att.device_type, att.device_id, session)
+        stem = download_stem(opts.profile, self.ledger, att.device_type, att.device_id, session)
         settings = dict(opts.run_settings)
         prior = self._calibration_prior(settings)
         dl_id = self.ledger.download_started(att.device_id, session, clock_offset_s=offset,
@@ -402,7 +403,7 @@ class DeviceFlow:
                                                f"{att.device_type}-{att.device_id}")
         job = DownloadJob(att.device_id, session, str(data_file), str(out), att.device_type,
                           tuple(att.faults), att.control, meta, settings,
-                          opts.throttle_bps or att.read_bps, pipeline=opts.pipeline)
+                          opts.throttle_bps or att.read_bps, pipeline=opts.pipeline, file_stem=stem)
         self._set("downloading")
         self.worker = w = DownloadWorker(job, stall_s=opts.stall_s, inline=opts.inline).start()
         t0 = time.monotonic()

@@ -4,9 +4,10 @@ It records the devices seen (by id and type: an AX3 and an AX6 may share an id),
 (device type and id, session, bytes, SHA-256, verified, times, clock offset, host time zone,
 station id, battery, bad sectors, the calibration prior its log started from), every clear and
 configuration (with the device type), every state change of a device (``events``, with its USB
-serial), and the analysis products made from each verified download (``products``: the epoch and
+serial), the analysis products made from each verified download (``products``: the epoch and
 day tables, the report, the calibration store entry; written, kept, skipped or failed, with the
-reason). WAL journal, one transaction
+reason), every action asked for from the dashboard (``actions``: retry, verify, clear,
+configure; who asked, from which address, with what result). WAL journal, one transaction
 per state change, so a crash at any moment leaves it consistent. The clear rule
 (``clearing``) asks it for a verified download of the exact device type, id and session.
 
@@ -77,6 +78,9 @@ CREATE TABLE IF NOT EXISTS events (
 CREATE TABLE IF NOT EXISTS products (
     id INTEGER PRIMARY KEY AUTOINCREMENT, download_id INTEGER NOT NULL, time REAL,
     product TEXT NOT NULL, path TEXT, result TEXT NOT NULL, reason TEXT);
+CREATE TABLE IF NOT EXISTS actions (
+    id INTEGER PRIMARY KEY AUTOINCREMENT, time REAL, device_id INTEGER, device_type TEXT,
+    action TEXT, who TEXT, origin TEXT, result TEXT, reason TEXT, detail TEXT);
 """
 
 
@@ -325,6 +329,18 @@ class Ledger:
         self._tx("INSERT INTO products(download_id, time, product, path, result, reason) "
                  "VALUES (?,?,?,?,?,?)", (download_id, time.time(), product, path, result, reason))
 
+    def action_asked(self, device_id: int, device_type: str, action: str, *, who: str,
+                     origin: str, detail: Optional[dict] = None) -> int:
+        """An action asked for from the dashboard (``result`` 'asked' until ``action_result``)."""
+        return self._tx("INSERT INTO actions(time, device_id, device_type, action, who, origin, "
+                        "result, detail) VALUES (?,?,?,?,?,?,?,?)",
+                        (time.time(), device_id, device_type, action, who, origin, "asked",
+                         json.dumps(detail, default=str) if detail else None))
+
+    def action_result(self, action_id: int, result: str, reason: Optional[str] = None) -> None:
+        """``result``: 'started' (a flow runs it), 'ok', 'refused' or 'error' (with the reason)."""
+        self._tx("UPDATE actions SET result=?, reason=? WHERE id=?", (result, reason, action_id))
+
     # ------------------------------------------------------------------ reads
     def products(self, download_id: Optional[int] = None) -> list[tuple]:
         """(download id, product, path, result, reason) per product row (this download's)."""
@@ -402,6 +418,17 @@ class Ledger:
         return self._q("SELECT device_id, session_id, download_id, sha256, result, reason, erase, "
                        f"readback FROM clears WHERE (? IS NULL OR device_id=?) AND {_OF_TYPE} "
                        "ORDER BY id", (device_id, device_id, device_type, device_type))
+
+    def configuration_of(self, device_id: int, session_id: int,
+                         device_type: Optional[str] = None) -> Optional[dict]:
+        """The settings of the latest successful configuration of this device and session."""
+        rows = self._q("SELECT settings FROM configurations WHERE device_id=? AND session_id=? "
+                       f"AND result='ok' AND {_OF_TYPE} ORDER BY id DESC LIMIT 1",
+                       (device_id, session_id, device_type, device_type))
+        try:
+            return json.loads(rows[0][0]) if rows and rows[0][0] else None
+        except ValueError:
+            return None
 
     def events(self, device_id: Optional[int] = None) -> list[tuple]:
         if device_id is None:

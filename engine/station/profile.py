@@ -20,6 +20,7 @@ defaults. Read with ``tomllib`` (Python 3.11+; on 3.10 the ``tomli`` package if 
     clear_after_verify = true
     configure_after = true
     erase = "quick"          # "quick" (FORMAT QC) or "wipe" (FORMAT WC)
+    file_name = "{study}_{subject}_{device}_{session}"  # optional: download names (study.py)
 
 Every value is checked when the profile loads, before any device is touched, against what the
 device types it may meet can record (``constants.AX_DEVICE_RULES``: one row per rule, each citing
@@ -48,7 +49,7 @@ class ProfileError(StillpointError):
 
 _DEVICE_KEYS = ("type", "rate_hz", "range_g", "gyro_dps", "start", "stop", "session",
                 "min_battery_pct", "led_flash")
-_STATION_KEYS = ("clear_after_verify", "configure_after", "erase")
+_STATION_KEYS = ("clear_after_verify", "configure_after", "erase", "file_name")
 _TABLES = ("device", "metadata", "station")
 _SESSION_RE = re.compile(r"^[0-9]+$")
 # the years every device type can hold (start/stop times are checked before the type is known)
@@ -89,6 +90,7 @@ class StudyProfile:
     clear_after_verify: bool = False
     configure_after: bool = False
     erase: str = "quick"
+    file_name: Optional[str] = None  # the download's file-name template (study.file_stem)
     device_type: Optional[str] = None  # "AX3" | "AX6" | None (both)
     path: Optional[str] = None
 
@@ -157,6 +159,12 @@ class StudyProfile:
                             f"not {self.erase!r}")
         self.annotation_slots()
         self.times(_dt.datetime.now())
+        if self.file_name is not None:
+            from .study import StudyRecordError, check_template
+            try:
+                check_template(self.file_name, "[station] file_name")
+            except StudyRecordError as e:
+                raise self._err(str(e)) from None
 
     def session_for(self, previous: int) -> int:
         if self.session == "increment":
@@ -274,6 +282,8 @@ def load_profile(path) -> StudyProfile:
                                   "station"),
         configure_after=_typed(st, "configure_after", False, flag, "true or false", p, "station"),
         erase=_typed(st, "erase", "quick", text, '"quick" or "wipe"', p, "station"),
+        file_name=_typed(st, "file_name", None, text + (type(None),), "a file-name template", p,
+                         "station"),
         device_type=kind.upper() if kind else None, path=str(p))
     prof.check()
     return prof

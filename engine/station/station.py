@@ -10,7 +10,8 @@ folder. At start the ledger rows a killed station left between two states are re
 state change. The table's lines are cut to the terminal's width (``$COLUMNS``, else the
 terminal's), so a redraw never wraps. ``add_listener(fn)`` calls ``fn(flow)`` on every state change and progress update
 of any device (from the flow's thread: a listener must be quick and never raise), for a view of the
-station other than the terminal's.
+station other than the terminal's. ``rerun(serial, **option_changes)`` runs an attached device's
+ended flow again (a retry; a clear or configure asked for later: the same flow, the same rules).
 """
 
 from __future__ import annotations
@@ -96,6 +97,22 @@ class Station:
     def add_listener(self, fn) -> None:
         """Call ``fn(flow)`` on every state change and progress update of any device."""
         self._listeners.append(fn)
+
+    def rerun(self, serial: str, **option_changes) -> DeviceFlow:
+        """Run the ended flow of an attached device again, with ``option_changes`` to its
+        ``StationOptions``; ``ValueError`` (the reason) for a device unknown, detached or busy."""
+        import dataclasses
+        with self._lock:
+            f = self.flows.get(serial)
+            if f is None or serial in self.detached:
+                raise ValueError("the device is not attached to this station")
+            if not f.finished.is_set():
+                raise ValueError(f"the device is busy ({f.state})")
+            opts = dataclasses.replace(self.opts, **option_changes) if option_changes else self.opts
+            f = DeviceFlow(f.att, opts, self.ledger, self.backend, on_change=self._changed)
+            self.flows[serial] = f
+        f.start()
+        return f
 
     def close(self) -> None:
         import os

@@ -20,9 +20,13 @@ intensity minutes, MVPA and M10/L5; ``wear_hours`` counts clean epochs. Per day:
   days only; ``m10_start`` / ``l5_start``: local clock time of the window start;
 * ``data_coverage`` / ``qc_coverage``: data hours and QC-flagged hours over ``day_hours``.
 
+With activity outcomes (``engine.outcomes.daily``: a cut-point set's minutes per band and GGIR
+bouts per band, steps per day and peak cadence) their columns follow, computed from the same
+day's epochs.
+
 The summary row (``date`` = ``all``) sums the hours, counts valid days in ``valid_day``, gives the
 mean ENMO and MAD over every clean epoch of the file, and the minutes per band, MVPA and M10/L5 averaged
-over valid days (empty when there is none).
+over valid days (empty when there is none), as are the outcome columns.
 Every row also carries the time zone used and the calibration status.
 """
 
@@ -71,7 +75,8 @@ def _runs(mask: np.ndarray):
 
 class DayAccumulator:
     def __init__(self, zone: Zone, epoch_s: float, *, valid_day_hours: float = VALID_DAY_HOURS,
-                 bands=ENMO_BANDS_MG, mvpa_bout_s: float = MVPA_BOUT_S, calibration: str = ""):
+                 bands=ENMO_BANDS_MG, mvpa_bout_s: float = MVPA_BOUT_S, calibration: str = "",
+                 outcomes=None):
         self.zone = zone
         self.epoch_s = float(epoch_s)
         self.epoch_h = self.epoch_s / 3600.0
@@ -80,16 +85,19 @@ class DayAccumulator:
         self.mvpa_mg = self.bands[1] if len(self.bands) > 1 else self.bands[0]
         self.mvpa_bout_s = float(mvpa_bout_s)
         self.calibration = calibration
-        self.columns = day_columns(self.bands)
+        self.outcomes = outcomes  # engine.outcomes.daily.DailyOutcomes or None
+        self.columns = day_columns(self.bands) + (outcomes.day_columns() if outcomes else [])
         self._day: Optional[int] = None
         self._parts: list[EpochRows] = []
+        self._steps: list[dict] = []
         self._local: list[np.ndarray] = []
         self.days: list[dict] = []
         # epoch-level totals (for the summary and the day-sum = epoch-sum check)
         self.totals = {"epochs": 0, "clean": 0, "enmo_clean_sum": 0.0, "mad_clean_sum": 0.0}
 
     # ------------------------------------------------------------------ streaming
-    def push(self, rows: EpochRows) -> None:
+    def push(self, rows: EpochRows, steps: Optional[dict] = None) -> None:
+        """``steps``: per-row step counts by parameter set (with step outcomes)."""
         if not len(rows):
             return
         local = self.zone.local_ns(rows.start_ns) if self.zone.known else rows.start_ns.copy()
@@ -107,6 +115,7 @@ class DayAccumulator:
             self._day = d
             self._parts.append(_slice(rows, a, b))
             self._local.append(local[a:b])
+            self._steps.append({k: v[a:b] for k, v in (steps or {}).items()})
 
     def close(self) -> list[dict]:
         if self._day is not None:
@@ -123,8 +132,10 @@ class DayAccumulator:
     def _finish(self) -> None:
         r = EpochRows.concat(self._parts)
         local = np.concatenate(self._local)
+        steps = {k: np.concatenate([p[k] for p in self._steps]) for k in
+                 (self._steps[0] if self._steps else {})}
         d = self._day
-        self._parts, self._local, self._day = [], [], None
+        self._parts, self._local, self._steps, self._day = [], [], [], None
         h = self.epoch_h
         has = ~r.gap
         clean = r.clean
@@ -157,6 +168,9 @@ class DayAccumulator:
         row["qc_coverage"] = row["qc_hours"] / dh
         row["timezone"] = self.zone.label
         row["calibration"] = self.calibration
+        if self.outcomes is not None:
+            row.update(self.outcomes.day(getattr(r, self.outcomes.cut.column)
+                                         if self.outcomes.cut else r.enmo_mg, clean, local, steps))
         self.days.append(row)
 
     def _window(self, e, clean, local, hours, pick):
@@ -196,6 +210,10 @@ class DayAccumulator:
         row["qc_coverage"] = row["qc_hours"] / row["day_hours"] if row["day_hours"] else None
         row["timezone"] = self.zone.label
         row["calibration"] = self.calibration
+        if self.outcomes is not None:
+            for k in self.outcomes.day_columns():
+                v = [d[k] for d in valid if d.get(k) is not None]
+                row[k] = float(np.mean(v)) if v else None
         return row
 
 

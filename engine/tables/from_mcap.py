@@ -36,7 +36,8 @@ def days_path_for(epochs_path) -> Path:
 
 def tables_from_mcap(mcap, epochs_path, days_path=None, *, timezone: Optional[str] = None,
                      nonwear_version: str = "2023", valid_day_hours: float = 16.0,
-                     enmo_bands_mg=(40.0, 100.0, 400.0), mvpa_bout_s: float = 60.0) -> dict:
+                     enmo_bands_mg=(40.0, 100.0, 400.0), mvpa_bout_s: float = 60.0,
+                     outcomes=None) -> dict:
     from stillpoint.drivers.mcap_replay import McapRawSource
     from ..run import RunSettings, process_file
     from ..timezones import parse_zone
@@ -66,6 +67,8 @@ def tables_from_mcap(mcap, epochs_path, days_path=None, *, timezone: Optional[st
     ts = TablesSettings(epochs_path, days_path, zone=zone, nonwear_version=nonwear_version,
                         valid_day_hours=valid_day_hours, enmo_bands_mg=tuple(enmo_bands_mg),
                         mvpa_bout_s=mvpa_bout_s)
+    if outcomes is not None:  # engine.outcomes.daily.OutcomeSettings: --cutpoints, --steps, ...
+        ts.outcomes = outcomes
     if settings.mode == "batch":
         return _batch_tables(mcap, settings, ts)
     fd, tmp = tempfile.mkstemp(prefix=".tables-", suffix=".mcap", dir=str(epochs_path.parent))

@@ -9,7 +9,9 @@ a recording whose zone is unknown has no UTC column), ``time_local`` (ISO 8601 w
 in force, or without offset when the zone is unknown: the device clock), ``n`` (samples),
 ``enmo_mg``, ``bfen_mg``, ``mad_mg``, ``anglez_deg``, ``temperature_c`` (empty without data),
 then the flags ``nonwear``, ``clipping``, ``gap``, ``qc``, ``filter_warmup`` (0/1). Times are
-epoch starts.
+epoch starts. With activity outcomes (``TablesSettings.outcomes``: a cut-point set, steps) the
+epoch table ends with their columns (``engine.outcomes.daily``); rows then wait until the step
+counter has decided every step before their end (at most about twice its horizon).
 """
 
 from __future__ import annotations
@@ -26,8 +28,9 @@ from stillpoint.drivers.names import csv_cell
 from stillpoint.drivers.outputs import AtomicOutput, atomic_output, check_output_path
 
 from ..operators.nonwear import DEFAULT_VERSION, clip_threshold_g
+from ..outcomes.daily import DailyOutcomes, OutcomeSettings
 from ..timezones import Zone
-from .days import ENMO_BANDS_MG, MVPA_BOUT_S, VALID_DAY_HOURS, DayAccumulator
+from .days import DAY_NS, ENMO_BANDS_MG, MVPA_BOUT_S, VALID_DAY_HOURS, DayAccumulator, _slice
 from .epochs import FLAGS, EpochAssembler, EpochRows
 
 EPOCH_COLUMNS = ["time_utc", "time_local", "n", "enmo_mg", "bfen_mg", "mad_mg", "anglez_deg",
@@ -60,12 +63,16 @@ class TablesSettings:
     valid_day_hours: float = VALID_DAY_HOURS
     enmo_bands_mg: tuple = ENMO_BANDS_MG
     mvpa_bout_s: float = MVPA_BOUT_S
+    outcomes: OutcomeSettings = field(default_factory=OutcomeSettings)
 
     def to_dict(self) -> dict:
-        return {"epochs": str(self.epochs_path), "days": str(self.days_path),
-                "timezone": self.zone.label, "nonwear_version": self.nonwear_version,
-                "valid_day_hours": self.valid_day_hours, "enmo_bands_mg": list(self.enmo_bands_mg),
-                "mvpa_bout_s": self.mvpa_bout_s}
+        out = {"epochs": str(self.epochs_path), "days": str(self.days_path),
+               "timezone": self.zone.label, "nonwear_version": self.nonwear_version,
+               "valid_day_hours": self.valid_day_hours, "enmo_bands_mg": list(self.enmo_bands_mg),
+               "mvpa_bout_s": self.mvpa_bout_s}
+        if self.outcomes.active:
+            out["outcomes"] = self.outcomes.to_dict()
+        return out
 
 
 def _num(v: np.ndarray, decimals: int) -> list:
@@ -96,7 +103,8 @@ def _offset_text(off_s: np.ndarray) -> np.ndarray:
     return out.astype(str)
 
 
-def format_rows(rows: EpochRows, zone: Zone, epoch_ns: int) -> str:
+def format_rows(rows: EpochRows, zone: Zone, epoch_ns: int, extra=()) -> str:
+    """The rows as CSV text; ``extra``: more columns (lists of cell text), appended."""
     if not len(rows):
         return ""
     unit = "s" if epoch_ns % 10**9 == 0 else "ms"
@@ -113,6 +121,7 @@ def format_rows(rows: EpochRows, zone: Zone, epoch_ns: int) -> str:
         cols.append(_num(getattr(rows, name), _DECIMALS[name]))
     for f in FLAGS:
         cols.append(_flag(getattr(rows, f)))
+    cols.extend(extra)
     return "\n".join(map(",".join, zip(*cols))) + "\n"
 
 
@@ -135,38 +144,143 @@ class TablesTap:
         self.assembler = EpochAssembler(rate_hz, epoch_s, band, source=source,
                                         nonwear_version=ts.nonwear_version,
                                         clip_g=clip_threshold_g(getattr(info, "accel_range_g", None)))
+        self.outcomes = DailyOutcomes(ts.outcomes, epoch_s) if ts.outcomes.active else None
+        self.steps = None
+        if self.outcomes is not None and ts.outcomes.steps:
+            from ..outcomes.steps import StepOperator
+            self.steps = StepOperator(ts.outcomes.steps)
+        self._waiting: list = []  # rows waiting for their steps
+        self._held: list = []  # (rows, extra columns, step counts) of the local day being read
+        self._held_day = None
+        self.average_day = None
+        if self.outcomes is not None and ts.outcomes.impute:
+            from ..outcomes.impute import AverageDay
+            self.average_day = AverageDay(epoch_s)
+        self._step_times = {s: np.zeros(0, np.int64) for s in ts.outcomes.steps}
         self.days = DayAccumulator(ts.zone, epoch_s, valid_day_hours=ts.valid_day_hours,
-                                   bands=ts.enmo_bands_mg, mvpa_bout_s=ts.mvpa_bout_s)
+                                   bands=ts.enmo_bands_mg, mvpa_bout_s=ts.mvpa_bout_s,
+                                   outcomes=self.outcomes)
         self._out = AtomicOutput(ts.epochs_path, what="epoch table")
         self._gz = gzip.GzipFile(filename="", mode="wb", fileobj=self._out.file, mtime=0,
                                  compresslevel=GZIP_LEVEL)
-        self._gz.write((",".join(epoch_columns(ts.zone)) + "\n").encode())
+        head = epoch_columns(ts.zone) + (self.outcomes.epoch_columns() if self.outcomes else [])
+        self._gz.write((",".join(head) + "\n").encode())
         self.rows = 0
         self.flag_counts = {f: 0 for f in FLAGS}
         self.clean = 0
         self._closed = False
 
-    def _write(self, slices) -> None:
+    def _write(self, slices, final: bool = False) -> None:
+        if self.outcomes is not None:
+            self._write_outcomes(slices, final)
+            return
         for rows in slices:
             if not len(rows):
                 continue
-            self.rows += len(rows)
-            for f in FLAGS:
-                self.flag_counts[f] += int(getattr(rows, f).sum())
-            self.clean += int(rows.clean.sum())
+            self._count(rows)
             self._gz.write(format_rows(rows, self.ts.zone, self.epoch_ns).encode())
             self.days.push(rows)
 
+    def _count(self, rows) -> None:
+        self.rows += len(rows)
+        for f in FLAGS:
+            self.flag_counts[f] += int(getattr(rows, f).sum())
+        self.clean += int(rows.clean.sum())
+
+    def _write_outcomes(self, slices, final: bool) -> None:
+        """Rows with the outcome columns; a row waits until no step before its end can come."""
+        self._waiting.extend(r for r in slices if len(r))
+        if self.steps is not None:
+            for s, t in self.steps.take().items():
+                if t.shape[0]:  # sorted: a restart may send the clock back
+                    self._step_times[s] = np.sort(np.concatenate([self._step_times[s], t]))
+        fb = None if (final or self.steps is None) else self.steps.final_before_ns
+        while self._waiting:
+            rows = self._waiting[0]
+            if fb is not None:
+                ends = rows.start_ns + self.epoch_ns
+                k = int(np.searchsorted(ends, fb, side="right"))
+                if k == 0:
+                    break
+                if k < len(rows):
+                    self._waiting[0] = _slice(rows, k, len(rows))
+                    rows = _slice(rows, 0, k)
+                else:
+                    self._waiting.pop(0)
+            else:
+                self._waiting.pop(0)
+            self._emit_outcomes(rows)
+
+    def _emit_outcomes(self, rows) -> None:
+        self._count(rows)
+        extra, counts = [], {}
+        o = self.outcomes
+        if o.cut is not None:
+            extra.append(o.epoch_labels(getattr(rows, o.cut.column), rows.clean))
+        for s in self.ts.outcomes.steps:
+            t = self._step_times[s]
+            edges = np.searchsorted(t, np.append(rows.start_ns, rows.start_ns[-1] + self.epoch_ns))
+            n = np.diff(edges)
+            self._step_times[s] = t[edges[-1]:]
+            counts[s] = n
+            extra.append([str(x) for x in n.tolist()])
+        z = self.ts.zone
+        day = np.floor_divide(z.local_ns(rows.start_ns) if z.known else rows.start_ns, DAY_NS)
+        if self.average_day is not None:
+            self.average_day.push({"enmo_mg": rows.enmo_mg, "mad_mg": rows.mad_mg}, rows.clean, day)
+        if o.cut is None:
+            self._put(rows, extra, counts)
+            return
+        # the bouts column needs the whole local day: the day's rows wait for its end
+        cuts = np.flatnonzero(np.diff(day)) + 1
+        for a, b in zip(np.r_[0, cuts], np.r_[cuts, len(rows)]):
+            if self._held_day is not None and int(day[a]) != self._held_day:
+                self._finish_day()
+            self._held_day = int(day[a])
+            self._held.append((_slice(rows, a, b), [c[a:b] for c in extra],
+                               {k: v[a:b] for k, v in counts.items()}))
+
+    def _finish_day(self) -> None:
+        """Write the held day's rows with each epoch's bouts (``engine.outcomes.daily``)."""
+        if not self._held:
+            return
+        o = self.outcomes
+        vals = np.concatenate([getattr(r, o.cut.column) for r, _, _ in self._held])
+        clean = np.concatenate([r.clean for r, _, _ in self._held])
+        labels = o.epoch_bouts(vals, clean)
+        a = 0
+        for rows, extra, counts in self._held:
+            self._put(rows, extra + [labels[a:a + len(rows)]], counts)
+            a += len(rows)
+        self._held, self._held_day = [], None
+
+    def _put(self, rows, extra, counts) -> None:
+        self._gz.write(format_rows(rows, self.ts.zone, self.epoch_ns, extra).encode())
+        self.days.push(rows, steps=counts)
+
     def push(self, block, batches, metrics) -> None:
+        if self.steps is not None:
+            for b in batches:
+                self.steps.push(b)
         self._write(self.assembler.push(block, batches, metrics))
 
     def flush(self, metrics=None) -> None:
-        self._write(self.assembler.flush(metrics))
+        if self.steps is not None:
+            self.steps.flush()
+        self._write(self.assembler.flush(metrics), final=True)
+        if self.outcomes is not None:
+            self._finish_day()
 
     def close(self, calibration_status: str = "") -> dict:
         self._gz.close()
         self._out.commit()
         days = self.days.close()
+        if self.average_day is not None:  # GGIR's imputation needs the whole average day
+            from ..outcomes.impute import imputed_days
+            imp = imputed_days(self.average_day, self.outcomes)
+            self.average_day.close()
+            for d in days:
+                d.update(imp.get(d["date"], {}))
         summary = self.days.summary()
         for d in days + [summary]:
             d["calibration"] = calibration_status
@@ -186,11 +300,15 @@ class TablesTap:
                "day_rows": len(days), "file": summary}
         if self.assembler.epochs_not_in_table:
             out["epochs_not_in_table"] = self.assembler.epochs_not_in_table
+        if self.outcomes is not None:
+            out["outcomes"] = self.ts.outcomes.to_dict()
         return out
 
     def abort(self) -> None:
         if self._closed:
             return
+        if self.average_day is not None:
+            self.average_day.close()
         try:
             self._gz.close()
         except Exception:

@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import json
-import sys
-import time
 
 from stillpoint.drivers.errors import StillpointError
 
@@ -65,35 +63,24 @@ def settings_overrides(args) -> dict:
 
 
 class Progress:
-    """A one-line progress bar on a terminal (stderr); silent otherwise."""
+    """The pipeline's progress callback (``process_file(progress=...)``: label, stats) shown by
+    ``engine.progress.Progress``: percentage and ETA on a terminal, a plain line every tenth (or
+    30 s) otherwise, nothing when disabled (``-q``). A batch run's two passes share the bar
+    (``engine.progress.BATCH_PASS_SPANS``)."""
 
-    def __init__(self, enabled=None, stream=None):
-        self.stream = sys.stderr if stream is None else stream  # looked up now, not at import
-        self.enabled = self.stream.isatty() if enabled is None else enabled
-        self._last = 0.0
-        self._shown = False
+    def __init__(self, enabled=None, stream=None, *, label: str = "process", tty=None,
+                 clock=None):
+        from stillpoint.engine.progress import Progress as _Progress
+        kw = {} if clock is None else {"clock": clock}
+        self.bar = _Progress(label, stream=stream, tty=tty, quiet=enabled is False, **kw)
 
     def __call__(self, label, st) -> None:
-        if not self.enabled:
-            return
-        now = time.monotonic()
-        if now - self._last < 0.2:
-            return
-        self._last = now
-        hours = st.data_s / 3600
-        if st.fraction is not None:
-            k = int(30 * min(1.0, st.fraction))
-            bar = f"[{'#' * k}{'.' * (30 - k)}] {100 * st.fraction:5.1f}%"
-        else:
-            bar = f"{st.samples:,} samples"
-        self.stream.write(f"\r{label}: {bar}  {hours:7.1f} h of data  {st.wall_s:6.1f} s")
-        self.stream.flush()
-        self._shown = True
+        from stillpoint.engine.progress import run_fraction
+        self.bar.update(fraction=None if st.fraction is None else run_fraction(label, st.fraction),
+                        detail=f"{label}, {st.data_s / 3600:.1f} h of data")
 
-    def done(self) -> None:
-        if self._shown:
-            self.stream.write("\r" + " " * 79 + "\r")
-            self.stream.flush()
+    def done(self, completed: bool = True) -> None:
+        self.bar.close(completed=completed)
 
 
 def _f(x, fmt="{:.2f}"):

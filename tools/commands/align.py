@@ -18,6 +18,7 @@ from stillpoint.engine.jsonsafe import jsonable
 
 NAME = "align"
 HELP = "align two recordings worn together (clock offset, drift, halts; Brønd et al. 2021)"
+KEEPS_EXISTING_OUTPUTS = True  # --overwrite replaces an existing output
 DESCRIPTION = (
     "Estimate the clock offset and drift of OTHER relative to REFERENCE from the acceleration "
     "itself (per 1 h block cross-correlation of the activity signal, Brønd et al. 2021) and "
@@ -37,6 +38,7 @@ def add_arguments(p) -> None:
     p.add_argument("-o", "--output", metavar="OUT.mcap",
                    help="write block lags, estimates and the aligned OTHER stream to this MCAP")
     p.add_argument("--json", action="store_true", help="print the full result as JSON on stdout")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
     p.add_argument("--json-out", metavar="PATH", help="also write the JSON result to PATH")
     p.add_argument("--plot", metavar="PNG", help="lag-vs-time with fit and correlograms (matplotlib)")
     p.add_argument("--method", choices=("brond", "robust"), default="robust",
@@ -114,9 +116,26 @@ def run(args) -> int:
                        (args.plot, "plot")):
         if path:
             check_output_path(path, what=what)  # before the work, not after it
-    res = run_alignment(lambda: open_recording(args.reference), lambda: open_recording(args.other),
-                        config, out_mcap=args.output, interpolation=args.interpolation,
-                        out_rate=args.out_rate, online=args.online)
+    from stillpoint.engine.progress import Progress, Reporting
+    bar = Progress("align", quiet=args.quiet)
+    passes = 2 if args.output else 1  # the reference read once; the other again to be written
+    opened = []
+
+    def open_reference():
+        bar.phase(0, passes)
+        return Reporting(open_recording(args.reference), bar.update)
+
+    def open_other():
+        opened.append(1)
+        if len(opened) == 1:
+            return open_recording(args.other)
+        bar.phase(1, passes)
+        return Reporting(open_recording(args.other), bar.update)
+
+    with bar:
+        res = run_alignment(open_reference, open_other, config, out_mcap=args.output,
+                            interpolation=args.interpolation, out_rate=args.out_rate,
+                            online=args.online)
     d = res.as_dict()
     d["reference"]["path"] = str(args.reference)
     d["other"]["path"] = str(args.other)

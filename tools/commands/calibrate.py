@@ -24,6 +24,7 @@ from ._numbers import HOURS, MG, number
 
 NAME = "calibrate"
 HELP = "autocalibrate a recording (fit only, no corrected output; --json, --plot, --store)"
+KEEPS_EXISTING_OUTPUTS = True  # --overwrite replaces an existing output
 
 JSON_KEYS = ("offset", "scale", "tempoffset", "temperature_ref", "error_before_mg",
              "error_after_mg", "windows", "iterations", "status", "reason")
@@ -55,6 +56,7 @@ def add_arguments(parser) -> None:
                         help="data added per refit when the first load is not enough (default 12)")
     parser.add_argument("--sd-threshold-mg", type=MG, default=13.0,
                         help="nonmovement threshold on each axis' SD (default 13 mg)")
+    parser.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
     parser.add_argument("--read-all", action="store_true",
                         help="read the whole file even when the schedule is satisfied early")
     parser.add_argument("--store", action="store_true",
@@ -160,13 +162,13 @@ def finish_output(args, est, windows, title: str) -> int:
     return 0
 
 
-def _calibrate_one(path: str, opts: dict) -> tuple:
+def _calibrate_one(path: str, opts: dict, progress=None) -> tuple:
     """Worker: (estimate dict, device key, plot path or None); runs in a child with --jobs."""
     from stillpoint.engine.calibration.recording import calibrate_recording
 
     plot = opts.pop("plot", None)
     title = opts.pop("title", path)
-    res = calibrate_recording(path, **opts)
+    res = calibrate_recording(path, progress=progress, **opts)
     est = res.estimate
     if plot:
         from stillpoint.engine.calibration.plot import plot_calibration
@@ -215,7 +217,6 @@ def _check_outputs(args, many: bool) -> None:
 
 def run(args) -> int:
     from stillpoint.drivers.errors import StillpointError
-    from stillpoint.engine.calibration.estimate import CalibrationEstimate
 
     if args.first_hours <= 0 or args.chunk_hours <= 0:
         raise StillpointError("--first-hours and --chunk-hours must be positive")
@@ -247,11 +248,16 @@ def run(args) -> int:
         store = CalibrationStore(args.store_dir)
         store.check()
 
+    from stillpoint.engine.progress import ByteSpans, Progress
+    bar = Progress("calibrate", quiet=args.quiet)
+    spans = ByteSpans(bar, files)
+
     def results():
         if args.jobs == 1 or not many:
-            for f, o in jobs:
+            for i, (f, o) in enumerate(jobs):
+                spans.start(i)
                 try:
-                    out = _calibrate_one(f, o)
+                    out = _calibrate_one(f, o, progress=bar.update)
                 except StillpointError as e:
                     if not many:
                         raise
@@ -268,18 +274,31 @@ def run(args) -> int:
 
             with ProcessPoolExecutor(max_workers=min(args.jobs, len(jobs))) as ex:
                 futs = [(f, ex.submit(_calibrate_safe, f, o)) for f, o in jobs]
-                for f, fut in futs:
+                for i, (f, fut) in enumerate(futs):
                     try:
                         out, err = fut.result()
                     except Exception as e:  # e.g. a worker killed by the system
                         out, err = None, f"{f}: the worker failed ({type(e).__name__}: {e})"
+                    spans.finish(i)
                     yield f, out, err
 
+    try:
+        failed = _report(args, results(), store, many, bar)
+    except BaseException:
+        bar.close(completed=False)
+        raise
+    bar.close()
+    return 2 if failed else 0
+
+
+def _report(args, results, store, many: bool, bar) -> int:
+    """Print each file's result as it comes; returns the number that failed."""
+    from stillpoint.engine.calibration.estimate import CalibrationEstimate
     failed = 0
-    for f, out, err in results():
+    for f, out, err in results:
         if err is not None:
             failed += 1
-            print(f"stillpoint calibrate: error: {err}", file=sys.stderr)
+            bar.message(f"stillpoint calibrate: error: {err}")
             if args.json:
                 print(json.dumps({"file": f, "status": "error", "reason": str(err)}))
             else:
@@ -290,7 +309,7 @@ def run(args) -> int:
         if store is not None:
             store.add(est, source=f)
             if not args.json:
-                print(f"stored for {est.device_key} in {store.dir}", file=sys.stderr)
+                bar.message(f"stored for {est.device_key} in {store.dir}")
         if args.json:
             obj = estimate_json(est)
             if many:
@@ -300,4 +319,4 @@ def run(args) -> int:
             print_human(est, title=f"{f} ({key})")
             if plot:
                 print(f"  plot         {plot}")
-    return 2 if failed else 0
+    return failed

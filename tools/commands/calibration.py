@@ -8,6 +8,7 @@ or ``-o FILE``). The store lives in ``$STILLPOINT_HOME`` or ``~/.local/share/sti
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 
@@ -15,6 +16,7 @@ from stillpoint.drivers.errors import StillpointError
 
 NAME = "calibration"
 HELP = "the per-device calibration store: list | show DEVICE | export [-o FILE]"
+KEEPS_EXISTING_OUTPUTS = True  # --overwrite replaces an existing output
 
 
 def add_arguments(parser) -> None:
@@ -28,6 +30,8 @@ def add_arguments(parser) -> None:
     p.add_argument("--json", action="store_true")
     p = sub.add_parser("export", help="the whole store as one JSON document")
     p.add_argument("-o", "--output", metavar="FILE", help="write here instead of stdout")
+    p.add_argument("--overwrite", action="store_true", default=argparse.SUPPRESS,
+                   help="replace FILE if it exists (without it an existing file is refused)")
 
 
 def _fmt(v, spec=".2f"):

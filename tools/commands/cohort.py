@@ -64,6 +64,8 @@ def add_arguments(p) -> None:
     add_timezone_argument(r)
     add_setting_arguments(r)
     add_table_arguments(r, with_switch=False)
+    from ._outcomeopts import add_outcome_arguments
+    add_outcome_arguments(r)
     s = sub.add_parser("status", help="done / failed by class / pending")
     s.add_argument("outdir", type=Path)
     s.add_argument("--json", action="store_true", help="one JSON object")
@@ -160,6 +162,10 @@ def _run(args) -> int:
     settings["tables"] = {"nonwear_version": args.nonwear, "valid_day_hours": args.valid_day_hours,
                           "enmo_bands_mg": [float(x) for x in args.enmo_bands],
                           "mvpa_bout_s": args.mvpa_bout_s}  # part of every file's key
+    from ._outcomeopts import outcome_settings
+    outcomes = outcome_settings(args)
+    if outcomes.active:  # only then: a cohort without outcomes keeps its files' keys
+        settings["tables"]["outcomes"] = outcomes.to_dict()
     attributes: dict = {}  # a manifest's per-file timezone / participant
     files = discover_inputs(args.inputs, attributes)
     if not files:

@@ -19,6 +19,7 @@ from ._numbers import MG, RATE_HZ, number
 
 NAME = "discrepancy"
 HELP = "name the sensor effects the model misses (held-out gap, dBIC) and write the fitted model"
+KEEPS_EXISTING_OUTPUTS = True  # --overwrite replaces an existing output
 
 
 def add_arguments(parser) -> None:

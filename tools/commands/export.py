@@ -62,6 +62,7 @@ TABLES = ("epochs", "days")  # --table of an MCAP input
 def add_arguments(parser) -> None:
     parser.add_argument("file", help="recording (.cwa, .bin, optionally .gz) or a run's .mcap")
     parser.add_argument("-o", "--output", required=True, help="OUT.csv, OUT.csv.gz or OUT.npz")
+    parser.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
     parser.add_argument("--time", choices=TIME_FORMATS, default="iso",
                         help="CSV time column: iso (UTC, microseconds; default), epoch (seconds, 9 "
                              "decimals) or ns (integer nanoseconds)")
@@ -79,6 +80,8 @@ def add_arguments(parser) -> None:
                              "(OUT.csv) made from the log")
     from ._tableopts import add_table_arguments
     add_table_arguments(parser, with_switch=False)
+    from ._outcomeopts import add_outcome_arguments
+    add_outcome_arguments(parser)
 
 
 # ---------------------------------------------------------------------------- per-sample columns
@@ -336,8 +339,10 @@ _KIND = {"cwa": "an AX3/AX6 .cwa", "geneactiv": "a GENEActiv .bin"}
 
 def export_recording(path, out, *, time_format: str = "iso", timezone=None, compress: bool = False,
                      topics=None, table: Optional[str] = None,
-                     table_options: Optional[dict] = None, timezone_override: bool = False) -> dict:
+                     table_options: Optional[dict] = None, timezone_override: bool = False,
+                     progress=None) -> dict:
     """Export a recording to CSV or NPZ (see the module docstring). Returns a small report.
+    ``progress(fraction=...)``: told the share of a recording read after each block.
 
     An MCAP input exports what is asked for, never what the output's name suggests: ``table``
     (``epochs`` or ``days``: that table, made from the log) or ``topics``; one of them is
@@ -376,6 +381,9 @@ def export_recording(path, out, *, time_format: str = "iso", timezone=None, comp
         opts["timezone"] = timezone_option(timezone, fmt, path, timezone_override)
     check_output_path(out)
     src = open_recording(path, **opts)
+    if progress is not None:
+        from stillpoint.engine.progress import Reporting
+        src = Reporting(src, progress)
     sink = None
     try:
         with atomic_output(out) as raw:
@@ -429,9 +437,16 @@ def run(args) -> int:
     ts = table_settings(args, Path(args.output))
     opts = {"nonwear_version": ts.nonwear_version, "valid_day_hours": ts.valid_day_hours,
             "enmo_bands_mg": ts.enmo_bands_mg, "mvpa_bout_s": ts.mvpa_bout_s}
-    rep = export_recording(args.file, args.output, time_format=args.time, timezone=args.timezone,
-                           compress=args.compress, topics=args.topic, table=args.table,
-                           table_options=opts, timezone_override=args.timezone_override)
+    from ._outcomeopts import outcome_settings
+    outcomes = outcome_settings(args)
+    if outcomes.active:
+        opts["outcomes"] = outcomes
+    from stillpoint.engine.progress import Progress
+    with Progress("export", quiet=args.quiet) as bar:
+        rep = export_recording(args.file, args.output, time_format=args.time,
+                               timezone=args.timezone, compress=args.compress, topics=args.topic,
+                               table=args.table, table_options=opts,
+                               timezone_override=args.timezone_override, progress=bar.update)
     if rep.get("tables"):
         t = rep["tables"]
         what = (f"{t['epoch_rows']:,} epochs" if rep["table"] == "epochs"

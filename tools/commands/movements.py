@@ -12,6 +12,7 @@ from ._numbers import number
 
 NAME = "movements"
 HELP = "count infant leg movements per leg (AX6 ankle recordings), with static calibration"
+KEEPS_EXISTING_OUTPUTS = True  # --overwrite replaces an existing output
 DESCRIPTION = (HELP + ". FILE is the left leg, RIGHT_FILE the right; legs are processed "
                "independently. Calibrate each with `--calibration CAL.json` (one per file, in "
                "order; from `static-calibrate -o`) or `--store` (the store's latest static "

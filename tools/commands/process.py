@@ -11,6 +11,7 @@ from stillpoint.engine.run import RunSettings, process_file
 
 from ._numbers import SECONDS_DAY
 from ._staticopts import add_static_arguments, resolve_static
+from ._outcomeopts import add_outcome_arguments, outcome_settings
 from ._tableopts import (add_table_arguments, add_timezone_argument, check_zone, table_settings,
                          tables_text)
 from ._runopts import (OptionError, Progress, add_setting_arguments, human_summary,
@@ -54,6 +55,7 @@ def add_arguments(p) -> None:
     add_static_arguments(p)
     add_setting_arguments(p)
     add_table_arguments(p)
+    add_outcome_arguments(p)
 
 
 def _store(arg):
@@ -103,7 +105,8 @@ def execute(args, settings: RunSettings, out: Path) -> int:
     check_distinct_outputs(named)
     if getattr(args, "store", None) is not None:
         _store(args.store).check()
-    progress = Progress(enabled=False if args.quiet else None)
+    progress = Progress(enabled=False if args.quiet else None,
+                        label=getattr(args, "command", None) or "process")  # or replay
     resolve_static(args, settings)
     if getattr(args, "store", None) is not None and settings.mode == "online" and settings.prior is None:
         from stillpoint.drivers import open_recording
@@ -114,6 +117,8 @@ def execute(args, settings: RunSettings, out: Path) -> int:
         if prior is not None:
             settings.prior = prior.to_dict()
     tables = table_settings(args, out) if getattr(args, "tables", False) else None
+    if tables is not None and hasattr(args, "cutpoints"):
+        tables.outcomes = outcome_settings(args)
     if getattr(args, "report", False):
         from stillpoint.engine.report import require_matplotlib
         require_matplotlib()
@@ -125,8 +130,10 @@ def execute(args, settings: RunSettings, out: Path) -> int:
             opts = {"follow": True, "follow_idle_s": args.follow}
         summary = process_file(args.file, out, settings, progress=progress, tables=tables,
                                source_options=opts)
-    finally:
-        progress.done()
+    except BaseException:
+        progress.done(completed=False)
+        raise
+    progress.done()
     if getattr(args, "report", False):
         from stillpoint.engine.report import write_report
         summary["outputs"].update(write_report(out, summary=summary))

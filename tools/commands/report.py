@@ -13,6 +13,7 @@ def add_arguments(p) -> None:
     p.add_argument("file", type=Path, nargs="+", help="stillpoint MCAP(s) written by process")
     p.add_argument("-o", "--output", type=Path, default=None,
                    help="PNG path (one input only; default: <stem>.report.png beside the MCAP)")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
 
 
 def run(args) -> int:
@@ -25,9 +26,11 @@ def run(args) -> int:
     for f in args.file:
         png = args.output or report_paths(f)[0]
         check_output_path(png, what="report")
+    from stillpoint.engine.progress import Progress
     for f in args.file:
         png = args.output
         page = png.with_suffix(".html") if png else None
-        out = write_report(f, out_png=png, out_html=page)
+        with Progress(f"report {Path(f).name}", quiet=args.quiet) as bar:
+            out = write_report(f, out_png=png, out_html=page, progress=bar)
         print(f"wrote {out['report']} and {out['report_html']}")
     return 0

@@ -72,6 +72,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "values for parameters not given")
     p.add_argument("--save-model", default=None, help="also write the resolved sensor model JSON here")
     p.add_argument("--json", action="store_true", help="print a JSON summary")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
     from . import _static_scenarios
     _static_scenarios.add_arguments(p)
 
@@ -123,6 +124,9 @@ def run(args) -> int:
                   range_g=args.range_g, packed=False if args.unpacked else None,
                   gyro_range_dps=args.gyro if args.device == "ax6" else None)
     t0 = time.perf_counter()
+    from stillpoint.engine.progress import Progress
+    bar = Progress("simulate", quiet=args.quiet)
+    common["progress"] = bar.update
     try:
         if args.pair:
             dev_b = args.pair_device or args.device
@@ -139,9 +143,14 @@ def run(args) -> int:
             truths = [simulate_recording(out, device=args.device, site=args.site, effects=model,
                                          truth_path=args.truth, **common)]
     except ValueError as e:
+        bar.close(completed=False)
         if isinstance(e, ModelError):
             raise
         raise ModelError(str(e)) from None
+    except BaseException:
+        bar.close(completed=False)
+        raise
+    bar.close()
     elapsed = time.perf_counter() - t0
     if args.save_model:
         from stillpoint.drivers.outputs import atomic_output

@@ -9,6 +9,7 @@ from ._numbers import number
 
 NAME = "static-calibrate"
 HELP = "estimate offset, gain, misalignment and noise per axis from a six-orientation recording"
+KEEPS_EXISTING_OUTPUTS = True  # --overwrite replaces an existing output
 DESCRIPTION = (HELP + ". The user puts the device on a level surface on each of its six faces "
                "for about 10 s (any order). Modes: reference = the HBCD release's search "
                "exactly (incl. its quirks); paper = SD cut-off 0.01 g; robust = still on all "

@@ -38,7 +38,45 @@ def add_arguments(p) -> None:
                    help="serve each device live to Foxglove on ws://localhost:PORT (default 8765): "
                         "state, progress, battery, clock offset, the corrected stream while it "
                         "downloads, calibration estimates (needs the live extra)")
+    add_web_arguments(p, station=True)
     add_store_arguments(p)
+
+
+def add_web_arguments(p, station: bool) -> None:
+    """--web, --token (and --read-only for the station): the dashboard (docs/dashboard.md)."""
+    p.add_argument("--web", nargs="?", const="", default=None if station else "", metavar="[HOST:]PORT",
+                   type=_web_address,
+                   help="serve the web dashboard (default 127.0.0.1 and a free port, printed at "
+                        "start; any other address than loopback needs the token)")
+    p.add_argument("--token", default=None,
+                   help="the dashboard's token (default: a new random one, printed at start)")
+    if station:
+        p.add_argument("--read-only", action="store_true",
+                       help="the dashboard shows the station but takes no action")
+
+
+def _web_address(text: str) -> str:
+    import argparse
+    from stillpoint.engine.station.web.access import AddressError, parse_address
+    try:
+        parse_address(text)
+    except AddressError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+    return text
+
+
+def start_dashboard(args, folder, station=None):
+    """The dashboard of ``folder`` (live with ``station``) started; prints its address."""
+    from stillpoint.engine.station.web import Dashboard
+    from stillpoint.engine.station.web.access import parse_address
+    host, port = parse_address(args.web)
+    dash = Dashboard(folder, station, host=host, port=port, token=args.token,
+                     read_only=getattr(args, "read_only", False))
+    url = dash.start()
+    print(f"dashboard: {url}?token={dash.token}"
+          + (" (read-only)" if dash.read_only else "")
+          + ("" if dash.loopback else " (not loopback: the token is needed to see it)"), flush=True)
+    return dash
 
 
 def add_store_arguments(p) -> None:
@@ -84,19 +122,22 @@ def run(args) -> int:
         with Station(opts, tty=False if args.plain else None, inbox=inbox) as st:
             if inbox is not None:
                 inbox.ledger = st.ledger
+            dash = start_dashboard(args, args.outdir, st) if args.web is not None else None
             live = None
-            if args.foxglove is not None:
-                from stillpoint.engine.live.station import StationLive
-                live = StationLive(args.outdir, port=args.foxglove)
-                st.add_listener(live.on_change)
-                print(f"foxglove: ws://127.0.0.1:{live.port}", flush=True)
-            if not (st.tty):
-                print(f"station on {args.outdir} (ledger {st.ledger.path}); clear after verify: "
-                      f"{'yes' if clear else 'no'}; configure: {'yes' if configure else 'no'}; Ctrl-C stops",
-                      flush=True)
             try:
+                if args.foxglove is not None:
+                    from stillpoint.engine.live.station import StationLive
+                    live = StationLive(args.outdir, port=args.foxglove)
+                    st.add_listener(live.on_change)
+                    print(f"foxglove: ws://127.0.0.1:{live.port}", flush=True)
+                if not (st.tty):
+                    print(f"station on {args.outdir} (ledger {st.ledger.path}); clear after verify: "
+                          f"{'yes' if clear else 'no'}; configure: {'yes' if configure else 'no'}; Ctrl-C stops",
+                          flush=True)
                 rc = st.run(once=args.once, stop=stop)
             finally:
+                if dash is not None:
+                    dash.close()
                 if live is not None:
                     live.close()
             if stop.is_set():

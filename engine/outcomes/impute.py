@@ -1,0 +1,130 @@
+"""Nonwear imputation as GGIR does it (``g.impute``, wadpac/GGIR ``R/g.impute.R`` @388064b7), for
+day values comparable with GGIR's.
+
+GGIR cuts the recording into consecutive 24-hour pieces from its first epoch (lines 373-384), takes
+for every epoch slot of the day the mean of that slot over all pieces where the epoch is not
+masked (nonwear, clipping: ``r5long != 0``, lines 366-372, 397), and replaces every masked epoch by
+its slot's mean (lines 412-417); a slot never observed gets 0 (lines 404-410). It imputes only
+when the recording is longer than one piece (``ndays > 1``, line 377). Here an epoch is masked
+when it is not clean (nonwear, clipping, gap, QC, filter warm-up); slots count rows of the epoch
+table (one per epoch from the first, gaps included).
+
+``AverageDay`` collects the slot sums while the epoch rows stream (memory: two arrays of one day's
+epochs) and keeps each epoch's day, values and clean flag in a temporary file (21 bytes an
+epoch); ``imputed_days`` reads that file back a slice at a time and gives, per local day, the day
+values computed on the imputed epochs, each column name ending ``_imputed``:
+``enmo_mean_mg_imputed``, ``mad_mean_mg_imputed`` (mean over the day's epochs) and, with a
+cut-point set, the band minutes and bout minutes of ``engine.outcomes.daily``.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import tempfile
+
+import numpy as np
+
+SUFFIX = "_imputed"
+METRICS = ("enmo_mg", "mad_mg")
+SLICE_ROWS = 1 << 15
+_RECORD = np.dtype([("day", "<i4"), ("enmo_mg", "<f8"), ("mad_mg", "<f8"), ("clean", "?")])
+
+
+class AverageDay:
+    def __init__(self, epoch_s: float):
+        self.per_day = int(round(86400.0 / epoch_s))
+        self.rows = 0
+        self.sums = {m: np.zeros(self.per_day) for m in METRICS}
+        self.counts = {m: np.zeros(self.per_day, np.int64) for m in METRICS}
+        self._spill = tempfile.TemporaryFile(prefix="stillpoint-impute-")
+
+    def push(self, values: dict, clean: np.ndarray, day: np.ndarray) -> None:
+        """One slice of epoch rows: metric values, clean flags and local day numbers."""
+        n = clean.shape[0]
+        slot = (self.rows + np.arange(n)) % self.per_day
+        rec = np.empty(n, _RECORD)
+        rec["day"], rec["clean"] = day, clean
+        for m in METRICS:
+            v = values[m]
+            rec[m] = v
+            ok = clean & np.isfinite(v)
+            np.add.at(self.sums[m], slot[ok], v[ok])
+            np.add.at(self.counts[m], slot[ok], 1)
+        self._spill.write(rec.tobytes())
+        self.rows += n
+
+    @property
+    def imputes(self) -> bool:
+        """GGIR imputes only a recording longer than one day."""
+        return self.rows > self.per_day
+
+    def profile(self, metric: str) -> np.ndarray:
+        c = self.counts[metric]
+        return np.where(c > 0, self.sums[metric] / np.maximum(c, 1), 0.0)
+
+    def slices(self):
+        """The spilled rows back, in order, a slice at a time."""
+        self._spill.seek(0)
+        while True:
+            buf = self._spill.read(SLICE_ROWS * _RECORD.itemsize)
+            if not buf:
+                return
+            yield np.frombuffer(buf, _RECORD)
+
+    def close(self) -> None:
+        self._spill.close()
+
+
+def _date(day: int) -> str:
+    return (_dt.date(1970, 1, 1) + _dt.timedelta(days=int(day))).isoformat()
+
+
+def imputed_days(average: AverageDay, outcomes=None) -> dict:
+    """date -> {column: value} of the day values on imputed epochs; {} when GGIR would not
+    impute (a recording of one day or less)."""
+    if not average.imputes:
+        return {}
+    prof = {m: average.profile(m) for m in METRICS}
+    out: dict = {}
+    row = 0
+    day, parts = None, []
+
+    def finish(day, parts):
+        e = np.concatenate([p[0] for p in parts])
+        m = np.concatenate([p[1] for p in parts])
+        d = {"enmo_mean_mg" + SUFFIX: float(e.mean()), "mad_mean_mg" + SUFFIX: float(m.mean())}
+        if outcomes is not None and outcomes.cut is not None:
+            v = e if outcomes.cut.column == "enmo_mg" else m
+            for name, val in outcomes.day(v, np.ones(v.shape[0], bool),
+                                          np.zeros(v.shape[0], np.int64), {}).items():
+                if name.startswith(("min_", "bout_min_")):
+                    d[name + SUFFIX] = val
+        out[_date(day)] = d
+
+    for rec in average.slices():
+        n = rec.shape[0]
+        slot = (row + np.arange(n)) % average.per_day
+        row += n
+        clean = rec["clean"]
+        e = np.where(clean & np.isfinite(rec["enmo_mg"]), rec["enmo_mg"], prof["enmo_mg"][slot])
+        m = np.where(clean & np.isfinite(rec["mad_mg"]), rec["mad_mg"], prof["mad_mg"][slot])
+        days = rec["day"]
+        cuts = np.flatnonzero(days[1:] != days[:-1]) + 1
+        for a, b in zip(np.r_[0, cuts], np.r_[cuts, n]):
+            if day is not None and int(days[a]) != day:
+                finish(day, parts)
+                parts = []
+            day = int(days[a])
+            parts.append((e[a:b], m[a:b]))
+    if day is not None:
+        finish(day, parts)
+    return out
+
+
+def imputed_columns(outcomes=None) -> list:
+    cols = ["enmo_mean_mg" + SUFFIX, "mad_mean_mg" + SUFFIX]
+    if outcomes is not None and outcomes.cut is not None:
+        cols += [c + SUFFIX for c in outcomes.base_day_columns()
+                 if c.startswith(("min_", "bout_min_"))]
+    return cols
+

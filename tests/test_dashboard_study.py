@@ -15,8 +15,8 @@ from stillpoint.engine.station.flow import StationOptions
 from stillpoint.engine.station.ledger import Ledger
 from stillpoint.engine.station.profile import ProfileError, StudyProfile, load_profile
 from stillpoint.engine.station.station import Station
-from stillpoint.engine.station.study import (StudyRecordError, check_template, download_stem,
-                                             file_stem, profile_from_code, setting_code)
+from stillpoint.engine.station.setting_code import profile_from_code, setting_code
+from stillpoint.engine.station.study import StudyRecordError, check_template, download_stem, file_stem
 from stillpoint.engine.station.web import Dashboard
 from stillpoint.engine.station.web.records import Records
 

@@ -10,7 +10,9 @@ RSS of that child, via ``getrusage(RUSAGE_CHILDREN)`` in a one-shot meter proces
 * a plain numpy whole-file decode (the in-memory baseline: read all, decode all at once),
 * cwa-reader-rs from the peers' environment (``--peers``; and, with ``--all-peers``, actipy and scikit-digital-health),
 
-and prints the figures and their ratios measured in the same run (machines are noisy: compare
+and the same two passes over the realistic ``stillpoint simulate`` file of the same length
+(``benchlib.realistic_recording``: default wearer, seed 3; listed first, kept in ``--dir`` for
+the other benchmarks), and prints the figures and their ratios measured in the same run (machines are noisy: compare
 ratios, not seconds). With several ``--days`` values (default ``7 14``) it also checks that the
 reader's peak RSS does not grow with the file length. Run:
 
@@ -25,7 +27,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from benchlib import best_of, peers_python
+from benchlib import best_of, peers_python, realistic_recording
 
 NS = 1_000_000_000
 
@@ -139,7 +141,10 @@ def main(argv=None) -> int:
         print(f"\n== {days:g} days: {n:,} samples, {path.stat().st_size / 1e6:.0f} MB "
               f"(made and written in {wt:.1f} s; inside CwaWriter.write {in_writer:.1f} s = "
               f"{n / in_writer / 1e6:.0f} M samples/s)")
+        wear = realistic_recording(d, days)
         cmds = {
+            "inspect --json, wear": [stillpoint, "inspect", str(wear), "--json"],
+            "CwaReader pass, wear": [py, "-c", READER_PASS, str(wear)],
             "stillpoint inspect --json": [stillpoint, "inspect", str(path), "--json"],
             "CwaReader full pass": [py, "-c", READER_PASS, str(path)],
         }

@@ -3,7 +3,9 @@
     python tools/bench_framing.py [REC.cwa] [--mode batch] [--repeat 3]
 
 Runs ``engine.run.process_file`` (with the epoch and day tables, as the command does) on the
-recording (default: the 1-day bench file of tools/bench_process.py, written there if missing)
+recording (default: the realistic 1-day file of ``benchlib.realistic_recording``, ``stillpoint
+simulate`` with the default wearer, written there if missing; ``--pattern``: the 1-day test
+pattern of tools/bench_process.py instead)
 and prints, per run, the CPU time of the engine's thread spent in ``McapSink.write_slices``
 (framing every message of a step, handing its chunks to the writer) per pipeline step, its
 share of the run's CPU, and the run's wall and CPU time. The CPU clock is the calling thread's
@@ -28,12 +30,14 @@ def main(argv=None) -> int:
     ap.add_argument("--mode", choices=("batch", "online"), default="batch")
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--workdir", default=os.path.join(tempfile.gettempdir(), "stillpoint_bench"))
+    ap.add_argument("--pattern", action="store_true", help="default file: the test pattern, not wear")
     a = ap.parse_args(argv)
     if a.recording is None:
         from bench_process import recording
+        from benchlib import realistic_recording
         wd = Path(a.workdir)
         wd.mkdir(parents=True, exist_ok=True)
-        path = recording(wd, 1.0, 100.0)
+        path = (recording if a.pattern else realistic_recording)(wd, 1.0, 100.0)
     else:
         path = Path(a.recording)
 

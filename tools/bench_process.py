@@ -1,29 +1,35 @@
-"""Benchmark `stillpoint process --mode batch` (two passes, full MCAP log) on long packed AX3 files.
+"""Benchmark `stillpoint process --mode batch` (two passes, full MCAP log) on long AX3 files.
 
-    /work/venv/bin/python tools/bench_process.py [--days 7] [--rss-days 1,7,14] [--repeat 1]
-                                                 [--before 81a4d51]
+    python tools/bench_process.py [--days 7] [--rss-days 1,7,14] [--repeat 2]
+                                  [--no-pattern] [--before 81a4d51]
 
-Measured side by side in one run, each command in its own child process (wall time, CPU time and
-peak RSS of that child and its children via ``getrusage(RUSAGE_CHILDREN)``):
+Two recordings, two columns of one table, every row measured in the same run:
 
-* plain decode: one CwaReader pass over the whole file (the drivers' decode baseline);
-* ``stillpoint process --mode batch`` with the default 10 s flush cadence (inline writer), with
-  the writer in a child process (``writer="process"``, API), and with 60 s flushes;
+1. **realistic** (first): ``stillpoint simulate`` with the default wearer (AX3 wrist, 100 Hz,
+   seed 3; ``benchlib.realistic_recording``): days of wear, sleep, sitting and walking;
+2. **test pattern** (second, ``--no-pattern`` skips it): the synthetic window-feature generator of
+   tests/synthetic_calibration.py (packed AX3, blocks of constant orientation plus white noise,
+   known sensor errors), the file every figure used before.
+
+Each command runs in its own child process (wall time, CPU time and peak RSS of that child and
+its children via ``getrusage(RUSAGE_CHILDREN)``), ``--repeat`` times interleaved, keeping the
+least wall and the least CPU separately (the machine is shared: read the CPU ratios, taken
+against baselines measured in the same run):
+
+* plain decode: one reader pass over the whole file (the drivers' decode baseline);
+* ``stillpoint process --mode batch`` (default flush cadence), with ``--flush-every-s 60``, and
+  without the epoch/day tables and the view topic (``--no-tables --view-hz 0``: the work the
+  bound does);
 * the same command at an earlier commit (``--before REV``: ``git archive`` of engine/, drivers/,
   tools/ into the workdir, run with that tree first on PYTHONPATH), for a before/after table;
-* scikit-digital-health read + autocalibration + ENMO (if ``--peers`` python has skdh; it
-  does not log anything, so this is less work than process);
-* the vectorised same-work bound (tools/bound_process.py: two decodes, window features, affine
-  correction, ENMO, BFEN filter, zstd as straight numpy per block), with and without the filter
-  and compression;
-* peak RSS of ``process`` on 1-, 7- and 14-day files (must be flat and < 300 MB);
-* the same ``process`` without the epoch/day tables and the view topic (``--no-tables
-  --view-hz 0``): the work the bound does;
-* MCAP size against the input .cwa (target <= 1.2x; ``tools/mcap_size.py`` says where it goes).
+* scikit-digital-health read + autocalibration + ENMO (``--peers`` Python, else
+  $STILLPOINT_PEERS_PYTHON, else /tmp/skdh-venv; it logs nothing, so it does less work);
+* the vectorised same-work bound (tools/bound_process.py), with and without filter and zstd;
+* peak RSS of ``process`` on 1-, 7- and 14-day realistic files (must be flat);
+* MCAP size against the input for both files and for every real file of
+  $STILLPOINT_REAL_DATA (too short for speed figures: minutes to hours).
 
-Recordings are written once with the synthetic window-feature generator of tests/synthetic_calibration.py (packed AX3, 100 Hz,
-known sensor errors) into ``--workdir`` and reused (same names as tools/bench_calibrate.py).
-The machine is shared and noisy: read the ratios, not the seconds.
+Recordings are written once into ``--workdir`` and reused.
 """
 
 from __future__ import annotations
@@ -37,16 +43,10 @@ import tempfile
 import time
 from pathlib import Path
 
-from benchlib import DECODE_PASS, SKDH_READ_AUTOCAL_ENMO, measure, peers_python
+from benchlib import (DECODE_PASS, SKDH_READ_AUTOCAL_ENMO, best_of, measure, peers_python,
+                      real_recordings, realistic_recording)
 
 BOUND = str(Path(__file__).resolve().parent / "bound_process.py")
-
-PROCESS_API = r"""
-import sys
-from stillpoint.engine.run import RunSettings, process_file
-process_file(sys.argv[1], sys.argv[2], RunSettings(mode="batch"), writer=sys.argv[3])
-"""
-
 
 def measure_ok(cmd, env=None) -> dict:
     r = measure(cmd, env)
@@ -56,7 +56,12 @@ def measure_ok(cmd, env=None) -> dict:
 
 
 def best(cmd, repeat, env=None):
-    return min((measure_ok(cmd, env) for _ in range(max(1, repeat))), key=lambda r: r["wall"])
+    """The least wall and the least CPU (separately) and the largest peak RSS of ``repeat`` runs."""
+    runs = [measure_ok(cmd, env) for _ in range(max(1, repeat))]
+    r = dict(min(runs, key=lambda x: x["wall"]))
+    r["cpu"] = min(x["cpu"] for x in runs)
+    r["rss_mb"] = max(x["rss_mb"] for x in runs)
+    return r
 
 
 def before_tree(workdir: Path, rev: str) -> dict:
@@ -103,120 +108,142 @@ def recording(workdir: Path, days: float, rate: float) -> Path:
     return path
 
 
+def run_file(path: Path, wd: Path, args, peers_py, bt) -> dict:
+    """Every row of the table for one recording: {name: measure result}, plus sizes."""
+    sp = [sys.executable, "-m", "stillpoint.tools"]
+    out = wd / "bench_process.mcap"
+    summ = wd / "bench_process.json"
+    cmds = {"decode": [sys.executable, "-c", DECODE_PASS, path],
+            "process": sp + ["process", path, "-o", out, "--mode", "batch", "-q", "--summary", summ,
+                             "--overwrite"]}
+    res = best_of(cmds, args.repeat)
+    for name, r in res.items():
+        if r["rc"] != 0:
+            raise SystemExit(f"{name} failed on {path}:\n{r['err']}")
+    mcap_mb = out.stat().st_size / 1e6
+    s = json.loads(summ.read_text())
+    more = {"process60": sp + ["process", path, "-o", out, "--mode", "batch", "-q",
+                               "--flush-every-s", "60", "--overwrite"],
+            # the work the same-work bound does: no epoch/day tables, no view topic
+            "process_same": sp + ["process", path, "-o", out, "--mode", "batch", "-q",
+                                  "--no-tables", "--view-hz", "0", "--overwrite"],
+            "bound": [sys.executable, BOUND, path],
+            "bound_bare": [sys.executable, BOUND, path, "--no-filter", "--no-zstd"]}
+    if bt:
+        more["before"] = sp + ["process", path, "-o", wd / "bench_before.mcap", "--mode", "batch",
+                               "-q", "--overwrite"]
+    if peers_py:
+        more["skdh"] = [peers_py, "-c", SKDH_READ_AUTOCAL_ENMO, path]
+    for name, cmd in more.items():
+        res[name] = best(cmd, args.repeat, env=bt["env"] if name == "before" else None)
+    for r in res.values():
+        if r["rc"] != 0:
+            raise SystemExit(f"a command failed on {path}:\n{r['err']}")
+    res["_summary"] = s
+    res["_mcap_mb"] = mcap_mb
+    res["_cwa_mb"] = path.stat().st_size / 1e6
+    if bt:
+        res["_before_mb"] = (wd / "bench_before.mcap").stat().st_size / 1e6
+        (wd / "bench_before.mcap").unlink()
+    out.unlink(missing_ok=True)
+    return res
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--days", type=float, default=7.0)
     ap.add_argument("--rate", type=float, default=100.0)
-    ap.add_argument("--rss-days", default="1,7,14", help="file lengths for the peak-RSS check ('' skips)")
+    ap.add_argument("--rss-days", default="1,7,14", help="realistic file lengths for the peak-RSS check ('' skips)")
     ap.add_argument("--workdir", default=os.path.join(tempfile.gettempdir(), "stillpoint_bench"))
-    ap.add_argument("--peers", default=None, help="Python (or venv) of the peer tools (default $STILLPOINT_PEERS_PYTHON or /work/peers)")
-    ap.add_argument("--repeat", type=int, default=1)
+    ap.add_argument("--peers", default=None, help="Python (or venv) of the peer tools (default "
+                    "$STILLPOINT_PEERS_PYTHON, /tmp/skdh-venv or /work/peers)")
+    ap.add_argument("--repeat", type=int, default=2, help="runs of each command (least wall and least CPU kept)")
+    ap.add_argument("--no-pattern", action="store_true", help="realistic file only (no test-pattern column)")
     ap.add_argument("--before", default="", help="also run process at this git revision "
                     "(e.g. 81a4d51, the engine before the speed work)")
     args = ap.parse_args(argv)
     wd = Path(args.workdir)
     wd.mkdir(parents=True, exist_ok=True)
-    path = recording(wd, args.days, args.rate)
-    cwa_mb = path.stat().st_size / 1e6
-    sp = [sys.executable, "-m", "stillpoint.tools"]
-    out = wd / "bench_process.mcap"
-    summ = wd / "bench_process.json"
-
-    res = {"decode": best([sys.executable, "-c", DECODE_PASS, path], args.repeat)}
-    res["process"] = best(sp + ["process", path, "-o", out, "--mode", "batch", "-q", "--summary", summ, "--overwrite"],
-                          args.repeat)
-    mcap_mb = out.stat().st_size / 1e6
-    s = json.loads(summ.read_text())
-    res["process60"] = best(sp + ["process", path, "-o", out, "--mode", "batch", "-q",
-                                  "--flush-every-s", "60", "--overwrite"], args.repeat)
-    # the work the same-work bound does: no epoch/day tables, no view topic
-    res["process_same"] = best(sp + ["process", path, "-o", out, "--mode", "batch", "-q",
-                                     "--no-tables", "--view-hz", "0", "--overwrite"], args.repeat)
-    res["process_wp"] = best([sys.executable, "-c", PROCESS_API, path, out, "process"], args.repeat)
-    res["bound"] = best([sys.executable, BOUND, path], args.repeat)
-    res["bound_bare"] = best([sys.executable, BOUND, path, "--no-filter", "--no-zstd"], args.repeat)
-    if args.before:
-        bt = before_tree(wd, args.before)
-        res["before"] = best(sp + ["process", path, "-o", wd / "bench_before.mcap", "--mode",
-                                   "batch", "-q"], args.repeat, env=bt["env"])
-        before_mb = (wd / "bench_before.mcap").stat().st_size / 1e6
-        (wd / "bench_before.mcap").unlink()
+    files = [("realistic", realistic_recording(wd, args.days, args.rate))]
+    if not args.no_pattern:
+        files.append(("test pattern", recording(wd, args.days, args.rate)))
+    bt = before_tree(wd, args.before) if args.before else None
     peers_py = peers_python(args.peers)
-    have_skdh = peers_py is not None
-    if have_skdh:
-        res["skdh"] = best([peers_py, "-c", SKDH_READ_AUTOCAL_ENMO, path], args.repeat)
-    else:
-        print(f"skdh skipped: no peers Python (--peers, $STILLPOINT_PEERS_PYTHON); process is "
-              f"compared with the same-work bound only", flush=True)
+    if peers_py is None:
+        print("skdh skipped: no peers Python (--peers, $STILLPOINT_PEERS_PYTHON, /tmp/skdh-venv); "
+              "process is compared with the same-work bound only", flush=True)
+    cols = [(kind, path, run_file(path, wd, args, peers_py, bt)) for kind, path in files]
 
-    dec, pr, pr60 = res["decode"], res["process"], res["process60"]
-    print(f"\nfile: {path.name}: {s['samples']:,} samples, {s['duration_s'] / 86400:.2f} days, "
-          f"{cwa_mb:.0f} MB; calibration {s['calibration']['status']} "
-          f"({s['calibration']['error_before_mg']:.2f} -> {s['calibration']['error_after_mg']:.2f} mg)")
-    print(f"{'command':48s} {'wall s':>8s} {'cpu s':>8s} {'peak RSS MB':>12s}")
-    rows = [("plain decode (CwaReader, whole file)", dec)]
-    if args.before:
-        rows.append((f"before ({bt['sha']}): process --mode batch", res["before"]))
-    rows += [("process --mode batch (flush every 10 s)", pr),
-             ("  same, writer in a child process (API)", res["process_wp"]),
-             ("process --mode batch --flush-every-s 60", pr60),
-             ("process --no-tables --view-hz 0 (bound's work)", res["process_same"]),
-             ("same-work bound (tools/bound_process.py)", res["bound"]),
-             ("  bound without BFEN filter and zstd", res["bound_bare"])]
-    if have_skdh:
-        rows.append(("skdh read + autocalibration + ENMO", res["skdh"]))
-    for name, r in rows:
-        print(f"{name:48s} {r['wall']:8.2f} {r['cpu']:8.2f} {r['rss_mb']:12.0f}")
-    rss = s.get("peak_rss_mb") or {}
-    if rss.get("writer"):
-        print(f"  process peak RSS: engine {rss['engine']:.0f} MB + writer process {rss['writer']:.0f} MB "
-              f"= {rss['engine'] + rss['writer']:.0f} MB (each process's VmHWM)")
-    print("ratios (same run):")
-    print(f"  process / plain decode                      = {pr['wall'] / dec['wall']:.1f}x wall, "
-          f"{pr['cpu'] / dec['cpu']:.1f}x cpu")
-    if args.before:
-        b = res["before"]
-        print(f"  before / now                                = {b['wall'] / pr['wall']:.2f}x wall, "
-              f"{b['cpu'] / pr['cpu']:.2f}x cpu (before's MCAP {before_mb / cwa_mb:.2f}x the .cwa)")
-    bd, bb = res["bound"], res["bound_bare"]
-    print(f"  process / same-work bound                   = {pr['wall'] / bd['wall']:.2f}x wall, "
-          f"{pr['cpu'] / bd['cpu']:.2f}x cpu (target <= 1.2x)")
-    ps = res["process_same"]
-    print(f"  process, bound's work only / bound          = {ps['wall'] / bd['wall']:.2f}x wall, "
-          f"{ps['cpu'] / bd['cpu']:.2f}x cpu (no tables, no view)")
-    print(f"  process / bound without filter and zstd     = {pr['wall'] / bb['wall']:.2f}x wall, "
-          f"{pr['cpu'] / bb['cpu']:.2f}x cpu")
-    if have_skdh:
-        sk = res["skdh"]
-        print(f"  skdh read+autocal+ENMO / process            = {sk['wall'] / pr['wall']:.2f}x wall, "
-              f"{sk['cpu'] / pr['cpu']:.2f}x cpu (target >= 2x), "
-              f"{sk['wall'] / pr60['wall']:.2f}x wall with 60 s flushes")
-        print(f"  peak RSS skdh / process                     = {sk['rss_mb'] / pr['rss_mb']:.1f}x")
-    print(f"  MCAP size / input .cwa                      = {mcap_mb / cwa_mb:.2f}x "
-          f"({mcap_mb:.0f} MB; target <= 1.2x)")
-    print(f"  MCAP flushes                                = {s.get('mcap_flushes', 'n/a')}")
+    print(f"\nload average {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores; each figure the least "
+          f"of {max(1, args.repeat)} runs (CPU and wall separately)")
+    for kind, path, res in cols:
+        s = res["_summary"]
+        print(f"{kind}: {path.name}: {s['samples']:,} samples, {s['duration_s'] / 86400:.2f} days, "
+              f"{res['_cwa_mb']:.0f} MB; calibration {s['calibration']['status']} "
+              f"({s['calibration']['error_before_mg']:.2f} -> {s['calibration']['error_after_mg']:.2f} mg)")
+    head = "".join(f" | {k:>27s}" for k, _, _ in cols)
+    print(f"{'command (wall s / CPU s / peak RSS MB)':48s}{head}")
+    names = [("decode", "plain decode (reader, whole file)")]
+    if bt:
+        names.append(("before", f"before ({bt['sha']}): process --mode batch"))
+    names += [("process", "process --mode batch"),
+              ("process60", "process --mode batch --flush-every-s 60"),
+              ("process_same", "process --no-tables --view-hz 0 (bound's work)"),
+              ("bound", "same-work bound (tools/bound_process.py)"),
+              ("bound_bare", "  bound without BFEN filter and zstd")]
+    if peers_py:
+        names.append(("skdh", "skdh read + autocalibration + ENMO"))
+    for key, label in names:
+        print(f"{label:48s}" + "".join(f" | {r[key]['wall']:8.2f} {r[key]['cpu']:8.2f} {r[key]['rss_mb']:7.0f}"
+                                       for _, _, r in cols))
+
+    def ratio(label, f):
+        print(f"  {label:46s}" + "".join(f" | {f(r):>27s}" for _, _, r in cols))
+    print("ratios (same run; CPU first):")
+    ratio("process / plain decode (target <= 4x CPU)",
+          lambda r: f"{r['process']['cpu'] / r['decode']['cpu']:.2f}x cpu {r['process']['wall'] / r['decode']['wall']:.2f}x wall")
+    if peers_py:
+        ratio("skdh / process (target >= 1.5x CPU, 2x wall)",
+              lambda r: f"{r['skdh']['cpu'] / r['process']['cpu']:.2f}x cpu {r['skdh']['wall'] / r['process']['wall']:.2f}x wall")
+        ratio("peak RSS skdh / process", lambda r: f"{r['skdh']['rss_mb'] / r['process']['rss_mb']:.1f}x")
+        # skdh skips its calibration on recordings under 72 h (CalibrateAccelerometer min_hours)
+        ratio("skdh calibrated the file", lambda r: "no: read + ENMO only" if "not-calibrated" in r["skdh"]["out"]
+              else "yes")
+    if bt:
+        ratio("before / now", lambda r: f"{r['before']['cpu'] / r['process']['cpu']:.2f}x cpu {r['before']['wall'] / r['process']['wall']:.2f}x wall")
+    ratio("process / same-work bound",
+          lambda r: f"{r['process']['cpu'] / r['bound']['cpu']:.2f}x cpu {r['process']['wall'] / r['bound']['wall']:.2f}x wall")
+    ratio("process, bound's work only / bound",
+          lambda r: f"{r['process_same']['cpu'] / r['bound']['cpu']:.2f}x cpu {r['process_same']['wall'] / r['bound']['wall']:.2f}x wall")
+    ratio("MCAP size / input .cwa", lambda r: f"{r['_mcap_mb'] / r['_cwa_mb']:.2f}x ({r['_mcap_mb']:.0f} MB)")
+    ratio("MCAP flushes", lambda r: str(r["_summary"].get("mcap_flushes", "n/a")))
+
+    real = real_recordings()
+    if real:
+        print("\nMCAP size of process --mode batch against each real file ($STILLPOINT_REAL_DATA; "
+              "too short for speed):")
+        sp = [sys.executable, "-m", "stillpoint.tools"]
+        for p in real:
+            o = wd / "bench_real.mcap"
+            r = measure(sp + ["process", p, "-o", o, "--mode", "batch", "-q", "--no-tables", "--overwrite"])
+            if r["rc"] != 0 or not o.exists():
+                print(f"  {p.name:60s} not processed: {r['err'].strip().splitlines()[-1:] or ['?']}")
+                continue
+            print(f"  {p.name:60s} {p.stat().st_size / 1e6:7.2f} MB -> {o.stat().st_size / 1e6:7.2f} MB "
+                  f"({o.stat().st_size / p.stat().st_size:.2f}x{' the gzip file' if p.suffix == '.gz' else ''})")
+            o.unlink()
 
     days = [float(x) for x in args.rss_days.split(",") if x.strip()]
     if days:
-        print("\npeak RSS of process --mode batch by file length (target: flat, < 300 MB):")
+        print("\npeak RSS of process --mode batch by realistic file length (target: flat, not above before):")
+        sp = [sys.executable, "-m", "stillpoint.tools"]
         for d in days:
-            p = recording(wd, d, args.rate)
+            p = realistic_recording(wd, d, args.rate)
             o = wd / f"bench_rss_{d:g}d.mcap"
-            sj = wd / f"bench_rss_{d:g}d.json"
-            if p == path:
-                r, ss = pr, s
-            else:
-                r = measure_ok(sp + ["process", p, "-o", o, "--mode", "batch", "-q", "--summary", sj,
-                                   "--overwrite"])
-                ss = json.loads(sj.read_text())
-            rr = ss.get("peak_rss_mb") or {}
-            both = (f" (engine {rr['engine']:.0f} + writer {rr['writer']:.0f} = "
-                    f"{rr['engine'] + rr['writer']:.0f} MB)") if rr.get("writer") else ""
+            r = measure_ok(sp + ["process", p, "-o", o, "--mode", "batch", "-q", "--overwrite"])
             print(f"  {d:5g} days ({p.stat().st_size / 1e6:5.0f} MB .cwa): {r['rss_mb']:6.0f} MB "
-                  f"peak RSS of the largest process{both}, {r['wall']:6.1f} s wall")
-            if o.exists():
-                o.unlink()
-    out.unlink(missing_ok=True)
+                  f"peak RSS, {r['cpu']:6.1f} s CPU, {r['wall']:6.1f} s wall")
+            o.unlink(missing_ok=True)
     return 0
 
 

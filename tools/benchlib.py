@@ -22,6 +22,8 @@ from pathlib import Path
 from typing import Optional
 
 DEFAULT_PEERS_PYTHON = "/work/peers/bin/python"
+THROWAWAY_SKDH_PYTHON = "/tmp/skdh-venv/bin/python"
+REALISTIC_SEED = 3
 
 METER = r"""
 import json, resource, subprocess, sys, time
@@ -71,7 +73,8 @@ r = CalibrateAccelerometer().predict(time=d["time"], accel=d["accel"], fs=d.get(
                                      temperature=d.get("temperature"))
 a = r.get("accel", d["accel"])
 enmo = np.maximum(np.linalg.norm(a, axis=1) - 1.0, 0.0)
-print(a.shape[0], float(enmo.mean()))
+# skdh calibrates only recordings of min_hours (72 h by default) or more: say whether it did
+print(a.shape[0], float(enmo.mean()), "calibrated" if "accel" in r else "not-calibrated")
 """
 
 
@@ -101,7 +104,38 @@ def best_of(cmds: dict, repeat: int = 1) -> dict:
 def peers_python(option: Optional[str] = None) -> Optional[str]:
     """The peer tools' Python (option, else $STILLPOINT_PEERS_PYTHON, else the dev default), or
     None when it does not exist (the scripts then say the peers were skipped)."""
-    p = option or os.environ.get("STILLPOINT_PEERS_PYTHON") or DEFAULT_PEERS_PYTHON
+    p = option or os.environ.get("STILLPOINT_PEERS_PYTHON")
+    if not p:
+        p = THROWAWAY_SKDH_PYTHON if Path(THROWAWAY_SKDH_PYTHON).exists() else DEFAULT_PEERS_PYTHON
     if Path(p).is_dir():  # a virtual environment's folder
         p = str(Path(p) / "bin" / "python")
     return p if Path(p).exists() else None
+
+
+def realistic_recording(workdir: Path, days: float, rate: float = 100.0,
+                        seed: int = REALISTIC_SEED) -> Path:
+    """``stillpoint simulate`` output with the default wearer and sensor (AX3 at the wrist),
+    written once into ``workdir`` (with its truth and labels, as the command writes them)."""
+    import time
+    path = Path(workdir) / f"wear_{days:g}d_{rate:g}hz_s{seed}.cwa"
+    if path.is_file():
+        return path
+    from stillpoint.engine.sim import simulate_recording
+    t = time.perf_counter()
+    tmp = path.with_name(path.stem + ".part.cwa")
+    simulate_recording(tmp, days=days, hz=rate, seed=seed, truth_path=path.with_suffix(".truth.json"),
+                       labels_path=path.with_suffix(".labels.csv"))
+    os.replace(tmp, path)
+    print(f"wrote {path.name} ({path.stat().st_size / 1e6:.0f} MB, simulated wearer) in "
+          f"{time.perf_counter() - t:.0f} s", flush=True)
+    return path
+
+
+def real_recordings() -> list:
+    """The real recordings under ``$STILLPOINT_REAL_DATA`` (.cwa, .cwa.gz, .bin), sorted by name;
+    [] when it is not set."""
+    d = os.environ.get("STILLPOINT_REAL_DATA")
+    if not d or not Path(d).is_dir():
+        return []
+    return sorted(p for p in Path(d).iterdir()
+                  if p.name.endswith((".cwa", ".cwa.gz", ".bin")) and p.is_file())

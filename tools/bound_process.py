@@ -3,6 +3,9 @@ when written as straight numpy over each decoded block, without the engine's mac
 
     python tools/bound_process.py REC.cwa [--no-filter] [--no-zstd] [--zstd-level 1]
 
+tools/bench_process.py runs it on the realistic ``stillpoint simulate`` file first (default
+wearer) and on the window-feature test pattern second, beside ``process`` in the same run.
+
 The work, as process does it, in the fastest plain numpy forms (three contiguous rows instead of
 (n, 3)-by-(3,) broadcasts, exact integer sums for the window features):
 

@@ -8,7 +8,7 @@ ledger (``actions``: who, from where, the result) and carried out by the station
   the clear after verification, i.e. through the one clear path (``clearing.clear_verified``,
   which checks the bytes once more right before the erase).
 * ``configure``: only a cleared or empty device, from the station's study profile or a setting
-  code (``study.profile_from_code``: typed or scanned, checked by the profile's rules); the flow
+  code (``setting_code.profile_from_code``: typed or scanned, checked by the profile's rules); the flow
   runs again with the configuration, the subject id (typed or scanned) added to the metadata so
   it is written to the device's annotations, the ledger's configuration row and, with a
   profile's ``file_name`` template, the name of the device's next download.
@@ -138,7 +138,8 @@ class Actions:
         return f"clear of {flow.att.device_type}-{flow.att.device_id} started (after the byte check)"
 
     def _configure(self, flow, subject, code=None) -> str:
-        from ..study import StudyRecordError, profile_from_code
+        from ..setting_code import profile_from_code
+        from ..study import StudyRecordError
         prof = self.station.opts.profile
         if code:
             try:

@@ -123,7 +123,7 @@ class Dashboard:
         prof = self.station.opts.profile if self.station is not None else None
         if prof is None:
             return None
-        from ..study import setting_code
+        from ..setting_code import setting_code
         return setting_code(prof)
 
     def return_file_name(self, hist: dict) -> Optional[str]:

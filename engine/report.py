@@ -65,6 +65,7 @@ def report_paths(mcap) -> tuple[Path, Path]:
 
 # ---------------------------------------------------------------------------- inputs
 _FLAG_COLUMNS = ("nonwear", "clipping", "gap", "qc", "filter_warmup")
+_SLEEP_COLUMNS = ("spt", "sib")  # present when the tables were written with sleep on
 READ_ROWS = 1 << 15  # epoch rows parsed at once
 
 
@@ -76,7 +77,7 @@ def _read_epochs(path, days_shown: int = DAYS_SHOWN) -> dict:
     or a clock that jumps a year, is millions of rows)."""
     dates: dict[str, None] = {}
     parts: dict[str, list] = {k: [] for k in ("date", "hour", "enmo_mg", "temp_local", "temp_c",
-                                               *_FLAG_COLUMNS)}
+                                               *_FLAG_COLUMNS, *_SLEEP_COLUMNS)}
 
     def num(col):
         return np.array([float(x) if x else np.nan for x in col])
@@ -101,6 +102,9 @@ def _read_epochs(path, days_shown: int = DAYS_SHOWN) -> dict:
         parts["enmo_mg"].append(num(cols["enmo_mg"])[keep])
         for k in _FLAG_COLUMNS:
             parts[k].append(np.array([x == "1" for x in cols[k]])[keep])
+        for k in _SLEEP_COLUMNS:  # tables written with sleep on (engine/sleep)
+            v = cols.get(k)
+            parts[k].append((np.array([x == "1" for x in v]) if v else np.zeros(local.shape, bool))[keep])
 
     with gzip.open(path, "rt", newline="") as f:
         reader = csv.reader(f)
@@ -115,7 +119,7 @@ def _read_epochs(path, days_shown: int = DAYS_SHOWN) -> dict:
             take(rows)
     empty = {"date": np.zeros(0, "U10"), "hour": np.zeros(0), "enmo_mg": np.zeros(0),
              "temp_local": np.zeros(0, "M8[s]"), "temp_c": np.zeros(0),
-             **{k: np.zeros(0, bool) for k in _FLAG_COLUMNS}}
+             **{k: np.zeros(0, bool) for k in _FLAG_COLUMNS + _SLEEP_COLUMNS}}
     d = {k: np.concatenate(v) if v else empty[k] for k, v in parts.items()}
     d["dates"] = list(dates)
     return d
@@ -190,6 +194,20 @@ def _shade(ax, hour, mask, color, label, hatch=None, step_h=5 / 3600):
         label = None
 
 
+def _sleep_marks(ax, hour, spt, sib, ymax, step_h):
+    """A night's sleep period (light band) and its sustained inactivity bouts (bars at the foot)."""
+    for mask, kind in ((spt, "spt"), (sib, "sib")):
+        if not mask.any():
+            continue
+        d = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
+        for s, e in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)):
+            a, b = hour[s], hour[e - 1] + step_h
+            if kind == "spt":
+                ax.axvspan(a, b, color="tab:cyan", alpha=0.25, lw=0)
+            else:
+                ax.plot([a, b], [ymax * 0.02] * 2, color="tab:blue", lw=2.5, solid_capstyle="butt")
+
+
 def _outcome_text(day: dict) -> str:
     """MVPA minutes and steps of a day row (the Verisense sets' counts joined by `` / ``, in the
     table's order), one line each; empty without those columns."""
@@ -251,6 +269,8 @@ def _draw(plt, ep: dict, days: list[dict], windows, est, rec: dict, title: str, 
         _shade(ax, h, ep["clipping"][sel], "tab:red", "clipping", step_h=step_h)
         _shade(ax, h, ep["qc"][sel], "tab:orange", "QC-flagged", step_h=step_h)
         _shade(ax, h, ep["gap"][sel], "tab:blue", "gap (no data)", hatch="///", step_h=step_h)
+        if "spt" in ep:
+            _sleep_marks(ax, h, ep["spt"][sel], ep["sib"][sel], ymax, step_h)
         ax.plot(h, np.minimum(e, ymax), lw=0.5, color="k", label="ENMO")
         over = e > ymax
         if over.any():
@@ -293,8 +313,12 @@ def _draw(plt, ep: dict, days: list[dict], windows, est, rec: dict, title: str, 
                Patch(color="tab:red", alpha=0.35, label="clipping"),
                Patch(color="tab:orange", alpha=0.35, label="QC-flagged"),
                Patch(facecolor="none", edgecolor="tab:blue", hatch="///", label="gap (no data)")]
+    if "spt" in ep and (ep["spt"].any() or ep["sib"].any()):
+        handles += [Patch(color="tab:cyan", alpha=0.25, label="sleep period"),
+                    Line2D([], [], color="tab:blue", lw=2.5, label="inactivity bout")]
     if fig.axes:
-        fig.axes[0].legend(handles=handles, fontsize=6, ncol=6, loc="lower left", frameon=False,
+        fig.axes[0].legend(handles=handles, fontsize=6 if len(handles) <= 6 else 5.2,
+                           ncol=len(handles), loc="lower left", frameon=False,
                            bbox_to_anchor=(0, 1.0), borderaxespad=0.1)
     # temperature
     ax = fig.add_subplot(gs[n_day + 1, :])

@@ -416,6 +416,9 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
         check_output_path(tables.days_path, what="day table")
         if not tables.zone.known:
             tables.zone = zone
+        if getattr(tables, "sleep", None) is not None:
+            from .sleep.tap import check_sleep_outputs
+            check_sleep_outputs(tables)
     t_start = time.perf_counter()
     # raises a StillpointError (exit 2) on unreadable input; a batch run's pass 1 (window
     # features only) reads a .cwa without per-sample times, as calibrate does
@@ -696,7 +699,7 @@ class _LogPrior:
 def _add_tables(outst: OutputStage, tables, s: RunSettings, rate: float, band, src) -> None:
     if tables is not None:
         from .tables import TablesTap
-        outst.taps.append(TablesTap(tables, rate, s.epoch_s, band, src, src.info))
+        outst.taps.append(TablesTap(tables, rate, s.epoch_s, band, src, src.info, sink=outst.sink))
 
 
 def _abort_tables(outst) -> None:

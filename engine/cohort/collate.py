@@ -9,7 +9,8 @@ coefficients, and from its day table: wear hours, valid days, ENMO and MAD over 
 minutes per ENMO band, MVPA bouts, M10/L5; output paths, timings), ``cohort_days.csv`` (every
 file's day rows stacked, with the participant id, the file, its key and the weekday),
 ``cohort_participants.csv`` (one row per participant: files, valid days on weekdays and at
-weekends, wear hours, clean-epoch ENMO/MAD, means over valid days) and ``cohort_failures.csv``,
+weekends, wear hours, clean-epoch ENMO/MAD, means over valid days), ``cohort_nights.csv`` (for
+cohorts run with ``--sleep``: every file's nights table stacked) and ``cohort_failures.csv``,
 one row per failed file with its class and error. Times follow engine/timezones.py:
 ``start_utc``/``end_utc`` only when the file's zone is known, ``start_local``/``end_local``
 always (the device clock when the zone is unknown), and ``timezone`` names which. Only folders
@@ -34,13 +35,14 @@ from stillpoint.drivers.byteio import sha256_file
 from stillpoint.drivers.names import csv_cell
 from stillpoint.drivers.outputs import atomic_output
 
-from .job import DONE, FAILED, RUNNING, SUMMARY_NAME, paths
+from .job import DONE, FAILED, MCAP_NAME, RUNNING, SUMMARY_NAME, paths
 from .plan import read_plan
 
 SUMMARY_CSV = "cohort_summary.csv"
 FAILURES_CSV = "cohort_failures.csv"
 DAYS_CSV = "cohort_days.csv"
 PARTICIPANTS_CSV = "cohort_participants.csv"
+NIGHTS_CSV = "cohort_nights.csv"
 
 # the day table's summaries a study reads, taken from each file's ``all`` row (band minutes,
 # MVPA and M10/L5 are means over its valid days; ENMO/MAD over its clean epochs)
@@ -178,6 +180,8 @@ class Collation:
     days_csv: Optional[Path] = None
     participants_csv: Optional[Path] = None
     participants: list = field(default_factory=list)
+    nights_csv: Optional[Path] = None
+    nights: list = field(default_factory=list)
 
 
 _WEEKDAYS = ("Mon", "Tue", "Wed", "Thu", "Fri", "Sat", "Sun")
@@ -287,6 +291,7 @@ def collate(outdir, *, verify: bool = False, write: bool = True) -> Collation:
         days.extend(rows)
         day_cols.extend(c for c in cols if c not in day_cols)
     out.rows = kept
+    night_cols = _night_rows(out)
     bands = [c for c in day_cols if _is_band(c)]
     if not bands:
         bands = sorted({k for r in kept for k in r if _is_band(k)})
@@ -299,7 +304,32 @@ def collate(outdir, *, verify: bool = False, write: bool = True) -> Collation:
         out.participants_csv = _write_csv(outdir / PARTICIPANTS_CSV,
                                           _fields(PARTICIPANT_FIELDS, bands), out.participants)
         out.failures_csv = _write_csv(outdir / FAILURES_CSV, FAILURE_FIELDS, out.failures)
+        if night_cols:  # cohorts run with --sleep
+            out.nights_csv = _write_csv(outdir / NIGHTS_CSV,
+                                        ["participant", "file", "key"] + night_cols, out.nights)
     return out
+
+
+def _night_rows(out: Collation) -> list:
+    """Every finished file's nights table (engine/sleep) stacked into ``out.nights``, each row led
+    by the participant, file and key; returns the columns (none without sleep)."""
+    cols: list = []
+    for r in out.rows:
+        path = Path(r["folder"]) / (MCAP_NAME[:-len(".mcap")] + ".nights.csv")
+        if not path.exists():
+            continue
+        try:
+            with open(path, encoding="utf-8", newline="") as f:
+                rd = csv.DictReader(f)
+                cols.extend(c for c in (rd.fieldnames or []) if c not in cols)
+                for n in rd:
+                    n.update(participant=r["participant"], file=r["file"], key=r["key"])
+                    out.nights.append(n)
+        except (OSError, UnicodeError, csv.Error) as e:
+            out.failures.append({"file": r["file"], "key": r["key"], "class": "unreadable_output",
+                                 "error": f"{path}: unreadable nights table ({e})",
+                                 "folder": r["folder"]})
+    return cols
 
 
 def _marker(path: Path):

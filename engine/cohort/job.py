@@ -303,10 +303,13 @@ def run_job(entry: dict, outdir: str, settings: dict, code: str, attempt: int = 
             # side by side, and a reader thread per file would take them from the other workers
             # and hold its own allocator arena (peak RSS per worker 123-127 -> 180-200 MB on
             # 1-day files, tools/bench_cohort.py)
+            tables = TablesSettings(*table_paths(tmp / MCAP_NAME), **table_options(settings))
+            if (settings.get("tables") or {}).get("sleep"):
+                from stillpoint.engine.sleep import SleepOptions, nights_path
+                tables.sleep, tables.nights_path = SleepOptions(), nights_path(tmp / MCAP_NAME)
             summary = process_file(path, tmp / MCAP_NAME, RunSettings.from_dict(settings),
-                                   tables=TablesSettings(*table_paths(tmp / MCAP_NAME),
-                                                         **table_options(settings)),
-                                   prefetch=False, progress=_progress_writer(tmp / PROGRESS))
+                                   tables=tables, prefetch=False,
+                                   progress=_progress_writer(tmp / PROGRESS))
             t_engine = time.perf_counter() - t0
             rss = peak_rss_mb()
             summary = {k: v for k, v in summary.items() if k not in _VOLATILE}
@@ -316,6 +319,9 @@ def run_job(entry: dict, outdir: str, settings: dict, code: str, attempt: int = 
             if "tables" in summary:  # names inside the folder, not the temporary path
                 for k in ("epochs", "days"):
                     summary["tables"][k] = summary["outputs"][k] = Path(summary["tables"][k]).name
+                if "sleep" in summary["tables"]:
+                    sl = summary["tables"]["sleep"]
+                    sl["nights"] = summary["outputs"]["nights"] = Path(sl["nights"]).name
             write_json(tmp / SUMMARY_NAME, summary)
             os.unlink(tmp / RUNNING)
             if os.path.lexists(tmp / PROGRESS):

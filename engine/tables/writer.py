@@ -11,7 +11,10 @@ in force, or without offset when the zone is unknown: the device clock), ``n`` (
 then the flags ``nonwear``, ``clipping``, ``gap``, ``qc``, ``filter_warmup`` (0/1). Times are
 epoch starts. With activity outcomes (``TablesSettings.outcomes``: a cut-point set, steps) the
 epoch table ends with their columns (``engine.outcomes.daily``); rows then wait until the step
-counter has decided every step before their end (at most about twice its horizon).
+counter has decided every step before their end (at most about twice its horizon). With sleep on
+(``TablesSettings.sleep`` and a known zone; engine/sleep) the last two columns are ``spt``
+(inside a night's sleep period) and ``sib`` (a sustained inactivity bout), 0/1; rows then wait
+for their night's decision (at most about 30 h of epochs) and ``<stem>.nights.csv`` is written.
 """
 
 from __future__ import annotations
@@ -64,6 +67,8 @@ class TablesSettings:
     enmo_bands_mg: tuple = ENMO_BANDS_MG
     mvpa_bout_s: float = MVPA_BOUT_S
     outcomes: OutcomeSettings = field(default_factory=OutcomeSettings)
+    sleep: Optional[object] = None  # engine.sleep.SleepOptions: sleep on when the zone is known
+    nights_path: Optional[Path] = None
 
     def to_dict(self) -> dict:
         out = {"epochs": str(self.epochs_path), "days": str(self.days_path),
@@ -72,6 +77,8 @@ class TablesSettings:
                "mvpa_bout_s": self.mvpa_bout_s}
         if self.outcomes.active:
             out["outcomes"] = self.outcomes.to_dict()
+        if self.sleep is not None:
+            out["sleep"] = self.sleep.to_dict()
         return out
 
 
@@ -136,11 +143,17 @@ def _cell(v) -> str:
 class TablesTap:
     """Pushed by the output stage; writes both tables; ``close()`` returns the table summary."""
 
-    def __init__(self, ts: TablesSettings, rate_hz: float, epoch_s: float, band, source, info):
+    def __init__(self, ts: TablesSettings, rate_hz: float, epoch_s: float, band, source, info,
+                 sink=None):
         self.ts = ts
         self.epoch_ns = int(round(epoch_s * 1e9))
         check_output_path(ts.epochs_path, what="epoch table")
         check_output_path(ts.days_path, what="day table")
+        self.sink = sink
+        self.sleep = None
+        if ts.sleep is not None:
+            from ..sleep.tap import open_sleep
+            self.sleep = open_sleep(ts, epoch_s)
         self.assembler = EpochAssembler(rate_hz, epoch_s, band, source=source,
                                         nonwear_version=ts.nonwear_version,
                                         clip_g=clip_threshold_g(getattr(info, "accel_range_g", None)))
@@ -163,7 +176,8 @@ class TablesTap:
         self._out = AtomicOutput(ts.epochs_path, what="epoch table")
         self._gz = gzip.GzipFile(filename="", mode="wb", fileobj=self._out.file, mtime=0,
                                  compresslevel=GZIP_LEVEL)
-        head = epoch_columns(ts.zone) + (self.outcomes.epoch_columns() if self.outcomes else [])
+        head = epoch_columns(ts.zone) + (self.outcomes.epoch_columns() if self.outcomes else []) \
+            + (self.sleep.columns if self.sleep is not None else [])
         self._gz.write((",".join(head) + "\n").encode())
         self.rows = 0
         self.flag_counts = {f: 0 for f in FLAGS}
@@ -178,8 +192,7 @@ class TablesTap:
             if not len(rows):
                 continue
             self._count(rows)
-            self._gz.write(format_rows(rows, self.ts.zone, self.epoch_ns).encode())
-            self.days.push(rows)
+            self._put(rows, [], None)
 
     def _count(self, rows) -> None:
         self.rows += len(rows)
@@ -254,9 +267,14 @@ class TablesTap:
             a += len(rows)
         self._held, self._held_day = [], None
 
-    def _put(self, rows, extra, counts) -> None:
-        self._gz.write(format_rows(rows, self.ts.zone, self.epoch_ns, extra).encode())
-        self.days.push(rows, steps=counts)
+    def _put(self, rows, extra, counts, final: bool = False) -> None:
+        """Write rows with their extra columns; with sleep on, once their nights are decided."""
+        items = [(rows, extra, counts)] if rows is not None else []
+        if self.sleep is not None:
+            items = self.sleep.feed(items, final)
+        for r, x, c in items:
+            self._gz.write(format_rows(r, self.ts.zone, self.epoch_ns, x).encode())
+            self.days.push(r, steps=c)
 
     def push(self, block, batches, metrics) -> None:
         if self.steps is not None:
@@ -270,6 +288,8 @@ class TablesTap:
         self._write(self.assembler.flush(metrics), final=True)
         if self.outcomes is not None:
             self._finish_day()
+        if self.sleep is not None:
+            self._put(None, [], None, final=True)
 
     def close(self, calibration_status: str = "") -> dict:
         self._gz.close()
@@ -285,6 +305,8 @@ class TablesTap:
         for d in days + [summary]:
             d["calibration"] = calibration_status
         cols = self.days.columns
+        if self.sleep is not None:
+            cols = self.sleep.close(days, self.sink, self.ts.zone, cols)
         with atomic_output(self.ts.days_path, binary=False, what="day table") as f:
             w = csv.writer(f, lineterminator="\n")
             w.writerow(cols)
@@ -302,6 +324,8 @@ class TablesTap:
             out["epochs_not_in_table"] = self.assembler.epochs_not_in_table
         if self.outcomes is not None:
             out["outcomes"] = self.ts.outcomes.to_dict()
+        if self.sleep is not None:
+            out["sleep"] = self.sleep.summary()
         return out
 
     def abort(self) -> None:

@@ -68,6 +68,11 @@ def tables_text(summary: dict) -> str:
             f"filter warm-up {fl['filter_warmup']:,}), {t['day_rows']} day(s), "
             f"{f['valid_day']} valid; mean ENMO over clean epochs "
             f"{'n/a' if enmo is None else f'{enmo:.2f} mg'} (nonwear rule {t['nonwear_version']})")
+        sl = t.get("sleep")
+        if sl:
+            g = ", ".join(f"{k} {v}" for k, v in sl["guiders"].items()) or "none"
+            lines.append(f"sleep: {sl['night_rows']} night(s) (guider: {g}), {sl['sib_bouts']:,} "
+                         f"inactivity bouts; nights table {sl['nights']}")
         if t.get("epochs_not_in_table"):
             lines.append(f"warning: {t['epochs_not_in_table']:,} epochs are in the MCAP log but not "
                          "in the tables: the clock went back at a restart, to before rows already "

@@ -66,6 +66,9 @@ def add_arguments(p) -> None:
     add_table_arguments(r, with_switch=False)
     from ._outcomeopts import add_outcome_arguments
     add_outcome_arguments(r)
+    r.add_argument("--sleep", action="store_true",
+                   help="also sleep (engine/sleep): spt/sib epoch columns and each file's nights "
+                        "table, collated into cohort_nights.csv (needs the zone)")
     s = sub.add_parser("status", help="done / failed by class / pending")
     s.add_argument("outdir", type=Path)
     s.add_argument("--json", action="store_true", help="one JSON object")
@@ -166,6 +169,8 @@ def _run(args) -> int:
     outcomes = outcome_settings(args)
     if outcomes.active:  # only then: a cohort without outcomes keeps its files' keys
         settings["tables"]["outcomes"] = outcomes.to_dict()
+    if getattr(args, "sleep", False):  # only when asked: older plans' keys stay the same
+        settings["tables"]["sleep"] = True
     attributes: dict = {}  # a manifest's per-file timezone / participant
     files = discover_inputs(args.inputs, attributes)
     if not files:

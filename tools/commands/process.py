@@ -56,6 +56,40 @@ def add_arguments(p) -> None:
     add_setting_arguments(p)
     add_table_arguments(p)
     add_outcome_arguments(p)
+    _add_sleep_arguments(p)
+
+
+def _add_sleep_arguments(p) -> None:
+    """Sleep (engine/sleep): on with the tables when the zone is known."""
+    g = p.add_argument_group("sleep (GGIR's HDCZA and sustained inactivity bouts; needs the zone)")
+    g.add_argument("--no-sleep", dest="sleep", action="store_false",
+                   help="no spt/sib columns and no <stem>.nights.csv")
+    g.add_argument("--sleep-log", type=Path, metavar="LOG.csv",
+                   help="sleep diary in GGIR's basic or advanced sleep-log format: its nights "
+                        "guide the sleep period (HDCZA where a night is missing)")
+    g.add_argument("--sleep-log-id", metavar="ID",
+                   help="the participant's ID in the sleep log (default: the recording's file "
+                        "name without extension)")
+    g.add_argument("--hdcza-ignore-invalid", choices=("false", "true", "na"), default="false",
+                   help="GGIR's HASPT.ignore.invalid: nonwear judged on its anglez (false, "
+                        "default), counted as movement (true) or as no movement (na)")
+
+
+def _sleep_settings(args, tables, out: Path) -> None:
+    if not getattr(args, "sleep", False) or tables is None:
+        if getattr(args, "sleep_log", None) is not None:
+            raise OptionError("--sleep-log needs the tables and sleep (not with --no-tables or "
+                              "--no-sleep)")
+        return
+    from stillpoint.engine.sleep import HdczaOptions, SleepOptions, nights_path, read_sleep_log
+    log = None
+    if args.sleep_log is not None:
+        name = args.file.name
+        pid = args.sleep_log_id or (name.split(".", 1)[0] if "." in name else name)
+        log = read_sleep_log(args.sleep_log, pid)
+    ign = {"false": False, "true": True, "na": None}[args.hdcza_ignore_invalid]
+    tables.sleep = SleepOptions(hdcza=HdczaOptions(ignore_invalid=ign), sleep_log=log)
+    tables.nights_path = nights_path(out)
 
 
 def _store(arg):
@@ -99,6 +133,9 @@ def execute(args, settings: RunSettings, out: Path) -> int:
     if getattr(args, "tables", False):
         from stillpoint.engine.tables import table_paths
         named["epoch table"], named["day table"] = table_paths(out)
+        if getattr(args, "sleep", False):
+            from stillpoint.engine.sleep import nights_path
+            named["nights table"] = nights_path(out)
     if getattr(args, "report", False):
         from stillpoint.engine.report import report_paths
         named["report"], named["report page"] = report_paths(out)
@@ -117,6 +154,7 @@ def execute(args, settings: RunSettings, out: Path) -> int:
         if prior is not None:
             settings.prior = prior.to_dict()
     tables = table_settings(args, out) if getattr(args, "tables", False) else None
+    _sleep_settings(args, tables, out)
     if tables is not None and hasattr(args, "cutpoints"):
         tables.outcomes = outcome_settings(args)
     if getattr(args, "report", False):

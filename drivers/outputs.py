@@ -181,8 +181,19 @@ def check_output_path(path, *, what: str = "output", updates: bool = False) -> P
     if mode is not None and _KEEP_EXISTING and not updates:
         raise OutputError(path, f"already exists (the {what}); add --overwrite to replace it")
     if not os.access(folder, os.W_OK | os.X_OK):
-        raise OutputError(path, f"{what} folder {folder} is not writable")
+        raise OutputError(path, f"{what} folder {folder} {_not_writable(folder)}")
     return p
+
+
+def _not_writable(folder) -> str:
+    """Why a folder ``os.access`` says cannot be written: a read-only file system (EROFS) or
+    permissions (EACCES)."""
+    try:
+        if os.statvfs(folder).f_flag & getattr(os, "ST_RDONLY", 1):
+            return "is read-only (on a read-only file system)"
+    except (OSError, AttributeError):
+        pass
+    return "is read-only for this user (permission denied)"
 
 
 def check_output_folder(folder, *, what: str = "output folder") -> Path:
@@ -191,12 +202,14 @@ def check_output_folder(folder, *, what: str = "output folder") -> Path:
     p = Path(folder)
     try:
         mode = os.stat(p).st_mode
-    except OSError:
-        raise OutputError(p, f"{what} does not exist") from None
+    except OSError as e:
+        if e.errno in (errno.ENOENT, errno.ENOTDIR):
+            raise OutputError(p, f"{what} does not exist") from None
+        raise OutputError(p, f"{what} cannot be reached ({describe_os_error(e)})") from None
     if not stat.S_ISDIR(mode):
         raise OutputError(p, f"{what} is {not_a_file(mode) or 'a file'}, not a folder")
     if not os.access(p, os.W_OK | os.X_OK):
-        raise OutputError(p, f"{what} is not writable")
+        raise OutputError(p, f"{what} {_not_writable(p)}")
     return p
 
 

@@ -1,5 +1,5 @@
 """Fixtures for the station tests: emulated devices in this process (axemu:// ports), each test
-with its own runtime registry, short simulated recordings; the study profile the station tests
+with its own runtime registry and calibration store, short simulated recordings; the study profile the station tests
 configure with (the kill trials' own); waiting for an emulated drive to come back."""
 
 from __future__ import annotations
@@ -30,8 +30,11 @@ def wait_for(d, timeout_s: float = 10.0):
 
 @pytest.fixture
 def runtime(tmp_path, monkeypatch):
+    """This test's own emulator registry, and its own calibration store (the station's default
+    store is the user's)."""
     d = tmp_path / "runtime"
     monkeypatch.setenv("STILLPOINT_RUNTIME_DIR", str(d))
+    monkeypatch.setenv("STILLPOINT_HOME", str(tmp_path / "home"))
     return d
 
 

@@ -240,11 +240,19 @@ def test_the_same_folder_serves_a_second_run(tmp_path, runtime, how):
 
 
 def test_device_emulate_runs_twice_on_its_default_folder(runtime, capsys):
+    """By default each run's drives are removed when it ends; with --keep in one folder, the
+    second run uses the first one's drive again and leaves no leftovers."""
     for _ in range(2):
         assert main(["device", "emulate", "--count", "1", "--days", "0.002", "--seconds", "0.3"]) == 0
-    leftovers = [p for p in (runtime / "emulated").rglob(".*")]
+    assert [p.name for p in (runtime / "sessions" / "default").iterdir()] == ["devices"]
+    assert list((runtime / "sessions" / "default" / "devices").iterdir()) == []
+    kept = runtime / "kept"
+    for _ in range(2):
+        assert main(["device", "emulate", "--count", "1", "--days", "0.002", "--seconds", "0.3",
+                     "--dir", str(kept), "--keep"]) == 0
+    leftovers = [p for p in kept.rglob(".*")]
     assert leftovers == []
-    assert (runtime / "emulated" / "10001" / "media" / "AX317_10001" / C.AX_DATA_FILE).is_file()
+    assert (kept / "10001" / "media" / "AX317_10001" / C.AX_DATA_FILE).is_file()
 
 
 def test_an_initial_lock_keeps_the_drive_away_until_unlock(emu):

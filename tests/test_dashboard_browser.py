@@ -124,10 +124,12 @@ def browser():
 
 
 def test_dock_devices_retry_sheet_and_ledger_only(browser, tmp_path):
-    env = dict(os.environ, STILLPOINT_RUNTIME_DIR=str(tmp_path / "runtime"), PYTHONUNBUFFERED="1")
+    env = dict(os.environ, STILLPOINT_RUNTIME_DIR=str(tmp_path / "runtime"), PYTHONUNBUFFERED="1",
+               STILLPOINT_HOME=str(tmp_path / "home"))  # the station's calibration store
     shots = Path(os.environ.get("STILLPOINT_SCREENSHOTS", tmp_path / "shots"))
     shots.mkdir(parents=True, exist_ok=True)
     out = tmp_path / "out"
+    out.mkdir()  # the station never creates its output folder
     emu = _cli("device", "emulate", "--count", "3", "--faults", "bit-flip:2", "--days", "0.01",
                "--dir", str(tmp_path / "emu"), env=env)
     station = dash = None

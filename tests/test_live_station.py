@@ -200,6 +200,7 @@ def test_station_command_with_foxglove(emu, tmp_path, capsys):
     from stillpoint.tools.cli import main
     emu(10001)
     out = tmp_path / "out"
+    out.mkdir()  # the station never creates its output folder
     assert main(["station", str(out), "--once", "--plain", "--foxglove", "0"]) == 0
     text = capsys.readouterr().out
     assert "foxglove: ws://127.0.0.1:" in text and "verified" in text

@@ -308,6 +308,7 @@ def test_station_erase_option_wipes(emu, tmp_path):
     from stillpoint.tools.cli import main
     d = emu(10001)
     out = tmp_path / "out"
+    out.mkdir()  # the station never creates its output folder
     assert main(["station", str(out), "--once", "--clear-after-verify", "--erase", "wipe",
                  "--plain"]) == 0
     assert len(d.clears) == 1

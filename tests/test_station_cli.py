@@ -155,8 +155,9 @@ def test_end_to_end_emulate_and_station_over_pty(tmp_path, runtime):
         emu_p.wait(10)
 
 
-def test_live_table_on_a_terminal(emu, tmp_path, capsys):
+def test_live_table_on_a_terminal(emu, tmp_path, capsys, monkeypatch):
     import io
+    monkeypatch.setenv("COLUMNS", "400")  # a wide terminal: each line whole
     from stillpoint.drivers.ax.discovery import EmulatedBackend
     from stillpoint.engine.station.flow import StationOptions
     from stillpoint.engine.station.station import Station
@@ -172,6 +173,7 @@ def test_live_table_on_a_terminal(emu, tmp_path, capsys):
     assert "\x1b[2K" in text and "\x1b[" in text  # redrawn in place
     last = text.split("\x1b[2K")[-3:]
     assert "verified" in last[1] and "[####################]" in last[1]
+    assert "outputs: tables written, report written" in last[1]
     assert "error" in last[2] and "Input/output error" in last[2]
     assert main(["devices", "--ledger", str(out), "--json"]) == 0
     rows = {r["id"]: r["state"] for r in json.loads(capsys.readouterr().out)}

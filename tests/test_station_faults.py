@@ -134,10 +134,11 @@ def test_unplugged_download_resumes_when_the_device_returns(emu, tmp_path):
     with st:
         th = threading.Thread(target=st.run, kwargs={"stop": stop})
         th.start()
-        end = time.monotonic() + 20
-        while time.monotonic() < end and not (out / "AX3-10001_1.cwa").exists():
+        end = time.monotonic() + 30
+        while time.monotonic() < end and not (
+                (out / "AX3-10001_1.cwa").exists()
+                and [e[1] for e in st.ledger.events(10001)][-1:] == ["cleared"]):
             time.sleep(0.1)
-        time.sleep(0.3)
         stop.set()
         th.join(10)
         states = [e[1] for e in st.ledger.events(10001)]

@@ -11,7 +11,8 @@
 * the firmware's command interpreter (``firmware_shell``): every reply as the AX3/AX6 firmware
   source prints it, its line editor (CR ends a line, LF ignored, BS/DEL edit, 127 characters kept,
   optional echo) with its static input buffer, a drifting real-time clock (``clock_ppm``), a
-  charging battery, ``STREAM`` paced at 100 Hz and stopped by any line, which is then executed;
+  battery charged by default (``BATTERY_PCT``; ``battery_pct`` or the ``low-battery`` fault: a
+  low one that charges 1 %/min), ``STREAM`` paced at 100 Hz and stopped by any line, which is then executed;
   the RAM settings are reloaded at every plug-in, as the firmware does at boot (defaults, the
   drive's ``SETTINGS.INI``, then the data file's header);
 * a serial port: in-process through the ``axemu://<serial>`` pyserial URL (``emulator_url``), or a
@@ -66,7 +67,14 @@ FAULTS = {
                     "headless host): the host must mount it",
     "locked": "settings are locked (ERROR: Locked.)",
     "stream-left-running": "the device is streaming its preview when the host opens the port",
+    "low-battery": "the battery is nearly flat when plugged in (LOW_BATTERY_PCT, then charging at "
+                   "1 %/min), below a study profile's usual minimum",
 }
+# The battery of a device as it comes back to be set up: charged (a device is charged before it
+# is configured for a wear, and sits on the dock's charger while downloaded), so a profile's
+# min_battery_pct (e.g. 80 %) is met; ``low-battery`` (or ``battery_pct``) gives a flat one.
+BATTERY_PCT = 100.0
+LOW_BATTERY_PCT = 15.0
 FAULT_LOCK_CODE = 4321  # the lock code the ``locked`` fault sets (LOCK 4321; UNLOCK 4321 lifts it)
 INPUT_BUFFER = 128  # SERIAL_BUFFER_SIZE (Flux.AX3/src/Utils/Util.c 46)
 RESTARTS_AT_START, BATTERY_HEALTH_AT_START = 3, 12  # the emulated unit's program-memory counters
@@ -89,7 +97,8 @@ class EmulatedDevice:
 
     def __init__(self, root, device_id: int, kind: str = "AX3", *, session_id: int = 1,
                  days: float = 0.02, hz: float = 100.0, seed: int = 1, faults=(),
-                 clock_offset_s: float = 2.5, clock_ppm: float = 40.0, battery_pct: float = 72.0,
+                 clock_offset_s: float = 2.5, clock_ppm: float = 40.0,
+                 battery_pct: Optional[float] = None,
                  remount_s: float = 0.4, replug_s: float = 1.5, slot: str = "emu-1",
                  stream_hz: float = C.AX_STREAM_HZ, recording: Optional[Path] = None,
                  read_bps: Optional[float] = None):
@@ -115,7 +124,9 @@ class EmulatedDevice:
         self.clock_ppm = clock_ppm
         self._clock_base_host = time.time()
         self._clock_base_dev = self._host_local(self._clock_base_host) + clock_offset_s
-        self._battery0 = battery_pct
+        # charged unless told (``battery_pct``) or the ``low-battery`` fault
+        self._battery0 = float(battery_pct) if battery_pct is not None else (
+            LOW_BATTERY_PCT if "low-battery" in faults else BATTERY_PCT)
         self._attached_at = time.monotonic()
         # what the firmware keeps in program memory across restarts
         self.config: dict[int, int] = {}  # SettingsSetConfigValue: lock code, ECC, fractional

@@ -21,12 +21,23 @@ States: ``identifying`` -> ``empty`` (nothing recorded) | ``downloading`` -> ``v
 * configuring (``--configure-after`` with a profile): a cleared or empty device, from the profile
   (``configure.configure_device``; "increment" counts from the session its last clear erased).
 
+The calibration prior: with a calibration store (``StationOptions.store``), the log is corrected
+from its first sample with the device's latest good estimate in the store (the online refits
+still follow every 12 h), and the verified download's final estimate is added to the store; the
+ledger's download row and the log's ``station`` record say which prior was used.
+
+The analysis products (``products``): once a download is verified (or found verified without
+them), its epoch and day tables and its report are made in a worker process while the flow goes
+on to clear and configure; the flow finishes when they are done. Each product's result is a
+ledger row; a product that fails never un-verifies the download or holds back its clear.
+
 After a COMMIT or an erase the drive is waited for (``wait_volume``) and, on a headless station
 where nothing mounts it again, mounted by the station.
 """
 
 from __future__ import annotations
 
+import json
 import os
 import threading
 import time
@@ -63,6 +74,8 @@ class StationOptions:
     run_settings: dict = field(default_factory=dict)
     static_from_store: Optional[str] = None  # apply the store's static calibration ("" = default store)
     erase: str = "quick"  # "quick" (FORMAT QC) | "wipe" (FORMAT WC): the clear's erase level
+    store: Optional[str] = None  # calibration store: prior from it, final estimate to it ("" = default)
+    products: bool = True  # the tables and report of each verified download
     remount_s: float = C.AX_COMMIT_REMOUNT_S
     volume_wait_s: float = C.AX_BOOTLOADER_S
     pipeline: bool = True
@@ -88,6 +101,11 @@ class DeviceFlow:
         self.result = None
         self.detached = False
         self.worker: Optional[DownloadWorker] = None
+        self.products_worker = None  # the tables and report of the verified download
+        self.outputs: Optional[str] = None  # what became of them (one phrase, when done)
+        self._products_for: Optional[tuple] = None  # (download id, log path)
+        self._store_note: Optional[dict] = None  # the calibration store entry's product row
+        self._prior = None  # the store estimate the log started from
         self.cancel = threading.Event()
         self.finished = threading.Event()
         self.thread = threading.Thread(target=self.run, daemon=True, name=f"flow-{att.serial}")
@@ -117,12 +135,119 @@ class DeviceFlow:
         finally:
             if self.worker is not None and not self.worker.finished:
                 self.worker.cancel()
+            try:
+                self._finish_products()
+            except Exception as e:  # noqa: BLE001 - a product never changes the device's state
+                self.outputs = f"failed: {type(e).__name__}: {e}"
             self.finished.set()
 
     def stop(self) -> None:
         self.cancel.set()
         if self.worker is not None and not self.worker.finished:
             self.worker.cancel()
+        if self.products_worker is not None and not self.products_worker.finished:
+            self.products_worker.cancel()
+
+    # ------------------------------------------------------------------ products
+    def _start_products(self, download_id: int, mcap_path: Optional[str]) -> None:
+        """The tables and report of a verified download, in a worker (module docstring)."""
+        if not self.opts.products or self.ledger is None:
+            return
+        if not mcap_path:
+            self.ledger.product(download_id, "tables", None, "skipped",
+                                "no corrected log for this download")
+            return
+        from .products import make_products
+        from .worker import Worker
+        self._products_for = (download_id, mcap_path)
+        self.products_worker = Worker(make_products, {"mcap": mcap_path}, inline=self.opts.inline,
+                                      stall_s=max(self.opts.stall_s, 120.0), what="products",
+                                      name=f"products-{Path(mcap_path).stem}").start()
+
+    def _finish_products(self) -> None:
+        w = self.products_worker
+        if w is None:
+            return
+        while not w.finished and not self.cancel.is_set():
+            w.poll(0.2)
+        if self.cancel.is_set():  # stopped: not recorded, made when the device comes back
+            w.cancel()
+            return
+        download_id, mcap_path = self._products_for
+        r = w.result or {}
+        products = r.get("products") or [
+            {"product": "tables", "path": mcap_path, "result": "failed",
+             "reason": r.get("error", "no result")}]
+        for p in products:
+            try:
+                self.ledger.product(download_id, p["product"], p.get("path"), p["result"],
+                                    p.get("reason"))
+            except StillpointError:
+                pass
+        from .products import describe
+        self.outputs = describe(products + ([self._store_note] if self._store_note else []))
+        self.on_change(self)
+
+    # ------------------------------------------------------------------ calibration store
+    def _store(self):
+        from stillpoint.engine.calibration import CalibrationStore
+        return CalibrationStore(self.opts.store or None)
+
+    def _calibration_prior(self, settings: dict) -> dict:
+        """Put the device's latest good estimate from the store into ``settings`` as the online
+        prior; return what was used, for the ledger and the log."""
+        key = f"{self.att.device_type}-{self.att.device_id}"
+        if self.opts.static_from_store is not None:
+            return {"source": "static", "device_key": key,
+                    "detail": "the store's six-orientation static calibration"}
+        if self.opts.store is None:
+            return {"source": "none", "device_key": key,
+                    "detail": "no calibration store: identity until the first refit"}
+        store = self._store()
+        try:
+            est = store.prior_for(key)
+        except StillpointError as e:
+            return {"source": "none", "device_key": key, "store": str(store.dir),
+                    "detail": f"the calibration store could not be read ({e}): identity until "
+                              "the first refit"}
+        if est is None:
+            return {"source": "none", "device_key": key, "store": str(store.dir),
+                    "detail": "the calibration store holds no estimate of this device: identity "
+                              "until the first refit"}
+        settings["prior"] = est.to_dict()
+        self._prior = est
+        from stillpoint.engine.calibration.store import _iso
+        return {"source": "store", "device_key": key, "store": str(store.dir),
+                "method": est.method, "status": est.status,
+                "fitted_on": f"{_iso(est.fit_start_ns)}..{_iso(est.fit_end_ns)}",
+                "error_after_mg": est.error_after_mg,
+                "detail": f"the store's latest estimate of {key}"}
+
+    def _store_final(self, summary: Optional[dict], raw_copy: str) -> Optional[dict]:
+        """Add the verified download's final estimate to the store (the rule of ``process
+        --store``); the product row that says what happened."""
+        if self.opts.store is None or self.opts.static_from_store is not None:
+            return None
+        from stillpoint.engine.calibration.estimate import CalibrationEstimate
+        store = self._store()
+        row = {"product": "calibration store", "path": str(store.dir)}
+        try:
+            est = CalibrationEstimate.from_dict(dict((summary or {}).get("calibration") or {}))
+        except Exception as e:  # noqa: BLE001 - recorded, never raised
+            return dict(row, result="failed", reason=f"no final estimate in the summary ({e})")
+        p = self._prior
+        if p is not None and (est.fit_start_ns, est.fit_end_ns, list(est.offset), list(est.scale)) \
+                == (p.fit_start_ns, p.fit_end_ns, list(p.offset), list(p.scale)):
+            return dict(row, result="kept", reason="no refit was accepted: the estimate in force "
+                                                   "is the store's own")
+        if est.status not in ("ok", "high_error"):
+            return dict(row, result="skipped", reason=f"final estimate {est.status}: not stored")
+        try:
+            store.add(est, device_key=f"{self.att.device_type}-{self.att.device_id}",
+                      source=raw_copy)
+        except (StillpointError, OSError) as e:
+            return dict(row, result="failed", reason=str(e))
+        return dict(row, result="written", reason=None)
 
     def reread(self, data_file) -> DeviceDigest:
         """Size, SHA-256 and header of the device's data file, re-read past the page cache in a
@@ -214,6 +339,9 @@ class DeviceFlow:
             if rec is not None and rec.bytes == size:
                 self.done_bytes = size
                 self._set("verified", f"already downloaded: {Path(rec.cwa_path).name}")
+                from .products import products_wanted
+                if rec.mcap_path and products_wanted(rec.mcap_path):  # a station stopped first
+                    self._start_products(rec.id, rec.mcap_path)
             else:
                 self._download(data_file, session, offset, batt.percent)
         configure = opts.configure_after and opts.profile is not None
@@ -255,18 +383,20 @@ class DeviceFlow:
         att, opts = self.att, self.opts
         out = Path(opts.out_dir)
         stem = download_stem(opts.profile, self.ledger, att.device_type, att.device_id, session)
+        settings = dict(opts.run_settings)
+        prior = self._calibration_prior(settings)
         dl_id = self.ledger.download_started(att.device_id, session, clock_offset_s=offset,
                                              battery_pct=battery,
                                              cwa_path=str(names.raw_copy(out, stem)),
                                              mcap_path=str(names.log_final(out, stem)),
-                                             device_type=att.device_type)
+                                             device_type=att.device_type, prior=prior)
         meta = {"station": {"station_id": station_id(), "host_time_zone": host_timezone(),
                             "clock_offset_s": f"{offset:.3f}",
                             "clock_offset_vs_utc_s": f"{offset + time.localtime().tm_gmtoff:.3f}",
                             "device_serial": att.serial,
                             "dock_slot": att.slot, "battery_pct": str(battery),
-                            "attached_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}}
-        settings = dict(opts.run_settings)
+                            "attached_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+                            "calibration_prior": json.dumps(prior, sort_keys=True)}}
         if opts.static_from_store is not None:
             from stillpoint.engine.calibration.static import with_static_calibration
             settings = with_static_calibration(settings, opts.static_from_store,
@@ -327,4 +457,12 @@ class DeviceFlow:
                      + (f" ({cal['error_before_mg']:.1f} -> {cal['error_after_mg']:.1f} mg)"
                         if cal.get("error_after_mg") is not None and cal.get("error_before_mg") is not None
                         else ""))
+        self._store_note = self._store_final(r.summary, r.cwa_path)
+        if self._store_note is not None:
+            n = self._store_note
+            try:
+                self.ledger.product(dl_id, n["product"], n["path"], n["result"], n["reason"])
+            except StillpointError:
+                pass
         self._set("verified", self.info)
+        self._start_products(dl_id, r.mcap_path)

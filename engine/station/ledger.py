@@ -2,10 +2,12 @@
 
 It records the devices seen (by id and type: an AX3 and an AX6 may share an id), every download
 (device type and id, session, bytes, SHA-256, verified, times, clock offset, host time zone,
-station id, battery, bad sectors), every clear and configuration (with the device type), and
-every state change of a device (``events``, with its USB serial), every action asked for from the
-dashboard (``actions``: retry, verify, clear, configure; who asked, from which address, with
-what result). WAL journal, one transaction
+station id, battery, bad sectors, the calibration prior its log started from), every clear and
+configuration (with the device type), every state change of a device (``events``, with its USB
+serial), the analysis products made from each verified download (``products``: the epoch and
+day tables, the report, the calibration store entry; written, kept, skipped or failed, with the
+reason), every action asked for from the dashboard (``actions``: retry, verify, clear,
+configure; who asked, from which address, with what result). WAL journal, one transaction
 per state change, so a crash at any moment leaves it consistent. The clear rule
 (``clearing``) asks it for a verified download of the exact device type, id and session.
 
@@ -73,6 +75,9 @@ CREATE TABLE IF NOT EXISTS configurations (
 CREATE TABLE IF NOT EXISTS events (
     id INTEGER PRIMARY KEY AUTOINCREMENT, time REAL, device_id INTEGER, serial TEXT,
     state TEXT, reason TEXT);
+CREATE TABLE IF NOT EXISTS products (
+    id INTEGER PRIMARY KEY AUTOINCREMENT, download_id INTEGER NOT NULL, time REAL,
+    product TEXT NOT NULL, path TEXT, result TEXT NOT NULL, reason TEXT);
 CREATE TABLE IF NOT EXISTS actions (
     id INTEGER PRIMARY KEY AUTOINCREMENT, time REAL, device_id INTEGER, device_type TEXT,
     action TEXT, who TEXT, origin TEXT, result TEXT, reason TEXT, detail TEXT);
@@ -82,10 +87,11 @@ CREATE TABLE IF NOT EXISTS actions (
 # Columns tables gained after their first release (an older ledger gets them when opened; its
 # rows keep NULL there, and a NULL device type matches any type): the clear's erase level and
 # what was read back after the erase; the device type of downloads, clears and configurations
-# (an AX3 and an AX6 may share an id).
+# (an AX3 and an AX6 may share an id); the calibration prior a download's log was corrected with
+# from its first sample.
 _ADDED_COLUMNS = (("clears", "erase", "TEXT"), ("clears", "readback", "TEXT"),
                   ("clears", "device_type", "TEXT"), ("downloads", "device_type", "TEXT"),
-                  ("configurations", "device_type", "TEXT"))
+                  ("configurations", "device_type", "TEXT"), ("downloads", "prior", "TEXT"))
 # a row of the device type asked for, or of a ledger older than the type column
 _OF_TYPE = "(? IS NULL OR device_type IS NULL OR device_type=?)"
 
@@ -143,6 +149,19 @@ def host_timezone() -> str:
     off = time.localtime().tm_gmtoff
     sign = "+" if off >= 0 else "-"
     return f"{time.strftime('%Z')} (UTC{sign}{abs(off) // 3600:02d}:{abs(off) % 3600 // 60:02d})"
+
+
+def check_station_folder(folder) -> Path:
+    """The output folder of ``station`` and of ``device download/verify/clear``: it must exist
+    and be writable. It is never created: a mistyped path, or the mount point of a disk that is
+    not mounted, would otherwise receive a study's downloads unnoticed."""
+    from stillpoint.drivers.outputs import check_output_folder
+    p = Path(folder)
+    if not os.path.lexists(p):
+        raise LedgerError(f"{p}: the output folder does not exist; it is never created for you "
+                          "(a mistyped path or an unmounted disk would receive the downloads): "
+                          "create it first (mkdir)")
+    return check_output_folder(p)
 
 
 def acquire_station_lock(folder) -> int:
@@ -242,13 +261,16 @@ class Ledger:
 
     def download_started(self, device_id: int, session_id: int, *, clock_offset_s=None,
                          battery_pct=None, cwa_path=None, mcap_path=None,
-                         device_type: Optional[str] = None) -> int:
+                         device_type: Optional[str] = None, prior: Optional[dict] = None) -> int:
+        """``prior``: the calibration the log is corrected with from its first sample (where it
+        came from), None for a ledger user that does not say."""
         i = self._tx(
             "INSERT INTO downloads(device_id, session_id, state, started, clock_offset_s, host_tz, "
-            "station_id, battery_pct, cwa_path, mcap_path, device_type) "
-            "VALUES (?,?,?,?,?,?,?,?,?,?,?)",
+            "station_id, battery_pct, cwa_path, mcap_path, device_type, prior) "
+            "VALUES (?,?,?,?,?,?,?,?,?,?,?,?)",
             (device_id, session_id, "downloading", time.time(), clock_offset_s, host_timezone(),
-             station_id(), battery_pct, cwa_path, mcap_path, device_type))
+             station_id(), battery_pct, cwa_path, mcap_path, device_type,
+             json.dumps(prior, sort_keys=True) if prior is not None else None))
         kill_point("download:started")
         return i
 
@@ -300,6 +322,13 @@ class Ledger:
                  (device_id, session_id, time.time(), json.dumps(settings, default=str), result,
                   reason, device_type))
 
+    def product(self, download_id: int, product: str, path: Optional[str], result: str,
+                reason: Optional[str] = None) -> None:
+        """One analysis product of a verified download: ``result`` is ``written``, ``kept``
+        (already there, not replaced), ``skipped`` or ``failed`` (``reason`` says why)."""
+        self._tx("INSERT INTO products(download_id, time, product, path, result, reason) "
+                 "VALUES (?,?,?,?,?,?)", (download_id, time.time(), product, path, result, reason))
+
     def action_asked(self, device_id: int, device_type: str, action: str, *, who: str,
                      origin: str, detail: Optional[dict] = None) -> int:
         """An action asked for from the dashboard (``result`` 'asked' until ``action_result``)."""
@@ -313,6 +342,16 @@ class Ledger:
         self._tx("UPDATE actions SET result=?, reason=? WHERE id=?", (result, reason, action_id))
 
     # ------------------------------------------------------------------ reads
+    def products(self, download_id: Optional[int] = None) -> list[tuple]:
+        """(download id, product, path, result, reason) per product row (this download's)."""
+        return self._q("SELECT download_id, product, path, result, reason FROM products WHERE "
+                       "(? IS NULL OR download_id=?) ORDER BY id", (download_id, download_id))
+
+    def prior_of(self, download_id: int) -> Optional[dict]:
+        """The calibration prior recorded for a download (None: not recorded)."""
+        rows = self._q("SELECT prior FROM downloads WHERE id=?", (download_id,))
+        return json.loads(rows[0][0]) if rows and rows[0][0] else None
+
     def _rec(self, row) -> DownloadRecord:
         return DownloadRecord(row[0], row[1], row[2], row[3], row[4], row[5], bool(row[6]),
                               row[7], row[8], row[9], row[10], row[11])

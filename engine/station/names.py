@@ -18,6 +18,9 @@ pattern                            meaning                                      
                                    device (set aside, never deleted)                    ``stillpoint clean OUT``
                                                                                         lists the ones a verified
                                                                                         copy supersedes
+``<stem>.epochs.csv.gz``            the epoch table of the verified download             keep
+``<stem>.days.csv``                 the day table of the verified download               keep
+``<stem>.report.png`` / ``.html``   the one-page report of the verified download         keep
 ``*.part.<UTC>[-n]`` (other)       a partial output of a killed writer, set aside       as above
 =================================  ===================================================  ==========================
 """
@@ -70,6 +73,9 @@ KINDS = (
     ("unverified log", re.compile(r"^(?P<stem>.+)\.unverified\.mcap$")),
     ("raw copy", re.compile(r"^(?!.*\.part)(?P<stem>.+)\.cwa$")),
     ("corrected log", re.compile(r"^(?!.*\.part)(?P<stem>.+)\.mcap$")),
+    ("epoch table", re.compile(r"^(?!.*\.part)(?P<stem>.+)\.epochs\.csv\.gz$")),
+    ("day table", re.compile(r"^(?!.*\.part)(?P<stem>.+)\.days\.csv$")),
+    ("report", re.compile(r"^(?!.*\.part)(?P<stem>.+)\.report\.(png|html)$")),
 )
 
 

@@ -7,7 +7,8 @@ again (an interrupted download resumes). ``once=True`` handles the devices attac
 returns when they are all in a final state. The ledger lock refuses a second station on the same
 folder. At start the ledger rows a killed station left between two states are resolved
 (``completion.reconcile``). ``render`` draws the live table (TTY) or prints one plain line per
-state change. ``add_listener(fn)`` calls ``fn(flow)`` on every state change and progress update
+state change. The table's lines are cut to the terminal's width (``$COLUMNS``, else the
+terminal's), so a redraw never wraps. ``add_listener(fn)`` calls ``fn(flow)`` on every state change and progress update
 of any device (from the flow's thread: a listener must be quick and never raise), for a view of the
 station other than the terminal's. ``rerun(serial, **option_changes)`` runs an attached device's
 ended flow again (a retry; a clear or configure asked for later: the same flow, the same rules).
@@ -21,10 +22,9 @@ import time
 from typing import Optional
 
 from stillpoint.drivers.ax.discovery import discover
-from stillpoint.drivers.outputs import check_output_folder
 
 from .flow import DeviceFlow, StationOptions
-from .ledger import Ledger, acquire_station_lock
+from .ledger import Ledger, acquire_station_lock, check_station_folder
 
 
 def _bar(done: int, total: int, width: int = 20) -> str:
@@ -34,22 +34,46 @@ def _bar(done: int, total: int, width: int = 20) -> str:
     return "[" + "#" * k + "." * (width - k) + "]"
 
 
-def table_lines(flows) -> list[str]:
+def terminal_columns(out) -> int:
+    """The width the table is cut to: ``$COLUMNS``, else the terminal ``out`` writes to, else
+    the terminal of this process, else 80."""
+    import os
+    import shutil
+    env = os.environ.get("COLUMNS", "")
+    if env.isdigit() and int(env) > 0:
+        return int(env)
+    try:
+        return os.get_terminal_size(out.fileno()).columns
+    except (AttributeError, OSError, ValueError):
+        return shutil.get_terminal_size((80, 24)).columns
+
+
+def fit(line: str, columns: int) -> str:
+    """``line`` cut to ``columns - 1`` characters (a line that fills the last column wraps on
+    some terminals, which breaks the redraw)."""
+    width = max(1, columns - 1)
+    return line if len(line) <= width else line[: width - 1] + ">"
+
+
+def table_lines(flows, columns: Optional[int] = None) -> list[str]:
+    """The live table, one line per device (each cut to ``columns`` when given)."""
     head = f"{'slot':<10} {'device':>8} {'type':<4} {'state':<12} {'progress':<22} {'MB/s':>6}  detail"
     out = [head]
     for f in flows:
         mbps = f"{f.mbps:6.2f}" if f.mbps else "     -"
         detail = (f.reason if f.state == "error" else (f.reason or f.info)) or ""
+        outputs = getattr(f, "outputs", None)
+        detail += f"; outputs: {outputs}" if outputs else ""
         detail += " (detached)" if f.detached else ""
         out.append(f"{f.att.slot[:10]:<10} {f.att.device_id:>8} {f.att.device_type:<4} {f.state:<12} "
                    f"{_bar(f.done_bytes, f.total_bytes)} {mbps}  {detail or ''}")
-    return out
+    return [fit(line, columns) for line in out] if columns else out
 
 
 class Station:
     def __init__(self, options: StationOptions, backend=None, *, poll_s: float = 0.5,
                  out=None, tty: Optional[bool] = None, inbox=None):
-        folder = check_output_folder(options.out_dir)
+        folder = check_station_folder(options.out_dir)
         self._lock_fd = acquire_station_lock(folder)
         self.opts = options
         self.backend = backend
@@ -117,21 +141,25 @@ class Station:
         if self.tty:
             return
         key = (flow.state, flow.reason, flow.detached)
+        outputs = getattr(flow, "outputs", None)
+        head = f"{time.strftime('%H:%M:%S')} {flow.att.device_type} {flow.att.device_id} [{flow.att.slot}]"
         with self._lock:
-            if self._printed.get(flow.att.serial) == key:
-                return
-            self._printed[flow.att.serial] = key
-            detail = (flow.reason or flow.info) + (" (detached)" if flow.detached else "")
-            print(f"{time.strftime('%H:%M:%S')} {flow.att.device_type} {flow.att.device_id} "
-                  f"[{flow.att.slot}] {flow.state}" + (f": {detail}" if detail else ""),
-                  file=self.out, flush=True)
+            if self._printed.get(flow.att.serial) != key:
+                self._printed[flow.att.serial] = key
+                detail = (flow.reason or flow.info) + (" (detached)" if flow.detached else "")
+                print(f"{head} {flow.state}" + (f": {detail}" if detail else ""),
+                      file=self.out, flush=True)
+            if outputs and self._printed.get(("outputs", flow.att.serial)) != outputs:
+                self._printed[("outputs", flow.att.serial)] = outputs
+                print(f"{head} outputs: {outputs}", file=self.out, flush=True)
 
     def render(self) -> None:
         if not self.tty:
             return
-        lines = table_lines(self.flows.values())
+        columns = terminal_columns(self.out)
+        lines = table_lines(self.flows.values(), columns)
         if self.inbox is not None:
-            lines += self.inbox.lines()
+            lines += [fit(line, columns) for line in self.inbox.lines()]
         buf = ("\x1b[%dA" % self._drawn if self._drawn else "") + "".join(
             "\x1b[2K" + line + "\n" for line in lines)
         self.out.write(buf)

@@ -1,5 +1,6 @@
 """A one-row summary of each attached device (``stillpoint devices``), each read with a bound so
-a device that does not answer never stalls the listing."""
+a device that does not answer never stalls the listing; ``recording_window`` says a device's
+start and stop settings in words."""
 
 from __future__ import annotations
 
@@ -10,6 +11,39 @@ import os
 from stillpoint.drivers import constants as C
 from stillpoint.drivers.ax.discovery import Attached, discover
 from stillpoint.drivers.ax.protocol import AxClient, parse_time
+
+
+def recording_window(start: str, stop: str) -> str:
+    """The recording window a device's ``HIBERNATE`` (start) and ``STOP`` replies set, in words.
+
+    The firmware records while start <= now < stop, and never when start >= stop ([FW]
+    Firmware/AX3/Firmware/src/main.c 516-529, ``drivers/constants.py`` AX_NEVER_LOG); ``0`` is the
+    earliest time and ``-1`` the latest ([USB] A4, ``drivers/ax/protocol.py`` parse_time). So
+    0 .. -1 is "always", a start of -1 or a stop of 0 (the vendor's "never log") is "never",
+    0 .. T is "until T", T .. -1 is "from T", and T1 .. T2 is "T1 to T2" (device-clock times)."""
+    def when(text):
+        t = text.strip()
+        if t == C.AX_DATETIME_ALWAYS:
+            return "earliest"
+        if t == C.AX_DATETIME_NEVER or t.startswith("-"):
+            return "latest"
+        try:
+            return parse_time(t)
+        except ValueError:
+            return None
+    a, b = when(start), when(stop)
+    if a is None or b is None:
+        return f"{start}..{stop}"  # a reply this rule does not know: as the device said it
+    if a == "latest" or b == "earliest":
+        return "never"
+    if a == "earliest" and b == "latest":
+        return "always"
+    fmt = "%Y-%m-%d %H:%M:%S"
+    if a == "earliest":
+        return f"until {b.strftime(fmt)}"
+    if b == "latest":
+        return f"from {a.strftime(fmt)}"
+    return "never" if a >= b else f"{a.strftime(fmt)} to {b.strftime(fmt)}"
 
 
 def device_status(att: Attached, ledger=None) -> dict:
@@ -30,6 +64,7 @@ def device_status(att: Attached, ledger=None) -> dict:
         row["battery_pct"] = client.battery().percent
         row["clock_offset_s"] = round(clock_offset_s(client), 3)
         row["start"], row["stop"] = client.hibernate(), client.stop()
+        row["window"] = recording_window(row["start"], row["stop"])
     finally:
         client.close()
     if att.volume:

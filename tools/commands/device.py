@@ -32,6 +32,8 @@ def add_arguments(p) -> None:
     s.add_argument("-o", "--output", type=Path, required=True, help="output folder (holds the ledger)")
     s.add_argument("--stall-s", type=SECONDS_DAY, default=30.0,
                    help="stop a download without progress this long")
+    from .station import add_store_arguments
+    add_store_arguments(s)
     s = dev("verify", "re-read the device (bypassing the cache) and the raw copy on disk and compare "
                       "both with the ledger's verified download")
     s.add_argument("-o", "--output", type=Path, required=True, help="the station output folder")
@@ -62,7 +64,18 @@ def add_arguments(p) -> None:
     s.add_argument("--faults", default="", help="NAME[:DEVICE],... (DEVICE: 1-based index or id; "
                                                 "none: every device). Names: see --list-faults")
     s.add_argument("--list-faults", action="store_true")
-    s.add_argument("--dir", type=Path, default=None, help="where the emulated drives live")
+    s.add_argument("--dir", type=Path, default=None,
+                   help="where the emulated drives live (default: a new folder in this session's "
+                        "runtime folder)")
+    s.add_argument("--keep", action="store_true",
+                   help="leave the drives (and their recordings) on exit; by default the drives "
+                        "this run made are removed when it stops, Ctrl-C included")
+    s.add_argument("--session", default=None, metavar="NAME",
+                   help="register the devices in this emulator session (default: the login "
+                        "session); other programs see them with STILLPOINT_EMULATOR_SESSION=NAME")
+    s.add_argument("--battery", type=number(0, 100, unit="%"), default=None, metavar="PCT",
+                   help="battery level at plug-in (default: charged, 100 %%; the low-battery "
+                        "fault: 15 %%)")
     s.add_argument("--first-id", type=EMULATED_ID, default=10001)
     s.add_argument("--read-mbps", type=MB_PER_S, default=None,
                    help="emulate the drive's USB read speed in MB/s (full speed is ~1.2); default unlimited")
@@ -148,8 +161,8 @@ def run(args) -> int:
             ledger = None
             session_now = ident.session_id
             if args.output:
-                from stillpoint.engine.station.ledger import Ledger
-                ledger = Ledger(args.output)
+                from stillpoint.engine.station.ledger import Ledger, check_station_folder
+                ledger = Ledger(check_station_folder(args.output))
                 from stillpoint.engine.station.clearing import session_before_clear
                 session_now = session_before_clear(ledger, att.device_id, session_now,
                                                    att.device_type)
@@ -176,10 +189,9 @@ def _volume_waiter(att):
 
 
 def _with_ledger(args, att) -> int:
-    from stillpoint.drivers.outputs import check_output_folder
     from stillpoint.engine.station.flow import DeviceFlow, StationOptions
-    from stillpoint.engine.station.ledger import Ledger, acquire_station_lock
-    out = check_output_folder(args.output)
+    from stillpoint.engine.station.ledger import Ledger, acquire_station_lock, check_station_folder
+    out = check_station_folder(args.output)
     fd = acquire_station_lock(out)
     ledger = Ledger(out)
     from stillpoint.engine.station.completion import reconcile
@@ -187,7 +199,8 @@ def _with_ledger(args, att) -> int:
         print(f"ledger: {line}", file=sys.stderr)
     # the device's flow: a download runs it; verify and clear use its bounded re-read and its
     # wait for the drive
-    flow = DeviceFlow(att, StationOptions(str(out), stall_s=getattr(args, "stall_s", 30.0)), ledger,
+    flow = DeviceFlow(att, StationOptions(str(out), stall_s=getattr(args, "stall_s", 30.0),
+                                          store=getattr(args, "store", None)), ledger,
                       on_change=_progress_printer())
     try:
         if args.action == "download":
@@ -204,6 +217,8 @@ def _with_ledger(args, att) -> int:
             r = flow.result
             _say(f"device {att.device_id}: {flow.state}: {flow.reason or flow.info}"
                  + (f" -> {r.cwa_path}, {r.mcap_path}" if r is not None else ""))
+            if flow.outputs:
+                _say(f"device {att.device_id}: outputs: {flow.outputs}")
             return 0
         if args.action == "verify":
             return _verify(att, ledger, flow.reread)
@@ -312,33 +327,93 @@ def _emulate(args) -> int:
                    f"is at most {EMULATED_ID.hi} (7 digits in its drive label)")
     ids = [args.first_id + i for i in range(args.count)]
     faults = _parse_faults(args.faults, ids)
-    root = args.dir or (registry.runtime_dir() / "emulated")
+    if args.session is not None:
+        os.environ[registry.SESSION_ENV] = args.session
+    session = registry.session_name()  # a bad name: one line, before any device is made
+    if args.dir is not None:
+        root = args.dir
+    else:
+        import tempfile
+        base = registry.session_dir()
+        base.mkdir(parents=True, exist_ok=True)
+        root = Path(tempfile.mkdtemp(prefix="emulated-", dir=base))
+    made = [root / str(i) for i in ids if not (root / str(i)).exists()]  # removed at exit
     devs = []
+    stop, restore = _stop_on_signals()
     try:
         for k, dev_id in enumerate(ids):
+            if stop.is_set():
+                break
             kind = "AX6" if k >= args.count - args.ax6 else "AX3"
             print(f"simulating {kind} {dev_id}: {args.days:g} days ...", file=sys.stderr, flush=True)
             d = EmulatedDevice(root / str(dev_id), dev_id, kind, days=args.days, seed=k + 1,
                                faults=sorted(faults[dev_id]), slot=f"emu-{k + 1}", remount_s=1.0,
-                               read_bps=args.read_mbps * 1e6 if args.read_mbps else None)
-            d.plug(pty=True)
+                               read_bps=args.read_mbps * 1e6 if args.read_mbps else None,
+                               battery_pct=args.battery)
             devs.append(d)
+            d.plug(pty=True)
             print(f"{kind} {dev_id} on {d.pty_path}, drive {d.volume}"
                   + (f", faults {', '.join(sorted(d.faults))}" if d.faults else ""), flush=True)
-        print(f"{len(devs)} emulated device(s) attached; run `stillpoint devices` or `stillpoint "
-              "station OUTDIR` in another terminal; Ctrl-C to stop", flush=True)
+        print(f"{len(devs)} emulated device(s) attached in session {session!r}; run `stillpoint "
+              "devices` or `stillpoint station OUTDIR` in another terminal"
+              + (f" with STILLPOINT_EMULATOR_SESSION={session}" if args.session else "")
+              + "; Ctrl-C to stop", flush=True)
         end = None if args.seconds is None else time.monotonic() + args.seconds
         seen = {d.serial: list(d.events) for d in devs}
-        while end is None or time.monotonic() < end:
-            time.sleep(0.2)
+        while (end is None or time.monotonic() < end) and not stop.is_set():
+            stop.wait(0.2)
             for d in devs:
                 new = d.events[len(seen.get(d.serial, [])):]
                 for e in new:
                     print(f"{time.strftime('%H:%M:%S')} {d.kind} {d.device_id}: {e}", flush=True)
                 seen[d.serial] = list(d.events)
     except KeyboardInterrupt:
-        print("stopping the emulated devices", file=sys.stderr)
+        stop.set()
     finally:
+        if stop.is_set():
+            print("stopping the emulated devices", file=sys.stderr)
         for d in devs:
             d.shutdown()
+        _remove_drives(root, made, keep=args.keep, default_root=args.dir is None)
+        restore()
     return 0
+
+
+def _stop_on_signals():
+    """An event set by SIGINT (Ctrl-C), SIGTERM and SIGHUP (the terminal closed), so that the
+    emulator always reaches its clean-up; and the function that puts the handlers back."""
+    import signal
+    import threading
+    stop = threading.Event()
+    old = {}
+
+    def on_signal(signum, frame):
+        stop.set()
+    for name in ("SIGINT", "SIGTERM", "SIGHUP"):
+        sig = getattr(signal, name, None)
+        if sig is not None:
+            try:
+                old[sig] = signal.signal(sig, on_signal)
+            except ValueError:  # not the main thread: Ctrl-C stays a KeyboardInterrupt
+                pass
+
+    def restore():
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
+    return stop, restore
+
+
+def _remove_drives(root: Path, made: list, *, keep: bool, default_root: bool) -> None:
+    """The drives this run made are removed (``--keep``: left, and said where); a folder that
+    was there before (an earlier ``--keep``) is never removed."""
+    import shutil
+    if keep:
+        print(f"the emulated drives are kept in {root}", file=sys.stderr)
+        return
+    for p in made:
+        shutil.rmtree(p, ignore_errors=True)
+    if default_root:
+        try:
+            root.rmdir()  # the run's own folder, empty now
+        except OSError:
+            pass

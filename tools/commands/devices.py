@@ -7,7 +7,8 @@ import sys
 from pathlib import Path
 
 NAME = "devices"
-HELP = "list attached AX3/AX6 devices: id, type, firmware, session, battery, clock, data, state, slot"
+HELP = ("list attached AX3/AX6 devices: slot, id, type, firmware, session, battery, clock offset, "
+        "recording window (always, never, from/until a time), data, state")
 
 
 def add_arguments(p) -> None:
@@ -18,15 +19,33 @@ def add_arguments(p) -> None:
     p.add_argument("--volume", default=None, help="the device's drive is mounted here (manual override)")
 
 
-def _fmt(r: dict) -> str:
+COLUMNS = ("slot", "id", "type", "fw", "session", "battery", "clock", "window", "data", "state")
+_RIGHT = {"id", "fw", "session", "battery", "clock", "data"}  # numbers: aligned right
+
+
+def _cells(r: dict) -> dict:
     size = r.get("data_bytes")
     off = r.get("clock_offset_s")
-    return (f"{r.get('slot', '-'):<10} {r['id']:>8} {r.get('type', '?'):<4} fw {str(r.get('firmware', '-')):>3} "
-            f"session {str(r.get('session', '-')):>6} battery {str(r.get('battery_pct', '-')):>3} % "
-            f"clock {('%+.1f s' % off) if off is not None else '-':>8} "
-            f"window {r.get('start', '-')}..{r.get('stop', '-')} "
-            f"data {('%.1f MB' % (size / 1e6)) if size is not None else '-':>9}  {r.get('state', '-')}"
-            + (f" ({r['problem']})" if r.get("problem") else ""))
+    bat = r.get("battery_pct")
+    window = r.get("window") or ("-" if r.get("start") is None else f"{r['start']}..{r.get('stop')}")
+    return {"slot": str(r.get("slot", "-")), "id": str(r["id"]), "type": str(r.get("type", "?")),
+            "fw": str(r.get("firmware", "-")), "session": str(r.get("session", "-")),
+            "battery": f"{bat} %" if bat is not None else "-",
+            "clock": f"{off:+.1f} s" if off is not None else "-", "window": window,
+            "data": f"{size / 1e6:.1f} MB" if size is not None else "-",
+            "state": str(r.get("state", "-")) + (f" ({r['problem']})" if r.get("problem") else "")}
+
+
+def table(rows: list[dict]) -> list[str]:
+    """A header row, then one row per device, each column as wide as its widest value."""
+    cells = [_cells(r) for r in rows]
+    width = {c: max([len(c)] + [len(x[c]) for x in cells]) for c in COLUMNS}
+
+    def line(values: dict) -> str:
+        return "  ".join(values[c].rjust(width[c]) if c in _RIGHT else
+                         (values[c] if c == COLUMNS[-1] else values[c].ljust(width[c]))
+                         for c in COLUMNS).rstrip()
+    return [line({c: c for c in COLUMNS})] + [line(x) for x in cells]
 
 
 def run(args) -> int:
@@ -41,6 +60,6 @@ def run(args) -> int:
         print("no AX3/AX6 device attached (Linux: is the user in the 'dialout' group? is the drive "
               "mounted? `stillpoint device emulate` runs emulated devices)")
     else:
-        for r in rows:
-            print(_fmt(r))
+        for line in table(rows):
+            print(line)
     return 2 if any(r.get("state") == "error" for r in rows) else 0

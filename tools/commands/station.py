@@ -14,7 +14,9 @@ HELP = "watch for AX3/AX6 devices: verified download + corrected MCAP, clear onl
 
 
 def add_arguments(p) -> None:
-    p.add_argument("outdir", type=Path, help="output folder (raw copies, MCAP logs, the ledger)")
+    p.add_argument("outdir", type=Path,
+                   help="output folder (raw copies, MCAP logs, tables, reports, the ledger); it "
+                        "must exist (a missing folder is refused, never created)")
     p.add_argument("--profile", type=Path, default=None, help="study profile (TOML)")
     p.add_argument("--clear-after-verify", action="store_true", default=None,
                    help="clear each device once its download is verified (also from the profile)")
@@ -37,6 +39,7 @@ def add_arguments(p) -> None:
                         "state, progress, battery, clock offset, the corrected stream while it "
                         "downloads, calibration estimates (needs the live extra)")
     add_web_arguments(p, station=True)
+    add_store_arguments(p)
 
 
 def add_web_arguments(p, station: bool) -> None:
@@ -76,6 +79,18 @@ def start_dashboard(args, folder, station=None):
     return dash
 
 
+def add_store_arguments(p) -> None:
+    """``--store DIR`` / ``--no-store`` (``station`` and ``device download``)."""
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--store", default="", metavar="DIR",
+                   help="calibration store (default: $STILLPOINT_HOME or ~/.local/share/stillpoint): "
+                        "each download is corrected from its first sample with the device's latest "
+                        "good estimate there (online refits still every 12 h), and its final "
+                        "estimate is added to it")
+    g.add_argument("--no-store", dest="store", action="store_const", const=None,
+                   help="neither read nor write a calibration store (identity until the first refit)")
+
+
 def run(args) -> int:
     from stillpoint.engine.station.flow import StationOptions
     from stillpoint.engine.station.profile import ProfileError, load_profile
@@ -88,15 +103,10 @@ def run(args) -> int:
     configure = args.configure_after if args.configure_after is not None else bool(prof and prof.configure_after)
     if configure and prof is None:
         raise ProfileError("--configure-after needs --profile study.toml (what to configure)")
-    if not args.outdir.exists() and args.outdir.parent.is_dir():
-        try:  # the station's own folder: made on first use (its parent must exist)
-            args.outdir.mkdir()
-        except OSError:
-            pass  # the station's own check below names what is wrong
     erase = args.erase or (prof.erase if prof else "quick")
     opts = StationOptions(str(args.outdir), profile=prof, clear_after_verify=clear,
                           configure_after=configure, stall_s=args.stall_s, erase=erase,
-                          static_from_store=args.static_from_store)
+                          static_from_store=args.static_from_store, store=args.store)
     inbox = None
     if args.inbox:
         from stillpoint.engine.station.inbox import Inbox

@@ -87,8 +87,8 @@ class StreamedMessage(NamedTuple):
 
 def iter_messages(path, topics: Optional[Iterable[str]] = None) -> Iterator[tuple]:
     """(topic, index within its topic, message with ``log_time`` and ``data``) in file order,
-    chunk CRCs checked, in flat memory; the same contract as ``reading.iter_messages`` (a damaged
-    container is an ``McapReadError`` naming the file and where reading stopped)."""
+    chunk CRCs checked, in flat memory; every reader of a stillpoint MCAP goes through here (a
+    damaged container is an ``McapReadError`` naming the file and where reading stopped)."""
     from .reading import RECOVER_HINT, McapReadError, locate_damage
     counts: dict[str, int] = {}
     last: Optional[str] = None

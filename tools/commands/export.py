@@ -404,7 +404,7 @@ def _table_from_mcap(path, out: Path, table: str, timezone, options: dict) -> di
     which the same pass makes, goes to a hidden name beside it and is removed."""
     import secrets
 
-    from stillpoint.engine.tables import tables_from_mcap
+    from stillpoint.engine.workflows.tables_from_mcap import tables_from_mcap
     name = out.name.lower()
     if table == "epochs" and not name.endswith(".csv.gz"):
         raise StillpointError(f"{out}: the epoch table is gzip-compressed CSV: name it .csv.gz")

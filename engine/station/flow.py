@@ -48,7 +48,7 @@ from .device_read import DeviceDigest, device_digest
 from .download import DownloadJob
 from .ledger import Ledger, host_timezone, kill_point, station_id
 from .profile import StudyProfile
-from .worker import DownloadWorker
+from .download import DownloadWorker
 
 @dataclass
 class StationOptions:

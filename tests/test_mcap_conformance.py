@@ -202,7 +202,8 @@ def test_interrupted_run_names_its_partial_file(rec, tmp_path, capsys, monkeypat
 
 def test_foxglove_layout_names_fields_the_log_has(rec, tmp_path):
     """docs/foxglove_layout.json: every plotted path is a numeric field of a logged topic's
-    schema, every Raw Messages panel a logged topic."""
+    schema, every Raw Messages panel a logged topic; it is the layout generated from the log's
+    topics (engine/live/layouts.py; `stillpoint view LOG --layout-only` writes it)."""
     from pathlib import Path
 
     from stillpoint.engine.mcap.schemas import ALL_TYPES
@@ -226,6 +227,10 @@ def test_foxglove_layout_names_fields_the_log_has(rec, tmp_path):
             assert cfg["topicPath"] in schema_of
             raw += 1
     assert plotted >= 6 and raw >= 2
+    from stillpoint.engine.live.layouts import recording_layout
+    from stillpoint.engine.mcap.stream import read_channels
+    with open(out, "rb") as f:
+        assert layout == recording_layout(read_channels(f))
 
 
 def test_public_log_api_writes_json_estimates_atomically(tmp_path):

@@ -85,10 +85,12 @@ class StreamedMessage(NamedTuple):
     data: memoryview
 
 
-def iter_messages(path, topics: Optional[Iterable[str]] = None) -> Iterator[tuple]:
+def iter_messages(path, topics: Optional[Iterable[str]] = None, *,
+                  start_ns: Optional[int] = None) -> Iterator[tuple]:
     """(topic, index within its topic, message with ``log_time`` and ``data``) in file order,
     chunk CRCs checked, in flat memory; every reader of a stillpoint MCAP goes through here (a
-    damaged container is an ``McapReadError`` naming the file and where reading stopped)."""
+    damaged container is an ``McapReadError`` naming the file and where reading stopped).
+    ``start_ns``: see ``iter_topic_messages`` (indexes then count from the first chunk read)."""
     from .reading import RECOVER_HINT, McapReadError, locate_damage
     counts: dict[str, int] = {}
     last: Optional[str] = None
@@ -99,7 +101,7 @@ def iter_messages(path, topics: Optional[Iterable[str]] = None) -> Iterator[tupl
         raise CorruptRecordingError(path, f"cannot open: {e.strerror or e}") from None
     with f:
         try:
-            for topic, log_time, data in iter_topic_messages(f, topics):
+            for topic, log_time, data in iter_topic_messages(f, topics, start_ns=start_ns):
                 i = counts.get(topic, 0)
                 counts[topic] = i + 1
                 last = topic
@@ -113,10 +115,12 @@ def iter_messages(path, topics: Optional[Iterable[str]] = None) -> Iterator[tupl
 
 
 def iter_topic_messages(f: BinaryIO, topics: Optional[Iterable[str]], *,
-                        validate_crcs: bool = True) -> Iterator[tuple[str, int, memoryview]]:
+                        validate_crcs: bool = True,
+                        start_ns: Optional[int] = None) -> Iterator[tuple[str, int, memoryview]]:
     """(topic, log_time, payload) of every message on ``topics`` (None: every topic), in file
     order. ``f``: a binary file positioned anywhere (it is rewound). Stops at Data End (or the
-    end of file)."""
+    end of file). ``start_ns``: a chunk whose messages all end before it is skipped unread (a
+    seek); messages before it in the chunks that are read are still yielded."""
     want = None if topics is None else set(topics)
     f.seek(0)
     if f.read(8) != rec.MAGIC:
@@ -128,6 +132,7 @@ def iter_topic_messages(f: BinaryIO, topics: Optional[Iterable[str]], *,
     pending = None  # (compressed records, compression, usize, crc) of the chunk just read
     pending_idx: list[tuple[int, bytes]] = []  # its Message Index records (channel, entries)
     summary_channels = groups.get(rec.OP_CHANNEL) if groups else None
+    skipping = False  # inside the message indexes of a chunk a seek skipped
 
     def channel_record(buf, p):
         cid, _sid = struct.unpack_from("<HH", buf, p)
@@ -214,11 +219,22 @@ def iter_topic_messages(f: BinaryIO, topics: Optional[Iterable[str]], *,
             break
         op, ln = _REC.unpack(head)
         if op == rec.OP_MESSAGE_INDEX:
+            if skipping:
+                f.seek(ln, 1)
+                continue
             body = _read_exact(f, ln, "a message index")
             cid, n = struct.unpack_from("<HI", body, 0)
             pending_idx.append((cid, body[6:6 + n]))
             continue
         yield from finish_chunk()
+        skipping = False
+        if op == rec.OP_CHUNK and start_ns is not None and ln >= 16:
+            _cstart, cend = struct.unpack("<QQ", _read_exact(f, 16, "a chunk"))
+            f.seek(-16, 1)
+            if cend < start_ns:  # a seek: the whole chunk precedes it, read neither it nor its indexes
+                f.seek(ln, 1)
+                skipping = True
+                continue
         if op == rec.OP_CHUNK:
             body = _read_exact(f, ln, "a chunk")
             start, end, usize, crc = _CHUNK_HEAD.unpack_from(body, 0)
@@ -305,3 +321,61 @@ def read_metadata(f: BinaryIO) -> dict[str, dict[str, str]]:
         p += 9 + ln
     return out
 
+
+
+class ChannelInfo(NamedTuple):
+    """A channel of a finished log with its schema (``schema_name`` "" when it has none)."""
+    topic: str
+    message_encoding: str
+    schema_name: str
+    schema_encoding: str
+    schema_data: bytes
+
+
+def read_channels(f: BinaryIO) -> list[ChannelInfo]:
+    """Every channel of a finished log with its schema, in channel-id order, from the summary's
+    Schema and Channel records only. Raises ``McapFormatError`` for a file without a footer."""
+    groups = _summary_groups(f)
+    if groups is None:
+        raise McapFormatError("no footer or summary: the log was not finished")
+    schemas: dict[int, tuple[str, str, bytes]] = {}
+    if rec.OP_SCHEMA in groups:
+        buf = _group(f, groups[rec.OP_SCHEMA], "the summary schemas")
+        p = 0
+        while p + 9 <= len(buf):
+            op, ln = _REC.unpack_from(buf, p)
+            if op == rec.OP_SCHEMA:
+                sid, = struct.unpack_from("<H", buf, p + 9)
+                name, q = _str(buf, p + 11)
+                enc, q = _str(buf, q)
+                n, = struct.unpack_from("<I", buf, q)
+                schemas[sid] = (name, enc, bytes(buf[q + 4:q + 4 + n]))
+            p += 9 + ln
+    out: list[tuple[int, ChannelInfo]] = []
+    if rec.OP_CHANNEL in groups:
+        buf = _group(f, groups[rec.OP_CHANNEL], "the summary channels")
+        p = 0
+        while p + 9 <= len(buf):
+            op, ln = _REC.unpack_from(buf, p)
+            if op == rec.OP_CHANNEL:
+                cid, sid = struct.unpack_from("<HH", buf, p + 9)
+                topic, q = _str(buf, p + 13)
+                enc, q = _str(buf, q)
+                name, senc, data = schemas.get(sid, ("", "", b""))
+                out.append((cid, ChannelInfo(topic, enc, name, senc, data)))
+            p += 9 + ln
+    return [c for _cid, c in sorted(out, key=lambda x: x[0])]
+
+
+def read_time_range(f: BinaryIO) -> Optional[tuple[int, int]]:
+    """(first, last) message log time of a finished log from its Statistics record (None: no
+    statistics or no message)."""
+    groups = _summary_groups(f)
+    if not groups or rec.OP_STATISTICS not in groups:
+        return None
+    buf = _group(f, groups[rec.OP_STATISTICS], "the statistics")
+    if len(buf) < 9 + 8 + 2 + 4 * 4 + 16:
+        return None
+    count, = struct.unpack_from("<Q", buf, 9)
+    start, end = struct.unpack_from("<QQ", buf, 9 + 8 + 2 + 4 * 4)  # count, schemas, channels, attachments, metadata, chunks
+    return (start, end) if count else None

@@ -82,6 +82,8 @@ class DeviceFlow:
         self.done_bytes = 0
         self.total_bytes = 0
         self.mbps: Optional[float] = None
+        self.battery_pct: Optional[int] = None  # read when identified
+        self.clock_offset_s: Optional[float] = None  # device clock minus host local time
         self.result = None
         self.detached = False
         self.worker: Optional[DownloadWorker] = None
@@ -196,6 +198,7 @@ class DeviceFlow:
         batt = client.battery()
         session = client.session()
         self.session = session
+        self.battery_pct, self.clock_offset_s = batt.percent, offset
         self.info = f"fw {ident.firmware}, battery {batt.percent} %, clock {offset:+.1f} s"
         data_file = att.data_file
         for line in resolve_sent_clear(self.ledger, att.device_id, data_file,

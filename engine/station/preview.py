@@ -17,19 +17,23 @@ from typing import Callable, Optional
 from stillpoint.drivers import constants as C
 
 TOPIC = "/preview/accel"
+PREVIEW_SCHEMA = json.dumps({"type": "object", "properties": {"host_time_ns": {"type": "integer"},
+                                                             "counts": {"type": "array"},
+                                                             "g": {"type": "array"}}})
 
 
 def stream_preview(client, out, seconds: float, device_type: str = "AX3",
-                   report: Optional[Callable[[str], None]] = None) -> dict:
+                   report: Optional[Callable[[str], None]] = None,
+                   on_reading: Optional[Callable[[int, dict, bytes], None]] = None) -> dict:
+    """Log ``seconds`` of the preview to ``out``; ``on_reading(host_ns, message, payload)`` is
+    called with every reading logged (a live view)."""
     from stillpoint.engine.mcap.jsonschemas import JsonSchema
     from stillpoint.engine.mcap.log import McapLog
     scale = C.AX_STREAM_COUNTS_PER_G_AX3 if device_type == "AX3" else C.AX_STREAM_COUNTS_PER_G_AX6
     n = 0
     t_first = t_last = None
     last_report = time.monotonic()
-    schema = JsonSchema("stillpoint.PreviewAccel", json.dumps(
-        {"type": "object", "properties": {"host_time_ns": {"type": "integer"},
-                                          "counts": {"type": "array"}, "g": {"type": "array"}}}))
+    schema = JsonSchema("stillpoint.PreviewAccel", PREVIEW_SCHEMA)
     with McapLog(Path(out), what="preview MCAP") as w:
         w.write_metadata("preview", {"kind": "STREAM preview: irregular on-demand reads, at most 100 Hz; "
                                              "not analysis data", "device_type": device_type,
@@ -42,7 +46,10 @@ def stream_preview(client, out, seconds: float, device_type: str = "AX3",
                 msg = {"host_time_ns": ns, "counts": vals[:3], "g": [v / scale for v in vals[:3]]}
                 if len(vals) == 6:
                     msg["gyro_counts"] = vals[3:]
-                w.add(cid, ns, json.dumps(msg).encode(), sequence=n)
+                payload = json.dumps(msg).encode()
+                w.add(cid, ns, payload, sequence=n)
+                if on_reading is not None:
+                    on_reading(ns, msg, payload)
                 n += 1
                 t_first = t_first or t
                 t_last = t

@@ -155,3 +155,5 @@ EMULATED_ID = number(1, 9_999_999, integer=True)
 WORKERS = number(1, 1024, integer=True)
 MB_PER_S = number(0.01, 10_000, unit="MB/s")  # 0.01: a 4 MB download in under 7 minutes
 SECONDS_YEAR = number(0, 366 * 86_400, lo_open=True, unit="s")
+PORT = number(0, 65_535, integer=True)  # a TCP port; 0: any free port
+PLAYBACK_SPEED = number(0, 1e6, lo_open=True, unit="x")  # times real time

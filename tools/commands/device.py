@@ -11,7 +11,7 @@ from pathlib import Path
 from stillpoint.drivers import constants as C
 from stillpoint.drivers.errors import StillpointError
 
-from ._numbers import DAYS, EMULATED_ID, MB_PER_S, SECONDS_DAY, SECONDS_YEAR, number
+from ._numbers import DAYS, EMULATED_ID, MB_PER_S, PORT, SECONDS_DAY, SECONDS_YEAR, number
 
 NAME = "device"
 HELP = "act on one attached AX3/AX6 (download, verify, clear, configure, sync-time, stream) or emulate devices"
@@ -48,6 +48,9 @@ def add_arguments(p) -> None:
     s = dev("stream", "log the STREAM preview (irregular, not analysis data) to MCAP")
     s.add_argument("-o", "--output", type=Path, required=True, help="preview MCAP")
     s.add_argument("--seconds", type=SECONDS_DAY, default=10.0)
+    s.add_argument("--foxglove", nargs="?", type=PORT, const=8765, default=None, metavar="PORT",
+                   help="also serve the preview live to Foxglove on ws://localhost:PORT (default "
+                        "8765), corrected by the device's stored calibration (needs the live extra)")
     s = sub.add_parser("emulate", help="run emulated AX3/AX6 devices until Ctrl-C",
                        description="Run emulated devices (pseudo-terminal serial ports, a folder as "
                                    "each drive, a simulated recording) that `stillpoint devices` and "
@@ -98,6 +101,9 @@ def run(args) -> int:
     if args.action == "emulate":
         return _emulate(args)
     prof = None
+    if getattr(args, "foxglove", None) is not None:  # the extra is checked before any device is touched
+        from stillpoint.engine.live.sdk import load
+        load("--foxglove")
     if args.action == "configure":  # every profile value checked before any device is touched
         from stillpoint.engine.station.profile import load_profile
         prof = load_profile(args.profile)
@@ -117,9 +123,23 @@ def run(args) -> int:
             _say(f"device {att.device_id}: clock offset {before:+.3f} s -> {after:+.3f} s (host local time)")
             return 0
         if args.action == "stream":
-            from stillpoint.engine.station.preview import stream_preview
-            r = stream_preview(client, args.output, args.seconds, att.device_type,
-                               report=lambda m: print(m, file=sys.stderr, flush=True))
+            from stillpoint.engine.station.preview import PREVIEW_SCHEMA, stream_preview
+            live = None
+            if args.foxglove is not None:
+                from stillpoint.engine.live.preview import PreviewLive, stored_calibration
+                key = f"{att.device_type}-{att.device_id}"
+                cal = stored_calibration(key)
+                live = PreviewLive(key, PREVIEW_SCHEMA.encode(), port=args.foxglove, calibration=cal)
+                _say(f"foxglove: ws://127.0.0.1:{live.port} (preview of {key}; "
+                     + (f"corrected by the stored {cal.method} calibration)" if cal is not None
+                        else "no stored calibration: uncorrected)"))
+            try:
+                r = stream_preview(client, args.output, args.seconds, att.device_type,
+                                   report=lambda m: print(m, file=sys.stderr, flush=True),
+                                   on_reading=live.on_reading if live is not None else None)
+            finally:
+                if live is not None:
+                    live.close()
             _say(f"device {att.device_id}: {r['readings']} preview readings at {r['rate_hz']} Hz -> "
                  f"{r['output']} (preview only, not analysis data)")
             return 0

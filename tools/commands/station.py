@@ -7,7 +7,7 @@ import sys
 import threading
 from pathlib import Path
 
-from ._numbers import SECONDS_DAY
+from ._numbers import PORT, SECONDS_DAY
 
 NAME = "station"
 HELP = "watch for AX3/AX6 devices: verified download + corrected MCAP, clear only after verification, configure"
@@ -32,12 +32,19 @@ def add_arguments(p) -> None:
     p.add_argument("--static-from-store", nargs="?", const="", default=None, metavar="DIR",
                    help="apply each device's latest six-orientation static calibration from the "
                         "store (default location, or DIR) instead of the autocalibration")
+    p.add_argument("--foxglove", nargs="?", type=PORT, const=8765, default=None, metavar="PORT",
+                   help="serve each device live to Foxglove on ws://localhost:PORT (default 8765): "
+                        "state, progress, battery, clock offset, the corrected stream while it "
+                        "downloads, calibration estimates (needs the live extra)")
 
 
 def run(args) -> int:
     from stillpoint.engine.station.flow import StationOptions
     from stillpoint.engine.station.profile import ProfileError, load_profile
     from stillpoint.engine.station.station import Station
+    if args.foxglove is not None:  # the extra is checked before anything is touched
+        from stillpoint.engine.live.sdk import load
+        load("--foxglove")
     prof = load_profile(args.profile) if args.profile else None
     clear = args.clear_after_verify if args.clear_after_verify is not None else bool(prof and prof.clear_after_verify)
     configure = args.configure_after if args.configure_after is not None else bool(prof and prof.configure_after)
@@ -67,11 +74,21 @@ def run(args) -> int:
         with Station(opts, tty=False if args.plain else None, inbox=inbox) as st:
             if inbox is not None:
                 inbox.ledger = st.ledger
+            live = None
+            if args.foxglove is not None:
+                from stillpoint.engine.live.station import StationLive
+                live = StationLive(args.outdir, port=args.foxglove)
+                st.add_listener(live.on_change)
+                print(f"foxglove: ws://127.0.0.1:{live.port}", flush=True)
             if not (st.tty):
                 print(f"station on {args.outdir} (ledger {st.ledger.path}); clear after verify: "
                       f"{'yes' if clear else 'no'}; configure: {'yes' if configure else 'no'}; Ctrl-C stops",
                       flush=True)
-            rc = st.run(once=args.once, stop=stop)
+            try:
+                rc = st.run(once=args.once, stop=stop)
+            finally:
+                if live is not None:
+                    live.close()
             if stop.is_set():
                 print("station stopped; partial downloads are kept and resume next time", file=sys.stderr)
     finally:

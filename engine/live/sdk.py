@@ -1,0 +1,52 @@
+"""The ``foxglove-sdk`` package (the ``live`` extra), loaded on demand, and the server every live
+view starts: loopback by default, its own SDK context (so two servers in one process never share
+channels), the layout offered as the asset ``package://stillpoint/layout.json``.
+"""
+
+from __future__ import annotations
+
+from typing import Callable, Optional
+
+from stillpoint.drivers.errors import StillpointError
+
+LAYOUT_URI = "package://stillpoint/layout.json"
+# Foxglove's default WebSocket connection, ws://localhost:8765 (docs.foxglove.dev/docs/sdk/websocket-server,
+# "Connecting"); the protocol: github.com/foxglove/ws-protocol docs/spec.md, served by foxglove-sdk
+DEFAULT_PORT = 8765
+EXTRA_HINT = "pip install 'stillpoint[live]' (foxglove-sdk)"
+
+
+class LiveUnavailable(StillpointError):
+    """The ``live`` extra is not installed, or the server cannot start."""
+
+
+def load(what: str):
+    """The ``foxglove`` module, or ``LiveUnavailable`` naming the option that needs it."""
+    try:
+        import foxglove  # noqa: F401
+        from foxglove import websocket  # noqa: F401
+    except ImportError:
+        raise LiveUnavailable(f"{what} needs the optional extra `live`: {EXTRA_HINT}") from None
+    return foxglove
+
+
+def start(fg, ctx, what: str, *, port: int, host: str = "127.0.0.1", listener=None,
+          layout: Optional[Callable[[], str]] = None, time_range=None, capabilities=(),
+          backlog: Optional[int] = None):
+    """A WebSocket server on ``host:port`` (0: any free port) for the channels of ``ctx`` (an
+    ``fg.Context()``). With a ``time_range`` (playback) the channels must exist before the
+    server starts: the SDK advertises later ones only to a server without one."""
+
+    def assets(uri: str):
+        if layout is not None and uri == LAYOUT_URI:
+            return layout().encode()
+        return None
+
+    try:
+        server = fg.start_server(name=f"stillpoint {what}", host=host, port=port, context=ctx,
+                                 server_listener=listener, asset_handler=assets,
+                                 playback_time_range=time_range, capabilities=list(capabilities),
+                                 message_backlog_size=backlog)
+    except Exception as e:  # the SDK raises its own error types (a port in use, a bad host)
+        raise LiveUnavailable(f"cannot serve {what} on {host}:{port}: {e}") from None
+    return server

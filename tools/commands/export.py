@@ -25,7 +25,7 @@ so memory stays flat however long the recording. The output appears under its na
 complete (written as ``OUT.part`` and renamed; see ``stillpoint.drivers.outputs``).
 
 An MCAP input (a run's log) takes ``--topic T`` (``stillpoint.engine.mcap.export.export_mcap``)
-or ``--table epochs|days`` (``stillpoint.engine.tables.tables_from_mcap``); one of them is
+or ``--table epochs|days`` (``stillpoint.engine.workflows.tables_from_mcap``); one of them is
 required: the output's name never decides what is written.
 
 API: ``export_recording(path, out, *, time_format="iso", timezone=None, compress=False) -> dict``.
@@ -412,7 +412,7 @@ def _table_from_mcap(path, out: Path, table: str, timezone, options: dict) -> di
     which the same pass makes, goes to a hidden name beside it and is removed."""
     import secrets
 
-    from stillpoint.engine.tables import tables_from_mcap
+    from stillpoint.engine.workflows.tables_from_mcap import tables_from_mcap
     name = out.name.lower()
     if table == "epochs" and not name.endswith(".csv.gz"):
         raise StillpointError(f"{out}: the epoch table is gzip-compressed CSV: name it .csv.gz")

@@ -64,8 +64,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("-o", "--output", required=True, help="OUT.csv, OUT.csv.gz or OUT.npz")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
     parser.add_argument("--time", choices=TIME_FORMATS, default="iso",
-                        help="CSV time column: iso (UTC, microseconds; default), epoch (seconds, 9 "
-                             "decimals) or ns (integer nanoseconds)")
+                        help="CSV time column: iso (microseconds; default), epoch (seconds, 9 "
+                             "decimals) or ns (integer nanoseconds); UTC in a `time` column when the "
+                             "zone is known, else the device clock in a `time_local` column")
     parser.add_argument("--timezone", default=None,
                         help="device clock time zone, e.g. +01:00 or Europe/London (GENEActiv: a "
                              "zone that contradicts the header's needs --timezone-override)")

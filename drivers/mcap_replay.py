@@ -186,7 +186,7 @@ class McapRawSource:
         if "settings" in self.metadata:
             self.settings = loads_json(self.path, None, "settings",
                                        self.metadata["settings"].get("json", ""), what="metadata")
-            from stillpoint.engine.run import settings_problem
+            from stillpoint.engine.settings import settings_problem
             problem = settings_problem(self.settings)
             if problem:
                 self._f.close()
@@ -201,7 +201,7 @@ class McapRawSource:
         estimate when the log has none. A damaged record is a typed error naming it."""
         from stillpoint.engine.calibration.estimate import CalibrationEstimate
         from stillpoint.engine.calibration.validate import validate_estimate
-        from stillpoint.engine.run import APPLIED_STATUSES
+        from stillpoint.engine.settings import APPLIED_STATUSES
         from .errors import StillpointError
         cal = self.metadata.get("calibration") or {}
         if "json" not in cal:

@@ -212,3 +212,29 @@ class Block:
             events=cat([b.events for b in blocks]),
             per_sample={k: cat([b.per_sample[k] for b in blocks]) for k in b0.per_sample},
         )
+
+
+COALESCE_S = 600.0  # the longest run of blocks joined by coalesce_blocks (10 min of data)
+
+
+def coalesce_blocks(src, max_s: float = COALESCE_S):
+    """The source's Blocks joined into runs of one segment and scale, up to ``max_s`` of data
+    (every operator's output is independent of block cuts, so this only saves per-block work)."""
+    run, t0 = [], None
+    for b in src:
+        if b.n == 0:
+            continue
+        if run:
+            r0 = run[0]
+            same = (b.segment == r0.segment and np.array_equal(b.accel_counts_per_g, r0.accel_counts_per_g)
+                    and np.array_equal(b.accel_zero, r0.accel_zero)
+                    and (b.gyro is None) == (r0.gyro is None)
+                    and set(b.per_sample) == set(r0.per_sample))
+            if not same or (int(b.time_ns[-1]) - t0) > max_s * 1e9:
+                yield Block.concat(run) if len(run) > 1 else run[0]
+                run = []
+        if not run:
+            t0 = int(b.time_ns[0])
+        run.append(b)
+    if run:
+        yield Block.concat(run) if len(run) > 1 else run[0]

@@ -46,7 +46,7 @@ def _estimate(path, fmt: str, calibrate, timezone, override: bool):
     True (an MCAP's logged estimate; a recording's own autocalibration), a
     ``CalibrationEstimate`` or its dict."""
     from stillpoint.engine.calibration.estimate import CalibrationEstimate
-    from stillpoint.engine.run import APPLIED_STATUSES
+    from stillpoint.engine.settings import APPLIED_STATUSES
     if calibrate is None or calibrate is False:
         return None
     if isinstance(calibrate, CalibrationEstimate):
@@ -209,7 +209,7 @@ def tables(path, *, timezone: Optional[str] = None) -> dict:
         ep, days = table_paths(p)
         if timezone is None and ep.is_file() and days.is_file():
             return _table_frames(pd, ep, days)
-        from stillpoint.engine.tables import tables_from_mcap
+        from stillpoint.engine.workflows.tables_from_mcap import tables_from_mcap
         with tempfile.TemporaryDirectory(prefix="stillpoint-tables-") as d:
             ep, days = Path(d) / "t.epochs.csv.gz", Path(d) / "t.days.csv"
             tables_from_mcap(p, ep, days, timezone=timezone)

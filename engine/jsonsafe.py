@@ -1,20 +1,24 @@
 """JSON-safe values for reports, summaries and JSON log messages.
 
 ``jsonable(x)`` turns numpy scalars and arrays into plain Python values, non-finite floats into
-``None`` (JSON has no NaN or infinity), bytes into latin-1 text and sets into sorted lists,
-recursively through dicts, lists and tuples. Everything else is returned as is.
+``None`` (JSON has no NaN or infinity), dataclasses into dicts, dict keys into text, bytes into
+latin-1 text and sets into sorted lists, recursively through dicts, lists and tuples. Everything
+else is returned as is. ``dumps(x)``: the JSON text of a log message or metadata value (keys
+sorted; never NaN).
 """
 
 from __future__ import annotations
 
+import json
 import math
+from dataclasses import asdict, is_dataclass
 
 import numpy as np
 
 
 def jsonable(x):
     if isinstance(x, dict):
-        return {k: jsonable(v) for k, v in x.items()}
+        return {(k if isinstance(k, str) else str(k)): jsonable(v) for k, v in x.items()}
     if isinstance(x, (list, tuple)):
         return [jsonable(v) for v in x]
     if isinstance(x, np.ndarray):
@@ -30,4 +34,10 @@ def jsonable(x):
         return x.decode("latin-1")
     if isinstance(x, (set, frozenset)):
         return sorted(jsonable(v) for v in x)
+    if is_dataclass(x) and not isinstance(x, type):
+        return jsonable(asdict(x))
     return x
+
+
+def dumps(obj) -> str:
+    return json.dumps(jsonable(obj), sort_keys=True, allow_nan=False)

@@ -50,6 +50,25 @@ def set_block_thresholds() -> bool:
         return False
 
 
+_TUNED = False
+
+
+def tune_for_blocks() -> None:
+    """:func:`set_block_thresholds` once per process, unless MALLOC_MMAP_THRESHOLD_ or
+    MALLOC_TRIM_THRESHOLD_ is set. Every simulator chunk allocates and frees arrays of a few MB in
+    two threads; with the default thresholds they are unmapped or trimmed and faulted in afresh
+    each chunk (a 1-day 100 Hz recording: 57 k page faults and 0.19 s of system CPU, against 25 k
+    and 0.09 s)."""
+    global _TUNED
+    if _TUNED:
+        return
+    _TUNED = True
+    import os
+    if "MALLOC_MMAP_THRESHOLD_" in os.environ or "MALLOC_TRIM_THRESHOLD_" in os.environ:
+        return
+    set_block_thresholds()
+
+
 def one_arena() -> bool:
     """Threads started from now on share the existing arena(s) (glibc ``M_ARENA_MAX`` 1, once
     per process); False where it cannot be done (not glibc) or the environment sets it."""

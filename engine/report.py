@@ -146,8 +146,8 @@ def _sphere(mcap, est_json: Optional[dict], settings: dict, progress=None):
         if "sd_threshold_g" in settings:
             kw["sd_threshold"] = settings["sd_threshold_g"]
         nm = NonmovementOperator(**kw)
-        from .tables.from_mcap import _coalesced
-        for b in _coalesced(src):  # 10-min blocks instead of the log's 10-s messages
+        from .blocks import coalesce_blocks
+        for b in coalesce_blocks(src):  # 10-min blocks instead of the log's 10-s messages
             nm.push(win.push(b))
             if progress is not None and callable(getattr(src, "progress", None)):
                 progress.update(fraction=src.progress())
@@ -447,7 +447,8 @@ def write_report(mcap, *, summary: Optional[dict] = None, out_png=None, out_html
     png, page = Path(out_png or png), Path(out_html or page)
     check_output_path(png, what="report")
     check_output_path(page, what="report page")
-    from .tables import table_paths, tables_from_mcap
+    from .tables import table_paths
+    from .workflows.tables_from_mcap import tables_from_mcap
     ep_path, days_path = table_paths(mcap)
     rec = _mcap_records(mcap)
     if summary:

@@ -23,7 +23,6 @@ Both passes hold only bounded state: ring buffers of one window/epoch, the nonmo
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Callable, Optional
 
@@ -38,24 +37,21 @@ from .calibration.trust import CountStep
 from .calibration.estimate import CalibrationEstimate
 from .calibration.quantisation import release_tables
 from .calibration.validate import validate_estimate
-from .calibration.schedule import CHUNK_HOURS, FIRST_HOURS
-from .calibration.select import MAX_ABS_MEAN_G, SD_THRESHOLD_G
+from .calibration.select import SD_THRESHOLD_G
 from .clipping import ClippingMonitor
 from .features import WindowFeatures
 from .malloc import one_arena, trim
-from .mcap.sink import CHUNK_SIZE, ZSTD_LEVEL, McapSink
+from .mcap.sink import McapSink
 
-# default rate of the plottable view topic. A view sample costs ~75 bytes of MCAP (28 B payload,
-# 31 B record header, 16 B index entry; zstd keeps ~half of the first two): at 1 Hz ~26 MB a
-# week, ~11 % of a 7-day 100 Hz log (2 Hz: 53 MB), still 86,400 points a day for a plot.
-VIEW_HZ = 1.0
 from .operators.correction import CorrectionOperator
-from .operators.filters import BFEN_BAND_GGIR, band_used
-from .operators.metrics import EPOCH_S, EpochMetrics, MetricsOperator
+from .operators.filters import band_used
+from .operators.metrics import EpochMetrics, MetricsOperator
 from .operators.nonmovement import NonmovementOperator
-from .operators.windows import WINDOW_S, WindowFeaturesOperator
+from .operators.windows import WindowFeaturesOperator
 from .pipeline import Pipeline, PipelineStats
 from .prefetch import Prefetched, cores_available
+# the settings of a run live beside it; callers take them from here with process_file
+from .settings import APPLIED_STATUSES, RunSettings
 
 
 class OutputError(StillpointError):
@@ -71,120 +67,6 @@ def check_output(out: Path) -> None:
         raise OutputError(f"{out}: is a directory")
     if not os.access(parent, os.W_OK):
         raise OutputError(f"{out}: directory {parent} is not writable")
-
-
-# fit outcomes whose parameters are applied: a converged fit whose residual error is high is
-# still better than none, so it is applied (and its status says so); every other outcome
-# (identity, reverted, no nonmovement, sphere not covered) leaves the data uncorrected
-APPLIED_STATUSES = ("ok", "high_error")
-
-
-@dataclass
-class RunSettings:
-    """Everything that determines a run's output (logged as the MCAP ``settings`` record)."""
-
-    mode: str = "batch"  # "batch" | "online"
-    window_s: float = WINDOW_S
-    min_fill: float = 0.9  # a window needs this fraction of its nominal samples
-    sd_threshold_g: float = SD_THRESHOLD_G
-    max_abs_mean_g: float = MAX_ABS_MEAN_G
-    epoch_s: float = EPOCH_S
-    bfen_band_hz: tuple = BFEN_BAND_GGIR
-    first_hours: float = FIRST_HOURS
-    chunk_hours: float = CHUNK_HOURS
-    temperature: bool = True  # fit the temperature term when the channel allows it
-    ggir_compatible: bool = False
-    calibrate: bool = True  # False: identity (raw g) on /corrected/accel
-    prior: Optional[dict] = None  # online: estimate in force before the first accepted refit
-    # a six-orientation static calibration (method "static-6" estimate) applied instead of the
-    # autocalibration (never both): batch applies it from the start, online keeps it (refits
-    # are logged, not applied)
-    static_calibration: Optional[dict] = None
-    corrected_quantum_g: float = 2.0 ** -16  # /corrected/accel rounding before float32 (0: none)
-    max_block_s: float = 600.0  # pipeline block bound (data time): memory vs per-block overhead
-    flush_every_s: float = 10.0  # MCAP flush cadence (data time)
-    compression: str = "zstd"
-    zstd_level: int = ZSTD_LEVEL  # 1: ~30 % less compression CPU than 3 for ~5 % more bytes
-    chunk_size: int = CHUNK_SIZE
-    view_hz: float = VIEW_HZ  # /view/accel samples per second (0: no view topic)
-    chunk_s: Optional[float] = None  # MCAP chunk span, data time (None: CHUNK_S below)
-    timezone: Optional[str] = None  # the device clock's zone (IANA or offset); None: as the reader
-    # a GENEActiv header's zone that ``timezone`` contradicts is refused unless this is set
-    # (engine/timezones.py, check_header_zone); the settings record keeps that it was
-    timezone_override: bool = False
-
-    def __post_init__(self):
-        if self.mode not in ("batch", "online"):
-            raise ValueError(f"mode must be 'batch' or 'online', not {self.mode!r}")
-        self.bfen_band_hz = tuple(float(x) for x in self.bfen_band_hz)
-
-    def to_dict(self) -> dict:
-        d = asdict(self)
-        d["bfen_band_hz"] = list(self.bfen_band_hz)
-        return d
-
-    @staticmethod
-    def from_dict(d: dict, **overrides) -> "RunSettings":
-        known = {f.name for f in fields(RunSettings)}
-        kw = {k: v for k, v in d.items() if k in known}
-        kw.update({k: v for k, v in overrides.items() if v is not None})
-        return RunSettings(**kw)
-
-
-def settings_problem(d: dict) -> Optional[str]:
-    """The first value of a settings record (``RunSettings.to_dict`` form, e.g. the ``settings``
-    metadata of an MCAP log) that a run cannot take, as "key: why"; None when every value is
-    usable. Keys a RunSettings does not have are ignored; a missing key keeps its default. Every
-    value is checked here, when the record is read, so a damaged record is one clear line and
-    never a type error deep in the engine."""
-    import math
-    from .mcap.writer import COMPRESSIONS
-
-    def num(v) -> bool:
-        return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-
-    def within(lo: float, hi: float, unit: str):  # (lo, hi]: the command line's ranges
-        return (lambda v: num(v) and lo < v <= hi), f"a number in ({lo:g}, {hi:g}] {unit}"
-
-    rules = {"window_s": within(0, 86_400, "s"), "epoch_s": within(0, 86_400, "s"),
-             "first_hours": within(0, 8760, "h"), "chunk_hours": within(0, 8760, "h"),
-             "sd_threshold_g": within(0, 1, "g"), "max_abs_mean_g": within(0, 1000, "g")}
-    rules.update({
-        "mode": (lambda v: v in ("batch", "online"), "'batch' or 'online'"),
-        "min_fill": (lambda v: num(v) and 0 < v <= 1, "a fraction in (0, 1]"),
-        "bfen_band_hz": (lambda v: isinstance(v, (list, tuple)) and len(v) == 2
-                         and all(num(x) for x in v) and 0 <= v[0] < v[1], "[low, high] in Hz"),
-        "temperature": (lambda v: isinstance(v, bool), "true or false"),
-        "ggir_compatible": (lambda v: isinstance(v, bool), "true or false"),
-        "calibrate": (lambda v: isinstance(v, bool), "true or false"),
-        "corrected_quantum_g": (lambda v: num(v) and 0 <= v <= 1, "a step in g in [0, 1]"),
-        # bounded: the block and chunk sizes set how much of the recording is held in memory
-        "max_block_s": (lambda v: num(v) and 0 < v <= 86_400, "seconds in (0, 86400]"),
-        "flush_every_s": (lambda v: num(v) and 0 < v <= 86_400, "seconds in (0, 86400]"),
-        "chunk_s": (lambda v: v is None or (num(v) and 0 < v <= 86_400), "null or seconds in (0, 86400]"),
-        "compression": (lambda v: v in COMPRESSIONS, "one of " + ", ".join(COMPRESSIONS)),
-        "zstd_level": (lambda v: isinstance(v, int) and not isinstance(v, bool) and 1 <= v <= 22,
-                       "an integer zstd level 1..22"),
-        "chunk_size": (lambda v: isinstance(v, int) and not isinstance(v, bool) and 0 < v <= 1 << 30,
-                       "a byte count in (0, 1 GiB]"),
-        "view_hz": (lambda v: num(v) and 0 <= v <= 5000, "0 (off) or samples per second up to 5000"),
-        "timezone": (lambda v: v is None or (isinstance(v, str) and 0 < len(v) <= 64), "null or a zone name"),
-        "timezone_override": (lambda v: isinstance(v, bool), "true or false"),
-    })
-    if not isinstance(d, dict):
-        return f"not a JSON object ({type(d).__name__})"
-    for key, (ok, what) in rules.items():
-        if key in d and not ok(d[key]):
-            return f"{key} is {d[key]!r}, expected {what}"
-    for key in ("prior", "static_calibration"):
-        v = d.get(key)
-        if v is None:
-            continue
-        try:
-            validate_estimate(v, key)
-        except StillpointError as e:
-            return str(e)
-    return None
 
 
 # ---------------------------------------------------------------------------- stages
@@ -340,7 +222,8 @@ def _calibration_summary(est: CalibrationEstimate, quietest_sd_g: float = float(
 
 def _static_estimate(d: dict, info, first_ns, summary: dict) -> CalibrationEstimate:
     """The static calibration to apply: same device only; the gap to the recording is logged."""
-    from .calibration.static import STATIC_METHOD, StaticCalibrationError
+    from .calibration.estimate import STATIC_METHOD
+    from .calibration.static import StaticCalibrationError
     est = CalibrationEstimate.from_dict(dict(d))
     if est.method != STATIC_METHOD:
         raise StaticCalibrationError(f"the static calibration given has method {est.method!r}, "

@@ -418,7 +418,8 @@ def test_every_settings_value_is_checked_when_read(fuzz3, tmp_path, key, value):
 
 
 def test_settings_as_every_run_logs_them_are_accepted():
-    from stillpoint.engine.run import RunSettings, settings_problem
+    from stillpoint.engine.run import RunSettings
+    from stillpoint.engine.settings import settings_problem
     for s in (RunSettings(), RunSettings(mode="online", compression="lz4", chunk_s=30.0,
                                          timezone="Europe/London", view_hz=0.0,
                                          corrected_quantum_g=0.0, ggir_compatible=True)):

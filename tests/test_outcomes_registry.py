@@ -5,7 +5,7 @@ The numbers below are quoted from GGIR's cut-point table (wadpac/GGIR vignettes/
 commit 388064b707df4fcfb7f9b755c5a43a477d371092, the lines named per row), which gives each
 publication's DOI. The publications' own tables (Hildebrand 2014 doi:10.1249/MSS.0000000000000289;
 Hildebrand 2017 doi:10.1111/sms.12795; Mielke 2023 doi:10.1111/sms.14416; Vähä-Ypyä 2015
-doi:10.1371/journal.pone.0134813) are the authority; the registry's ``table``/``page`` fields are
+doi:10.1371/journal.pone.0134813) are the authority; a row's ``table``/``page`` fields are
 empty until a row has been checked against them.
 """
 
@@ -46,6 +46,15 @@ def test_mielke_rows_agree_with_the_article_as_quoted_in_ggir_issue_1417():
     # ActiGraph waist 40/65/190 (light >= 1.5 MET, moderate >= 3 MET, vigorous >= 6 MET)
     assert lookup("mielke2023_actigraph_hip").placement == "waist"
     assert "issue 1417" in lookup("mielke2023_actigraph_hip").transcribed_from
+
+
+def test_mad_row_agrees_with_the_article():
+    # Vähä-Ypyä et al. 2015, PLoS One 10(8): e0134813, abstract, Results: "The optimal cut-point
+    # was 91 mg (milligravity) for 3 MET and 414 mg for 6 MET" (light/moderate and
+    # moderate/vigorous; the article sets no light threshold)
+    row = lookup("vahaypya2015_mad_hip")
+    assert (row.light, row.moderate, row.vigorous) == (None, 91, 414)
+    assert (row.table, row.page) == ("abstract (Results)", "e0134813")
 
 
 def test_every_registry_row_is_quoted():

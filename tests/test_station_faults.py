@@ -13,7 +13,7 @@ from stillpoint.drivers.ax.discovery import EmulatedBackend
 from stillpoint.engine.station.download import DownloadJob
 from stillpoint.engine.station.flow import StationOptions
 from stillpoint.engine.station.station import Station, table_lines
-from stillpoint.engine.station.worker import DownloadWorker
+from stillpoint.engine.station.download import DownloadWorker
 
 from station_fixtures import emu, runtime  # noqa: F401
 
@@ -200,7 +200,7 @@ import os, sys, time
 from pathlib import Path
 from stillpoint.drivers.ax.emulator import EmulatedDevice
 from stillpoint.engine.station.download import DownloadJob
-from stillpoint.engine.station.worker import DownloadWorker
+from stillpoint.engine.station.download import DownloadWorker
 if __name__ == "__main__":
     w = Path(sys.argv[1])
     d = EmulatedDevice(w / "dev", 12345, faults=("hang",), days=0.01)

@@ -88,7 +88,7 @@ def test_no_matplotlib_means_no_report_said_in_one_line_and_no_failure(emu, tmp_
 
 
 def test_a_failed_product_never_unverifies_or_blocks_the_clear(emu, tmp_path, monkeypatch):
-    import stillpoint.engine.tables as tables
+    import stillpoint.engine.workflows.tables_from_mcap as tables
 
     def broken(*a, **k):
         raise OSError(28, "No space left on device", str(tmp_path / "out" / f"{STEM}.epochs.csv.gz"))
@@ -197,7 +197,7 @@ def test_a_verified_downloads_refit_goes_to_the_store_for_the_next_download(tmp_
 def test_products_stopped_with_the_station_are_not_recorded_and_made_next_time(emu, tmp_path,
                                                                                 monkeypatch):
     import threading
-    import stillpoint.engine.tables as tables
+    import stillpoint.engine.workflows.tables_from_mcap as tables
     real = tables.tables_from_mcap
     started, release = threading.Event(), threading.Event()
 

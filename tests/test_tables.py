@@ -415,7 +415,7 @@ def test_cohort_takes_the_zone_and_writes_the_tables(tmp_path):
 
 def test_export_from_an_online_run_gives_the_same_tables(small_run, tmp_path):
     s, e, d = run_tables(small_run.rec, tmp_path / "o.mcap", RunSettings(mode="online"))
-    from stillpoint.engine.tables import tables_from_mcap
+    from stillpoint.engine.workflows.tables_from_mcap import tables_from_mcap
     tables_from_mcap(tmp_path / "o.mcap", tmp_path / "x.epochs.csv.gz")
     assert read_epochs(tmp_path / "x.epochs.csv.gz") == e and read_days(tmp_path / "x.days.csv") == d
 

@@ -78,7 +78,7 @@ def run_cp(devs, work: Path) -> dict:
 
 def run_workers(devs, work: Path, pipeline: bool, throttle_bps) -> dict:
     from stillpoint.engine.station.download import DownloadJob
-    from stillpoint.engine.station.worker import DownloadWorker
+    from stillpoint.engine.station.download import DownloadWorker
     out = work / "station-out"
     shutil.rmtree(out, ignore_errors=True)
     out.mkdir()

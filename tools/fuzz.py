@@ -349,7 +349,8 @@ def read_mcap(path: Path) -> None:
     logged settings, as ``stillpoint replay`` does."""
     from stillpoint.drivers.mcap_replay import McapRawSource
     from stillpoint.engine.mcap.export import _rows
-    from stillpoint.engine.mcap.reading import iter_messages, walk_records
+    from stillpoint.engine.mcap.reading import walk_records
+    from stillpoint.engine.mcap.stream import iter_messages
     try:
         with McapRawSource(path) as src:
             for b in src:

@@ -95,13 +95,15 @@ class AlignmentMcap:
 
 def read_topic_json(path, topic: str) -> list[dict]:
     """All JSON messages of a topic (for tests and tools); CRC-checked, typed errors."""
-    from stillpoint.engine.mcap.reading import iter_messages, loads_json
+    from stillpoint.engine.mcap.reading import loads_json
+    from stillpoint.engine.mcap.stream import iter_messages
     return [loads_json(path, topic, i, m.data) for _, i, m in iter_messages(path, [topic])]
 
 
 def read_aligned(path) -> tuple[np.ndarray, np.ndarray]:
     """(time_ns, accel_g (n, 3)) of the aligned stream."""
-    from stillpoint.engine.mcap.reading import decode, iter_messages
+    from stillpoint.engine.mcap.reading import decode
+    from stillpoint.engine.mcap.stream import iter_messages
     from stillpoint.engine.mcap.schemas import times_from_deltas
     ts, xs = [], []
     for _, i, m in iter_messages(path, [TOPIC_ALIGNED]):

@@ -16,6 +16,8 @@ from typing import Optional
 
 import numpy as np
 
+STATIC_METHOD = "static-6"  # the method of an estimate from a six-orientation session (static.py)
+
 
 @dataclass
 class CalibrationEstimate:

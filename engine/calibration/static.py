@@ -39,10 +39,9 @@ import numpy as np
 
 from stillpoint.drivers.errors import StillpointError
 
-from .estimate import CalibrationEstimate
+from .estimate import STATIC_METHOD, CalibrationEstimate
 from .sixface import FACE_WORDS, FACES, FaceSearch, find_faces
 
-STATIC_METHOD = "static-6"
 # offset rule per search mode (module docstring)
 OFFSET_RULE = {"reference": "non-gravity", "paper": "non-gravity", "robust": "midpoint"}
 # above this |coupling| a calibration without the full matrix says so: the rest level of the

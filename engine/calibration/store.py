@@ -26,7 +26,7 @@ from typing import Optional
 
 from stillpoint.drivers.errors import StillpointError
 
-from .estimate import CalibrationEstimate
+from .estimate import STATIC_METHOD, CalibrationEstimate
 from .validate import validate_estimate
 
 HOME_ENV = "STILLPOINT_HOME"
@@ -246,7 +246,6 @@ class CalibrationStore:
     def latest_static(self, device_key: str):
         """The device's latest usable six-orientation static calibration (method ``static-6``)
         as a CalibrationEstimate (the static result in ``extra["static"]``), or None."""
-        from .static import STATIC_METHOD
         recs = self.records(device_key)
         for i in range(len(recs) - 1, -1, -1):
             if recs[i].get("method") == STATIC_METHOD and recs[i].get("status") in USABLE_STATUSES:

@@ -97,7 +97,7 @@ def _fields(base, bands) -> list:
 
 
 def summary_row(entry, final: Path, done: dict, summary: dict) -> dict:
-    from stillpoint.engine.run import APPLIED_STATUSES
+    from stillpoint.engine.settings import APPLIED_STATUSES
     from stillpoint.engine.timezones import ZoneError, local_text, utc_text, zone_from_label
     dev = summary.get("device") or {}
     qc = summary.get("qc") or {}

@@ -37,7 +37,8 @@ from stillpoint.drivers.errors import StillpointError
 from stillpoint.drivers.names import csv_cell
 from stillpoint.drivers.outputs import atomic_output, check_output_path
 
-from .reading import McapReadError, check_raw_message, decode, iter_messages, text
+from .reading import McapReadError, check_raw_message, decode, text
+from .stream import iter_messages
 
 from .schemas import (ACCEL_BATCH, ACCEL_BATCH_RAW, EPOCH_METRICS, GYRO_BATCH_RAW, TEMPERATURE,
                            times_from_deltas)

@@ -28,6 +28,8 @@ from typing import Optional
 
 from stillpoint.drivers.outputs import AtomicOutput, OutputError, describe_os_error
 
+from ..jsonsafe import dumps
+
 from .chunks import ChunkBuilder
 from .jsonschemas import JsonSchema
 from .schemas import ALL_TYPES, CdrType
@@ -170,12 +172,10 @@ class McapLog:
 
     def write_json(self, topic: str, log_time: int, obj, schema: Optional[JsonSchema] = None) -> None:
         """One JSON message (keys sorted, NaN/inf as null) with its JSON schema, if given."""
-        from .sink import dumps
         self.add(self.channel(topic, "json", schema), log_time, dumps(obj).encode())
 
     def write_metadata(self, name: str, values: dict) -> None:
         """A Metadata record (string values; others are stored as JSON text)."""
-        from .sink import dumps
         self._send(("metadata", name, {k: (v if isinstance(v, str) else dumps(v))
                                        for k, v in values.items()}))
         self._metadata += 1

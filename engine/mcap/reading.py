@@ -1,10 +1,9 @@
-"""Reading a stillpoint MCAP back, defensively: every read path goes through here.
+"""Reading a stillpoint MCAP back, defensively: the errors and payload checks of every read path.
+The messages themselves come from the one streaming reader, ``stream.iter_messages``, which turns
+any failure of the container (bad CRC, torn record, decompression error) into an
+``McapReadError`` from here, naming the file, the channel and the record reached.
 
-* ``open_reader(f)``: the ``mcap`` package's reader with chunk CRCs checked on every chunk read
-  (a flipped bit is an error, never a silently different message).
-* ``iter_messages(path, topics)``: (topic, index within the topic, message) in file order; any
-  failure of the container (bad CRC, torn record, decompression error) becomes an
-  ``McapReadError`` naming the file, the channel and the record reached.
+* ``locate_damage(path)`` / ``walk_records(f)``: the first unreadable record, for that message.
 * ``decode(cdr_type, path, topic, index, data)`` / ``loads_json(...)`` / ``text(...)``: a message
   payload decoded, or an ``McapReadError`` naming the file, channel and message.
 * ``check_raw_message(...)``: the structural invariants of a ``/raw/accel`` or ``/raw/gyro``
@@ -18,7 +17,7 @@ line with exit code 2.
 from __future__ import annotations
 
 import json
-from typing import Iterable, Iterator, Optional
+from typing import Iterator, Optional
 
 import numpy as np
 
@@ -51,43 +50,9 @@ class McapReadError(CorruptRecordingError):
         super().__init__(path, message, where or None)
 
 
-def open_reader(f):
-    """A reader over an open binary file that validates the CRC of every chunk it reads."""
-    from mcap.reader import make_reader
-    return make_reader(f, validate_crcs=True)
-
-
 def _describe(e: BaseException) -> str:
     s = str(e)
     return f"{type(e).__name__}: {s}" if s else type(e).__name__
-
-
-def iter_messages(path, topics: Optional[Iterable[str]] = None) -> Iterator[tuple]:
-    """(topic, index within its topic, mcap Message) in file order, CRC-checked."""
-    counts: dict[str, int] = {}
-    last: Optional[str] = None
-    try:
-        f = open(path, "rb")
-    except OSError as e:
-        raise CorruptRecordingError(path, f"cannot open: {e.strerror or e}") from None
-    with f:
-        try:
-            reader = open_reader(f)
-            it = reader.iter_messages(topics=None if topics is None else list(topics),
-                                      log_time_order=False)
-            for _schema, channel, msg in it:
-                topic = channel.topic
-                i = counts.get(topic, 0)
-                counts[topic] = i + 1
-                last = topic
-                yield topic, i, msg
-        except StillpointError:
-            raise
-        except Exception as e:  # the container itself is damaged: name where reading stopped
-            where = locate_damage(path)
-            after = (f"after message {counts[last] - 1} of {last}" if last else "before the first message")
-            raise McapReadError(path, f"unreadable MCAP data ({where or _describe(e)}); {RECOVER_HINT}",
-                                record=after) from None
 
 
 def locate_damage(path) -> Optional[str]:

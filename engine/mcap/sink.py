@@ -56,13 +56,14 @@ from __future__ import annotations
 
 import bisect
 import json
-from dataclasses import asdict, is_dataclass
+from dataclasses import asdict
 from typing import Optional
 
 import numpy as np
 
 from ..blocks import Block, DeviceInfo, PER_SAMPLE_BUTTON, PER_SAMPLE_LIGHT_RAW
 from ..calibration.estimate import CalibrationEstimate
+from ..jsonsafe import dumps, jsonable
 from .schemas import (ACCEL_BATCH, ACCEL_BATCH_RAW, EPOCH_METRICS, GYRO_BATCH_RAW, TEMPERATURE,
                       VIEW_SAMPLE, INT32_MAX, max_step_ok, time_deltas)
 from ..operators.correction import CorrectedBatch
@@ -82,31 +83,9 @@ from .view import TOPIC_VIEW, ViewDecimator, view_records
 from .writer import CHUNK_SIZE, LIBRARY, ZSTD_LEVEL  # noqa: F401
 
 
-def _jsonable(x):
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    if isinstance(x, (np.integer,)):
-        return int(x)
-    if isinstance(x, (np.floating,)):
-        return None if not np.isfinite(x) else float(x)
-    if isinstance(x, float) and not np.isfinite(x):
-        return None
-    if is_dataclass(x):
-        return _jsonable(asdict(x))
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    return x
-
-
-def dumps(obj) -> str:
-    return json.dumps(_jsonable(obj), sort_keys=True, allow_nan=False)
-
-
 def device_metadata(info: DeviceInfo) -> dict[str, str]:
     """DeviceInfo as an MCAP metadata record (string values; full JSON under ``json``)."""
-    d = _jsonable(asdict(info))
+    d = jsonable(asdict(info))
     rec = {k: (v if isinstance(v, str) else json.dumps(v, sort_keys=True)) for k, v in d.items()}
     rec["json"] = json.dumps(d, sort_keys=True)
     return rec

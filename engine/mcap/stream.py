@@ -88,9 +88,9 @@ class StreamedMessage(NamedTuple):
 def iter_messages(path, topics: Optional[Iterable[str]] = None, *,
                   start_ns: Optional[int] = None) -> Iterator[tuple]:
     """(topic, index within its topic, message with ``log_time`` and ``data``) in file order,
-    chunk CRCs checked, in flat memory; the same contract as ``reading.iter_messages`` (a damaged
-    container is an ``McapReadError`` naming the file and where reading stopped). ``start_ns``:
-    see ``iter_topic_messages`` (indexes then count from the first chunk read)."""
+    chunk CRCs checked, in flat memory; every reader of a stillpoint MCAP goes through here (a
+    damaged container is an ``McapReadError`` naming the file and where reading stopped).
+    ``start_ns``: see ``iter_topic_messages`` (indexes then count from the first chunk read)."""
     from .reading import RECOVER_HINT, McapReadError, locate_damage
     counts: dict[str, int] = {}
     last: Optional[str] = None

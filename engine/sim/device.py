@@ -16,14 +16,15 @@ from typing import Iterator, Optional, Sequence
 
 import numpy as np
 
+from stillpoint.engine.malloc import tune_for_blocks
+
 from .clock import ClockModel, make_clock
 from .model import DEFAULT_EFFECTS, ModelError, SensorModel, first_order_lag, load_model, resolve_model
-from .sensor import DeviceSpec, bias_track, measure_blocks, noise_sd_g, standard_normals
+from .sensor import CHUNK_S, DeviceSpec, bias_track, measure_blocks, noise_sd_g, standard_normals
 from .temperature import TRACK_STEP_S, TemperatureParams, temperature_track
 from .truth import WINDOW_S
 from .wearer import SITES, Schedule, SiteModel, WearerParams, make_schedule
 
-CHUNK_S = 3600.0  # one hour of true time: the unit of generation and of the noise seeds
 # chunks from which the motion is rendered in a child process (its start-up, ~0.3 s, is
 # covered by the chunks the parent renders meanwhile; a thread suffices for short recordings)
 PROCESS_MIN_CHUNKS = 24
@@ -143,26 +144,6 @@ class _GridRuns:
         return out
 
 
-_MALLOC_TUNED = False
-
-
-def _tune_malloc() -> None:
-    """Once per process (glibc only; not when MALLOC_MMAP_THRESHOLD_ or MALLOC_TRIM_THRESHOLD_
-    is set): mmap above 32 MiB, trim above 64 MiB (glibc's dynamic thresholds at their upper
-    values). Every chunk allocates and frees arrays of a few MB in two threads; with the
-    default thresholds they are unmapped or trimmed and faulted in afresh each chunk (a 1-day
-    100 Hz recording: 57 k page faults and 0.19 s of system CPU, against 25 k and 0.09 s)."""
-    global _MALLOC_TUNED
-    if _MALLOC_TUNED:
-        return
-    _MALLOC_TUNED = True
-    import os
-    if "MALLOC_MMAP_THRESHOLD_" in os.environ or "MALLOC_TRIM_THRESHOLD_" in os.environ:
-        return
-    from stillpoint.engine.malloc import set_block_thresholds
-    set_block_thresholds()
-
-
 # ----------------------------------------------------------------------------- one device
 class DeviceSim:
     """One simulated device on the body (see the module docstring)."""
@@ -264,7 +245,7 @@ class DeviceSim:
         is not too high for its shared slots (engine/sim/render_process.py ``suits``), else on
         a worker thread; ``prefetch="thread"`` or
         ``"process"`` chooses. The output is identical either way."""
-        _tune_malloc()
+        tune_for_blocks()
         if prefetch is True:
             from stillpoint.engine.prefetch import cores_available
             from .render_process import suits

@@ -28,8 +28,10 @@ from typing import Iterator, Optional
 
 import numpy as np
 
-from .device import (CHUNK_S, DEFAULT_START, DeviceSim, SimChunk, build_model,  # noqa: F401
-                     make_devices, _device_hz, _tune_malloc)
+from stillpoint.engine.malloc import tune_for_blocks
+
+from .device import (DEFAULT_START, DeviceSim, SimChunk, build_model,  # noqa: F401
+                     make_devices, _device_hz)
 from .model import ModelError, SensorModel  # noqa: F401
 from .temperature import TRACK_STEP_S, TemperatureParams
 from .truth import (LABEL_COLUMNS, TRUTH_FORMAT, WINDOW_S, Truth, _write_label_rows,  # noqa: F401
@@ -407,7 +409,7 @@ def simulate_pair(path_a, path_b, *, site_a: str = "wrist", site_b: str = "hip",
     sinks = [_FileSink(sims[0], path_a, labels_path=paths[0][1], truth_path=paths[0][0])]
     try:
         sinks.append(_FileSink(sims[1], path_b, labels_path=paths[1][1], truth_path=paths[1][0]))
-        _tune_malloc()
+        tune_for_blocks()
         n_chunks = max(s.n_chunks for s in sims)
         for k in range(n_chunks):
             for s, sink in zip(sims, sinks):

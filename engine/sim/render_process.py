@@ -40,7 +40,7 @@ def _slot_bytes(sim) -> int:
     """Bytes of one slot: a chunk's arrays at their largest, each aligned (``DeviceSim._render``:
     times float64, force float32, gyro float64 on an AX6 with gyro, noise float32; 8 bytes a
     sample to spare. A chunk that does not fit ends the child: the parent renders the rest)."""
-    from .device import CHUNK_S
+    from .sensor import CHUNK_S
     n = int(np.ceil(CHUNK_S * sim.clock.rate_true_hz)) + 2
     gyro = sim.spec.kind == "ax6" and sim.spec.gyro_range_dps is not None
     per = 8 + 3 * 4 + (3 * 8 if gyro else 0) + 3 * 4 + 8
@@ -222,8 +222,8 @@ def _pack(view: memoryview, base: int, arrays) -> list:
 def _serve(inp, outp) -> None:
     kind, sim, path, slot, nslots = pickle.load(inp)
     assert kind == "device"
-    from .device import _tune_malloc
-    _tune_malloc()
+    from stillpoint.engine.malloc import tune_for_blocks
+    tune_for_blocks()
     with open(path, "r+b") as fh:
         m = mmap.mmap(fh.fileno(), slot * nslots)
     view = memoryview(m)

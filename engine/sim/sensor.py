@@ -21,6 +21,8 @@ import numpy as np
 
 from .model import SensorModel, apply_deterministic, per_axis
 
+CHUNK_S = 3600.0  # one hour of true time: the unit of generation and of the noise seeds
+
 AX3_PACKED_EXPONENT = {2: 0, 4: 1, 8: 2, 16: 3}  # cwa-format.md §6.1 (also in drivers/cwa_writer.py)
 
 

@@ -51,6 +51,7 @@ from stillpoint.drivers.ax.volume import open_data_file
 from stillpoint.drivers.outputs import describe_os_error
 
 from . import names
+from .worker import Worker
 from .device_read import CHECK_BYTES, CHUNK_BYTES, RangeHashes, ReadCancelled, read_device
 
 REREADS = 2  # more reads of a range whose copy and verification reads differ
@@ -571,3 +572,35 @@ def run_download(job: DownloadJob, progress: Optional[Callable[[str, int, int], 
         except OSError:
             pass
     return res
+
+
+def download_task(job: DownloadJob, progress, cancel=None) -> dict:
+    """``run_download`` as a worker task (its ``DownloadResult`` as a dict)."""
+    try:
+        return run_download(job, progress, cancel).to_dict()
+    except BaseException as e:  # noqa: BLE001 - reported, never a traceback on the station
+        return DownloadResult(ok=False, reason=f"download worker failed: {type(e).__name__}: "
+                                               f"{e}").to_dict()
+
+
+class DownloadWorker(Worker):
+    """One download (``run_download``) in a worker; ``result`` is its ``DownloadResult``."""
+
+    def __init__(self, job: DownloadJob, *, stall_s: float = 30.0, inline: bool = False):
+        super().__init__(download_task, job, stall_s=stall_s, inline=inline, what="download",
+                         name=f"download-{job.stem}")
+
+    def _result(self, d: dict) -> DownloadResult:
+        return DownloadResult(**d)
+
+    def _stopped(self) -> DownloadResult:
+        return DownloadResult(ok=False, reason="stopped by the user; the partial copy is kept and "
+                              "resumes next time", bytes=self.done)
+
+    def _failure(self, reason: str, stalled: bool = False) -> DownloadResult:
+        from . import names
+        if stalled:
+            reason += "; the download was stopped"
+        return DownloadResult(ok=False, reason=reason + "; the partial copy is kept",
+                              bytes=self.done,
+                              cwa_part=str(names.raw_part(self.job.out_dir, self.job.stem)))

@@ -59,8 +59,8 @@ from .device_read import DeviceDigest, device_digest
 from .download import DownloadJob
 from .ledger import Ledger, host_timezone, kill_point, station_id
 from .profile import StudyProfile
+from .download import DownloadWorker
 from .study import download_stem
-from .worker import DownloadWorker
 
 @dataclass
 class StationOptions:

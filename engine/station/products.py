@@ -4,7 +4,7 @@ tables and the one-page report, made by the code ``process``/``export``/``report
 ``make_products(job, progress=None, cancel=None) -> dict`` (a ``worker`` task: it runs in its own
 process, so a report's plotting or a failure never touches the station): from ``<stem>.mcap``
 
-* ``<stem>.epochs.csv.gz`` and ``<stem>.days.csv`` (``engine.tables.tables_from_mcap``: an online
+* ``<stem>.epochs.csv.gz`` and ``<stem>.days.csv`` (``engine.workflows.tables_from_mcap``: an online
   log is run again with its logged settings, replay being bit-identical, so the tables are those
   of the log's own correction; the defaults of ``process``: GGIR nonwear 2023, 16 h valid day,
   bands 40/100/400 mg, MVPA bouts of 60 s);
@@ -76,7 +76,7 @@ def make_products(job: dict, progress=None, cancel=None) -> dict:
                         "reason": "already there; not replaced"})
         else:
             try:
-                from stillpoint.engine.tables import tables_from_mcap
+                from stillpoint.engine.workflows.tables_from_mcap import tables_from_mcap
                 tables_from_mcap(mcap, ep, dp)
                 out.append({"product": TABLES, "path": str(ep), "result": "written",
                             "reason": None})

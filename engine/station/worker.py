@@ -8,7 +8,7 @@ and cancels it with a bound (``stall_s`` without progress -> terminate, then kil
 stalled, crashed or stopped worker, ``{"error": reason}`` (``"stalled": True`` for a stall).
 ``inline=True`` runs the task on a thread of this process instead (tests: the stall bound still
 ends the wait, but a hung thread cannot be killed). Two tasks use it: the download
-(``DownloadWorker``: its result is a ``DownloadResult``) and the re-read of a device
+(``download.DownloadWorker``: its result is a ``DownloadResult``) and the re-read of a device
 (``device_read.device_digest``: before a clear, ``device verify``, settling a clear left at
 ``sent``).
 
@@ -30,7 +30,6 @@ import time
 from typing import Callable, Optional
 
 from ..mcap.writer import peak_rss_mb as _peak_rss_mb  # VmHWM: starts afresh at exec
-from .download import DownloadJob, DownloadResult, run_download
 
 _CTX = mp.get_context("spawn")  # a fresh interpreter: no inherited threads or emulator state
 
@@ -205,35 +204,3 @@ class Worker:
         while self.result is None:
             self.poll(poll_s)
         return self.result
-
-
-def download_task(job: DownloadJob, progress, cancel=None) -> dict:
-    """``run_download`` as a worker task (its ``DownloadResult`` as a dict)."""
-    try:
-        return run_download(job, progress, cancel).to_dict()
-    except BaseException as e:  # noqa: BLE001 - reported, never a traceback on the station
-        return DownloadResult(ok=False, reason=f"download worker failed: {type(e).__name__}: "
-                                               f"{e}").to_dict()
-
-
-class DownloadWorker(Worker):
-    """One download (``run_download``) in a worker; ``result`` is its ``DownloadResult``."""
-
-    def __init__(self, job: DownloadJob, *, stall_s: float = 30.0, inline: bool = False):
-        super().__init__(download_task, job, stall_s=stall_s, inline=inline, what="download",
-                         name=f"download-{job.stem}")
-
-    def _result(self, d: dict) -> DownloadResult:
-        return DownloadResult(**d)
-
-    def _stopped(self) -> DownloadResult:
-        return DownloadResult(ok=False, reason="stopped by the user; the partial copy is kept and "
-                              "resumes next time", bytes=self.done)
-
-    def _failure(self, reason: str, stalled: bool = False) -> DownloadResult:
-        from . import names
-        if stalled:
-            reason += "; the download was stopped"
-        return DownloadResult(ok=False, reason=reason + "; the partial copy is kept",
-                              bytes=self.done,
-                              cwa_part=str(names.raw_part(self.job.out_dir, self.job.stem)))

@@ -7,6 +7,7 @@ covariate, distribution checks), ``inputs``/``sources`` (feature tables, recordi
 ``simmodel`` (the simulator's JSON), ``report`` (JSON, text, PNG), ``simwindows`` (window
 features from the simulator's wearer, temperature and sensor model, without a file) and
 ``scenarios`` (the hidden-effect scenarios of the tests and the 20-seed table).
+``tables_from_mcap``: the epoch and day tables of a logged run, from its MCAP.
 """
 
 

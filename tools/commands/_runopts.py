@@ -119,6 +119,6 @@ def human_summary(s: dict) -> str:
 def write_summary(summary: dict, path) -> None:
     """The run summary as JSON, written atomically (``<path>.part``, then renamed)."""
     from stillpoint.drivers.outputs import atomic_output
-    from stillpoint.engine.mcap.sink import dumps
+    from stillpoint.engine.jsonsafe import dumps
     with atomic_output(path, binary=False, what="summary") as f:
         f.write(json.dumps(json.loads(dumps(summary)), indent=2, sort_keys=True) + "\n")

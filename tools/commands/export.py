@@ -25,7 +25,7 @@ so memory stays flat however long the recording. The output appears under its na
 complete (written as ``OUT.part`` and renamed; see ``stillpoint.drivers.outputs``).
 
 An MCAP input (a run's log) takes ``--topic T`` (``stillpoint.engine.mcap.export.export_mcap``)
-or ``--table epochs|days`` (``stillpoint.engine.tables.tables_from_mcap``); one of them is
+or ``--table epochs|days`` (``stillpoint.engine.workflows.tables_from_mcap``); one of them is
 required: the output's name never decides what is written.
 
 API: ``export_recording(path, out, *, time_format="iso", timezone=None, compress=False) -> dict``.
@@ -64,8 +64,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("-o", "--output", required=True, help="OUT.csv, OUT.csv.gz or OUT.npz")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
     parser.add_argument("--time", choices=TIME_FORMATS, default="iso",
-                        help="CSV time column: iso (UTC, microseconds; default), epoch (seconds, 9 "
-                             "decimals) or ns (integer nanoseconds)")
+                        help="CSV time column: iso (microseconds; default), epoch (seconds, 9 "
+                             "decimals) or ns (integer nanoseconds); UTC in a `time` column when the "
+                             "zone is known, else the device clock in a `time_local` column")
     parser.add_argument("--timezone", default=None,
                         help="device clock time zone, e.g. +01:00 or Europe/London (GENEActiv: a "
                              "zone that contradicts the header's needs --timezone-override)")
@@ -412,7 +413,7 @@ def _table_from_mcap(path, out: Path, table: str, timezone, options: dict) -> di
     which the same pass makes, goes to a hidden name beside it and is removed."""
     import secrets
 
-    from stillpoint.engine.tables import tables_from_mcap
+    from stillpoint.engine.workflows.tables_from_mcap import tables_from_mcap
     name = out.name.lower()
     if table == "epochs" and not name.endswith(".csv.gz"):
         raise StillpointError(f"{out}: the epoch table is gzip-compressed CSV: name it .csv.gz")

@@ -186,7 +186,7 @@ def execute(args, settings: RunSettings, out: Path) -> int:
         write_summary(summary, args.summary)
         summary["outputs"]["summary"] = str(args.summary)
     if args.json:
-        from stillpoint.engine.mcap.sink import dumps
+        from stillpoint.engine.jsonsafe import dumps
         print(json.dumps(json.loads(dumps(summary)), indent=2, sort_keys=True))
     elif not args.quiet:
         print(human_summary(summary))

@@ -81,7 +81,7 @@ def run(args) -> int:
     from stillpoint.drivers.outputs import atomic_output, check_distinct_outputs, check_output_path
     from stillpoint.engine.calibration.static import (read_calibration_recording,
                                                       static_calibration_file)
-    from stillpoint.engine.mcap.sink import dumps
+    from stillpoint.engine.jsonsafe import dumps
     from ._runopts import OptionError
     if args.allow_nan and args.mode != "reference":
         raise OptionError("--allow-nan reproduces the reference code: only with --mode reference")

@@ -41,7 +41,7 @@ def tables_from_mcap(mcap, epochs_path, days_path=None, *, timezone: Optional[st
     from stillpoint.drivers.mcap_replay import McapRawSource
     from ..run import RunSettings, process_file
     from ..timezones import parse_zone
-    from .writer import TablesSettings
+    from ..tables.writer import TablesSettings
 
     epochs_path = check_output_path(epochs_path, what="epoch table")
     days_path = check_output_path(days_path or days_path_for(epochs_path), what="day table")
@@ -84,33 +84,6 @@ def tables_from_mcap(mcap, epochs_path, days_path=None, *, timezone: Optional[st
     return summary["tables"]
 
 
-COALESCE_S = 600.0
-
-
-def _coalesced(src, max_s: float = COALESCE_S):
-    """The source's Blocks joined into runs of one segment and scale, up to ``max_s`` of data."""
-    import numpy as np
-    from ..blocks import Block
-    run, t0 = [], None
-    for b in src:
-        if b.n == 0:
-            continue
-        if run:
-            r0 = run[0]
-            same = (b.segment == r0.segment and np.array_equal(b.accel_counts_per_g, r0.accel_counts_per_g)
-                    and np.array_equal(b.accel_zero, r0.accel_zero)
-                    and (b.gyro is None) == (r0.gyro is None)
-                    and set(b.per_sample) == set(r0.per_sample))
-            if not same or (int(b.time_ns[-1]) - t0) > max_s * 1e9:
-                yield Block.concat(run) if len(run) > 1 else run[0]
-                run = []
-        if not run:
-            t0 = int(b.time_ns[0])
-        run.append(b)
-    if run:
-        yield Block.concat(run) if len(run) > 1 else run[0]
-
-
 def _batch_tables(mcap, settings, ts) -> dict:
     """Correct the logged raw stream with the run's one estimate and write the tables."""
     from stillpoint.drivers.mcap_replay import McapRawSource
@@ -118,8 +91,9 @@ def _batch_tables(mcap, settings, ts) -> dict:
     from ..operators.correction import CorrectionOperator
     from ..operators.filters import band_used
     from ..operators.metrics import EpochMetrics, MetricsOperator
-    from ..run import APPLIED_STATUSES
-    from .writer import TablesTap
+    from ..settings import APPLIED_STATUSES
+    from ..blocks import coalesce_blocks
+    from ..tables.writer import TablesTap
 
     src = McapRawSource(mcap)
     try:
@@ -138,7 +112,7 @@ def _batch_tables(mcap, settings, ts) -> dict:
                 m = EpochMetrics.concat(ms) if len(ms) != 1 else ms[0]
                 tap.push(block, batches, m)
 
-            for block in _coalesced(src):
+            for block in coalesce_blocks(src):
                 step(block, correction.push(block))
             step(None, correction.flush())
             tap.flush(metrics.flush())

@@ -20,6 +20,7 @@ serial of ``=HYPERLINK(...)``. Two rules keep such text where it belongs:
 from __future__ import annotations
 
 import hashlib
+import math
 import re
 from pathlib import Path
 
@@ -68,6 +69,16 @@ def csv_cell(value):
             and not _PLAIN_VALUE.fullmatch(value):
         return "'" + value
     return value
+
+
+def cell_text(v) -> str:
+    """A table cell's text: empty for None and non-finite floats, floats to 4 decimals without
+    trailing zeros, anything else as ``str``."""
+    if v is None:
+        return ""
+    if isinstance(v, float):
+        return "" if not math.isfinite(v) else f"{v:.4f}".rstrip("0").rstrip(".")
+    return str(v)
 
 
 def csv_row(values) -> list:

@@ -17,9 +17,7 @@ from __future__ import annotations
 import csv
 from pathlib import Path
 
-import numpy as np
-
-from stillpoint.drivers.names import csv_cell
+from stillpoint.drivers.names import cell_text, csv_cell
 from stillpoint.drivers.outputs import atomic_output
 
 from ..timezones import Zone, local_text, utc_text
@@ -66,20 +64,12 @@ def night_record(night, first_ns: int, epoch_ns: int, zone: Zone) -> dict:
     return d
 
 
-def _cell(v) -> str:
-    if v is None:
-        return ""
-    if isinstance(v, float):
-        return "" if not np.isfinite(v) else f"{v:.4f}".rstrip("0").rstrip(".")
-    return str(v)
-
-
 def write_nights(path, records: list) -> None:
     with atomic_output(path, binary=False, what="nights table") as f:
         w = csv.writer(f, lineterminator="\n")
         w.writerow(NIGHT_COLUMNS)
         for r in records:
-            w.writerow([csv_cell(_cell(r.get(c))) for c in NIGHT_COLUMNS])
+            w.writerow([csv_cell(cell_text(r.get(c))) for c in NIGHT_COLUMNS])
 
 
 def day_night_values(records: list) -> dict:

@@ -27,7 +27,7 @@ from typing import Optional
 
 import numpy as np
 
-from stillpoint.drivers.names import csv_cell
+from stillpoint.drivers.names import cell_text, csv_cell
 from stillpoint.drivers.outputs import AtomicOutput, atomic_output, check_output_path
 
 from ..operators.nonwear import DEFAULT_VERSION, clip_threshold_g
@@ -130,14 +130,6 @@ def format_rows(rows: EpochRows, zone: Zone, epoch_ns: int, extra=()) -> str:
         cols.append(_flag(getattr(rows, f)))
     cols.extend(extra)
     return "\n".join(map(",".join, zip(*cols))) + "\n"
-
-
-def _cell(v) -> str:
-    if v is None:
-        return ""
-    if isinstance(v, float):
-        return "" if not np.isfinite(v) else f"{v:.4f}".rstrip("0").rstrip(".")
-    return str(v)
 
 
 class TablesTap:
@@ -311,7 +303,7 @@ class TablesTap:
             w = csv.writer(f, lineterminator="\n")
             w.writerow(cols)
             for d in days + [summary]:
-                w.writerow([csv_cell(_cell(d.get(c))) for c in cols])
+                w.writerow([csv_cell(cell_text(d.get(c))) for c in cols])
         self._closed = True
         nw = self.assembler.nonwear
         out = {"epochs": str(self.ts.epochs_path), "days": str(self.ts.days_path),

@@ -191,9 +191,11 @@ class _Handler(BaseHTTPRequestHandler):
         return {"Set-Cookie": f"{access.COOKIE}={tok}; Path=/; HttpOnly; SameSite=Strict"}
 
     # ------------------------------------------------------------------ GET
-    def do_GET(self):
+    def _answer(self, handle) -> None:
+        """``handle()``, with a client gone mid-answer ignored and any other failure one line
+        (500), never a traceback."""
         try:
-            self._get()
+            handle()
         except (BrokenPipeError, ConnectionResetError):
             pass
         except Exception as e:  # noqa: BLE001 - one line, never a traceback
@@ -201,6 +203,9 @@ class _Handler(BaseHTTPRequestHandler):
                 self._refuse(500, f"{type(e).__name__}: {getattr(e, 'reason', None) or e}")
             except OSError:
                 pass
+
+    def do_GET(self):
+        self._answer(self._get)
 
     do_HEAD = do_GET
 
@@ -318,15 +323,7 @@ class _Handler(BaseHTTPRequestHandler):
 
     # ------------------------------------------------------------------ POST
     def do_POST(self):
-        try:
-            self._post()
-        except (BrokenPipeError, ConnectionResetError):
-            pass
-        except Exception as e:  # noqa: BLE001 - one line, never a traceback
-            try:
-                self._refuse(500, f"{type(e).__name__}: {getattr(e, 'reason', None) or e}")
-            except OSError:
-                pass
+        self._answer(self._post)
 
     def _post(self):
         d = self.dash

@@ -58,7 +58,7 @@ from typing import Iterator, Optional
 
 import numpy as np
 
-from ..engine.blocks import Block, DeviceInfo, QCEvent, QCReport
+from stillpoint.engine.core.blocks import Block, DeviceInfo, QCEvent, QCReport
 from . import constants as C
 from .byteio import (FollowingReader, check_recording_path, consumed_fraction, is_gzip, open_bytes, read_exact,
                      stream_damage)

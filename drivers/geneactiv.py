@@ -41,7 +41,7 @@ from typing import Callable, Iterator, Optional, Union
 
 import numpy as np
 
-from ..engine.blocks import (PER_SAMPLE_BUTTON, PER_SAMPLE_LIGHT_RAW, Block, DeviceInfo, QCEvent,
+from stillpoint.engine.core.blocks import (PER_SAMPLE_BUTTON, PER_SAMPLE_LIGHT_RAW, Block, DeviceInfo, QCEvent,
                              QCReport)
 from .byteio import (FollowingReader, check_recording_path, consumed_fraction, is_gzip, open_bytes, read_exact,
                      stream_damage)

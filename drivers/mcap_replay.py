@@ -19,7 +19,7 @@ from typing import Iterator, Optional
 
 import numpy as np
 
-from stillpoint.engine.blocks import (Block, DeviceInfo, PER_SAMPLE_BUTTON, PER_SAMPLE_LIGHT_RAW,
+from stillpoint.engine.core.blocks import (Block, DeviceInfo, PER_SAMPLE_BUTTON, PER_SAMPLE_LIGHT_RAW,
                                       QCEvent, QCReport)
 from stillpoint.engine.mcap.reading import McapReadError, check_raw_message, decode, loads_json
 from stillpoint.engine.mcap.schemas import ACCEL_BATCH_RAW, GYRO_BATCH_RAW, times_from_deltas

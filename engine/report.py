@@ -146,7 +146,7 @@ def _sphere(mcap, est_json: Optional[dict], settings: dict, progress=None):
         if "sd_threshold_g" in settings:
             kw["sd_threshold"] = settings["sd_threshold_g"]
         nm = NonmovementOperator(**kw)
-        from .blocks import coalesce_blocks
+        from .core.blocks import coalesce_blocks
         for b in coalesce_blocks(src):  # 10-min blocks instead of the log's 10-s messages
             nm.push(win.push(b))
             if progress is not None and callable(getattr(src, "progress", None)):

@@ -31,7 +31,7 @@ import numpy as np
 from stillpoint.drivers import open_recording
 from stillpoint.drivers.errors import StillpointError
 
-from .blocks import Block
+from .core.blocks import Block
 from .calibration import OnlineCalibrator, fit_batch_schedule
 from .calibration.trust import CountStep
 from .calibration.estimate import CalibrationEstimate
@@ -40,7 +40,7 @@ from .calibration.validate import validate_estimate
 from .calibration.select import SD_THRESHOLD_G
 from .clipping import ClippingMonitor
 from .features import WindowFeatures
-from .malloc import one_arena, trim
+from .core.malloc import one_arena, trim
 from .mcap.sink import McapSink
 
 from .operators.correction import CorrectionOperator
@@ -48,8 +48,8 @@ from .operators.filters import band_used
 from .operators.metrics import EpochMetrics, MetricsOperator
 from .operators.nonmovement import NonmovementOperator
 from .operators.windows import WindowFeaturesOperator
-from .pipeline import Pipeline, PipelineStats
-from .prefetch import Prefetched, cores_available
+from .core.pipeline import Pipeline, PipelineStats
+from .core.prefetch import Prefetched, cores_available
 # the settings of a run live beside it; callers take them from here with process_file
 from .settings import APPLIED_STATUSES, RunSettings
 
@@ -279,7 +279,7 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
     tables during the output pass. ``metadata``: extra MCAP metadata records
     ``{name: {key: str}}`` written with the summary (e.g. the download station's clock offset,
     host time zone and station id). ``prefetch``: read and decode the next blocks on a thread
-    while the engine works (engine/prefetch.py; the logs are the same); default:
+    while the engine works (engine/core/prefetch.py; the logs are the same); default:
     ``PREFETCH_BY_MODE``, where the process may use more than one core.
     """
     s = settings or RunSettings()
@@ -505,13 +505,13 @@ CHUNK_S = 60.0
 WRITER_BY_MODE = {"batch": "thread", "online": "inline"}
 
 # Free heap pages go back to the system every this many pipeline steps of pass 2 (glibc
-# malloc_trim: engine/malloc.py). Without it, the heap's resident size creeps up with the
+# malloc_trim: engine/core/malloc.py). Without it, the heap's resident size creeps up with the
 # file's length (arrays freed around longer-lived ones). process_file on the bench files, peak
 # RSS at 1 / 7 / 14 days: 69.3 / 71.3 / 73.7 MB without, 68.5 / 71.3 / 72.3 MB trimming every 16
 # steps (~2.7 h of data); a trim takes ~1 ms (63 ms a week).
 TRIM_EVERY_STEPS = 16
 
-# Reader thread (engine/prefetch.py) by mode when process_file is not told, on a machine with more
+# Reader thread (engine/core/prefetch.py) by mode when process_file is not told, on a machine with more
 # than one core. `stillpoint process` on the week's bench file, /usr/bin/time, runs alternating
 # with and without it (means over the runs): a batch run 13.41 s against 13.85 s wall (4 runs
 # each), for 19.53 s against 18.50 s CPU (+6 %); an online run, which compresses inline, 19.37 s

@@ -20,7 +20,7 @@ except ImportError:  # hypothesis is in the test extra; without it only the prop
 
 REAL_DATA_ENV = "STILLPOINT_REAL_DATA"
 
-# the tests' cache of built tables (engine/cache.py) is their own, not the user's
+# the tests' cache of built tables (engine/core/cache.py) is their own, not the user's
 if "STILLPOINT_CACHE_DIR" not in os.environ:
     import atexit
     import shutil

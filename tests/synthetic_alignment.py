@@ -20,7 +20,7 @@ from typing import Iterator, Optional
 import numpy as np
 
 from stillpoint.drivers.constants import RTC_CRYSTAL_TURNOVER_C
-from stillpoint.engine.blocks import Block, DeviceInfo, QCReport
+from stillpoint.engine.core.blocks import Block, DeviceInfo, QCReport
 
 COUNTS_PER_G = 256.0  # AX3 at +-8 g: 1/256 g per count
 T_START_NS = 1_700_000_000 * 1_000_000_000

@@ -128,7 +128,7 @@ class SyntheticSource:
     def __init__(self, features: WindowFeatures, *, rate_hz: float = 20.0,
                  counts_per_g: float = 4096.0, windows_per_block: int = 60, seed: int = 0,
                  device_type: str = "AX3", device_id: str = "99999", window_s: float = 10.0):
-        from stillpoint.engine.blocks import DeviceInfo, QCReport
+        from stillpoint.engine.core.blocks import DeviceInfo, QCReport
 
         self.features = features
         self.rate_hz = float(rate_hz)
@@ -143,7 +143,7 @@ class SyntheticSource:
         self.closed = False
 
     def __iter__(self):
-        from stillpoint.engine.blocks import Block
+        from stillpoint.engine.core.blocks import Block
 
         rng = np.random.default_rng(self.seed)
         f = self.features

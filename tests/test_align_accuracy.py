@@ -1,5 +1,5 @@
 """End-to-end alignment accuracy on synthetic device pairs with known clocks (CI-sized: 1.5-2.5
-days at 20 Hz; the full 7-day, 20-seed table is tools/align_seeds.py)."""
+days at 20 Hz; the full 7-day, 20-seed table is tools/crosschecks/align_seeds.py)."""
 
 from __future__ import annotations
 
@@ -108,7 +108,7 @@ def test_a_gap_of_months_inside_both_recordings_costs_nothing():
     "no_overlap" block, settled without its arrays."""
     import threading
 
-    from stillpoint.engine.blocks import Block, DeviceInfo
+    from stillpoint.engine.core.blocks import Block, DeviceInfo
 
     class Source:
         def __init__(self, seed):

@@ -13,7 +13,7 @@ from stillpoint.engine.alignment.fit import ClockFit, Step
 from stillpoint.engine.alignment.mcap_out import (TOPIC_BLOCK_LAG, TOPIC_ESTIMATE, read_aligned,
                                                   read_topic_json)
 from synthetic_alignment import DeviceClock, SyntheticPair, write_cwa
-from stillpoint.engine.blocks import Block, DeviceInfo, QCReport
+from stillpoint.engine.core.blocks import Block, DeviceInfo, QCReport
 from stillpoint.tools.cli import main
 from mcap_layout import conforms
 

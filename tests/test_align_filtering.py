@@ -64,7 +64,7 @@ def test_correlate_valid_bit_identical(n, m):
                                        (np.int16, 100.0), (np.int32, 256.0)])
 def test_magnitude_from_counts_is_the_g_form(dtype, cpg):
     from stillpoint.engine.alignment.signal import magnitude_minus_one
-    from stillpoint.engine.blocks import Block
+    from stillpoint.engine.core.blocks import Block
     from stillpoint.engine.operators.base import accel_g_columns
 
     info = np.iinfo(dtype)
@@ -86,7 +86,7 @@ def test_grid_push_with_reused_buffers_equals_push_arrays():
     the pieces push_arrays() gives from freshly computed arrays, including repeated times, a
     segment break and blocks of growing size."""
     from stillpoint.engine.alignment.signal import GridResampler, magnitude_minus_one
-    from stillpoint.engine.blocks import Block
+    from stillpoint.engine.core.blocks import Block
 
     rng = np.random.default_rng(5)
     t0 = 1_700_000_000_123_456_789

@@ -10,7 +10,7 @@ from stillpoint.engine.alignment.lags import LagEstimator, normalized_xcorr, pea
 from stillpoint.engine.alignment.signal import (DEAD_BAND_G, GridResampler, TemperatureTrack,
                                                 brond_filter)
 from synthetic_alignment import DeviceClock, SyntheticPair
-from stillpoint.engine.blocks import Block
+from stillpoint.engine.core.blocks import Block
 
 
 def _block(t_s, mag, t0_ns=0, segment=0):
@@ -178,7 +178,7 @@ def test_magnitude_columns_equal_the_broadcast_form():
     """The column-by-column |a| - 1 gives the numbers of the (n, 3) einsum form (AX scale and
     a GENEActiv-like per-axis gain and offset)."""
     from stillpoint.engine.alignment.signal import magnitude_minus_one
-    from stillpoint.engine.blocks import Block
+    from stillpoint.engine.core.blocks import Block
 
     rng = np.random.default_rng(5)
     for cpg, zero in (([256.0] * 3, [0.0] * 3), ([312.7, 315.9, 309.6], [3.1, -2.2, 0.7])):

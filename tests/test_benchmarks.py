@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-TOOLS = Path(__file__).resolve().parent.parent / "tools"
+TOOLS = Path(__file__).resolve().parent.parent / "tools" / "benchmarks"
 
 
 def _load(path: Path, name: str):
@@ -30,7 +30,7 @@ def benchlib(monkeypatch):
 
 @pytest.fixture()
 def stage_profile():
-    return _load(TOOLS / "benchmarks" / "stage_profile.py", "stage_profile")
+    return _load(TOOLS / "stage_profile.py", "stage_profile")
 
 
 def test_realistic_recording_is_the_simulate_command_output_and_is_reused(benchlib, tmp_path):
@@ -66,7 +66,7 @@ def test_profiled_stages_exist(stage_profile):
 
 def test_stage_profile_accounts_for_the_run(stage_profile, benchlib, tmp_path):
     p = benchlib.realistic_recording(tmp_path, 0.02, 100.0)
-    r = subprocess.run([sys.executable, str(TOOLS / "benchmarks" / "stage_profile.py"), "--child",
+    r = subprocess.run([sys.executable, str(TOOLS / "stage_profile.py"), "--child",
                         str(p), "batch", "600"], check=True, capture_output=True, text=True)
     import json
     res = json.loads(r.stdout)

@@ -1,7 +1,7 @@
 """End to end on the simulator (engine.sim): a short simulated AX3 .cwa with known offset, gain and
 temperature-offset errors -> `stillpoint calibrate` -> the GGIR-form truth (sim.ggir_equivalent).
 
-CI-sized (36 h at 25 Hz); tools/calibration_accuracy.py runs the full 7-day 100 Hz table.
+CI-sized (36 h at 25 Hz); tools/crosschecks/calibration_accuracy.py runs the full 7-day 100 Hz table.
 """
 
 from __future__ import annotations

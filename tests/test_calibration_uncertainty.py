@@ -1,6 +1,6 @@
 """Standard errors of the calibration coefficients and the warnings built on them.
 
-CI-sized (36 h at 25 Hz, the simulator's default AX3 packed device); tools/calibration_coverage.py
+CI-sized (36 h at 25 Hz, the simulator's default AX3 packed device); tools/crosschecks/calibration_coverage.py
 runs >= 50 recordings at 100 Hz with the block bootstrap beside the sandwich.
 """
 
@@ -25,7 +25,7 @@ from stillpoint.engine.features import WindowFeatures
 from stillpoint.engine.sim import SimSource, TemperatureParams, ggir_equivalent
 from stillpoint.engine.sim.device import build_model
 from stillpoint.engine.sim.record import simulate_recording
-from stillpoint.tools.calibration_coverage import KINDS, run_recording
+from stillpoint.tools.crosschecks.calibration_coverage import KINDS, run_recording
 from stillpoint.tools.cli import main
 
 GGIR_EFFECTS = "offset,gain,temperature_offset,noise,quantisation,clipping"

@@ -14,10 +14,10 @@ import pytest
 
 from stillpoint.drivers import open_recording
 from stillpoint.drivers.geneactiv import GeneactivWriter
-from stillpoint.engine.blocks import Block
+from stillpoint.engine.core.blocks import Block
 from stillpoint.tools.cli import main
-from stillpoint.tools.commands.export import export_recording, format_fixed, format_scaled, format_time
-from stillpoint.tools.commands.inspect import inspect_recording, iso_utc
+from stillpoint.tools.cli.commands.export import export_recording, format_fixed, format_scaled, format_time
+from stillpoint.tools.cli.commands.inspect import inspect_recording, iso_utc
 
 T0 = 1_700_000_000_000_000_000  # 2023-11-14T22:13:20Z
 

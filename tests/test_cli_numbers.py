@@ -47,7 +47,7 @@ def test_every_number_option_uses_a_checked_type():
         if a.type in (int, float) or (a.type is None and _is_number(a.default)) or \
                 (_is_number(a.default) and not hasattr(a.type, "lo")):
             unchecked.append(f"{' '.join(path)} {a.option_strings or a.dest}")
-    assert not unchecked, "number options without a checked type (tools/commands/_numbers.py): " \
+    assert not unchecked, "number options without a checked type (tools/cli/commands/_numbers.py): " \
                           + ", ".join(unchecked)
     assert len(NUMERIC) >= 50  # the walk found the options (every command's numbers)
 
@@ -145,7 +145,7 @@ def test_other_argument_errors_are_one_line_too(capsys):
 
 
 def test_align_rate_native_and_numbers(capsys):
-    from stillpoint.tools.commands import align
+    from stillpoint.tools.cli.commands import align
     p = argparse.ArgumentParser()
     align.add_arguments(p)
     assert p.parse_args(["a", "b"]).rate == 30.0
@@ -200,7 +200,7 @@ def test_shard_is_checked_when_parsed(bad, capsys):
 
 
 def test_memory_limit_values():
-    from stillpoint.tools.commands._numbers import memory_size
+    from stillpoint.tools.cli.commands._numbers import memory_size
     assert memory_size("auto") == "auto" and memory_size("0.5") == 0.5
     assert memory_size("4GB") == 4 * 10**9 and memory_size("500 MiB") == 500 * 2**20
 
@@ -231,7 +231,7 @@ def test_align_rate_must_be_above_twice_the_band_edge(tmp_path, capsys):
     native rate of a 12.5 Hz reference) is one line, not scipy's ValueError traceback."""
     from stillpoint.engine.alignment.signal import BAND_HZ
     from stillpoint.engine.sim.record import simulate_recording
-    from stillpoint.tools.commands.align import MIN_COMMON_RATE_HZ
+    from stillpoint.tools.cli.commands.align import MIN_COMMON_RATE_HZ
     assert MIN_COMMON_RATE_HZ == 2 * BAND_HZ[1]
     rec = tmp_path / "slow.cwa"
     simulate_recording(rec, device="ax3", hz=12.5, days=0.002, truth_path=False)

@@ -11,7 +11,7 @@ import pytest
 
 from stillpoint.drivers import open_recording
 from stillpoint.drivers.cwa import CwaReader, CwaWriter, read_header, read_sector
-from stillpoint.engine.source import Source
+from stillpoint.engine.core.source import Source
 
 from cwa_helpers import T0_NS, qc_reasons, read_all, synth
 

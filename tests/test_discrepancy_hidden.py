@@ -1,7 +1,7 @@
 """Hidden-effect tests of the discrepancy workflow, CI size: 4-day wrist recordings simulated with the
 simulator's own wearer, temperature track and sensor model (engine.workflows.simwindows, window noise
 by the exact-moment shortcut), a few seeds each. The full 20-seed, 7-day table is
-tools/discrepancy_seeds.py.
+tools/crosschecks/discrepancy_seeds.py.
 
 For each library effect: the workflow names that effect and axis first, recovers its parameter
 within the scenario's tolerance and brings the held-out gap within 1.2x of the true model's gap.

@@ -1,7 +1,7 @@
 """Core engine tests: ring buffer, time binner, window features, nonmovement selection.
 
 Also home of the synthetic-recording helpers (``synth_blocks``, ``recut``) the other
-test_engine_* modules import: Blocks built directly from engine/blocks.py, no reader needed.
+test_engine_* modules import: Blocks built directly from engine/core/blocks.py, no reader needed.
 """
 
 from __future__ import annotations
@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 from hypothesis import assume, given, settings, strategies as st
 
-from stillpoint.engine.blocks import Block
+from stillpoint.engine.core.blocks import Block
 from stillpoint.engine.features import WindowFeatures
 from stillpoint.engine.operators.nonmovement import NonmovementOperator
 from stillpoint.engine.operators.windows import WindowFeaturesOperator
-from stillpoint.engine.ringbuffer import RingBuffer
+from stillpoint.engine.core.ringbuffer import RingBuffer
 
 RATE = 100.0
 UNIT = 120

@@ -183,7 +183,7 @@ def test_streaming_filter_independent_of_cuts(cuts, band):
 
 def test_column_helpers_are_bit_identical_to_the_broadcast_forms():
     from stillpoint.engine.calibration.estimate import CalibrationEstimate
-    from stillpoint.engine.blocks import Block
+    from stillpoint.engine.core.blocks import Block
     from stillpoint.engine.operators.base import accel_g_columns, apply_columns
     rng = np.random.default_rng(8)
     n = 5000

@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 from hypothesis import given, settings, strategies as st
 
-from stillpoint.engine.blocks import Block, DeviceInfo, QCReport
+from stillpoint.engine.core.blocks import Block, DeviceInfo, QCReport
 from stillpoint.engine.features import WindowFeatures
 from stillpoint.engine.operators.correction import CorrectedBatch, TemperatureInterpolator
 from stillpoint.engine.operators.windows import WindowFeaturesOperator
-from stillpoint.engine.pipeline import Pipeline, split_block
+from stillpoint.engine.core.pipeline import Pipeline, split_block
 
 from test_engine_core import RATE, assert_features_equal, run_op, synth_segments
 

@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 from stillpoint.drivers.errors import (CorruptRecordingError, RecordingError, StillpointError,
                                        TruncatedRecordingError, UnsupportedFormatError)
 from stillpoint.drivers.geneactiv import GeneactivReader, GeneactivWriter, read_header
-from stillpoint.engine.blocks import Block
+from stillpoint.engine.core.blocks import Block
 
 T0 = 1_600_000_000_000_000_000
 

@@ -10,7 +10,7 @@ import pytest
 
 from stillpoint.drivers import UnsupportedFormatError, open_recording, sniff_format
 from stillpoint.drivers.geneactiv import GeneactivReader, read_header
-from stillpoint.engine.blocks import PER_SAMPLE_LIGHT_RAW, Block
+from stillpoint.engine.core.blocks import PER_SAMPLE_LIGHT_RAW, Block
 
 # name: (serial, rate, samples, first sample UTC, last sample UTC, tz seconds, temp min, temp max,
 #        pages in file, header Number of Pages, firmware)

@@ -14,8 +14,8 @@ from hypothesis import strategies as st
 from stillpoint.drivers import open_recording, sniff_format
 from stillpoint.drivers.geneactiv import GeneactivReader, GeneactivWriter, decode_hex_samples, read_header
 from stillpoint.drivers.geneactiv_writer import encode_hex_samples
-from stillpoint.engine.blocks import PER_SAMPLE_BUTTON, PER_SAMPLE_LIGHT_RAW, Block
-from stillpoint.engine.source import Source
+from stillpoint.engine.core.blocks import PER_SAMPLE_BUTTON, PER_SAMPLE_LIGHT_RAW, Block
+from stillpoint.engine.core.source import Source
 
 T0 = 1_700_000_000_123_456_789
 

@@ -1,4 +1,4 @@
-"""The heap's free pages go back to the system (engine/malloc.py ``trim``), and a run's pass 2
+"""The heap's free pages go back to the system (engine/core/malloc.py ``trim``), and a run's pass 2
 trims every ``TRIM_EVERY_STEPS`` pipeline steps so its resident size does not creep up with the
 file's length."""
 
@@ -20,7 +20,7 @@ def test_trim_gives_back_freed_arrays_held_in_place_by_small_ones():
     shrink past them, and the trim threshold is raised as a run raises it) until trim()."""
     code = r"""
 import numpy as np
-from stillpoint.engine.malloc import set_block_thresholds, trim
+from stillpoint.engine.core.malloc import set_block_thresholds, trim
 set_block_thresholds()
 def rss():
     return int(open("/proc/self/statm").read().split()[1]) * 4096 / 2**20

@@ -17,7 +17,7 @@ from mcap.reader import make_reader
 from stillpoint.drivers import open_recording
 from stillpoint.drivers.cwa import corrupt_sector
 from stillpoint.drivers.mcap_replay import McapRawSource
-from stillpoint.engine.blocks import Block
+from stillpoint.engine.core.blocks import Block
 from stillpoint.engine.calibration.estimate import CalibrationEstimate
 from stillpoint.engine.mcap.compare import compare
 from stillpoint.engine.mcap.schemas import ACCEL_BATCH, times_from_deltas
@@ -363,8 +363,8 @@ def test_store_feeds_the_online_prior_and_is_recorded(recording, tmp_path, capsy
 
 def test_progress_plain_lines_off_a_terminal_and_silent_when_disabled():
     import io
-    from stillpoint.engine.pipeline import PipelineStats
-    from stillpoint.tools.commands._runopts import Progress
+    from stillpoint.engine.core.pipeline import PipelineStats
+    from stillpoint.tools.cli.commands._runopts import Progress
     buf = io.StringIO()
     Progress(enabled=False, stream=buf)("pass 1/2", PipelineStats(samples=10, first_ns=0,
                                                                   last_ns=3600 * 10**9, fraction=1.0))

@@ -135,7 +135,7 @@ def test_chunk_size_bound_and_lazy_channel_records():
 
 # ---------------------------------------------------------------------- the sink's fast paths
 def _block(n_units=30, per=120, step_at=None, gyro=False):
-    from stillpoint.engine.blocks import Block
+    from stillpoint.engine.core.blocks import Block
     n = n_units * per
     t = 1_700_000_003 * 10**9 + np.arange(n, dtype=np.int64) * 10_000_000
     if step_at is not None:
@@ -156,7 +156,7 @@ def _block(n_units=30, per=120, step_at=None, gyro=False):
 
 @pytest.mark.parametrize("step_at", [None, 1800])
 def test_sink_raw_and_corrected_messages_reproduce_the_block(tmp_path, step_at):
-    from stillpoint.engine.blocks import DeviceInfo
+    from stillpoint.engine.core.blocks import DeviceInfo
     from stillpoint.engine.mcap.schemas import (ACCEL_BATCH, ACCEL_BATCH_RAW, GYRO_BATCH_RAW,
                                                 TEMPERATURE, times_from_deltas)
     from stillpoint.engine.mcap.sink import McapSink, quantize
@@ -222,7 +222,7 @@ def test_encode_values_equals_encode_for_every_type():
 def test_writer_modes_write_the_same_messages(tmp_path):
     from stillpoint.engine.mcap.compare import compare
     from stillpoint.engine.run import RunSettings, process_file
-    from stillpoint.tools.commands.demo import make_recording
+    from stillpoint.tools.cli.commands.demo import make_recording
     rec_path = tmp_path / "r.cwa"
     make_recording(rec_path, hours=0.25, rate=50.0, seed=5)
     outs = {}

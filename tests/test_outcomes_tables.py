@@ -215,7 +215,7 @@ def test_export_from_the_mcap_gives_the_same_outcome_tables(run, tmp_path):
 
 def test_cli_outcome_options_parse():
     from stillpoint.tools import cli
-    from stillpoint.tools.commands._outcomeopts import outcome_settings
+    from stillpoint.tools.cli.commands._outcomeopts import outcome_settings
 
     def parse(*extra):
         argv = ["process", "rec.cwa", *extra]

@@ -149,7 +149,7 @@ def test_absurd_options_refused_at_parse_time(tmp_path, opt):
 def test_interrupt_message_names_the_partial_log_and_recover(tmp_path):
     from argparse import Namespace
 
-    from tools.cli import _interrupt_note
+    from tools.cli.__init__ import _interrupt_note
     out = tmp_path / "r.mcap"
     args = Namespace(command="process", output=out, file=GOOD)
     assert "no partial log" in _interrupt_note(args) and "pass" in _interrupt_note(args)

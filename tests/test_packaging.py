@@ -27,10 +27,10 @@ def test_cli_help_lists_commands():
 
 def test_running_one_command_imports_only_that_command_module():
     code = ("import sys; from stillpoint.tools import cli; cli.build_parser(cli._only_requested(['inspect','x']));"
-            "print(sorted(m for m in sys.modules if m.startswith('stillpoint.tools.commands.')))")
+            "print(sorted(m for m in sys.modules if m.startswith('stillpoint.tools.cli.commands.')))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
-    assert "stillpoint.tools.commands.inspect" in out
-    assert "stillpoint.tools.commands.align" not in out
+    assert "stillpoint.tools.cli.commands.inspect" in out
+    assert "stillpoint.tools.cli.commands.align" not in out
 
 
 def test_unknown_command_is_a_usage_error():

@@ -1,4 +1,4 @@
-"""A source read ahead on a thread (engine/prefetch.py) changes nothing the pipeline sees: the
+"""A source read ahead on a thread (engine/core/prefetch.py) changes nothing the pipeline sees: the
 same blocks, the QC report as it stood at each block, the source's error in its place, and a
 log byte for byte the same as without the thread (damaged files, both modes, real files)."""
 
@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from stillpoint.engine.blocks import QCEvent, QCReport
-from stillpoint.engine.prefetch import Prefetched
+from stillpoint.engine.core.blocks import QCEvent, QCReport
+from stillpoint.engine.core.prefetch import Prefetched
 from stillpoint.engine.run import RunSettings, process_file
 
 
@@ -162,7 +162,7 @@ def test_real_files_same_with_and_without_the_thread(real_file, tmp_path, monkey
 def test_one_arena_once_and_the_environment_wins():
     import subprocess
     import sys
-    code = ("from stillpoint.engine.malloc import one_arena; "
+    code = ("from stillpoint.engine.core.malloc import one_arena; "
             "print(one_arena(), one_arena())")
     env = {k: v for k, v in __import__("os").environ.items() if k != "MALLOC_ARENA_MAX"}
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)

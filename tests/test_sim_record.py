@@ -192,7 +192,7 @@ def test_gzip_output_and_in_memory_generator(tmp_path):
 
 def test_sim_source_matches_the_written_file(tmp_path):
     from stillpoint.engine.sim.source import SimSource
-    from stillpoint.engine.source import Source
+    from stillpoint.engine.core.source import Source
     eff = build_model("default,halts,restarts")
     p = tmp_path / "s.cwa"
     simulate_recording(p, days=0.1, hz=25, seed=8, effects=eff)

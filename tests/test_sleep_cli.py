@@ -86,7 +86,7 @@ def test_sleep_log_needs_the_zone(run, tmp_path, capsys):
 
 
 def test_text_summary_names_the_nights():
-    from stillpoint.tools.commands._tableopts import tables_text
+    from stillpoint.tools.cli.commands._tableopts import tables_text
     t = {"epoch_rows": 10, "clean_epochs": 10, "day_rows": 1, "nonwear_version": "2023",
          "flags": {k: 0 for k in ("nonwear", "clipping", "gap", "qc", "filter_warmup")},
          "file": {"valid_day": 0, "enmo_mean_mg": None},

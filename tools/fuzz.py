@@ -336,7 +336,7 @@ def read_recording(path: Path) -> None:
     """What ``inspect``/``export`` do with a recording: a full pass over every Block, each turned
     into export's per-sample columns (g, dps, degC, lux with the header's light calibration)."""
     from stillpoint.drivers import open_recording
-    from stillpoint.tools.commands.export import block_columns
+    from stillpoint.tools.cli.commands.export import block_columns
     with open_recording(path) as src:
         for b in src:
             block_columns(b, src.info)
@@ -367,7 +367,7 @@ def read_mcap(path: Path) -> None:
                      "/calibration", "/qc"):
             _rows(topic, msg.data, msg.log_time, path, i)
     from stillpoint.engine.run import RunSettings, process_file
-    logged.setdefault("view_hz", 0.0)  # as tools/commands/replay.py
+    logged.setdefault("view_hz", 0.0)  # as tools/cli/commands/replay.py
     out = path.with_name(path.stem + ".replay.mcap")
     try:
         process_file(path, out, RunSettings.from_dict(logged))
@@ -382,7 +382,7 @@ def _whole_read(path: Path, **opts):
     import hashlib
     from stillpoint.drivers import open_recording
     from stillpoint.drivers.errors import StillpointError
-    from stillpoint.tools.commands.export import block_columns
+    from stillpoint.tools.cli.commands.export import block_columns
     h = [hashlib.sha256() for _ in range(3)]  # one per field: block boundaries do not matter
     try:
         with open_recording(path, **opts) as src:

@@ -21,7 +21,7 @@ from __future__ import annotations
 import json
 import numpy as np
 
-from stillpoint.engine.jsonsafe import jsonable
+from stillpoint.engine.core.jsonsafe import jsonable
 from stillpoint.engine.mcap.jsonschemas import ALIGNMENT_BLOCK_LAG, ALIGNMENT_ESTIMATE
 from stillpoint.engine.mcap.log import McapLog
 from stillpoint.engine.mcap.schemas import ACCEL_BATCH, max_step_ok, time_deltas

@@ -15,8 +15,8 @@ from typing import Callable, Iterator, Optional
 
 import numpy as np
 
-from stillpoint.engine.blocks import DeviceInfo
-from stillpoint.engine.jsonsafe import jsonable
+from stillpoint.engine.core.blocks import DeviceInfo
+from stillpoint.engine.core.jsonsafe import jsonable
 
 from .fit import CannotAlign, ClockFit, TemperatureRegressor, fit_brond, fit_robust
 from .lags import SUB_BLOCKS, BlockLag, LagEstimator

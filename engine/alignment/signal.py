@@ -27,7 +27,7 @@ from typing import Iterator, Optional
 
 import numpy as np
 
-from stillpoint.engine.blocks import Block
+from stillpoint.engine.core.blocks import Block
 from stillpoint.engine.operators.base import accel_g_columns
 
 from . import filtering

@@ -18,7 +18,7 @@ already dithers the step come back practically unchanged.
 
 Building the tables needs ``scipy.special`` (~0.25 s to import) and ~0.1 s of arithmetic, more
 than the de-biasing of a week of windows: they are built once per machine and kept in the user's
-cache (engine/cache.py; a cache that cannot be read or written only costs the build).
+cache (engine/core/cache.py; a cache that cannot be read or written only costs the build).
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ from dataclasses import replace
 from functools import lru_cache
 from typing import Optional
 
-from ..cache import cached_array
+from ..core.cache import cached_array
 
 import numpy as np
 
@@ -89,7 +89,7 @@ def dequantise_means(mean: np.ndarray, sd: np.ndarray, step) -> np.ndarray:
 
 @lru_cache(maxsize=1)
 def _tables():
-    """(X, V) of :func:`build_tables`, through the user's cache (engine/cache.py): built on a
+    """(X, V) of :func:`build_tables`, through the user's cache (engine/core/cache.py): built on a
     machine's first use, then loaded (~1 ms instead of ~0.35 s with scipy.special's import)."""
     key = (SPAN, GRID_X, SIGMA.tobytes(), MU.tobytes(), _scipy_version())
     xv = cached_array("quantisation_tables", key, lambda: np.stack(build_tables()),

@@ -14,7 +14,7 @@ from functools import partial
 from typing import Callable, Optional
 
 from .explain import explain_no_nonmovement
-from ..blocks import DeviceInfo, QCReport
+from ..core.blocks import DeviceInfo, QCReport
 from ..features import WindowFeatures
 from ..operators.nonmovement import NonmovementOperator
 from ..operators.windows import WindowFeaturesOperator

@@ -17,7 +17,7 @@ posture (a window mean more than ``posture_jump_g``, 50 mg, from the previous on
 orientation carries another quantisation error). Without the posture split a night is one block
 and the information of a coefficient can sit in 2-4 blocks, too few to estimate its variance: on
 simulated packed recordings the split raised the coverage of +-2 SE from 88 % to 93 %
-(tools/calibration_coverage.py; 20-100 mg thresholds gave the same on the seeds tried). ``G`` (the number of blocks)
+(tools/crosschecks/calibration_coverage.py; 20-100 mg thresholds gave the same on the seeds tried). ``G`` (the number of blocks)
 is the effective number of independent pieces of evidence and is reported.
 
 ``J`` (one row per window, columns per fitted parameter) follows from
@@ -28,7 +28,7 @@ block-robust standard error of that mean (it is a defined reference, so it does 
 other coefficients' errors, which are all stated at T_ref).
 
 :func:`block_bootstrap` refits on blocks drawn with replacement: the check that the sandwich is
-honest (tools/calibration_coverage.py compares both against the truth on simulated recordings).
+honest (tools/crosschecks/calibration_coverage.py compares both against the truth on simulated recordings).
 """
 
 from __future__ import annotations

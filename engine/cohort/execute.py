@@ -34,7 +34,7 @@ from typing import Optional
 
 from stillpoint.drivers.errors import StillpointError
 
-from ..prefetch import cores_available
+from ..core.prefetch import cores_available
 from .job import (DONE, FAILED, MAX_ATTEMPTS, one_line, paths, read_marker, read_progress, run_job,
                   write_failure)
 from .plan import Entry, Plan

@@ -49,7 +49,7 @@ from stillpoint.drivers.byteio import sha256_file
 from stillpoint.drivers.errors import StillpointError
 from stillpoint.drivers.outputs import atomic_output, fsync_folder
 
-from ..malloc import set_block_thresholds
+from ..core.malloc import set_block_thresholds
 from .plan import canonical_settings, code_version, entry_settings, fingerprint, make_key
 
 try:
@@ -84,7 +84,7 @@ def read_marker(path: Path) -> Optional[dict]:
 
 def write_json(path: Path, obj: dict) -> None:
     """One JSON file through the atomic output path (``.part``, fsync, rename)."""
-    from stillpoint.engine.jsonsafe import jsonable
+    from stillpoint.engine.core.jsonsafe import jsonable
     with atomic_output(path, binary=False, what="cohort marker") as f:
         f.write(json.dumps(jsonable(obj), indent=2, sort_keys=True) + "\n")
 
@@ -299,10 +299,10 @@ def run_job(entry: dict, outdir: str, settings: dict, code: str, attempt: int = 
                                        "started_utc": _utc(started), "attempt": attempt})
             scoped = _reset_peak_rss()
             from stillpoint.engine.tables import TablesSettings, table_paths
-            # no reader thread (engine/prefetch.py): a cohort uses the cores by running files
+            # no reader thread (engine/core/prefetch.py): a cohort uses the cores by running files
             # side by side, and a reader thread per file would take them from the other workers
             # and hold its own allocator arena (peak RSS per worker 123-127 -> 180-200 MB on
-            # 1-day files, tools/bench_cohort.py)
+            # 1-day files, tools/benchmarks/bench_cohort.py)
             tables = TablesSettings(*table_paths(tmp / MCAP_NAME), **table_options(settings))
             if (settings.get("tables") or {}).get("sleep"):
                 from stillpoint.engine.sleep import SleepOptions, nights_path

@@ -28,7 +28,7 @@ from typing import Optional
 
 from stillpoint.drivers.outputs import AtomicOutput, OutputError, describe_os_error
 
-from ..jsonsafe import dumps
+from ..core.jsonsafe import dumps
 
 from .chunks import ChunkBuilder
 from .jsonschemas import JsonSchema

@@ -47,7 +47,7 @@ picks a writer per mode, engine.run.WRITER_BY_MODE): each chunk is compressed an
 OS as its cell ends, so a killed run loses only the cell in progress. ``writer="process"`` runs the writer in a child process (compression on another core;
 pays off only on an otherwise idle machine: every chunk crosses a pipe; if the engine dies, the
 writer still writes what it received), ``"thread"`` on a thread (at most one chunk queued).
-Measured (tools/bench_process.py, 7-day 100 Hz AX3, 2 cores shared with other jobs): inline
+Measured (tools/benchmarks/bench_process.py, 7-day 100 Hz AX3, 2 cores shared with other jobs): inline
 12.6 s wall / 11.1 s CPU, writer process 14.4 s wall / 14.1 s CPU (the pipe copies). Records are written in the order of the
 calls, so the file is deterministic.
 """
@@ -61,9 +61,9 @@ from typing import Optional
 
 import numpy as np
 
-from ..blocks import Block, DeviceInfo, PER_SAMPLE_BUTTON, PER_SAMPLE_LIGHT_RAW
+from ..core.blocks import Block, DeviceInfo, PER_SAMPLE_BUTTON, PER_SAMPLE_LIGHT_RAW
 from ..calibration.estimate import CalibrationEstimate
-from ..jsonsafe import dumps, jsonable
+from ..core.jsonsafe import dumps, jsonable
 from .schemas import (ACCEL_BATCH, ACCEL_BATCH_RAW, EPOCH_METRICS, GYRO_BATCH_RAW, TEMPERATURE,
                       VIEW_SAMPLE, INT32_MAX, max_step_ok, time_deltas)
 from ..operators.correction import CorrectedBatch

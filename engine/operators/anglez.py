@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..kernels import scipy_extension
+from ..core.kernels import scipy_extension
 from .base import ring_capacity
 from .binning import TimeBinner
 

@@ -30,7 +30,7 @@ from typing import Mapping, Optional
 
 import numpy as np
 
-from ..ringbuffer import RingBuffer
+from ..core.ringbuffer import RingBuffer
 
 
 @dataclass

@@ -21,9 +21,9 @@ from typing import Callable, Optional
 
 import numpy as np
 
-from ..blocks import Block
+from ..core.blocks import Block
 from ..calibration.estimate import CalibrationEstimate
-from ..ringbuffer import RingBuffer
+from ..core.ringbuffer import RingBuffer
 from .base import accel_g_columns, apply_columns, ring_capacity
 
 

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..kernels import scipy_extension
+from ..core.kernels import scipy_extension
 
 BFEN_BAND_GGIR = (0.2, 15.0)  # GGIR default band-pass for BFEN (hfen/bfen: lb 0.2 Hz, hb 15 Hz)
 BFEN_BAND_VANHEES = (0.5, 15.0)  # van Hees et al. 2013 (PLoS ONE) comparison of metrics

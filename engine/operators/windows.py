@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..blocks import Block
+from ..core.blocks import Block
 from ..features import WindowFeatures
 from .base import accel_g_columns, ring_capacity
 from .binning import BinChunk, TimeBinner

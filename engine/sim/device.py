@@ -16,7 +16,7 @@ from typing import Iterator, Optional, Sequence
 
 import numpy as np
 
-from stillpoint.engine.malloc import tune_for_blocks
+from stillpoint.engine.core.malloc import tune_for_blocks
 
 from .clock import ClockModel, make_clock
 from .model import DEFAULT_EFFECTS, ModelError, SensorModel, first_order_lag, load_model, resolve_model
@@ -247,7 +247,7 @@ class DeviceSim:
         ``"process"`` chooses. The output is identical either way."""
         tune_for_blocks()
         if prefetch is True:
-            from stillpoint.engine.prefetch import cores_available
+            from stillpoint.engine.core.prefetch import cores_available
             from .render_process import suits
             prefetch = ("process" if self.n_chunks >= PROCESS_MIN_CHUNKS and cores_available() > 1
                         and suits(self) else "thread")

@@ -1,7 +1,7 @@
 """Realism statistics of a simulated recording, in one streaming pass over its chunks.
 
 Used by the realism tests (tests/test_sim_realism.py) and the benchmark's ``--realism`` table
-(tools/bench_simulate.py): 10 s window means and SDs of what the device stored, the same windows
+(tools/benchmarks/bench_simulate.py): 10 s window means and SDs of what the device stored, the same windows
 after the true GGIR-form correction, 5 s epoch ENMO before and after it, and the spectral peak of
 every walking bout of at least 60 s against its true step frequency.
 """
@@ -92,7 +92,7 @@ def night_mask(stats: RealismStats) -> np.ndarray:
 
 
 def realism_summary(stats: RealismStats, hz: float) -> dict:
-    """The figures the README quotes (tools/bench_simulate.py --realism)."""
+    """The figures the README quotes (tools/benchmarks/bench_simulate.py --realism)."""
     sd, lab, pk = stats.window_sd, stats.labels, stats.walking_peaks
     low = (sd < 0.013).all(axis=1)
     still = lab["still"] == 1

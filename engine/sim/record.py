@@ -28,7 +28,7 @@ from typing import Iterator, Optional
 
 import numpy as np
 
-from stillpoint.engine.malloc import tune_for_blocks
+from stillpoint.engine.core.malloc import tune_for_blocks
 
 from .device import (DEFAULT_START, DeviceSim, SimChunk, build_model,  # noqa: F401
                      make_devices, _device_hz)

@@ -222,7 +222,7 @@ def _pack(view: memoryview, base: int, arrays) -> list:
 def _serve(inp, outp) -> None:
     kind, sim, path, slot, nslots = pickle.load(inp)
     assert kind == "device"
-    from stillpoint.engine.malloc import tune_for_blocks
+    from stillpoint.engine.core.malloc import tune_for_blocks
     tune_for_blocks()
     with open(path, "r+b") as fh:
         m = mmap.mmap(fh.fileno(), slot * nslots)

@@ -16,7 +16,7 @@ import numpy as np
 
 from stillpoint.drivers import constants as C
 
-from ..blocks import Block, DeviceInfo, QCEvent, QCReport
+from ..core.blocks import Block, DeviceInfo, QCEvent, QCReport
 from .device import DeviceSim, make_devices
 
 

@@ -98,7 +98,7 @@ class WearerParams:
     # RMS (mg) of the micro-motion of a worn device at rest (breathing, pulse, physiological
     # tremor), drawn per still segment (lognormal around it); 0 = a perfectly still body. 6 mg
     # gives worn still-window SDs (median 6-8 mg on packed +-8 g AX3 at 100 Hz) like those of
-    # the real wrist recordings in shared/data/real (tools/still_window_sd.py).
+    # the real wrist recordings in shared/data/real (tools/crosschecks/still_window_sd.py).
     still_micromotion_mg: float = 6.0
     # Free-living intensity and wear (figures and sources: ``REALISM_SOURCES`` below).
     light_share_standing: float = 0.6  # share of standing fidget segments that are light

@@ -41,7 +41,7 @@ EPOCH_COLUMNS = ["time_utc", "time_local", "n", "enmo_mg", "bfen_mg", "mad_mg", 
 _DECIMALS = {"enmo_mg": 3, "bfen_mg": 3, "mad_mg": 3, "anglez_deg": 3, "temperature_c": 2}
 
 # gzip level of the epoch table: on a week of 5 s epochs (8.5 MB of CSV) level 1 takes 0.06 s
-# for 2.37 MB, level 6 0.30 s for 2.06 MB (zlib, measured on tools/bench_process.py's file)
+# for 2.37 MB, level 6 0.30 s for 2.06 MB (zlib, measured on tools/benchmarks/bench_process.py's file)
 GZIP_LEVEL = 1
 
 

@@ -24,7 +24,7 @@ a table while it cools makes that bias look like a temperature effect on z. ``pa
 The workflow has no quantisation term: on packed +-8 g data (20 seeds x 7 days) it still names the
 hidden effect first for temperature offset, misalignment and offset drift (20/20), but parameter
 recovery falls (e.g. thermal lag 11/20, SE 100-250 s) and the null control names an effect in 3/20
-(tools/discrepancy_seeds.py --packed). The simulator's still windows have no micro-movement to
+(tools/crosschecks/discrepancy_seeds.py --packed). The simulator's still windows have no micro-movement to
 dither the step, so this is the worst case (a device at rest on a table), not the typical worn one.
 """
 

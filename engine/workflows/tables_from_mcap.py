@@ -92,7 +92,7 @@ def _batch_tables(mcap, settings, ts) -> dict:
     from ..operators.filters import band_used
     from ..operators.metrics import EpochMetrics, MetricsOperator
     from ..settings import APPLIED_STATUSES
-    from ..blocks import coalesce_blocks
+    from ..core.blocks import coalesce_blocks
     from ..tables.writer import TablesTap
 
     src = McapRawSource(mcap)

@@ -17,7 +17,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tools/benchlib.py
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tools/benchmarks/benchlib.py
 
 from benchlib import best_of  # noqa: E402
 

@@ -30,7 +30,7 @@ from pathlib import Path
 
 try:
     from benchlib import best_of
-except ImportError:  # tools/benchlib.py beside the parent folder
+except ImportError:  # tools/benchmarks/benchlib.py beside the parent folder
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
     from benchlib import best_of
 

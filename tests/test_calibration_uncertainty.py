@@ -39,7 +39,7 @@ def coverage_rows():
 def test_standard_errors_cover_the_truth(coverage_rows):
     """Six default recordings (packed +-8 g: quantisation bias, bias instability): the C2 fit's
     +-2 SE intervals hold the truth for >= 85 % of the 54 coefficients (nominal 95 %; the
-    50-recording run is in the README), and none is more than 6 SE off."""
+    50-recording run is in docs/calibration.md), and none is more than 6 SE off."""
     z = np.concatenate([r["c2"][k] for r in coverage_rows for k in KINDS])
     assert z.size == 54 and np.all(np.isfinite(z))
     assert np.mean(np.abs(z) <= 2.0) >= 0.85

@@ -110,7 +110,7 @@ def test_export_never_destroys_previous_output_on_failure(tmp_path):
 
 
 def test_align_summary_with_a_sampling_gap():
-    from tools.commands.align import _summary
+    from stillpoint.tools.cli.commands.align import _summary
     d = {"aligned": True, "model": "linear", "method": "xcorr", "initial_offset_s": 0.1,
          "drift_s_per_day": 0.2, "drift_day7_s": 1.4, "blocks_used": 3, "blocks_valid": 3,
          "blocks_total": 3, "blocks_excluded": 0, "rmse_samples": 0.5, "rate_hz": 25,
@@ -149,7 +149,7 @@ def test_absurd_options_refused_at_parse_time(tmp_path, opt):
 def test_interrupt_message_names_the_partial_log_and_recover(tmp_path):
     from argparse import Namespace
 
-    from tools.cli.__init__ import _interrupt_note
+    from stillpoint.tools.cli import _interrupt_note
     out = tmp_path / "r.mcap"
     args = Namespace(command="process", output=out, file=GOOD)
     assert "no partial log" in _interrupt_note(args) and "pass" in _interrupt_note(args)

@@ -6,7 +6,7 @@ below about half a step the window mean of those readings is pulled towards the 
 up to (step / pi) exp(-2 pi^2 (sd / step)^2) (1.5 mg for 3.9 mg of noise), and the pull depends on
 where x sits between two levels. As a cooling device drifts across levels, the pull becomes a
 staircase in temperature, and the autocalibration turns it into a wrong temperature coefficient
-(README, "Why the simulator's default recordings gave wrong temperature coefficients").
+(docs/calibration.md, "Why the simulator's default recordings gave wrong temperature coefficients").
 
 :func:`dequantise_means` inverts it per window and axis: with the window's mean m and sample
 variance s^2 of n readings, it solves mu(x, sigma) = m and v(x, sigma) = s^2 for the value x and

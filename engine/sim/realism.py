@@ -92,7 +92,7 @@ def night_mask(stats: RealismStats) -> np.ndarray:
 
 
 def realism_summary(stats: RealismStats, hz: float) -> dict:
-    """The figures the README quotes (tools/benchmarks/bench_simulate.py --realism)."""
+    """The figures docs/simulate.md quotes (tools/benchmarks/bench_simulate.py --realism)."""
     sd, lab, pk = stats.window_sd, stats.labels, stats.walking_peaks
     low = (sd < 0.013).all(axis=1)
     still = lab["still"] == 1

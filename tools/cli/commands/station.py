@@ -1,4 +1,4 @@
-"""`stillpoint station OUTDIR`: the download-and-correct station (see README, "The station")."""
+"""`stillpoint station OUTDIR`: the download-and-correct station (docs/station.md)."""
 
 from __future__ import annotations
 

@@ -151,7 +151,10 @@ def test_dock_devices_retry_sheet_and_ledger_only(browser, tmp_path):
         drv.save_screenshot(str(shots / "dock.png"))
         _not_blank(shots / "dock.png")
 
-        # a retry, confirmed in the page
+        # a retry, confirmed in the page: its button appears once the device's flow has ended
+        # (the tables and report are made after the clear)
+        wait.until(EC.presence_of_element_located(
+            (By.CSS_SELECTOR, "form[action='/action/retry/AX3-10001'] button")))
         drv.find_element(By.ID, "who").send_keys("browser-test")
         drv.execute_script("document.querySelector(\"form[action='/action/retry/AX3-10001'] "
                            "button\").click();")

@@ -140,6 +140,7 @@ class DeviceFlow:
             except Exception as e:  # noqa: BLE001 - a product never changes the device's state
                 self.outputs = f"failed: {type(e).__name__}: {e}"
             self.finished.set()
+            self.on_change(self)  # views learn that the flow (products included) has ended
 
     def stop(self) -> None:
         self.cancel.set()

@@ -9,7 +9,7 @@ folder. At start the ledger rows a killed station left between two states are re
 (``completion.reconcile``). ``render`` draws the live table (TTY) or prints one plain line per
 state change. The table's lines are cut to the terminal's width (``$COLUMNS``, else the
 terminal's), so a redraw never wraps. ``add_listener(fn)`` calls ``fn(flow)`` on every state change and progress update
-of any device (from the flow's thread: a listener must be quick and never raise), for a view of the
+of any device, and once more when a device's flow has ended (``flow.finished`` set) (from the flow's thread: a listener must be quick and never raise), for a view of the
 station other than the terminal's. ``rerun(serial, **option_changes)`` runs an attached device's
 ended flow again (a retry; a clear or configure asked for later: the same flow, the same rules).
 """
@@ -95,7 +95,8 @@ class Station:
         self._listeners: list = []
 
     def add_listener(self, fn) -> None:
-        """Call ``fn(flow)`` on every state change and progress update of any device."""
+        """Call ``fn(flow)`` on every state change and progress update of any device, and once
+        more when its flow (the tables and report included) has ended."""
         self._listeners.append(fn)
 
     def rerun(self, serial: str, **option_changes) -> DeviceFlow:

@@ -12,8 +12,6 @@ import threading
 import time
 from typing import Optional
 
-FINAL = ("cleared", "configured", "empty", "verified", "error")
-
 
 class LiveDock:
     def __init__(self):
@@ -28,7 +26,7 @@ class LiveDock:
                "device_type": att.device_type, "state": flow.state, "reason": flow.reason,
                "info": flow.info, "done_bytes": flow.done_bytes, "total_bytes": flow.total_bytes,
                "mbps": flow.mbps, "detached": flow.detached, "session": flow.session,
-               "running": not flow.finished.is_set() and flow.state not in FINAL}
+               "running": not flow.finished.is_set()}  # products run after the final state
         with self._cond:
             old = self._rows.get(att.serial)
             if old is None or (old["state"], old["reason"], old["detached"]) != \

@@ -88,6 +88,9 @@ def test_view_seek_and_speed(logged):
     LiveClient, RecordingPlayer = _sdk()
     with open(logged, "rb") as f:
         first, last = read_time_range(f)
+    seek = first + 600 * 10**9
+    want = [(m.log_time, bytes(m.data)) for t, _i, m in iter_messages(logged, ["/view/accel"])
+            if m.log_time >= seek]
     player = RecordingPlayer(logged, port=0, speed=1.0)
     try:
         c = LiveClient(player.port)
@@ -96,12 +99,9 @@ def test_view_seek_and_speed(logged):
         c.pump(5.0, until=lambda: bool(c.messages))  # real time: the first second only
         assert player.status == "playing"
         # seek to 10 minutes in, 60 x real time: the next messages start there
-        seek = first + 600 * 10**9
         c.messages.clear()
         c.playback(0, 60.0, seek_ns=seek, request_id="seek-1")
         t0 = time.monotonic()
-        want = [(m.log_time, bytes(m.data)) for t, _i, m in iter_messages(logged, ["/view/accel"])
-                if m.log_time >= seek]
         # the end of playback and the last messages travel separately: wait for both
         c.pump(30.0, until=lambda: any(s["status"] == "ended" for s in c.states)
                and want[-1] in c.messages.get("/view/accel", ()))

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import os
 import struct
+import threading
 from typing import BinaryIO, Iterable, Iterator, NamedTuple, Optional
 
 from . import records as rec
@@ -30,13 +31,14 @@ class McapFormatError(ValueError):
     pass
 
 
-_DECOMPRESSORS: dict = {}
+_DECOMPRESSORS = threading.local()  # one per thread: a zstd decompressor is not thread-safe
 
 
 def _decompressor(name: str):
-    d = _DECOMPRESSORS.get(name)
+    cache = _DECOMPRESSORS.__dict__
+    d = cache.get(name)
     if d is None:
-        d = _DECOMPRESSORS[name] = _make_decompressor(name)
+        d = cache[name] = _make_decompressor(name)
     return d
 
 

@@ -52,6 +52,21 @@ def check_zone(spec):
     return parse_zone(spec)
 
 
+def zone_settings(args) -> dict:
+    """The run settings of ``--timezone`` and ``--timezone-override``, checked before any work."""
+    from ._runopts import OptionError
+    over = {}
+    if getattr(args, "timezone", None) is not None:
+        check_zone(args.timezone)
+        over["timezone"] = args.timezone
+    if getattr(args, "timezone_override", False):
+        if getattr(args, "timezone", None) is None:
+            raise OptionError("--timezone-override replaces a GENEActiv header's zone with "
+                              "--timezone: give --timezone too")
+        over["timezone_override"] = True
+    return over
+
+
 def tables_text(summary: dict) -> str:
     """Lines for the text summary: the zone and what the tables hold."""
     lines = [f"times: {summary.get('timezone', 'UTC')}"]

@@ -152,15 +152,8 @@ def _run(args) -> int:
     shard = _parse_shard(args.shard)
     outdir = _prepare_outdir(args.output)
     over = settings_overrides(args)
-    if getattr(args, "timezone", None) is not None:  # the participants' zone: a setting of the run
-        from ._tableopts import check_zone
-        check_zone(args.timezone)
-        over["timezone"] = args.timezone
-    if getattr(args, "timezone_override", False):
-        if getattr(args, "timezone", None) is None:
-            raise OptionError("--timezone-override replaces a GENEActiv header's zone with "
-                              "--timezone: give --timezone too")
-        over["timezone_override"] = True
+    from ._tableopts import zone_settings
+    over.update(zone_settings(args))  # the participants' zone: a setting of the run
     settings = RunSettings.from_dict({}, **over).to_dict()
     settings["tables"] = {"nonwear_version": args.nonwear, "valid_day_hours": args.valid_day_hours,
                           "enmo_bands_mg": [float(x) for x in args.enmo_bands],

@@ -12,7 +12,7 @@ from stillpoint.engine.run import RunSettings, process_file
 from ._numbers import SECONDS_DAY
 from ._staticopts import add_static_arguments, resolve_static
 from ._outcomeopts import add_outcome_arguments, outcome_settings
-from ._tableopts import (add_table_arguments, add_timezone_argument, check_zone, table_settings,
+from ._tableopts import (add_table_arguments, add_timezone_argument, table_settings, zone_settings,
                          tables_text)
 from ._runopts import (OptionError, Progress, add_setting_arguments, human_summary,
                        settings_overrides, write_summary)
@@ -106,14 +106,7 @@ def build_settings(args, base: dict | None = None) -> RunSettings:
         except (OSError, ValueError, RecursionError) as e:
             raise OptionError(f"--prior {args.prior}: not a calibration estimate JSON ({e})") from None
         over["prior"] = validate_estimate(d, f"--prior {args.prior}").to_dict()
-    if getattr(args, "timezone", None) is not None:
-        check_zone(args.timezone)
-        over["timezone"] = args.timezone
-    if getattr(args, "timezone_override", False):
-        if getattr(args, "timezone", None) is None:
-            raise OptionError("--timezone-override replaces a GENEActiv header's zone with "
-                              "--timezone: give --timezone too")
-        over["timezone_override"] = True
+    over.update(zone_settings(args))
     if (getattr(args, "static", None) or getattr(args, "static_from_store", None) is not None) \
             and over.get("calibrate") is False:
         raise OptionError("--static/--static-from-store apply a calibration: not with --no-calibrate")

@@ -1,6 +1,7 @@
-"""Cohort runs: a folder of short simulated recordings plus a corrupt and an unreadable file, on a
-real Dask LocalCluster of 2 worker processes; resume after SIGKILL of the whole run; a worker
-killed mid-task; new keys for new settings; shards that cover the plan exactly once."""
+"""Cohort runs: a folder of short simulated recordings plus a corrupt and an unreadable file, on
+the default process pool of 2 workers; resume after SIGKILL of the whole run; a worker killed
+mid-task, on the process pool and on a real Dask LocalCluster; the scheduler chosen when none is
+named; new keys for new settings; shards that cover the plan exactly once."""
 
 from __future__ import annotations
 
@@ -70,11 +71,11 @@ def _output_hashes(out: Path) -> dict:
     return res
 
 
-def test_folder_with_bad_files_on_local_cluster(cohort_dir, tmp_path, capsys):
+def test_folder_with_bad_files_on_the_default_pool(cohort_dir, tmp_path, capsys):
     out = tmp_path / "out"
     assert cli(["cohort", "run", str(cohort_dir), "-o", str(out), "-j", "2"]) == 0
     err = capsys.readouterr().err
-    assert "dask LocalCluster (2 worker(s))" in err
+    assert "on processes (2 worker(s))" in err
     assert "FAILED" in err and "corrupt.cwa (corrupt_input)" in err
     assert len(_markers(out, DONE)) == N_GOOD
     rows = list(csv.DictReader(open(out / "cohort_summary.csv")))
@@ -142,7 +143,17 @@ def test_resume_after_sigkill_of_the_whole_run(cohort_dir, tmp_path):
     assert not list((out / "files").glob("*/*.tmp"))
 
 
-def test_worker_killed_mid_task_is_retried(tmp_path):
+def test_scheduler_named_or_chosen():
+    from stillpoint.tools.cli.commands.cohort import scheduler_of
+    assert scheduler_of(None, None) == "processes"  # the default: a process pool
+    assert scheduler_of(None, 4 * 10**9) == "local"  # a memory limit is a LocalCluster's
+    assert scheduler_of(None, "auto") == "local"
+    assert scheduler_of("serial", 4 * 10**9) == "serial"
+    assert scheduler_of("tcp://h:8786", None) == "tcp://h:8786"
+
+
+@pytest.mark.parametrize("scheduler", ["processes", "local"])
+def test_worker_killed_mid_task_is_retried(tmp_path, scheduler):
     src = tmp_path / "in"
     src.mkdir()
     for i in range(3):
@@ -165,7 +176,7 @@ def test_worker_killed_mid_task_is_retried(tmp_path):
 
     t = threading.Thread(target=killer)
     res = run_cohort(make_plan(discover_inputs([src]), RunSettings()), out, jobs=2, progress=False,
-                     on_start=lambda backend: t.start())
+                     scheduler=scheduler, on_start=lambda backend: t.start())
     t.join()
     assert killed, "no worker was caught mid-task"
     assert res.done == 3 and not res.failed and res.retried >= 1
@@ -212,7 +223,7 @@ def test_process_pool_without_dask_and_retry(cohort_dir, tmp_path, capsys, monke
     monkeypatch.setattr(execute, "have_dask", lambda: False)
     out = tmp_path / "out"
     files = [str(cohort_dir / "p03.cwa"), str(cohort_dir / "corrupt.cwa")]
-    assert cli(["cohort", "run", *files, "-o", str(out), "-j", "2"]) == 0
+    assert cli(["cohort", "run", *files, "-o", str(out), "-j", "2", "--scheduler", "local"]) == 0
     err = capsys.readouterr().err
     assert "Dask is not installed: running on a local process pool" in err
     assert "pip install 'stillpoint[cohort]'" in err

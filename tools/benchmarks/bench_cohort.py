@@ -1,6 +1,7 @@
 """Benchmark `stillpoint cohort run -j 2` against the same files one after another in one process.
 
-    python tools/benchmarks/bench_cohort.py [--files 8] [--days 1] [--hz 100] [--jobs 2] [--workdir DIR]
+    python tools/benchmarks/bench_cohort.py [--files 8] [--days 1] [--hz 100] [--jobs 2]
+                                 [--scheduler processes|local] [--workdir DIR]
 
 Measured in one run, each side in its own child process (wall, CPU, peak RSS from
 ``benchlib.measure``):
@@ -71,6 +72,8 @@ def main() -> int:
     ap.add_argument("--days", type=float, default=1.0)
     ap.add_argument("--hz", type=float, default=100.0)
     ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--scheduler", default=None,
+                    help="cohort run's --scheduler (default: the command's own default)")
     ap.add_argument("--workdir", type=Path, default=Path(tempfile.gettempdir()) / "stillpoint_bench_cohort")
     a = ap.parse_args()
 
@@ -97,12 +100,17 @@ def main() -> int:
     if base["rc"] != 0:
         raise SystemExit(base["err"])
     walls = json.loads(base["out"])
+    from stillpoint.tools.cli.commands.cohort import scheduler_of
+    scheduler = scheduler_of(a.scheduler, None)
     coh = measure([sys.executable, "-m", "stillpoint.tools", "cohort", "run", str(data), "-o",
-                   str(cohort_out), "-j", str(a.jobs), "-q"])
+                   str(cohort_out), "-j", str(a.jobs), "-q", "--scheduler", scheduler])
     if coh["rc"] != 0:
         raise SystemExit(coh["err"])
-    cs = measure([sys.executable, "-c", CLUSTER_START])
-    cluster = json.loads(cs["out"]) if cs["rc"] == 0 else {"start_s": float("nan"), "per_task_ms": float("nan")}
+    cluster = None
+    if scheduler == "local":
+        cs = measure([sys.executable, "-c", CLUSTER_START])
+        cluster = json.loads(cs["out"]) if cs["rc"] == 0 else {"start_s": float("nan"),
+                                                               "per_task_ms": float("nan")}
 
     markers = [json.loads(p.read_text()) for p in cohort_out.glob("files/*/*/_DONE.json")]
     if len(markers) != a.files:
@@ -117,7 +125,7 @@ def main() -> int:
     print(f"serial, one process : wall {base['wall']:6.2f} s  CPU {base['cpu']:6.2f} s  peak RSS "
           f"{base['rss_mb']:.0f} MB  (per file {min(walls):.2f}-{max(walls):.2f} s)")
     print(f"cohort run -j {a.jobs}     : wall {coh['wall']:6.2f} s  CPU {coh['cpu']:6.2f} s  "
-          f"(CLI start, plan, cluster, jobs, collation)")
+          f"(--scheduler {scheduler}: CLI start, plan, workers, jobs, collation)")
     print(f"speed-up            : {base['wall'] / coh['wall']:.2f}x (goal >= 1.7x); the serial run "
           f"already keeps {base['cpu'] / base['wall']:.2f} cores busy, so {a.jobs} workers on "
           f"{os.cpu_count()} cores can gain at most "
@@ -125,9 +133,10 @@ def main() -> int:
           f"serial {coh['cpu'] / base['cpu']:.2f}x, so at most "
           f"{min(a.jobs, os.cpu_count() or 1) * base['cpu'] / coh['cpu']:.2f}x on an idle machine")
     over = (coh["wall"] * a.jobs - job_wall) / a.files
-    print(f"Dask overhead       : {over:.2f} s of worker time per file outside the jobs "
-          f"((wall x {a.jobs} - {job_wall:.2f} s of jobs) / {a.files}); bare LocalCluster(2) start "
-          f"{cluster['start_s']:.2f} s, {cluster['per_task_ms']:.1f} ms per trivial task")
+    bare = (f"; bare LocalCluster(2) start {cluster['start_s']:.2f} s, "
+            f"{cluster['per_task_ms']:.1f} ms per trivial task" if cluster else "")
+    print(f"scheduler overhead  : {over:.2f} s of worker time per file outside the jobs "
+          f"((wall x {a.jobs} - {job_wall:.2f} s of jobs) / {a.files}){bare}")
     print(f"job beyond engine   : {(job_wall - engine_wall) / a.files * 1000:.0f} ms per file "
           f"(summary, SHA-256, fsync, markers); in-worker engine {engine_wall / a.files:.2f} s per file "
           f"vs {sum(walls) / a.files:.2f} s serial")

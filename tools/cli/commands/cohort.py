@@ -34,14 +34,16 @@ CLASSES = ("corrupt_input", "transient_io", "resource", "bug")
 
 def _exec_arguments(p) -> None:
     g = p.add_argument_group("execution")
-    g.add_argument("--scheduler", default="local", metavar="local|processes|serial|ADDRESS",
-                   help="local: a Dask LocalCluster on this machine (default; a process pool when "
-                        "Dask is not installed); processes: a process pool; serial: one file after "
+    g.add_argument("--scheduler", default=None, metavar="processes|local|serial|ADDRESS",
+                   help="processes: a process pool on this machine (default); local: a Dask "
+                        "LocalCluster on this machine (the default when --memory-limit is given; "
+                        "a process pool when Dask is not installed); serial: one file after "
                         "another in this process; or a Dask scheduler address (tcp://host:8786)")
     g.add_argument("-j", "--jobs", type=WORKERS, default=None,
-                   help="worker processes for local/processes (default: the cores available)")
-    g.add_argument("--memory-limit", type=memory_size, default="auto",
-                   help="LocalCluster memory limit per worker, e.g. 4GB (default: memory / workers)")
+                   help="worker processes for processes/local (default: the cores available)")
+    g.add_argument("--memory-limit", type=memory_size, default=None,
+                   help="LocalCluster memory limit per worker, e.g. 4GB or auto (memory / "
+                        "workers); implies --scheduler local when no scheduler is given")
     g.add_argument("--max-in-flight", type=number(1, 1_000_000, integer=True), default=None,
                    help="jobs submitted at a time (default: twice the worker slots)")
     g.add_argument("--strict", action="store_true", help="exit 1 when any file failed")
@@ -113,12 +115,22 @@ def _prepare_outdir(out: Path) -> Path:
     return out
 
 
+def scheduler_of(scheduler, memory_limit) -> str:
+    """The scheduler a run uses: the one asked for; else a Dask LocalCluster when a memory
+    limit (a LocalCluster setting) is given; else ``DEFAULT_SCHEDULER``, the process pool."""
+    from stillpoint.engine.cohort.execute import DEFAULT_SCHEDULER
+    if scheduler:
+        return scheduler
+    return "local" if memory_limit is not None else DEFAULT_SCHEDULER
+
+
 def _execute(args, plan, outdir: Path, retry_classes=(), collate_after=True) -> int:
     from stillpoint.engine.cohort import collate, run_cohort
     if args.jobs is not None and args.jobs < 1:
         raise OptionError("--jobs must be at least 1")
-    res = run_cohort(plan, outdir, scheduler=args.scheduler, jobs=args.jobs,
-                     memory_limit=args.memory_limit, retry_classes=tuple(retry_classes),
+    res = run_cohort(plan, outdir, scheduler=scheduler_of(args.scheduler, args.memory_limit),
+                     jobs=args.jobs, memory_limit=args.memory_limit or "auto",
+                     retry_classes=tuple(retry_classes),
                      max_in_flight=args.max_in_flight, progress=not args.quiet)
     failed = ", ".join(f"{k} {v}" for k, v in sorted(res.failed.items()))
     line = (f"cohort: {res.done} done now, {res.already_done} already done, "

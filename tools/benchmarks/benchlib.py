@@ -79,7 +79,13 @@ print(a.shape[0], float(enmo.mean()), "calibrated" if "accel" in r else "not-cal
 
 
 def measure(cmd: list, env: Optional[dict] = None) -> dict:
-    """{"wall", "cpu", "rss_mb", "rc", "out", "err"} of one run of ``cmd`` in a fresh child."""
+    """{"wall", "cpu", "rss_mb", "rc", "out", "err"} of one run of ``cmd`` in a fresh child.
+
+    The child may write bytecode whatever the caller's ``PYTHONDONTWRITEBYTECODE``: an installed
+    package has its ``.pyc`` files, and compiling ~100 modules from source again in every child
+    (0.2-0.4 CPU-s a run here) would be counted as the command's cost."""
+    env = dict(os.environ if env is None else env)
+    env.pop("PYTHONDONTWRITEBYTECODE", None)
     out = subprocess.run([sys.executable, "-c", METER, json.dumps([str(c) for c in cmd])],
                          capture_output=True, text=True, check=True, env=env).stdout
     return json.loads(out)

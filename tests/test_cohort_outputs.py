@@ -77,10 +77,41 @@ def test_stacked_days_and_participants(cohort):
     assert (p1["files"], p1["valid_days"], p1["valid_weekdays"], p1["valid_weekend_days"]) == \
         ("2", "2", "1", "1")
     summ = [r for r in _rows(out / "cohort_summary.csv") if r["participant"] == "P1"]
-    assert float(p1["wear_time_h"]) == pytest.approx(sum(float(r["wear_time_h"]) for r in summ))
+    # both tables hold 4 decimals: sums and means of rounded cells agree to their rounding
+    assert float(p1["wear_time_h"]) == pytest.approx(sum(float(r["wear_time_h"]) for r in summ),
+                                                     abs=2e-4)
     w = [float(r["wear_time_h"]) for r in summ]
     e = [float(r["enmo_mean_mg"]) for r in summ]
-    assert float(p1["enmo_mean_mg"]) == pytest.approx(sum(a * b for a, b in zip(w, e)) / sum(w))
+    assert float(p1["enmo_mean_mg"]) == pytest.approx(sum(a * b for a, b in zip(w, e)) / sum(w),
+                                                      abs=2e-4)
+
+
+def test_numbers_are_rounded_as_the_day_table(cohort):
+    """4 decimals as in the day table (trailing zeros dropped); calibration parameters 7 (8 for
+    the temperature offset, g/degC); integers and text as they are."""
+    d, out = cohort
+    rows = _rows(out / "cohort_summary.csv")
+    people = _rows(out / "cohort_participants.csv")
+
+    def decimals(text):
+        return len(text.split(".")[1]) if "." in text and "e" not in text.lower() else 0
+
+    for r in rows:
+        for k in ("duration_h", "wear_time_h", "enmo_mean_mg", "mad_mean_mg", "peak_rss_mb",
+                  "min_enmo_30_100mg"):
+            assert r[k] != "" and decimals(r[k]) <= 4, (k, r[k])
+        for k in ("error_before_mg", "error_after_mg", "hours_used", "temperature_ref"):
+            assert decimals(r[k]) <= 4, (k, r[k])
+        assert any(decimals(r[k]) == 4 for k in ("duration_h", "enmo_mean_mg", "peak_rss_mb"))
+        for k in ("offset_x", "offset_y", "scale_x", "scale_z"):
+            assert decimals(r[k]) <= 7, (k, r[k])
+        assert decimals(r["tempoffset_z"]) <= 8
+        assert r["samples"].isdigit() and r["calibration_applied"] in ("True", "False")
+        summary = json.loads(__import__("pathlib").Path(r["summary"]).read_text())
+        assert float(r["offset_x"]) == pytest.approx(summary["calibration"]["offset"][0], abs=5e-8)
+        assert float(r["duration_h"]) == pytest.approx(summary["duration_s"] / 3600, abs=5e-5)
+    for p in people:
+        assert decimals(p["wear_time_h"]) <= 4 and decimals(p["enmo_mean_mg"]) <= 4
 
 
 def test_table_options_and_manifest_zone_are_in_the_key(cohort):
@@ -134,3 +165,15 @@ def test_a_cohort_zone_that_contradicts_a_geneactiv_header_fails_that_file(tmp_p
     [row] = _rows(out2 / "cohort_summary.csv")
     assert row["timezone"] == "America/Chicago"
     assert json.loads((out2 / "cohort.json").read_text())["settings"]["timezone_override"] is True
+
+
+def test_cell_rounding_rules():
+    from stillpoint.engine.cohort.collate import _cell
+    assert _cell("offset_x", 0.03920130602945695) == "0.0392013"
+    assert _cell("scale_y", 1.0108964556561584) == "1.0108965"
+    assert _cell("tempoffset_z", -0.000788123456) == "-0.00078812"
+    assert _cell("enmo_mean_mg", 30.96406740324302) == "30.9641"
+    assert _cell("wear_time_h", 23.995833333333337) == "23.9958"
+    assert _cell("rate_hz", 100.0) == "100" and _cell("samples", 8563385) == 8563385
+    assert _cell("offset_x", float("nan")) == "" and _cell("enmo_mean_mg", float("inf")) == ""
+    assert _cell("m10_mg", None) == "" and _cell("participant", "=HYPERLINK(1)").startswith("'")

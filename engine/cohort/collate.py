@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import os
 from dataclasses import dataclass, field
 from datetime import datetime
@@ -32,7 +33,7 @@ from pathlib import Path
 from typing import Optional
 
 from stillpoint.drivers.byteio import sha256_file
-from stillpoint.drivers.names import csv_cell
+from stillpoint.drivers.names import cell_text, csv_cell
 from stillpoint.drivers.outputs import atomic_output
 
 from .job import DONE, FAILED, MCAP_NAME, RUNNING, SUMMARY_NAME, paths
@@ -246,12 +247,30 @@ def participant_rows(rows: list, days: list, bands: list) -> list:
     return out
 
 
+# Decimals of the cohort tables' numbers: the day table's 4 (``cell_text``: 0.0001 h, mg, min),
+# more for the calibration parameters, whose digits matter below that: offset in g and scale to
+# 1e-7 (0.1 ug, 0.00001 %), temperature offset in g/degC to 1e-8. The run's summary.json keeps
+# every digit.
+_CAL_DECIMALS = (("offset_", 7), ("scale_", 7), ("tempoffset_", 8))
+
+
+def _cell(field: str, v):
+    """A cohort table cell: floats rounded (``_CAL_DECIMALS``, else 4 decimals, trailing zeros
+    dropped), non-finite and None empty, text made safe for spreadsheets."""
+    if isinstance(v, float):
+        for prefix, d in _CAL_DECIMALS:
+            if field.startswith(prefix):
+                return f"{v:.{d}f}".rstrip("0").rstrip(".") if math.isfinite(v) else ""
+        return cell_text(v)
+    return "" if v is None else csv_cell(v)
+
+
 def _write_csv(path: Path, fields, rows) -> Path:
     with atomic_output(path, binary=False, what="cohort table") as f:
         w = csv.DictWriter(f, fieldnames=fields, lineterminator="\n", extrasaction="ignore")
         w.writeheader()
         for r in rows:
-            w.writerow({k: ("" if r.get(k) is None else csv_cell(r.get(k))) for k in fields})
+            w.writerow({k: _cell(k, r.get(k)) for k in fields})
     return path
 
 

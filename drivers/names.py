@@ -71,13 +71,13 @@ def csv_cell(value):
     return value
 
 
-def cell_text(v) -> str:
-    """A table cell's text: empty for None and non-finite floats, floats to 4 decimals without
-    trailing zeros, anything else as ``str``."""
+def cell_text(v, decimals: int = 4) -> str:
+    """A table cell's text: empty for None and non-finite floats, floats to ``decimals``
+    decimals without trailing zeros, anything else as ``str``."""
     if v is None:
         return ""
     if isinstance(v, float):
-        return "" if not math.isfinite(v) else f"{v:.4f}".rstrip("0").rstrip(".")
+        return "" if not math.isfinite(v) else f"{v:.{decimals}f}".rstrip("0").rstrip(".")
     return str(v)
 
 

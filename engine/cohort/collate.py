@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import csv
 import json
-import math
 import os
 from dataclasses import dataclass, field
 from datetime import datetime
@@ -258,10 +257,8 @@ def _cell(field: str, v):
     """A cohort table cell: floats rounded (``_CAL_DECIMALS``, else 4 decimals, trailing zeros
     dropped), non-finite and None empty, text made safe for spreadsheets."""
     if isinstance(v, float):
-        for prefix, d in _CAL_DECIMALS:
-            if field.startswith(prefix):
-                return f"{v:.{d}f}".rstrip("0").rstrip(".") if math.isfinite(v) else ""
-        return cell_text(v)
+        d = next((d for prefix, d in _CAL_DECIMALS if field.startswith(prefix)), 4)
+        return cell_text(v, d)
     return "" if v is None else csv_cell(v)
 
 

@@ -1,4 +1,4 @@
-"""Sources and writers: .cwa (AX3/AX6), .bin (GENEActiv), MCAP replay, USB devices.
+"""Sources and writers: .cwa (AX3/AX6), .bin (GENEActiv), .gt3x (ActiGraph), MCAP replay, USB devices.
 
 ``open_recording(path)`` sniffs the content (not the file name) and returns a Source.
 """
@@ -17,10 +17,12 @@ __all__ = [
 ]
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
+ZIP_MAGIC = b"PK\x03\x04"  # a zip: ActiGraph .gt3x (drivers/gt3x.py checks its members)
+ZIP_EMPTY_MAGIC = b"PK\x05\x06"
 
 
 def sniff_format(path) -> str:
-    """Return "cwa", "geneactiv" or "mcap" from the first bytes of the (possibly gzipped) file."""
+    """Return "cwa", "geneactiv", "gt3x" or "mcap" from the first bytes of the (possibly gzipped) file."""
     p = Path(path)
     check_recording_path(p)
     try:
@@ -37,6 +39,8 @@ def sniff_format(path) -> str:
         return "mcap"
     if head[:2] == b"MD":
         return "cwa"
+    if head[:4] in (ZIP_MAGIC, ZIP_EMPTY_MAGIC):
+        return "gt3x"
     text = head.lstrip(b"\xef\xbb\xbf")
     if text.startswith(b"Device Identity"):
         return "geneactiv"
@@ -45,7 +49,7 @@ def sniff_format(path) -> str:
             p, "this is an original GENEA (2010) file, not GENEActiv .bin; it is not supported")
     raise UnsupportedFormatError(
         p, "not a recognised recording: expected an AX3/AX6 .cwa header ('MD'), a GENEActiv .bin "
-           f"header ('Device Identity') or an MCAP file; first bytes are {head[:16]!r}")
+           f"header ('Device Identity'), an ActiGraph .gt3x (a zip) or an MCAP file; first bytes are {head[:16]!r}")
 
 
 def open_recording(path, **options):
@@ -57,5 +61,8 @@ def open_recording(path, **options):
     if fmt == "geneactiv":
         from .geneactiv import GeneactivReader
         return GeneactivReader(path, **options)
+    if fmt == "gt3x":
+        from .gt3x import Gt3xReader
+        return Gt3xReader(path, **options)
     from .mcap_replay import McapRawSource
     return McapRawSource(path, **options)

@@ -272,3 +272,63 @@ AX_ERASE_COMMANDS = {"quick": "FORMAT QC", "wipe": "FORMAT WC"}
 # FORMAT's reply: "FORMAT: Delayed activation.", then "FORMAT: Complete." (or "ERROR: Problem during
 # ... format"), then "COMMIT" ([FW] Settings.c SettingsAction, FORMAT with C).
 AX_FORMAT_COMPLETE = "FORMAT: Complete."
+
+# ----------------------------------------------------------------------------- ActiGraph .gt3x
+# [GT3X]   actigraph/GT3X-File-Format @ d4aa795 (MIT): README.md, info.txt.md, LogRecords/*.md
+# [NHANES] actigraph/NHANES-GT3X-File-Format @ 2fcafc6 (MIT): README.md, technical.md, fileformats/*.md
+# [ALF]    ActiLife's own raw CSV exports checked against public files (data/real/PROVENANCE.md,
+#          "Facts a reader needs beyond the format description"; pygt3x tests/test_ism.py for the
+#          idle-sleep fill; rows of actigraph_pygt3x_neo_30hz_legacy.actilife.csv)
+GT3X_LOG_MEMBER = "log.bin"  # [GT3X] README.md 31: log records
+GT3X_INFO_MEMBER = "info.txt"  # [GT3X] README.md 35; [NHANES] README.md 74
+GT3X_ACTIVITY_MEMBER = "activity.bin"  # [NHANES] README.md 44: legacy 12-bit sample stream
+GT3X_LUX_MEMBER = "lux.bin"  # [NHANES] README.md 86: legacy light, one u16 per second
+GT3X_SEPARATOR = 0x1E  # [GT3X] README.md 65: every record starts with 0x1E
+GT3X_HEADER_BYTES = 8  # [GT3X] README.md 62-88: separator, type, u32 time (LE), u16 size (LE)
+GT3X_CHECKSUM_OK = 0xFF  # [GT3X] README.md 100, 302-313: checksum = ~XOR(header+payload), so the
+#                          XOR over a whole record including its checksum byte is 0xFF
+# record types [GT3X] README.md 158-265
+GT3X_REC_ACTIVITY = 0x00  # 158-163: one second, 12-bit, YXZ
+GT3X_REC_BATTERY = 0x02  # 164-169: u16 millivolts
+GT3X_REC_EVENT = 0x03  # 170-175: idle sleep enter 0x08 / exit 0x09
+GT3X_REC_LUX = 0x05  # 182-187: u16 lux
+GT3X_REC_METADATA = 0x06  # 188-193: JSON
+GT3X_REC_PARAMETERS = 0x15  # 242-247
+GT3X_REC_SENSOR_SCHEMA = 0x18  # 248-253 (IMU; read for its size only, data skipped)
+GT3X_REC_SENSOR_DATA = 0x19  # 254-259
+GT3X_REC_ACTIVITY2 = 0x1A  # 260-265: one second, int16 LE, XYZ
+GT3X_EVENT_IDLE_ENTER = 0x08  # [GT3X] README.md 174
+GT3X_EVENT_IDLE_EXIT = 0x09  # [GT3X] README.md 174
+GT3X_USB_PAYLOAD_BYTES = 1  # [GT3X] LogRecords/Activity.md 23-24, Activity2.md 14-15: a 1-byte
+#                             ACTIVITY/ACTIVITY2 payload is a USB-connect record, not samples
+GT3X_BITS_PER_SAMPLE = 36  # [GT3X] LogRecords/Activity.md 6; [NHANES] README.md 117
+# PARAMETERS record: 8-byte (u16 address space, u16 id, u32 value) pairs, LE [GT3X]
+# LogRecords/Parameters.md 9; floats in the 24-bit fraction / 8-bit exponent code, 11 and 36-62
+GT3X_PARAM_ACCEL_SCALE = (0, 55)  # Parameters.md 517-523 (example 237-238: 256 LSB/g)
+GT3X_PARAM_BATTERY_VOLTAGE = (0, 7)  # Parameters.md 399-405
+GT3X_PARAM_FIRMWARE_VERSION = (0, 13)  # Parameters.md 426-432: (major<<24)|(minor<<16)|build
+GT3X_PARAM_FEATURE_ENABLE = (1, 2)  # Parameters.md 564-579
+GT3X_FEATURE_SLEEP_MODE_BIT = 2  # Parameters.md 572: "Bit 2 = Sleep Mode"
+GT3X_PARAM_UTC_OFFSET = (1, 40)  # Parameters.md 798-805: seconds (often 0; info.txt TimeZone wins)
+# Accelerometer scale (LSB/g) when neither info.txt "Acceleration Scale" nor the PARAMETERS
+# ACCEL_SCALE gives one: [GT3X] LogRecords/Activity.md 20, Activity2.md 11 ("NEO and CLE use 341
+# LSB/g (+-6g). MOS devices use 256 LSB/g (+-8g)"); [NHANES] fileformats/activity.bin.md 24 (341).
+GT3X_SCALE_BY_SERIAL_PREFIX = {"NEO": 341.0, "CLE": 341.0, "MRA": 341.0, "MOS": 256.0}
+GT3X_RANGE_BY_SCALE = {341.0: 6.0, 256.0: 8.0}  # [GT3X] Activity.md 20: 341 -> +-6 g, 256 -> +-8 g
+# wGT3X-BT firmware 1.6.0 turns the axes 90 degrees about Z: fixed x = y, fixed y = -x
+# [GT3X] LogRecords/Activity.md 26-37
+GT3X_AXIS_SWAP_SERIAL_PREFIX = "MOS"
+GT3X_AXIS_SWAP_FIRMWARE = "1.6.0"
+# info.txt times are .NET ticks (100 ns since 0001-01-01) of the device's local clock
+# [GT3X] info.txt.md 39-55; [NHANES] technical.md 9-13, 21
+GT3X_TICKS_PER_S = 10_000_000
+GT3X_TICKS_AT_UNIX_EPOCH = 621_355_968_000_000_000  # 1970-01-01T00:00:00 in .NET ticks
+# legacy lux.bin [NHANES] fileformats/lux.bin.md 7-30: < 20 -> 0, 0xFFFF -> 0, scale and maximum
+# by device (GT3X+ 1.25 / 2500 lux, ActiSleep+ 3.25 / 6000 lux)
+GT3X_LUX_MIN_RAW = 20
+GT3X_LUX_INVALID = 0xFFFF
+GT3X_LUX_SCALE_BY_SERIAL_PREFIX = {"NEO": (1.25, 2500.0), "MRA": (3.25, 6000.0)}
+# ActiLife's raw CSV [ALF]: every value is stored integer / scale rounded half away from zero to
+# 3 decimals; idle-sleep seconds repeat the last sample; other missing seconds (after a USB-connect
+# record, and from the last record to the download time) are zeros.
+GT3X_ACTILIFE_DECIMALS = 3

@@ -12,6 +12,8 @@ How recordings use it:
   change its clock at a DST change, so that one offset converts every sample to UTC. Without a
   zone the times are **device local time, zone unknown**: the readers then treat the clock as if
   it were UTC (offset 0) and every output says so instead of claiming UTC.
+* **ActiGraph .gt3x** stores its zone in info.txt ``TimeZone`` (a fixed offset; NHANES-era files
+  have none: zone unknown, as a .cwa) and keeps it unless a zone is given, as GENEActiv.
 * **GENEActiv .bin** stores its zone (``Time Zone``, a fixed offset) and keeps it unless a zone is
   given, which then replaces it the same way.
 * **local time** (epoch table, calendar days) is UTC + the zone's offset at each instant, so with
@@ -209,6 +211,18 @@ def reader_timezone(path, fmt: str, spec, override: bool = False) -> tuple[Optio
         start = _header_start_s(read_header(path, timezone=0))
         if header_offset is not None:
             check_header_zone(path, header_offset, zone, start, override)
+        if zone.fixed_s is not None:
+            return zone.fixed_s, zone
+        return (zone.device_offset_s(start) if start is not None else zone.offset_at_s(0)), zone
+    if fmt == "gt3x":
+        from stillpoint.drivers.gt3x import read_header as gt3x_header
+        info = gt3x_header(path, timezone=0)
+        stored = info.header.get("timezone_stored_s")
+        start = _header_start_s(info)
+        if not zone.known:
+            return (None, fixed_zone(stored)) if stored is not None else (0, zone)
+        if stored is not None:
+            check_header_zone(path, stored, zone, start, override)
         if zone.fixed_s is not None:
             return zone.fixed_s, zone
         return (zone.device_offset_s(start) if start is not None else zone.offset_at_s(0)), zone

@@ -26,6 +26,7 @@ import numpy as np
 # Keys that may appear in Block.per_sample (format-specific per-sample channels).
 PER_SAMPLE_LIGHT_RAW = "light_raw"  # GENEActiv: 10-bit light per sample
 PER_SAMPLE_BUTTON = "button"  # GENEActiv: button bit per sample
+PER_SAMPLE_IDLE_SLEEP = "idle_sleep"  # ActiGraph: 1 where the device slept (last sample repeated)
 
 
 @dataclass(frozen=True)

@@ -16,6 +16,12 @@ Columns (what users of cwa-convert / OMGui expect, in SI-ish units):
 * ``light``: lux (AX: 10^((raw+512)*6/1024); GENEActiv: raw * Lux / Volts of the header).
 * ``battery``: volts, per sector/page, held.
 * ``button`` (GENEActiv only): the per-sample button bit.
+* ``idle_sleep`` (ActiGraph .gt3x only): 1 where the device was in idle sleep (the reader repeats
+  its last sample over those seconds, as ActiLife does).
+
+``--actilife`` (a .gt3x input, CSV output) writes ActiLife's own raw CSV layout instead
+(drivers/actilife_csv.py): its header lines and ``Accelerometer X,Accelerometer Y,Accelerometer Z``
+rows, the same bytes ActiLife writes for the public reference file.
 NPZ also holds ``segment`` (int32: continuous-logging stretch of each sample) and ``info`` (a JSON
 string: device, header fields, QC log).
 
@@ -49,7 +55,7 @@ from stillpoint.drivers import open_recording, sniff_format
 from stillpoint.drivers.constants import cwa_light_lux, gna_light_lux
 from stillpoint.drivers.errors import StillpointError, UnsupportedFormatError
 from stillpoint.drivers.outputs import atomic_output, check_output_path
-from stillpoint.engine.core.blocks import PER_SAMPLE_BUTTON, PER_SAMPLE_LIGHT_RAW
+from stillpoint.engine.core.blocks import PER_SAMPLE_BUTTON, PER_SAMPLE_IDLE_SLEEP, PER_SAMPLE_LIGHT_RAW
 
 NAME = "export"
 KEEPS_EXISTING_OUTPUTS = True  # --overwrite replaces an existing output
@@ -73,6 +79,10 @@ def add_arguments(parser) -> None:
     parser.add_argument("--timezone-override", action="store_true",
                         help="GENEActiv: let --timezone replace a header zone it contradicts")
     parser.add_argument("--compress", action="store_true", help="NPZ: deflate the columns")
+    parser.add_argument("--actilife", action="store_true",
+                        help="ActiGraph .gt3x: write ActiLife's raw CSV layout (header lines, "
+                             "Accelerometer X/Y/Z rows in g to 3 decimals, idle sleep repeated, "
+                             "other missing seconds as zeros)")
     parser.add_argument("--topic", action="append", default=None,
                         help="MCAP input: topic(s) to export (repeatable); an MCAP export needs "
                              "--topic or --table")
@@ -93,7 +103,9 @@ def block_columns(block, info) -> dict[str, np.ndarray]:
     if block.gyro is not None:
         cols["gyro"] = block.gyro_dps()
     cols["temperature"] = block.temperature_c[unit].astype(np.float64)
-    if PER_SAMPLE_LIGHT_RAW in block.per_sample and info.device_type == "GENEActiv":
+    if info.device_type == "ActiGraph":  # lux per second, as the reader gives it
+        cols["light"] = block.light[unit].astype(np.float64)
+    elif PER_SAMPLE_LIGHT_RAW in block.per_sample and info.device_type == "GENEActiv":
         volts, lux = info.header.get("volts"), info.header.get("lux")
         raw = block.per_sample[PER_SAMPLE_LIGHT_RAW]
         cols["light"] = gna_light_lux(raw, lux, volts) if volts and lux else np.full(block.n, np.nan)
@@ -102,6 +114,8 @@ def block_columns(block, info) -> dict[str, np.ndarray]:
     cols["battery"] = block.battery_v[unit].astype(np.float64)
     if PER_SAMPLE_BUTTON in block.per_sample:
         cols["button"] = block.per_sample[PER_SAMPLE_BUTTON].astype(np.uint8)
+    if PER_SAMPLE_IDLE_SLEEP in block.per_sample:
+        cols["idle_sleep"] = block.per_sample[PER_SAMPLE_IDLE_SLEEP].astype(np.uint8)
     cols["segment"] = np.full(block.n, block.segment, np.int32)
     return cols
 
@@ -231,6 +245,8 @@ class CsvSink:
             names += ["temperature", "light", "battery"]
             if "button" in cols:
                 names.append("button")
+            if "idle_sleep" in cols:
+                names.append("idle_sleep")
             self._f.write((",".join(names) + "\n").encode())
             self._header_written = True
             self._names = names
@@ -246,6 +262,8 @@ class CsvSink:
             parts.append(format_fixed(cols[key], self.DECIMALS[key]))
         if "button" in cols:
             parts.append(format_fixed(cols["button"], 0))
+        if "idle_sleep" in cols:
+            parts.append(format_fixed(cols["idle_sleep"], 0))
         comma = np.full((n, 1), ord(","), np.uint8)
         pieces = []
         for i, p in enumerate(parts):
@@ -335,7 +353,28 @@ def export_mcap(path, out, topics):
     return _export(path, out, topics)
 
 
-_KIND = {"cwa": "an AX3/AX6 .cwa", "geneactiv": "a GENEActiv .bin"}
+_KIND = {"cwa": "an AX3/AX6 .cwa", "geneactiv": "a GENEActiv .bin", "gt3x": "an ActiGraph .gt3x"}
+
+
+def export_actilife(path, out, *, timezone=None, timezone_override: bool = False) -> dict:
+    """ActiLife's raw CSV of a .gt3x (drivers/actilife_csv.py). Rows carry no times, so the zone
+    only matters for the report."""
+    from stillpoint.drivers.actilife_csv import write_actilife_csv
+    out = Path(out)
+    fmt = sniff_format(path)
+    if fmt != "gt3x":
+        raise StillpointError(f"{path}: --actilife writes ActiLife's CSV of an ActiGraph .gt3x; this "
+                              f"input is {_KIND.get(fmt, fmt)}")
+    if not out.name.lower().endswith(".csv"):
+        raise StillpointError(f"{out}: --actilife writes a CSV: name it .csv")
+    check_output_path(out)
+    src = open_recording(path)
+    try:
+        with atomic_output(out, binary=False) as f:
+            rows = write_actilife_csv(src, f)
+    finally:
+        src.close()
+    return {"format": fmt, "output": str(out), "actilife": rows, "qc": src.qc.as_dict()}
 
 
 def export_recording(path, out, *, time_format: str = "iso", timezone=None, compress: bool = False,
@@ -443,6 +482,13 @@ def run(args) -> int:
     if outcomes.active:
         opts["outcomes"] = outcomes
     from stillpoint.engine.progress import Progress
+    if args.actilife:
+        rep = export_actilife(args.file, args.output)
+        r = rep["actilife"]
+        print(f"wrote {r['rows']} rows in ActiLife's raw CSV layout to {rep['output']} "
+              f"({r['samples']} samples, {r['idle_rows']} of them idle sleep; {r['zero_rows']} zero "
+              "rows for missing seconds)")
+        return 0
     with Progress("export", quiet=args.quiet) as bar:
         rep = export_recording(args.file, args.output, time_format=args.time,
                                timezone=args.timezone, compress=args.compress, topics=args.topic,

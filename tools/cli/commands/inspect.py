@@ -1,4 +1,5 @@
-"""``stillpoint inspect FILE``: what is in a recording (AX3/AX6 .cwa, GENEActiv .bin, gzipped or not).
+"""``stillpoint inspect FILE``: what is in a recording (AX3/AX6 .cwa, GENEActiv .bin, gzipped or not;
+ActiGraph .gt3x: also its model, layout, scale, stored zone and idle-sleep time).
 
 A full streaming pass (bounded memory) reports device, samples, nominal and measured rate, start/end
 (ISO 8601 UTC with nanoseconds when the zone is known; otherwise ``start``/``end`` and
@@ -103,6 +104,10 @@ def _header_info(path, fmt: str, timezone, override: bool = False):
         from stillpoint.drivers.cwa import read_header
         return read_header(path, **({"timezone": timezone_option(timezone, fmt, path)}
                                     if timezone is not None else {}))
+    if fmt == "gt3x":
+        from stillpoint.drivers.gt3x import read_header as gt3x_header
+        return gt3x_header(path, **({"timezone": timezone_option(timezone, fmt, path, override)}
+                                    if timezone is not None else {}))
     src = _open(path, fmt, timezone)
     try:
         return src.info
@@ -187,13 +192,15 @@ def inspect_recording(path, *, header_only: bool = False, timezone=None,
     from stillpoint.engine.timezones import local_text, utc_text
     fmt = follow_format(path) if follow_idle_s is not None else sniff_format(path)
     zone = (zone_of(path, fmt, timezone, timezone_override)
-            if fmt in ("cwa", "geneactiv", "mcap") else None)
+            if fmt in ("cwa", "geneactiv", "gt3x", "mcap") else None)
     if header_only:
         info = _header_info(path, fmt, timezone, timezone_override)
         out = _info_dict(info, fmt, zone)
         out["header"] = dict(info.header)
         if zone is not None:
             out["timezone"] = zone.label
+        if fmt == "gt3x":
+            out["actigraph"] = _actigraph(info, None)
         return out
     src = _open(path, fmt, timezone, follow_idle_s, timezone_override)
     acc = _Summary()
@@ -204,7 +211,8 @@ def inspect_recording(path, *, header_only: bool = False, timezone=None,
         src.close()
     info, qc = src.info, src.qc
     out = _info_dict(info, fmt, zone)
-    aux = ["temperature", "light", "battery"] + sorted(k for k in acc.per_sample if k == "button")
+    aux = ["temperature", "light", "battery"] + sorted(k for k in acc.per_sample
+                                                        if k in ("button", "idle_sleep"))
     unit = f"{qc.unit}s"  # "pages" (.bin), "sectors" (.cwa)
     rate = acc.measured_rate()
     out.update({
@@ -226,12 +234,36 @@ def inspect_recording(path, *, header_only: bool = False, timezone=None,
     })
     if zone is not None:
         out["timezone"] = zone.label
+    if fmt == "gt3x":
+        out["actigraph"] = _actigraph(info, src)
     warnings = info.header.get("warnings") if isinstance(info.header, dict) else None
     if warnings:
         out["header_warnings"] = list(warnings)
     return out
 
 
+
+
+def _actigraph(info, src) -> dict:
+    """What an ActiGraph .gt3x adds: model, layout, scale and its source, the stored zone, idle
+    sleep (set up, and the seconds slept, after a full read)."""
+    h = info.header
+    stored = h.get("timezone_stored_s")
+    d = {"model": h.get("model"), "layout": h.get("layout"), "scale_lsb_per_g": h.get("scale"),
+         "scale_source": h.get("scale_source"),
+         "timezone_stored": None if stored is None else _offset_text(stored),
+         "idle_sleep_enabled": h.get("idle_sleep_enabled"),
+         "axis_swap_fixed": h.get("axis_swap_fixed")}
+    if src is not None:
+        d.update({"idle_sleep_s": src.idle_sleep_s,
+                  "idle_sleep_periods": len(src.idle_periods),
+                  "usb_connections": len(src.usb_connections)})
+    return d
+
+
+def _offset_text(s: int) -> str:
+    a = abs(int(s))
+    return f"{'-' if s < 0 else '+'}{a // 3600:02d}:{a % 3600 // 60:02d}"
 
 
 def format_text(d: dict) -> str:
@@ -256,6 +288,18 @@ def format_text(d: dict) -> str:
     elif d.get("timezone"):
         clock += f" (zone {d['timezone']})"
     add(f"  clock       {clock}")
+    ag = d.get("actigraph")
+    if ag:
+        add(f"  actigraph   {ag['model'] or '?'}, {ag['layout']} layout, scale {ag['scale_lsb_per_g']:g} "
+            f"LSB/g ({ag['scale_source']}), stored zone {ag['timezone_stored'] or 'none'}")
+        idle = ag.get("idle_sleep_enabled")
+        line = ("idle sleep " + ("on" if idle else "off" if idle is not None else "not stated"))
+        if "idle_sleep_s" in ag:
+            line += (f"; {ag['idle_sleep_s']} s in idle sleep ({ag['idle_sleep_periods']} period(s), "
+                     "last sample repeated)")
+        if ag.get("usb_connections"):
+            line += f"; {ag['usb_connections']} USB connection record(s)"
+        add(f"              {line}")
     if "samples" in d:
         add(f"  samples     {d['samples']}  ({', '.join(d['channels'])})")
         if unknown:

@@ -684,7 +684,6 @@ class Gt3xReader:
             nonlocal segment
             out = []
             secs = np.asarray(secs, np.int64)
-            k0 = 0
             # breaks inside this run: non-consecutive seconds
             if secs.shape[0] > 1:
                 br = np.flatnonzero(np.diff(secs) != 1) + 1

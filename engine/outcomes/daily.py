@@ -33,7 +33,8 @@ BOUT_MINUTES = (1, 5, 10)  # GGIR params_phyact mvpadur / boutdur.mvpa defaults
 BAND_ORDER = ("light", "moderate", "vigorous", "mvpa")
 # day-table column prefixes of the outcome columns (collation reads them like the ENMO bands)
 DAY_PREFIXES = ("min_light_", "min_moderate_", "min_vigorous_", "min_mvpa_", "bout_min_",
-                "steps_", "cadence_max_spm_", "enmo_mean_mg_imputed", "mad_mean_mg_imputed")
+                "steps_", "cadence_max_spm_", "enmo_mean_mg_imputed", "mad_mean_mg_imputed",
+                "m10_mg_imputed", "l5_mg_imputed")
 
 
 @dataclass

@@ -10,11 +10,14 @@ when it is not clean (nonwear, clipping, gap, QC, filter warm-up); slots count r
 table (one per epoch from the first, gaps included).
 
 ``AverageDay`` collects the slot sums while the epoch rows stream (memory: two arrays of one day's
-epochs) and keeps each epoch's day, values and clean flag in a temporary file (21 bytes an
+epochs) and keeps each epoch's day, values and clean flag in a temporary file (25 bytes an
 epoch); ``imputed_days`` reads that file back a slice at a time and gives, per local day, the day
 values computed on the imputed epochs, each column name ending ``_imputed``:
-``enmo_mean_mg_imputed``, ``mad_mean_mg_imputed`` (mean over the day's epochs) and, with a
-cut-point set, the band minutes and bout minutes of ``engine.outcomes.daily``.
+``enmo_mean_mg_imputed``, ``mad_mean_mg_imputed`` (mean over the day's epochs), GGIR's M10 and L5
+on the imputed epochs (``m10_mg_imputed``, ``m10_start_imputed``, ``l5_mg_imputed``,
+``l5_start_imputed``: GGIR computes M5L5 on its imputed series, R/g.analyse.perday.R:518, so
+nonwear at night cannot push L5 into the evening; valid days only, as the day table's) and, with
+a cut-point set, the band minutes and bout minutes of ``engine.outcomes.daily``.
 """
 
 from __future__ import annotations
@@ -27,23 +30,28 @@ import numpy as np
 SUFFIX = "_imputed"
 METRICS = ("enmo_mg", "mad_mg")
 SLICE_ROWS = 1 << 15
-_RECORD = np.dtype([("day", "<i4"), ("enmo_mg", "<f8"), ("mad_mg", "<f8"), ("clean", "?")])
+_RECORD = np.dtype([("day", "<i4"), ("tod_s", "<i4"), ("enmo_mg", "<f8"), ("mad_mg", "<f8"),
+                    ("clean", "?")])
+M_COLUMNS = ("m10_mg", "m10_start", "l5_mg", "l5_start")
 
 
 class AverageDay:
     def __init__(self, epoch_s: float):
+        self.epoch_s = float(epoch_s)
         self.per_day = int(round(86400.0 / epoch_s))
         self.rows = 0
         self.sums = {m: np.zeros(self.per_day) for m in METRICS}
         self.counts = {m: np.zeros(self.per_day, np.int64) for m in METRICS}
         self._spill = tempfile.TemporaryFile(prefix="stillpoint-impute-")
 
-    def push(self, values: dict, clean: np.ndarray, day: np.ndarray) -> None:
-        """One slice of epoch rows: metric values, clean flags and local day numbers."""
+    def push(self, values: dict, clean: np.ndarray, day: np.ndarray, local_ns=None) -> None:
+        """One slice of epoch rows: metric values, clean flags, local day numbers and local
+        times (ns; for the M10/L5 start times)."""
         n = clean.shape[0]
         slot = (self.rows + np.arange(n)) % self.per_day
         rec = np.empty(n, _RECORD)
         rec["day"], rec["clean"] = day, clean
+        rec["tod_s"] = 0 if local_ns is None else (np.asarray(local_ns) % 86400_000_000_000) // 10**9
         for m in METRICS:
             v = values[m]
             rec[m] = v
@@ -90,9 +98,15 @@ def imputed_days(average: AverageDay, outcomes=None) -> dict:
     day, parts = None, []
 
     def finish(day, parts):
+        from ..tables.days import m_window
         e = np.concatenate([p[0] for p in parts])
         m = np.concatenate([p[1] for p in parts])
+        tod = np.concatenate([p[2] for p in parts]).astype(np.int64) * 10**9
         d = {"enmo_mean_mg" + SUFFIX: float(e.mean()), "mad_mean_mg" + SUFFIX: float(m.mean())}
+        every = np.ones(e.shape[0], bool)
+        for key, hours, pick in (("m10", 10.0, np.argmax), ("l5", 5.0, np.argmin)):
+            val, start = m_window(e, every, tod, hours, pick, average.epoch_s)
+            d[f"{key}_mg" + SUFFIX], d[f"{key}_start" + SUFFIX] = val, start
         if outcomes is not None and outcomes.cut is not None:
             v = e if outcomes.cut.column == "enmo_mg" else m
             for name, val in outcomes.day(v, np.ones(v.shape[0], bool),
@@ -115,14 +129,14 @@ def imputed_days(average: AverageDay, outcomes=None) -> dict:
                 finish(day, parts)
                 parts = []
             day = int(days[a])
-            parts.append((e[a:b], m[a:b]))
+            parts.append((e[a:b], m[a:b], rec["tod_s"][a:b]))
     if day is not None:
         finish(day, parts)
     return out
 
 
 def imputed_columns(outcomes=None) -> list:
-    cols = ["enmo_mean_mg" + SUFFIX, "mad_mean_mg" + SUFFIX]
+    cols = ["enmo_mean_mg" + SUFFIX, "mad_mean_mg" + SUFFIX] + [c + SUFFIX for c in M_COLUMNS]
     if outcomes is not None and outcomes.cut is not None:
         cols += [c + SUFFIX for c in outcomes.base_day_columns()
                  if c.startswith(("min_", "bout_min_"))]

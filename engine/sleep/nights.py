@@ -64,6 +64,38 @@ class Night:
     awakenings: int = 0
     nonwear_epochs: int = 0
     bouts: list = field(default_factory=list)  # [first, stop) of the SIBs inside the SPT
+    invalid_epochs: int = 0  # nonwear or gap epochs in the window
+    day_epochs: int = 17280  # epochs in 24 h (GGIR's NepochsInDay)
+    cut_start: bool = False  # the recording starts inside the night's window
+    cut_end: bool = False  # the recording ends inside the night's window
+    sib_overlap: bool = True  # a SIB overlaps the guider window (else GGIR's cleaningcode 5)
+    spt_at_edge: bool = False  # the sleep period (or its guider) runs into the recording's start / end
+
+    @property
+    def fraction_invalid(self) -> float:
+        """GGIR's ``fraction.night.invalid``: invalid epochs plus the epochs a 24-h window lacks,
+        over a 24-h window's epochs, at most 1 (rules.py)."""
+        n = self.window[1] - self.window[0] + 1
+        per_day = self.day_epochs
+        return min(1.0, (self.invalid_epochs + max(0, per_day - n)) / per_day)
+
+    @property
+    def cleaningcode(self) -> int:
+        """GGIR part 4's ``cleaningcode``: 0 sleep log, 1 no sleep log, 5 no SIB overlaps the
+        guider window, 2 too little valid data (more than ``24 - includenightcrit`` hours
+        invalid or missing); later rules win as in GGIR (rules.py)."""
+        code = 0 if self.guider == "sleeplog" else 1
+        if not self.sib_overlap:
+            code = 5
+        if self.fraction_invalid > (24.0 - rules.INCLUDE_NIGHT_CRIT_H) / 24.0:
+            code = 2
+        return code
+
+    @property
+    def valid(self) -> bool:
+        """A night a study keeps: GGIR's cleaned part 4 (cleaningcode 0 or 1) and a sleep period
+        not cut by the recording's start or end."""
+        return self.cleaningcode <= rules.VALID_CLEANINGCODE_MAX and not self.spt_at_edge
 
 
 class SleepStage:
@@ -199,14 +231,22 @@ class SleepStage:
         if final and self.n / (2 * self.half) <= rules.MIN_RECORDING_DAYS:
             return
         for first, last, m in list(self._windows(final)):
+            cut_start = first <= 0 and not (m is not None and first == 0)
             if 0 <= last < self.n - 1:  # GGIR: a window ending at 11 or 13 o'clock (DST) moves 1 h
                 h = self._local_hour(last)
                 last += self.per_h if h == 11 else (-self.per_h if h == 13 else 0)
             if last - first < rules.MIN_NIGHT_EPOCHS:
                 continue
+            cut_end = last > self.n - 1
             last = min(last, self.n - 1)
             first = max(first, 0)
-            self.nights.append(self._night(first, last, m))
+            night = self._night(first, last, m)
+            night.cut_start, night.cut_end = cut_start, cut_end
+            if night.spt is not None:  # the sleep period or its guider window reaches the cut
+                g0, g1 = night.guider_span
+                night.spt_at_edge = ((cut_start and min(night.spt[0], g0) <= 1)
+                                     or (cut_end and max(night.spt[1], g1) >= self.n - 1))
+            self.nights.append(night)
 
     def _slice(self, a: np.ndarray, first: int, stop: int) -> np.ndarray:
         return a[first - self.base:stop - self.base]
@@ -253,6 +293,8 @@ class SleepStage:
         night = Night(date, (first, last), guider, span, None, est, base, daysleeper,
                       round((last - first + 1) / self.per_h, 4),
                       noon[1] - noon[0] != DAY_NS)
+        night.invalid_epochs = int(self._slice(self._inv, first, last + 1).sum())
+        night.day_epochs = 2 * self.half
         if span is not None:
             self._refine(night)
         return night
@@ -290,6 +332,7 @@ class SleepStage:
         s = np.flatnonzero(d == 1) + lo
         e = np.flatnonzero(d == -1) + lo
         over = (s < g1) & (e > g0)
+        night.sib_overlap = bool(over.any())
         if over.any() and not night.guider.endswith("+invalid"):
             onset, wake = int(s[over][0]), int(e[over][-1])
         else:

@@ -48,6 +48,14 @@ night onset / wake                   first / last SIB that      R/g.part4.R:688-
 no SIB overlapping the guider        rely on the guider         R/g.part4.R:652-686
 L5 for the L5 +- 6 h guider          5 h rolling mean of ENMO,  R/g.sib.det.R:274-290
                                      odd window, first minimum
+night fraction invalid               (invalid + epochs missing  R/g.sib.sum.R:71-74
+                                     from 24 h) / 24 h, <= 1
+cleaningcode                         0 sleeplog, 1 none, 5 no   R/g.part4.R:433,488,495,
+                                     SIB overlaps the guider,   661-665, 881-885
+                                     2 fraction invalid > (24 -
+                                     includenightcrit) / 24
+includenightcrit                     16 h                       R/load_params.R:124
+cleaned nights (part 4 "cleaned")    cleaningcode <= 1          R/g.report.part4.R:193
 sleep-log formats                    basic: ID, onset, wakeup   R/create_test_sleeplog_csv.R:11-29
                                      pairs per night; advanced: ,44-66
                                      ID, Dn_date, Dn_wakeup,
@@ -73,3 +81,5 @@ MIN_NIGHT_EPOCHS = 60
 MIN_RECORDING_DAYS = 0.2
 L5_HOURS = 5
 L5_HALF_WINDOW_H = 6
+INCLUDE_NIGHT_CRIT_H = 16.0
+VALID_CLEANINGCODE_MAX = 1

@@ -65,6 +65,30 @@ def day_columns(bands=ENMO_BANDS_MG) -> list[str]:
              "qc_coverage", "timezone", "calibration"])
 
 
+def m_window(e, clean, local, hours, pick, epoch_s):
+    """GGIR's M10 / L5 of one day (``g.getM5L5``): the mean of ``hours`` consecutive hours
+    starting every 10 min from the day's first epoch, the last start ``hours`` + 10 min before
+    the day's end (GGIR's ``last_hri``, R/g.getM5L5.R:15-18); ``pick`` is ``np.argmax`` (M10) or
+    ``np.argmin`` (L5). A window counts when at least half its epochs are clean (the mean is over
+    those); on imputed epochs every epoch is clean. Returns (value, ``HH:MM`` local start)."""
+    w = int(round(hours * 3600 / epoch_s))
+    step = max(1, int(round(M_STEP_S / epoch_s)))
+    if len(e) < w:
+        return None, None
+    x = np.where(clean, e, 0.0)
+    cs = np.concatenate([[0.0], np.cumsum(x)])
+    cn = np.concatenate([[0], np.cumsum(clean.astype(np.int64))])
+    starts = np.arange(0, max(len(e) - w, 1), step)
+    cnt = cn[starts + w] - cn[starts]
+    ok = cnt >= MIN_WINDOW_CLEAN * w
+    if not ok.any():
+        return None, None
+    mean = np.where(ok, (cs[starts + w] - cs[starts]) / np.maximum(cnt, 1), np.nan)
+    i = int(pick(np.where(ok, mean, -np.inf if pick is np.argmax else np.inf)))
+    t = int(local[starts[i]] % DAY_NS) // 10**9
+    return float(mean[i]), f"{t // 3600:02d}:{(t // 60) % 60:02d}"
+
+
 def _runs(mask: np.ndarray):
     """(start, length) of the runs of True."""
     d = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
@@ -174,22 +198,7 @@ class DayAccumulator:
         self.days.append(row)
 
     def _window(self, e, clean, local, hours, pick):
-        w = int(round(hours * 3600 / self.epoch_s))
-        step = max(1, int(round(M_STEP_S / self.epoch_s)))
-        if len(e) < w:
-            return None, None
-        x = np.where(clean, e, 0.0)
-        cs = np.concatenate([[0.0], np.cumsum(x)])
-        cn = np.concatenate([[0], np.cumsum(clean.astype(np.int64))])
-        starts = np.arange(0, len(e) - w + 1, step)
-        cnt = cn[starts + w] - cn[starts]
-        ok = cnt >= MIN_WINDOW_CLEAN * w
-        if not ok.any():
-            return None, None
-        mean = np.where(ok, (cs[starts + w] - cs[starts]) / np.maximum(cnt, 1), np.nan)
-        i = int(pick(np.where(ok, mean, -np.inf if pick is np.argmax else np.inf)))
-        t = int(local[starts[i]] % DAY_NS) // 10**9
-        return float(mean[i]), f"{t // 3600:02d}:{(t // 60) % 60:02d}"
+        return m_window(e, clean, local, hours, pick, self.epoch_s)
 
     # ------------------------------------------------------------------ summary
     def summary(self) -> dict:
@@ -213,7 +222,8 @@ class DayAccumulator:
         if self.outcomes is not None:
             for k in self.outcomes.day_columns():
                 v = [d[k] for d in valid if d.get(k) is not None]
-                row[k] = float(np.mean(v)) if v else None
+                numeric = not k.endswith("_start_imputed")  # a clock time has no mean here
+                row[k] = float(np.mean(v)) if (v and numeric) else None
         return row
 
 

@@ -232,7 +232,8 @@ class TablesTap:
         z = self.ts.zone
         day = np.floor_divide(z.local_ns(rows.start_ns) if z.known else rows.start_ns, DAY_NS)
         if self.average_day is not None:
-            self.average_day.push({"enmo_mg": rows.enmo_mg, "mad_mg": rows.mad_mg}, rows.clean, day)
+            self.average_day.push({"enmo_mg": rows.enmo_mg, "mad_mg": rows.mad_mg}, rows.clean, day,
+                                  z.local_ns(rows.start_ns) if z.known else rows.start_ns)
         if o.cut is None:
             self._put(rows, extra, counts)
             return
@@ -291,8 +292,11 @@ class TablesTap:
             from ..outcomes.impute import imputed_days
             imp = imputed_days(self.average_day, self.outcomes)
             self.average_day.close()
+            from ..outcomes.impute import M_COLUMNS, SUFFIX
             for d in days:
                 d.update(imp.get(d["date"], {}))
+                if not d.get("valid_day"):  # M10/L5 on valid days only, as the day table's
+                    d.update({c + SUFFIX: None for c in M_COLUMNS})
         summary = self.days.summary()
         for d in days + [summary]:
             d["calibration"] = calibration_status

@@ -1,0 +1,109 @@
+"""Nights and days a study can filter: GGIR's fraction of the night invalid and cleaningcode, the
+window cut by the recording's start or end, the night a participant summary keeps; M10/L5 with
+GGIR's window starts and on GGIR's imputed epochs."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from stillpoint.engine.outcomes.impute import AverageDay, imputed_days
+from stillpoint.engine.sim.sleep import SleepSpec, sleep_scenario
+from stillpoint.engine.sleep import SleepStage
+from stillpoint.engine.sleep.table import night_record
+from stillpoint.engine.tables.days import DAY_NS, m_window
+from stillpoint.engine.tables.epochs import EpochRows
+
+
+def _nights(s, chunk=1000):
+    st = SleepStage(s.zone, 5.0)
+    n = s.t_ns.shape[0]
+    for a in range(0, n, chunk):
+        b = min(n, a + chunk)
+        z = np.zeros(b - a, bool)
+        st.push(EpochRows(s.t_ns[a:b], np.full(b - a, 500), s.enmo[a:b], z * 0.0, z * 0.0,
+                          s.anglez[a:b], z * 0.0, s.nonwear[a:b], z.copy(), z.copy(), z.copy(),
+                          z.copy()))
+    st.flush()
+    return st, [night_record(x, st.first_ns, 5 * 10**9, s.zone) for x in st.nights]
+
+
+def test_recording_cut_mid_night_flags_the_last_night():
+    # 10:00 on day 0 to 03:00 on day 4: the last night's window is 15 h of 24
+    s = sleep_scenario(SleepSpec("2026-05-04T10:00:00", "UTC", 3 + 17 / 24, seed=21))
+    st, recs = _nights(s)
+    last = recs[-1]
+    assert last["window_cut"] == "end"
+    # window: 12:00:05 to 02:59:55 (GGIR counts from noon + 1 epoch)
+    assert last["fraction_night_invalid"] == pytest.approx((9 * 720 + 1) / 17280, abs=1e-6)
+    assert last["cleaningcode"] == 2 and last["night_valid"] == 0
+    for r in recs[:-1]:  # the full nights: no sleep log, enough data
+        assert (r["window_cut"], r["cleaningcode"], r["night_valid"]) == ("", 1, 1), r
+        assert r["fraction_night_invalid"] == 0.0
+
+
+def test_sleep_period_running_into_the_recording_end_is_not_kept():
+    # ends at 05:00: 7 h missing (0.29 < 1/3, GGIR's cleaningcode 1) but the sleep period is cut
+    s = sleep_scenario(SleepSpec("2026-05-04T10:00:00", "UTC", 3 + 19 / 24, seed=22))
+    st, recs = _nights(s)
+    last, night = recs[-1], st.nights[-1]
+    assert last["window_cut"] == "end" and last["cleaningcode"] == 1
+    assert night.guider_span[1] >= st.n - 1 and last["night_valid"] == 0
+
+
+def test_nonwear_counts_towards_the_fraction_invalid():
+    s = sleep_scenario(SleepSpec("2026-05-04T10:00:00", "UTC", 4.0, seed=23, nonwear_nights=(1,)))
+    st, recs = _nights(s)
+    by = {r["night"]: (r, n) for r, n in zip(recs, st.nights)}
+    r, n = by["2026-05-05"]
+    assert n.invalid_epochs == 2 * 720
+    assert r["fraction_night_invalid"] == pytest.approx(2 / 24, abs=1e-6)
+    assert r["cleaningcode"] == 1 and r["night_valid"] == 1
+
+
+def test_first_night_of_a_recording_started_after_midnight_is_cut():
+    s = sleep_scenario(SleepSpec("2026-06-10T02:00:00", "UTC", 3.0, seed=24))
+    st, recs = _nights(s)
+    assert recs[0]["window_cut"] == "start"
+    assert recs[0]["fraction_night_invalid"] > 1 / 3 and recs[0]["night_valid"] == 0
+    assert all(r["window_cut"] == "" for r in recs[1:-1])
+
+
+def test_m10_l5_windows_start_as_ggirs():
+    """g.getM5L5: starts every 10 min, the last one winhr + 10 min before the day's end; a
+    window that could only start at 19:00 (L5) is never taken."""
+    per_day = 1440
+    local = np.arange(per_day, dtype=np.int64) * 60 * 10**9
+    e = np.full(per_day, 50.0)
+    e[19 * 60:] = 1.0  # quiet only from 19:00
+    val, start = m_window(e, np.ones(per_day, bool), local, 5.0, np.argmin, 60.0)
+    assert start == "18:50"
+    assert val == pytest.approx((10 * 50 + 290 * 1.0) / 300)
+
+
+def test_l5_on_imputed_epochs_finds_the_night_behind_night_nonwear():
+    """Night sleep flagged nonwear on one day: on that day's own clean epochs L5 can only sit
+    in the evening; on GGIR's imputed epochs (the average day of the other days) it is the night."""
+    per_day, days = 1440, 4
+    n = per_day * days
+    tod = np.arange(n) % per_day
+    asleep = (tod < 7 * 60) | (tod >= 23 * 60)
+    rng = np.random.default_rng(5)
+    e = np.where(asleep, 2.0, 60.0) + rng.uniform(0, 1, n)
+    clean = np.ones(n, bool)
+    clean[2 * per_day:2 * per_day + 7 * 60] = False  # day 2: the morning's sleep is nonwear
+    day0 = 20000
+    day = day0 + np.arange(n) // per_day
+    av = AverageDay(60.0)
+    local = (day0 * DAY_NS) + np.arange(n, dtype=np.int64) * 60 * 10**9
+    av.push({"enmo_mg": e, "mad_mg": e}, clean, day, local)
+    imp = imputed_days(av)
+    av.close()
+    import datetime as dt
+    d2 = (dt.date(1970, 1, 1) + dt.timedelta(days=day0 + 2)).isoformat()
+    sl = slice(2 * per_day, 3 * per_day)
+    own = m_window(e[sl], clean[sl], local[sl], 5.0, np.argmin, 60.0)[1]
+    assert own >= "17:00"  # the evening: the night's morning hours are missing
+    start = imp[d2]["l5_start_imputed"]
+    assert "00:00" <= start <= "02:00", start
+    assert imp[d2]["l5_mg_imputed"] < 3.1

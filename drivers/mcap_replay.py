@@ -36,6 +36,32 @@ TOPIC_QC = "/qc"
 JOIN_FRACTION = 0.5  # a joined Block holds at most this fraction of the pipeline's block bound
 
 
+_KIND = {"cwa": "AX3/AX6 .cwa", "geneactiv": "GENEActiv .bin", "gt3x": "ActiGraph .gt3x"}
+
+
+def check_is_log(path) -> None:
+    """Refuse, in one line, a file that is not an MCAP at all before any MCAP reader names its
+    damage: a recording (``.cwa``, ``.bin``, ``.gt3x``, plain or gzipped) is named as such, with
+    the command that makes its log; anything else as not an MCAP file. Every command that reads
+    a log (``view``, ``report``, ``replay``, ``recover``, ``export``) starts here."""
+    from . import MCAP_MAGIC, sniff_format
+    p = Path(path)
+    check_recording_path(p)
+    with open(p, "rb") as f:
+        if f.read(len(MCAP_MAGIC)) == MCAP_MAGIC:
+            return
+    try:
+        fmt = sniff_format(p)
+    except Exception:  # noqa: BLE001 - neither a recording nor a log: said below
+        fmt = None
+    if fmt is not None and fmt != "mcap":
+        raise UnsupportedFormatError(
+            p, f"is a recording ({_KIND.get(fmt, fmt)}), not a stillpoint log: run "
+               f"`stillpoint process {p}` first")
+    raise UnsupportedFormatError(p, "not a stillpoint log: an MCAP file starts with the bytes "
+                                    "\\x89MCAP0 (this one does not)")
+
+
 def _qc_event(path, topic: str, i: int, data) -> Optional[QCEvent]:
     """A reader QC event logged on /qc (None for the engine's own events)."""
     ev = loads_json(path, topic, i, data)
@@ -168,7 +194,7 @@ class McapRawSource:
 
     def __init__(self, path, **_options):
         self.path = Path(path)
-        check_recording_path(self.path)
+        check_is_log(self.path)
         self._f = open(self.path, "rb")
         self.settings: Optional[dict] = None
         self.metadata: dict[str, dict] = {}

@@ -21,8 +21,6 @@ from pathlib import Path
 from mcap.exceptions import McapError
 from mcap.records import (Attachment, Channel, DataEnd, Footer, Message, Metadata, Schema)
 
-from stillpoint.drivers.errors import CorruptRecordingError
-from stillpoint.drivers.byteio import check_recording_path
 from stillpoint.engine.mcap.log import McapLog
 from stillpoint.engine.mcap.reading import BadRecord, TornTail, walk_records
 
@@ -58,10 +56,8 @@ def is_finished(path) -> bool:
 
 def recover(path, out, *, compression: str = "zstd") -> RecoveryReport:
     path, out = Path(path), Path(out)
-    check_recording_path(path)
-    with open(path, "rb") as f:
-        if f.read(len(MAGIC)) != MAGIC:
-            raise CorruptRecordingError(path, "not an MCAP file (bad magic)")
+    from stillpoint.drivers.mcap_replay import check_is_log
+    check_is_log(path)  # a recording, or no MCAP at all: one line saying which
     rep = RecoveryReport(str(path), str(out), is_finished(path))
     schema_map: dict[int, str] = {}
     channel_map: dict[int, int] = {}

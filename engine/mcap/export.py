@@ -215,7 +215,9 @@ def _check_stillpoint_log(path) -> None:
     names any damage and points at ``recover``."""
     from stillpoint.drivers.errors import UnsupportedFormatError
     from stillpoint.drivers.mcap_replay import NOT_A_STILLPOINT_LOG
+    from stillpoint.drivers.mcap_replay import check_is_log
     from .stream import read_metadata
+    check_is_log(path)
     with open(path, "rb") as f:
         try:
             meta = read_metadata(f)

@@ -116,9 +116,19 @@ def build_settings(args, base: dict | None = None) -> RunSettings:
     return RunSettings.from_dict(base or {}, **over)
 
 
+def check_log_name(out: Path) -> None:
+    """The log is an MCAP file: a name that does not say so (``-o x.csv``) would hold MCAP bytes
+    under a table's name and put the tables beside it as ``x.csv.epochs.csv.gz``; refused."""
+    if not out.name.lower().endswith(".mcap"):
+        raise OptionError(f"-o {out}: the log is an MCAP file, name it NAME.mcap (the tables are "
+                          "written beside it as NAME.epochs.csv.gz and NAME.days.csv; "
+                          "`stillpoint export` writes CSV from a log)")
+
+
 def execute(args, settings: RunSettings, out: Path) -> int:
     # every output is checked before the work starts: a long run must not fail at its end (none
     # may be an input: the command line protects those; nor two of them the same file)
+    check_log_name(out)
     check_output_path(out, what="MCAP output")
     if getattr(args, "summary", None):
         check_output_path(args.summary, what="summary")
@@ -161,13 +171,13 @@ def execute(args, settings: RunSettings, out: Path) -> int:
             opts = {"follow": True, "follow_idle_s": args.follow}
         summary = process_file(args.file, out, settings, progress=progress, tables=tables,
                                source_options=opts)
+        if getattr(args, "report", False):  # part of the run: "done" only once it is written
+            from stillpoint.engine.report import write_report
+            summary["outputs"].update(write_report(out, summary=summary))
     except BaseException:
         progress.done(completed=False)
         raise
     progress.done()
-    if getattr(args, "report", False):
-        from stillpoint.engine.report import write_report
-        summary["outputs"].update(write_report(out, summary=summary))
     if getattr(args, "store", None) is not None:
         est = CalibrationEstimate.from_dict(dict(summary["calibration"]))
         if est.status in ("ok", "high_error") and summary.get("device") and est.method != "static-6":
@@ -188,5 +198,15 @@ def execute(args, settings: RunSettings, out: Path) -> int:
 
 
 def run(args) -> int:
+    from stillpoint.drivers.byteio import check_recording_path
+    from stillpoint.drivers.errors import RecordingError
+    try:
+        check_recording_path(args.file)
+    except RecordingError as e:
+        if args.file.is_dir():  # `process .`: a folder of recordings is a cohort
+            raise RecordingError(args.file, "is a directory, not a recording: name one recording, "
+                                            f"or run every recording in it with `stillpoint cohort "
+                                            f"run {args.file} -o OUT_DIR`") from None
+        raise e from None
     out = args.output or default_output(args.file)
     return execute(args, build_settings(args), out)

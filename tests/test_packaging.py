@@ -61,3 +61,18 @@ def test_cutpoint_registry_is_package_data():
     assert "cutpoints.csv" in conf["package-data"]["stillpoint.engine.outcomes"]
     from stillpoint.engine.outcomes.cutpoints import REGISTRY, registry
     assert REGISTRY.is_file() and len(registry()) >= 13
+
+
+def test_import_from_the_folder_holding_a_clone_named_stillpoint(tmp_path):
+    """The README's layout: the clone (named ``stillpoint``) with ``shared/`` beside it, Python
+    started in the folder that holds both. The clone is then found first on sys.path; it must
+    be the package (``stillpoint.read``, the CLI), not an empty namespace package."""
+    (tmp_path / "stillpoint").symlink_to(ROOT, target_is_directory=True)
+    code = ("import stillpoint, stillpoint.engine.run as r; "
+            "print(callable(stillpoint.read), callable(stillpoint.tables), r.RunSettings.__name__)")
+    out = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True,
+                         text=True)
+    assert out.returncode == 0 and out.stdout.split() == ["True", "True", "RunSettings"], out.stderr
+    ver = subprocess.run([sys.executable, "-m", "stillpoint", "--version"], cwd=tmp_path,
+                         capture_output=True, text=True)
+    assert ver.returncode == 0 and ver.stdout.startswith("stillpoint "), ver.stderr

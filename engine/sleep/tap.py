@@ -26,6 +26,7 @@ class SleepTap:
         self.path = ts.nights_path
         self.zone = ts.zone
         self.epoch_ns = int(round(epoch_s * 1e9))
+        self.options = ts.sleep
         self.stage = SleepStage(ts.zone, epoch_s, ts.sleep)
         self.bouts = []  # (start_ns, end_ns)
         self._run = None  # start_ns of a bout still open
@@ -100,7 +101,15 @@ class SleepTap:
         return {"nights": str(self.path), "night_rows": len(self.records),
                 "guiders": {g: sum(r["guider"] == g for r in self.records)
                             for g in sorted({r["guider"] for r in self.records})},
-                "sib_bouts": len(self.bouts)}
+                "sib_bouts": len(self.bouts), "settings": logged_settings(self.options)}
+
+
+def logged_settings(options) -> dict:
+    """The sleep settings a run logs with its summary (``tables.sleep.settings``), so that a replay
+    computes sleep the same way: ``SleepOptions.to_dict`` and the sleep log's participant."""
+    d = options.to_dict()
+    d["sleep_log_participant"] = options.sleep_log.participant if options.sleep_log else None
+    return d
 
 
 def check_sleep_outputs(ts) -> None:

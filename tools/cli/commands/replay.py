@@ -15,7 +15,9 @@ NAME = "replay"
 KEEPS_EXISTING_OUTPUTS = True  # --overwrite replaces an existing output
 HELP = "re-process the raw stream logged in a stillpoint MCAP (same settings -> identical output)"
 DESCRIPTION = (HELP + ". Settings default to those logged in IN.mcap; any option given overrides "
-               "them. --check compares the corrected stream, metrics and estimates with IN.")
+               "them. A run that computed sleep (a time zone and the tables) is replayed with "
+               "its tables and sleep, with the settings it logged, so the log's /sleep topics "
+               "come out again. --check compares every topic with IN.")
 
 
 def add_arguments(p) -> None:
@@ -35,10 +37,12 @@ def add_arguments(p) -> None:
 def run(args) -> int:
     src = McapRawSource(args.file)  # validates: a finished stillpoint MCAP
     logged = dict(src.settings or {})
+    meta = dict(src.metadata)
     src.close()
     logged.setdefault("view_hz", 0.0)  # a log from before the view topic had none
     out = args.output or default_output(args.file)
     settings = build_settings(args, logged)
+    _logged_sleep(args, meta)
     rc = execute(args, settings, out)
     if args.check:
         from stillpoint.engine.mcap.compare import compare
@@ -54,3 +58,25 @@ def run(args) -> int:
                 print("settings differ from the logged run: " + json.dumps(changed, default=str))
             return 1
     return rc
+
+
+def _logged_sleep(args, meta: dict) -> None:
+    """When the logged run computed sleep (its summary's ``tables.sleep``), the replay does too,
+    with the run's nonwear rule and sleep settings (``engine.sleep.tap.logged_settings``; a log
+    from before those were logged: the defaults). Sleep is computed by the table writer, so the
+    replay writes the tables beside its output (``<out>.epochs.csv.gz``, ``.days.csv``,
+    ``.nights.csv``)."""
+    try:
+        tables = json.loads((meta.get("summary") or {}).get("tables") or "null")
+    except (TypeError, ValueError, RecursionError):
+        return
+    if not isinstance(tables, dict) or not isinstance(tables.get("sleep"), dict):
+        return
+    sl = tables["sleep"].get("settings") or {}
+    args.tables, args.sleep = True, True
+    args.nonwear = str(tables.get("nonwear_version") or "2023")
+    args.valid_day_hours, args.enmo_bands, args.mvpa_bout_s = 16.0, (40.0, 100.0, 400.0), 60.0
+    ign = sl.get("HASPT_ignore_invalid", False)
+    args.hdcza_ignore_invalid = {False: "false", True: "true", None: "na"}.get(ign, "false")
+    args.sleep_log = Path(sl["sleep_log"]) if sl.get("sleep_log") else None
+    args.sleep_log_id = sl.get("sleep_log_participant")

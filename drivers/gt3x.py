@@ -614,7 +614,7 @@ class Gt3xReader:
 
     def _event(self, index: int, reason: str, detail: str = "", time_s=None, samples: int = 0):
         self._n_events += 1
-        if len(self.qc.events) < MAX_QC_EVENTS:
+        if self._n_events <= MAX_QC_EVENTS:
             t = None if time_s is None else int(time_s) * 10**9 - self._tz_ns
             self.qc.add(QCEvent(index=index, reason=reason, detail=detail, time_ns=t, samples=samples))
 
@@ -740,6 +740,14 @@ class Gt3xReader:
             secs = np.arange(st.last_sec + 1, until_s, dtype=np.int64)
             self.idle_sleep_s += secs.shape[0]
             self.idle_periods.append((int(secs[0]), int(secs.shape[0])))
+            # one QC event per period, never capped: the MCAP log keeps the periods (a replay
+            # marks its samples again from them); logged before the samples it covers
+            t0 = int(secs[0]) * 10**9 - self._tz_ns
+            self.qc.add(QCEvent(index=-1, reason="idle_sleep", time_ns=t0,
+                                end_ns=t0 + int(secs.shape[0]) * 10**9,
+                                detail=f"{secs.shape[0]} s of idle sleep: " +
+                                ("the device's last sample is repeated" if self.fill_idle_sleep
+                                 else "left out")))
             if not self.fill_idle_sleep:
                 return []
             samples = np.broadcast_to(st.last_sample, (secs.shape[0], rate, 3))
@@ -894,9 +902,9 @@ class Gt3xReader:
         if b is not None:
             yield b
         self.qc.segments = segment + 1 if first_sample else 0
-        if self._n_events > len(self.qc.events):
+        if self._n_events > MAX_QC_EVENTS:
             self.qc.add(QCEvent(index=-1, reason="events_truncated",
-                                detail=f"{self._n_events - len(self.qc.events)} more QC events not listed"))
+                                detail=f"{self._n_events - MAX_QC_EVENTS} more QC events not listed"))
 
     # ------------------------------------------------------------------ legacy (NHANES)
     def _legacy_blocks(self) -> Iterator[Block]:

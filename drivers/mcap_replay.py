@@ -19,8 +19,8 @@ from typing import Iterator, Optional
 
 import numpy as np
 
-from stillpoint.engine.core.blocks import (Block, DeviceInfo, PER_SAMPLE_BUTTON, PER_SAMPLE_LIGHT_RAW,
-                                      QCEvent, QCReport)
+from stillpoint.engine.core.blocks import (Block, DeviceInfo, PER_SAMPLE_BUTTON, PER_SAMPLE_IDLE_SLEEP,
+                                      PER_SAMPLE_LIGHT_RAW, QCEvent, QCReport)
 from stillpoint.engine.mcap.reading import McapReadError, check_raw_message, decode, loads_json
 from stillpoint.engine.mcap.schemas import ACCEL_BATCH_RAW, GYRO_BATCH_RAW, times_from_deltas
 from stillpoint.engine.mcap.stream import iter_messages, read_metadata
@@ -71,11 +71,23 @@ def _qc_event(path, topic: str, i: int, data) -> Optional[QCEvent]:
         return None
     try:
         t = ev.get("time_ns")
+        e = ev.get("end_ns")
         return QCEvent(int(ev.get("index", -1)), str(ev.get("reason", "")), str(ev.get("detail", "")),
-                       None if t is None else int(t), int(ev.get("samples", 0)))
+                       None if t is None else int(t), int(ev.get("samples", 0)),
+                       None if e is None else int(e))
     except (TypeError, ValueError, OverflowError) as e:
         raise McapReadError(path, f"QC event fields are not numbers ({e})", channel=topic,
                             record=f"message {i}") from None
+
+
+def idle_mask(t: np.ndarray, periods: list) -> np.ndarray:
+    """(n,) uint8: 1 for the times inside one of the [start, end) periods."""
+    out = np.zeros(t.shape[0], np.uint8)
+    for a, b in periods:
+        if a <= t[-1] and b > t[0]:
+            i, j = np.searchsorted(t, [a, b])
+            out[i:j] = 1
+    return out
 
 
 def block_from_message(raw: dict, gyro: Optional[dict] = None) -> Block:
@@ -112,8 +124,8 @@ def _device_info(meta: dict, path: Path) -> DeviceInfo:
     known = DeviceInfo.__dataclass_fields__
     d = {k: v for k, v in d.items() if k in known}
     kind = d.get("device_type")
-    if kind not in ("AX3", "AX6", "GENEActiv"):
-        bad(f"device_type {kind!r} is not AX3, AX6 or GENEActiv")
+    if kind not in ("AX3", "AX6", "GENEActiv", "ActiGraph"):
+        bad(f"device_type {kind!r} is not AX3, AX6, GENEActiv or ActiGraph")
     rate = d.get("sample_rate_nominal")
     lo, hi = (C.CWA_RATE_RANGE_HZ if kind.startswith("AX") else C.PLAUSIBLE_RATE_HZ)
     if not isinstance(rate, (int, float)) or isinstance(rate, bool) or not lo <= rate <= hi:
@@ -218,7 +230,8 @@ class McapRawSource:
                 self._f.close()
                 raise McapReadError(self.path, f"settings metadata: {problem}",
                                     record="metadata 'settings'")
-        self.qc = QCReport(unit="sector" if self.info.device_type.startswith("AX") else "page")
+        self.qc = QCReport(unit="sector" if self.info.device_type.startswith("AX") else
+                           "second" if self.info.device_type == "ActiGraph" else "page")
 
     def logged_calibration(self):
         """The ``calibration`` metadata record (the estimate the logged run applied) as a
@@ -278,6 +291,9 @@ class McapRawSource:
         max_join = int(JOIN_FRACTION * float(st.get("max_block_s") or 0.0) * rate)
         n_group = 0
         order = None  # (segment, end of the samples, last time) of the last raw message
+        # ActiGraph: the idle-sleep periods the reader logged (QC events with an end, logged
+        # before the samples they cover) mark the samples again (per_sample idle_sleep)
+        idle = [] if self.info.device_type == "ActiGraph" else None
 
         def joined():
             nonlocal n_group
@@ -300,6 +316,9 @@ class McapRawSource:
                     if group:  # the blocks logged before this event go first, as in the run
                         yield joined()
                     self.qc.add(ev)
+                    if idle is not None and ev.reason == "idle_sleep" and ev.end_ns is not None \
+                            and ev.time_ns is not None:
+                        idle.append((ev.time_ns, ev.end_ns))
             while pending_raw and (not has_gyro or pending_gyro):
                 i, raw, n = pending_raw.pop(0)
                 gyro = None
@@ -310,6 +329,8 @@ class McapRawSource:
                                                   f"message {i} {n}", channel=TOPIC_GYRO,
                                             record=f"message {j}")
                 b = block_from_message(raw, gyro)
+                if idle is not None:
+                    b.per_sample[PER_SAMPLE_IDLE_SLEEP] = idle_mask(b.time_ns, idle)
                 order = _check_order(order, b, path, i)
                 self.qc.total += b.m
                 self.qc.valid += b.m

@@ -23,6 +23,7 @@ from typing import Optional
 import numpy as np
 
 from stillpoint.drivers.errors import StillpointError
+from stillpoint.engine.core.blocks import PER_SAMPLE_IDLE_SLEEP
 
 PANDAS_HINT = "the DataFrame API needs pandas: pip install 'stillpoint[pandas]'"
 MAX_GAP_S = 1.0  # resample: no value is made across a gap in the samples longer than this
@@ -107,7 +108,8 @@ def read(path, *, calibrate=False, resample: Optional[float] = None,
          timezone: Optional[str] = None, timezone_override: bool = False):
     """The samples of a recording (.cwa, .bin, .gz of either, or a stillpoint MCAP's raw
     stream) as a DataFrame: ``x``, ``y``, ``z`` (g), ``temperature_c``, and ``gx``, ``gy``,
-    ``gz`` (deg/s) for an AX6, indexed by time (see the module docstring).
+    ``gz`` (deg/s) for an AX6, ``idle_sleep`` (bool) for an ActiGraph .gt3x (the seconds the
+    device slept, its last sample repeated), indexed by time (see the module docstring).
 
     ``calibrate``: False (raw g, the default); True (an MCAP: the estimate its run applied; a
     recording: its own autocalibration, a first pass over the file; nothing is applied when the
@@ -140,8 +142,12 @@ def read(path, *, calibrate=False, resample: Optional[float] = None,
             g = b.gyro_dps()
             if g is not None:
                 cols.append(g)
+            idle = b.per_sample.get(PER_SAMPLE_IDLE_SLEEP)
+            if idle is not None:
+                cols.append(idle.astype(np.float64)[:, None])
             v = np.concatenate(cols, axis=1).astype(np.float32)
-            names = names or ["x", "y", "z", "temperature_c"] + (["gx", "gy", "gz"] if g is not None else [])
+            names = names or (["x", "y", "z", "temperature_c"] + (["gx", "gy", "gz"] if g is not None else [])
+                              + (["idle_sleep"] if idle is not None else []))
             t = np.asarray(b.time_at(np.arange(b.n)), np.int64)
             if rs is not None:
                 t, v = rs.push(t, v)
@@ -158,6 +164,8 @@ def read(path, *, calibrate=False, resample: Optional[float] = None,
     t = np.concatenate(times) if times else np.zeros(0, np.int64)
     v = np.concatenate(values) if values else np.zeros((0, len(names)), np.float32)
     df = pd.DataFrame(v, columns=names, index=_index(pd, t, zone.known))
+    if "idle_sleep" in names and rs is None:
+        df["idle_sleep"] = df["idle_sleep"] > 0
     df.attrs.update({"path": str(path), "device": info.device_key, "timezone": zone.label,
                      "rate_hz": float(resample) if resample else info.sample_rate_nominal,
                      "calibration": est.to_dict() if est is not None else None})

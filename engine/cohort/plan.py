@@ -39,7 +39,7 @@ from stillpoint.drivers.outputs import OutputError, atomic_output
 
 HEADER_BYTES = 8192  # .cwa header (1 KiB) + first data sectors; GENEActiv's text header (~3 KiB)
 KEY_FORMAT = 1  # bump when what goes into a key changes
-RECORDING_SUFFIXES = (".cwa", ".cwa.gz", ".bin", ".bin.gz")
+RECORDING_SUFFIXES = (".cwa", ".cwa.gz", ".bin", ".bin.gz", ".gt3x")
 MANIFEST = "manifest.csv"
 PLAN_FILE = "cohort.json"
 FILES_DIR = "files"
@@ -133,7 +133,7 @@ def _read_manifest_csv(path: Path, attributes: Optional[dict] = None) -> list[Pa
 
 
 def discover_inputs(inputs: Iterable, attributes: Optional[dict] = None) -> list[Path]:
-    """Files, folders (searched recursively for .cwa/.cwa.gz/.bin/.bin.gz, any case) and manifest
+    """Files, folders (searched recursively for .cwa/.cwa.gz/.bin/.bin.gz/.gt3x, any case) and manifest
     CSVs -> absolute paths, sorted, each once. A name on the command line that does not exist is
     an error; a file listed in a manifest that does not exist is kept (it fails as unreadable).
     ``attributes``: a dict that receives the manifests' per-file ``timezone`` / ``participant``

@@ -38,6 +38,7 @@ class QCEvent:
     detail: str = ""  # human-readable specifics
     time_ns: Optional[int] = None  # data time near the event, when known
     samples: int = 0  # samples dropped with this unit (0 when nothing was dropped)
+    end_ns: Optional[int] = None  # end of an event that lasts (ActiGraph idle sleep), exclusive
 
     def as_dict(self) -> dict:
         d = {"index": self.index, "reason": self.reason}
@@ -47,6 +48,8 @@ class QCEvent:
             d["time_ns"] = self.time_ns
         if self.samples:
             d["samples"] = self.samples
+        if self.end_ns is not None:
+            d["end_ns"] = self.end_ns
         return d
 
 
@@ -213,6 +216,20 @@ class Block:
             events=cat([b.events for b in blocks]),
             per_sample={k: cat([b.per_sample[k] for b in blocks]) for k in b0.per_sample},
         )
+
+
+def without_idle_sleep(block: Block) -> Block:
+    """The block without its idle-sleep samples (an ActiGraph repeats its last sample while it
+    sleeps: a flat stretch that was never measured). The block itself when it has none."""
+    idle = block.per_sample.get(PER_SAMPLE_IDLE_SLEEP)
+    if idle is None or not idle.any():
+        return block
+    edge = np.diff(np.concatenate([[0], (idle == 0).astype(np.int8), [0]]))
+    runs = list(zip(np.flatnonzero(edge == 1).tolist(), np.flatnonzero(edge == -1).tolist()))
+    if not runs:
+        return block.slice(0, 0)
+    parts = [block.slice(a, b) for a, b in runs]
+    return parts[0] if len(parts) == 1 else Block.concat(parts)
 
 
 COALESCE_S = 600.0  # the longest run of blocks joined by coalesce_blocks (10 min of data)

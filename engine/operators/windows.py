@@ -8,6 +8,10 @@ temperatures) the window's sum is taken per unit (value times samples), the same
 ``min_fill`` of its nominal sample count (``window_s * rate_hz``), so the short tail of a segment
 does not enter the fit; ``min_fill=0`` emits every window.
 
+Samples an ActiGraph flags as idle sleep (``per_sample["idle_sleep"]``: its last sample repeated
+while it slept) are left out before the windows are cut: a flat, unmeasured stretch is never a
+still window of the calibration.
+
 The statistics of a window are computed on the contiguous samples of that window alone, so the
 table is bit-identical however the input was cut. Integer counts (every device reader) are summed
 exactly (sum and sum of squares of integers held in float64, ``n*S2 - S1**2`` for the variance)
@@ -20,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.blocks import Block
+from ..core.blocks import Block, without_idle_sleep
 from ..features import WindowFeatures
 from .base import accel_g_columns, ring_capacity
 from .binning import BinChunk, TimeBinner
@@ -188,6 +192,10 @@ class WindowFeaturesOperator:
         return out.T
 
     def push(self, block: Block) -> WindowFeatures:
+        # idle sleep (ActiGraph: the last sample repeated while the device slept) is never a
+        # still window: its samples are left out, so a window holding them has fewer samples
+        # (and falls under min_fill when mostly idle)
+        block = without_idle_sleep(block)
         if block.n == 0:
             return WindowFeatures.empty()
         if block.segment not in self._scales:

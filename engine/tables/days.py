@@ -229,4 +229,5 @@ class DayAccumulator:
 
 def _slice(r: EpochRows, a: int, b: int) -> EpochRows:
     from dataclasses import fields
-    return EpochRows(**{f.name: getattr(r, f.name)[a:b] for f in fields(EpochRows)})
+    return EpochRows(**{f.name: (None if getattr(r, f.name) is None else getattr(r, f.name)[a:b])
+                        for f in fields(EpochRows)})

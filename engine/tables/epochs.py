@@ -10,6 +10,8 @@ batches, the epoch metrics) and returns ``EpochRows`` once every part of a row i
 * ``gap``: fewer than half the epoch's nominal samples (no data at all: values are empty);
 * ``qc``: the epoch holds samples of a sector/page the reader kept but flagged (see
   ``QC_FLAGGED_REASONS``);
+* ``idle_sleep`` (ActiGraph only): the share of the epoch's samples the device spent in idle sleep
+  (its last sample repeated; engine/operators/windows.py keeps them out of the calibration);
 * ``filter_warmup``: the epoch starts within the BFEN filter's start-up time after a segment start
   (the time its response to a 1 g step needs to fall below 1 mg).
 
@@ -21,10 +23,11 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass, fields
-from typing import Iterator
+from typing import Iterator, Optional
 
 import numpy as np
 
+from ..core.blocks import PER_SAMPLE_IDLE_SLEEP
 from ..operators.anglez import AnglezOperator
 from ..operators.filters import SosStream, bandpass_sos
 from ..operators.nonwear import NonwearOperator, NonwearWindows
@@ -63,6 +66,9 @@ class EpochRows:
     gap: np.ndarray
     qc: np.ndarray
     filter_warmup: np.ndarray
+    # share of the epoch's samples an ActiGraph spent in idle sleep (its last sample repeated);
+    # None for sources without idle sleep
+    idle_sleep: Optional[np.ndarray] = None
 
     def __len__(self) -> int:
         return int(self.start_ns.shape[0])
@@ -78,9 +84,13 @@ class EpochRows:
         if not parts:
             return EpochRows(**{f.name: np.zeros(0, np.int64 if f.name in ("start_ns", "n") else
                                                  (bool if f.name in FLAGS else np.float64))
-                                for f in fields(EpochRows)})
+                                for f in fields(EpochRows) if f.name != "idle_sleep"})
+        idle = None
+        if any(p.idle_sleep is not None for p in parts):
+            idle = np.concatenate([p.idle_sleep if p.idle_sleep is not None else np.zeros(len(p))
+                                   for p in parts])
         return EpochRows(**{f.name: np.concatenate([getattr(p, f.name) for p in parts])
-                            for f in fields(EpochRows)})
+                            for f in fields(EpochRows) if f.name != "idle_sleep"}, idle_sleep=idle)
 
 
 FLAGS = ("nonwear", "clipping", "gap", "qc", "filter_warmup")
@@ -141,6 +151,7 @@ class EpochAssembler:
         self._qc_seen = 0
         self._qc_intervals: list[tuple[int, int]] = []
         self._qc_units: list[tuple[int, int]] = []  # flagged unit ranges not yet placed in time
+        self._idle = None  # ActiGraph: (epoch indices, idle-sleep sample counts); None: no idle sleep
 
     # ------------------------------------------------------------------ inputs
     def _take_metrics(self, m) -> None:
@@ -180,6 +191,13 @@ class EpochAssembler:
     def _take_block(self, block) -> None:
         if block is None or block.m == 0:
             return
+        idle = block.per_sample.get(PER_SAMPLE_IDLE_SLEEP)
+        if idle is not None:
+            if self._idle is None:
+                self._idle = (np.zeros(0, np.int64), np.zeros((0, 1)))
+            if idle.any():
+                e, c = np.unique(block.time_ns[idle != 0] // self.epoch_ns, return_counts=True)
+                self._idle = fold_sums(*self._idle, e.astype(np.int64), c[:, None].astype(np.float64))
         ends = np.append(block.unit_start[1:], block.n) - 1
         self._units.append((block.unit_index.copy(), block.time_ns[block.unit_start].copy(),
                             block.time_ns[ends].copy()))
@@ -286,8 +304,14 @@ class EpochAssembler:
         for a0, a1 in self._warmups:
             warm |= (start < a1) & (end > a0)
         gap = n < GAP_FILL * self.nominal
+        idle = None
+        if self._idle is not None:
+            idle = np.zeros(m)
+            at, c = sums_between(*self._idle, lo, hi)
+            idle[at] = c[:, 0]
+            idle = np.where(n > 0, idle / np.maximum(n, 1), np.nan)
         return EpochRows(start, n, vals[:, 1], vals[:, 2], vals[:, 3], ang, vals[:, 4], nonwear,
-                         clipping, gap, qc, warm)
+                         clipping, gap, qc, warm, idle)
 
     def _window_flags(self, wi: np.ndarray) -> np.ndarray:
         """(2, k): nonwear and clipping of the medium windows ``wi`` (False for windows not seen)."""
@@ -304,6 +328,8 @@ class EpochAssembler:
         w = t // self.medium_ns
         self._metrics = tuple(x[self._metrics[0] >= stop] for x in self._metrics)
         self._angle = tuple(x[self._angle[0] >= stop] for x in self._angle)
+        if self._idle is not None:
+            self._idle = tuple(x[self._idle[0] >= stop] for x in self._idle)
         self._windows = tuple(x[self._windows[0] >= w] for x in self._windows)
         self._warmups = [x for x in self._warmups if x[1] > t] or self._warmups[-1:]
         self._qc_intervals = [x for x in self._qc_intervals if x[1] > t - 3600 * 10**9]

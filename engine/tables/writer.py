@@ -8,7 +8,8 @@ Epoch table columns: ``time_utc`` (ISO 8601, ``Z``; only when the zone is known:
 a recording whose zone is unknown has no UTC column), ``time_local`` (ISO 8601 with the offset
 in force, or without offset when the zone is unknown: the device clock), ``n`` (samples),
 ``enmo_mg``, ``bfen_mg``, ``mad_mg``, ``anglez_deg``, ``temperature_c`` (empty without data),
-then the flags ``nonwear``, ``clipping``, ``gap``, ``qc``, ``filter_warmup`` (0/1). Times are
+then the flags ``nonwear``, ``clipping``, ``gap``, ``qc``, ``filter_warmup`` (0/1), and for an
+ActiGraph ``.gt3x`` ``idle_sleep`` (share of the epoch's samples in idle sleep). Times are
 epoch starts. With activity outcomes (``TablesSettings.outcomes``: a cut-point set, steps) the
 epoch table ends with their columns (``engine.outcomes.daily``); rows then wait until the step
 counter has decided every step before their end (at most about twice its horizon). With sleep on
@@ -110,8 +111,9 @@ def _offset_text(off_s: np.ndarray) -> np.ndarray:
     return out.astype(str)
 
 
-def format_rows(rows: EpochRows, zone: Zone, epoch_ns: int, extra=()) -> str:
-    """The rows as CSV text; ``extra``: more columns (lists of cell text), appended."""
+def format_rows(rows: EpochRows, zone: Zone, epoch_ns: int, extra=(), idle: bool = False) -> str:
+    """The rows as CSV text; ``extra``: more columns (lists of cell text), appended; ``idle``:
+    the ``idle_sleep`` column after the flags (an ActiGraph source)."""
     if not len(rows):
         return ""
     unit = "s" if epoch_ns % 10**9 == 0 else "ms"
@@ -128,6 +130,9 @@ def format_rows(rows: EpochRows, zone: Zone, epoch_ns: int, extra=()) -> str:
         cols.append(_num(getattr(rows, name), _DECIMALS[name]))
     for f in FLAGS:
         cols.append(_flag(getattr(rows, f)))
+    if idle:
+        v = rows.idle_sleep if rows.idle_sleep is not None else np.zeros(len(rows))
+        cols.append(_num(v, 4))
     cols.extend(extra)
     return "\n".join(map(",".join, zip(*cols))) + "\n"
 
@@ -168,7 +173,9 @@ class TablesTap:
         self._out = AtomicOutput(ts.epochs_path, what="epoch table")
         self._gz = gzip.GzipFile(filename="", mode="wb", fileobj=self._out.file, mtime=0,
                                  compresslevel=GZIP_LEVEL)
-        head = epoch_columns(ts.zone) + (self.outcomes.epoch_columns() if self.outcomes else []) \
+        self.idle = getattr(info, "device_type", None) == "ActiGraph"  # idle_sleep column
+        head = epoch_columns(ts.zone) + (["idle_sleep"] if self.idle else []) \
+            + (self.outcomes.epoch_columns() if self.outcomes else []) \
             + (self.sleep.columns if self.sleep is not None else [])
         self._gz.write((",".join(head) + "\n").encode())
         self.rows = 0
@@ -266,7 +273,7 @@ class TablesTap:
         if self.sleep is not None:
             items = self.sleep.feed(items, final)
         for r, x, c in items:
-            self._gz.write(format_rows(r, self.ts.zone, self.epoch_ns, x).encode())
+            self._gz.write(format_rows(r, self.ts.zone, self.epoch_ns, x, idle=self.idle).encode())
             self.days.push(r, steps=c)
 
     def push(self, block, batches, metrics) -> None:

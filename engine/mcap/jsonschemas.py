@@ -93,7 +93,6 @@ QC = _schema("stillpoint.QcEvent", "Reader or engine event", {
     "detail": _str("one line for humans"),
     "time_ns": _int("data time of the event, ns since the Unix epoch (UTC)"),
     "samples": _int("samples affected"),
-    "end_ns": _int("end of an event that lasts (ActiGraph idle sleep), ns since the Unix epoch (UTC), exclusive"),
     "segment": _int("segment number"),
     "status": _str("calibration status (reason = calibration)"),
     "applied": {"type": "boolean"},

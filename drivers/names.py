@@ -84,3 +84,21 @@ def cell_text(v, decimals: int = 4) -> str:
 def csv_row(values) -> list:
     """``csv_cell`` over a row (a list of cells)."""
     return [csv_cell(v) for v in values]
+
+
+# the file-name endings of the inputs we read (a trailing .gz first): ``recording_stem``
+RECORDING_SUFFIXES = (".cwa", ".bin", ".gt3x", ".mcap")
+
+
+def recording_stem(path) -> str:
+    """A recording's file name without its format's ending, the default participant id:
+    ``P04_tiny.cwa.gz`` -> ``P04_tiny``, ``week.bin`` -> ``week``, ``a.b.cwa`` -> ``a.b``; a
+    name with another ending is kept whole (``notes.txt``, with only its ``.gz`` dropped)."""
+    name = Path(path).name
+    low = name.lower()
+    if low.endswith(".gz") and len(name) > 3:
+        name, low = name[:-3], low[:-3]
+    for suffix in RECORDING_SUFFIXES:
+        if low.endswith(suffix) and len(name) > len(suffix):
+            return name[:-len(suffix)]
+    return name

@@ -251,6 +251,9 @@ def _progress_wrapper(progress, label):
     return lambda st: progress(label, st)
 
 
+QC_DETAILS = 10  # QC events described in the run summary (all are counted, and logged on /qc)
+
+
 def _qc_summary(source) -> dict:
     qc = getattr(source, "qc", None)
     if qc is None:
@@ -262,6 +265,10 @@ def _qc_summary(source) -> dict:
     for e in events:
         reasons[e["reason"]] = reasons.get(e["reason"], 0) + 1
     d["reasons"] = reasons
+    # what was wrong, in the reader's words, for the tables a study reads (the cohort summary):
+    # the first QC_DETAILS events that carry a description
+    d["details"] = [f"{e['reason']} at {d.get('unit', 'unit')} {e['index']}: {e['detail']}"
+                    for e in events if e.get("detail")][:QC_DETAILS]
     return d
 
 

@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import Optional
 
 from stillpoint.drivers.byteio import sha256_file
-from stillpoint.drivers.names import cell_text, csv_cell
+from stillpoint.drivers.names import cell_text, csv_cell, recording_stem
 from stillpoint.drivers.outputs import atomic_output
 
 from .job import DONE, FAILED, MCAP_NAME, RUNNING, SUMMARY_NAME, paths
@@ -60,14 +60,14 @@ SUMMARY_FIELDS = (
     "participant", "file", "key", "device_type", "device_id", "session", "rate_hz", "timezone",
     "start_utc", "end_utc", "start_local", "end_local",
     "duration_h", "samples", "segments", "qc_unit", "qc_total", "qc_valid", "qc_skipped",
-    "qc_events", "windows", "nonmovement_windows", "calibration_status", "calibration_applied",
+    "qc_events", "qc_detail", "windows", "nonmovement_windows", "calibration_status", "calibration_applied",
     "calibration_reason", "error_before_mg", "error_after_mg", "hours_used",
     "offset_x", "offset_y", "offset_z", "scale_x", "scale_y", "scale_z",
     "tempoffset_x", "tempoffset_y", "tempoffset_z", "temperature_ref",
     "wear_time_h", "nonwear_h", "valid_days", "enmo_mean_mg", "mad_mean_mg",
     "enmo_all_epochs_mg", "BANDS", "mvpa_bout_min", "m10_mg", "l5_mg",
     "mcap", "summary", "epochs", "days", "folder", "wall_s", "peak_rss_mb", "finished_utc")
-PARTICIPANT_FIELDS = ("participant", "files", "valid_days", "valid_weekdays",
+PARTICIPANT_FIELDS = ("participant", "files", "shared_dates", "valid_days", "valid_weekdays",
                       "valid_weekend_days", "wear_time_h", "enmo_mean_mg", "mad_mean_mg",
                       "BANDS", "mvpa_bout_min", "m10_mg", "l5_mg", "timezones")
 FAILURE_FIELDS = ("file", "key", "class", "error", "attempts", "time_utc", "folder")
@@ -96,6 +96,19 @@ def _fields(base, bands) -> list:
     return out
 
 
+QC_DETAIL_SHOWN = 3  # QC events described in a summary row's qc_detail (summary.json has more)
+
+
+def _qc_detail(qc: dict) -> str:
+    """What the reader found wrong with a file it could still read (a truncated gzip stream, a
+    bad checksum), for the ``qc_detail`` cell: the first few descriptions, then how many more
+    events there were."""
+    details = [str(x) for x in (qc.get("details") or [])][:QC_DETAIL_SHOWN]
+    more = int(qc.get("events") or 0) - len(details)
+    return "; ".join(details) + (f" (+{more} more event(s), in summary.json and on /qc)"
+                                 if details and more > 0 else "")
+
+
 def summary_row(entry, final: Path, done: dict, summary: dict) -> dict:
     from stillpoint.engine.settings import APPLIED_STATUSES
     from stillpoint.engine.timezones import ZoneError, local_text, utc_text, zone_from_label
@@ -109,7 +122,7 @@ def summary_row(entry, final: Path, done: dict, summary: dict) -> dict:
     day = _file_table(summary)
     outs = summary.get("outputs") or {}
     row = {
-        "participant": summary.get("participant") or entry.participant or Path(entry.path).name,
+        "participant": summary.get("participant") or entry.participant or recording_stem(entry.path),
         "file": entry.path, "key": entry.key, "folder": str(final),
         "device_type": dev.get("type"), "device_id": dev.get("id"), "session": dev.get("session"),
         "rate_hz": dev.get("rate_hz"), "timezone": zone.label,
@@ -121,6 +134,7 @@ def summary_row(entry, final: Path, done: dict, summary: dict) -> dict:
         "segments": summary.get("segments"),
         "qc_unit": qc.get("unit"), "qc_total": qc.get("total"), "qc_valid": qc.get("valid"),
         "qc_skipped": qc.get("skipped"), "qc_events": qc.get("events"),
+        "qc_detail": _qc_detail(qc),
         "windows": summary.get("windows"), "nonmovement_windows": summary.get("nonmovement_windows"),
         "calibration_status": cal.get("status"),
         "calibration_applied": cal.get("status") in APPLIED_STATUSES,
@@ -137,6 +151,7 @@ def summary_row(entry, final: Path, done: dict, summary: dict) -> dict:
         "days": str(final / outs["days"]) if outs.get("days") else None,
         "wall_s": (done.get("timings") or {}).get("wall_s"), "peak_rss_mb": done.get("peak_rss_mb"),
         "finished_utc": (done.get("timings") or {}).get("finished_utc"),
+        "_span_ns": (summary.get("start_ns"), summary.get("end_ns")),  # not a column
     }
     if summary.get("mode") == "online":  # several estimates: applied = the final one was
         row["calibration_applied"] = any(x.get("applied") for x in summary.get("estimates") or [])
@@ -182,6 +197,7 @@ class Collation:
     participants: list = field(default_factory=list)
     nights_csv: Optional[Path] = None
     nights: list = field(default_factory=list)
+    warnings: list = field(default_factory=list)  # one line each, for the user
 
 
 _WEEKDAYS = ("Mon", "Tue", "Wed", "Thu", "Fri", "Sat", "Sun")
@@ -218,17 +234,51 @@ def _num(v) -> Optional[float]:
     return x if x == x else None
 
 
-def participant_rows(rows: list, days: list, bands: list) -> list:
+def _one_row_per_date(days: list) -> tuple[list, list]:
+    """(rows, dates in several files) of one participant's day rows: a date that more than one
+    file covers (overlapping files, or one file ending the day another starts) is taken once,
+    from the file with the most clean wear that day (a valid day before an invalid one)."""
+    best: dict = {}
+    files: dict = {}
+    for d in days:
+        k = d.get("date")
+        files.setdefault(k, set()).add(d.get("file"))
+        rank = (d.get("valid_day") == "1", _num(d.get("wear_hours")) or 0.0)
+        if k not in best or rank > best[k][0]:
+            best[k] = (rank, d)
+    return [best[k][1] for k in sorted(best)], sorted(k for k, f in files.items() if len(f) > 1)
+
+
+def _overlapping(files: list) -> list:
+    """Pairs of a participant's files whose recordings overlap in time (the same device and
+    session downloaded twice, or two devices worn together)."""
+    spans = sorted((r["_span_ns"], r["file"]) for r in files
+                   if all(isinstance(x, int) for x in r.get("_span_ns") or (None,)))
+    return [(a[1], b[1]) for i, a in enumerate(spans) for b in spans[i + 1:]
+            if b[0][0] < a[0][1]]
+
+
+def participant_rows(rows: list, days: list, bands: list, warnings: Optional[list] = None) -> list:
     """One row per participant from the file rows and the stacked day rows: valid days (also
     split into weekdays and weekend days, by the local date), wear hours, ENMO/MAD over every
     clean epoch of their files (wear-weighted means of the files'), and the band minutes, MVPA
-    and M10/L5 averaged over their valid days."""
+    and M10/L5 averaged over their valid days. Each date counts once (``_one_row_per_date``);
+    files that overlap in time add a line to ``warnings``."""
     out = []
     for who in sorted({r["participant"] for r in rows}):
         files = [r for r in rows if r["participant"] == who]
-        valid = [d for d in days if d["participant"] == who and d.get("valid_day") == "1"]
-        wear = sum(_num(r.get("wear_time_h")) or 0.0 for r in files)
-        p = {"participant": who, "files": len(files), "valid_days": len(valid),
+        own, shared = _one_row_per_date([d for d in days if d["participant"] == who])
+        valid = [d for d in own if d.get("valid_day") == "1"]
+        wear = (sum(_num(d.get("wear_hours")) or 0.0 for d in own) if own else
+                sum(_num(r.get("wear_time_h")) or 0.0 for r in files))
+        pairs = _overlapping(files)
+        if warnings is not None and pairs:
+            warnings.append(
+                f"participant {who}: " + "; ".join(f"{a} and {b} overlap in time" for a, b in pairs)
+                + f": each of the {len(shared)} shared date(s) is counted once, from the file "
+                  "with the most wear that day")
+        p = {"participant": who, "files": len(files), "shared_dates": len(shared),
+             "valid_days": len(valid),
              "valid_weekdays": sum(d["weekday"] not in ("Sat", "Sun") for d in valid),
              "valid_weekend_days": sum(d["weekday"] in ("Sat", "Sun") for d in valid),
              "wear_time_h": wear,
@@ -311,7 +361,7 @@ def collate(outdir, *, verify: bool = False, write: bool = True) -> Collation:
     bands = [c for c in day_cols if _is_band(c)]
     if not bands:
         bands = sorted({k for r in kept for k in r if _is_band(k)})
-    out.participants = participant_rows(kept, days, bands)
+    out.participants = participant_rows(kept, days, bands, out.warnings)
     if write:
         out.summary_csv = _write_csv(outdir / SUMMARY_CSV, _fields(SUMMARY_FIELDS, bands), out.rows)
         out.days_csv = _write_csv(outdir / DAYS_CSV,

@@ -47,6 +47,7 @@ from typing import Optional
 
 from stillpoint.drivers.byteio import sha256_file
 from stillpoint.drivers.errors import StillpointError
+from stillpoint.drivers.names import recording_stem
 from stillpoint.drivers.outputs import atomic_output, fsync_folder
 
 from ..core.malloc import set_block_thresholds
@@ -314,7 +315,7 @@ def run_job(entry: dict, outdir: str, settings: dict, code: str, attempt: int = 
             rss = peak_rss_mb()
             summary = {k: v for k, v in summary.items() if k not in _VOLATILE}
             summary["participant"] = entry.get("participant") or _subject_code(tmp / MCAP_NAME) \
-                or Path(path).name
+                or recording_stem(path)
             summary["outputs"] = {"mcap": MCAP_NAME}
             if "tables" in summary:  # names inside the folder, not the temporary path
                 for k in ("epochs", "days"):

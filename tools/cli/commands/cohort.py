@@ -150,6 +150,8 @@ def _execute(args, plan, outdir: Path, retry_classes=(), collate_after=True) -> 
         print(f"summary: {col.summary_csv} ({len(col.rows)} file(s)); days: {col.days_csv}; "
               f"participants: {col.participants_csv} ({len(col.participants)}); failures: "
               f"{col.failures_csv} ({len(col.failures)})", file=sys.stderr)
+        for w in col.warnings:
+            print(f"warning: {w}", file=sys.stderr)
         n_failed = len(col.failures)
     else:
         print("shard finished; when every shard is done: stillpoint cohort collate "
@@ -232,6 +234,8 @@ def _collate(args) -> int:
     print(f"failures: {col.failures_csv} ({len(col.failures)} file(s))")
     if col.pending:
         print(f"pending: {col.pending} file(s) not processed yet")
+    for w in col.warnings:
+        print(f"warning: {w}", file=sys.stderr)
     return 0
 
 

@@ -266,9 +266,11 @@ def _qc_summary(source) -> dict:
         reasons[e["reason"]] = reasons.get(e["reason"], 0) + 1
     d["reasons"] = reasons
     # what was wrong, in the reader's words, for the tables a study reads (the cohort summary):
-    # the first QC_DETAILS events that carry a description
-    d["details"] = [f"{e['reason']} at {d.get('unit', 'unit')} {e['index']}: {e['detail']}"
-                    for e in events if e.get("detail")][:QC_DETAILS]
+    # the first QC_DETAILS events that carry a description (no key when there are none)
+    details = [f"{e['reason']} at {d.get('unit', 'unit')} {e['index']}: {e['detail']}"
+               for e in events if e.get("detail")][:QC_DETAILS]
+    if details:
+        d["details"] = details
     return d
 
 

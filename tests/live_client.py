@@ -34,10 +34,11 @@ STATUS = {0: "playing", 1: "paused", 2: "buffering", 3: "ended"}
 
 
 class LiveClient:
-    def __init__(self, port: int, host: str = "127.0.0.1", timeout: float = 10.0):
+    def __init__(self, port: int, host: str = "127.0.0.1", timeout: float = 10.0,
+                 subprotocols=SUBPROTOCOLS):
         from websockets.sync.client import connect
         self.closed = False
-        self.ws = connect(f"ws://{host}:{port}", subprotocols=SUBPROTOCOLS, open_timeout=timeout,
+        self.ws = connect(f"ws://{host}:{port}", subprotocols=list(subprotocols), open_timeout=timeout,
                           max_size=None).__enter__()  # open as long as the client (close())
         self.subprotocol = self.ws.subprotocol
         self.server_info = None

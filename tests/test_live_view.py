@@ -257,3 +257,36 @@ def test_view_command_serves_until_interrupted(logged, tmp_path):
         p.send_signal(signal.SIGINT)
         rc = p.wait(30)
     assert rc == 0, p.stderr.read()
+
+
+def test_view_serves_clients_that_speak_only_foxglove_websocket_v1(logged, caplog):
+    """Older Foxglove and Lichtblick offer only the protocol's first name; the front renames it
+    both ways and the session is the same. A client offering neither name is refused and the
+    log says why."""
+    LiveClient, RecordingPlayer = _sdk()
+    import logging
+    from websockets.exceptions import InvalidStatus
+    with open(logged, "rb") as f:
+        n_chans = len(read_channels(f))
+    player = RecordingPlayer(logged, port=0, speed=5000)
+    try:
+        c = LiveClient(player.port, subprotocols=["foxglove.websocket.v1"])
+        assert c.subprotocol == "foxglove.websocket.v1"
+        c.pump(5.0, until=lambda: len(c.channels) == n_chans)
+        assert c.server_info and c.server_info["name"].startswith("stillpoint view")
+        c.subscribe()
+        c.pump(30.0, until=lambda: sum(len(v) for v in c.messages.values()) > 10)
+        assert sum(len(v) for v in c.messages.values()) > 10
+        c.close()
+        with caplog.at_level(logging.WARNING, logger="stillpoint.live"):
+            with pytest.raises(InvalidStatus):
+                LiveClient(player.port, subprotocols=["ros.bridge.v9"])
+            deadline = time.monotonic() + 5
+            while time.monotonic() < deadline and not any(
+                    "ros.bridge.v9" in r.getMessage() for r in caplog.records):
+                time.sleep(0.05)
+        msgs = [r.getMessage() for r in caplog.records if r.name == "stillpoint.live"]
+        assert any("offers the subprotocol(s) ros.bridge.v9" in m and "foxglove.websocket.v1" in m
+                   for m in msgs), msgs
+    finally:
+        player.stop()

@@ -34,7 +34,8 @@ def start(fg, ctx, what: str, *, port: int, host: str = "127.0.0.1", listener=No
           layout: Optional[Callable[[], str]] = None, time_range=None, capabilities=(),
           backlog: Optional[int] = None):
     """A WebSocket server on ``host:port`` (0: any free port) for the channels of ``ctx`` (an
-    ``fg.Context()``). With a ``time_range`` (playback) the channels must exist before the
+    ``fg.Context()``): the SDK's server on a loopback port behind the front that also accepts
+    ``foxglove.websocket.v1`` clients (engine/live/subprotocol.py). With a ``time_range`` (playback) the channels must exist before the
     server starts: the SDK advertises later ones only to a server without one."""
 
     def assets(uri: str):
@@ -42,11 +43,20 @@ def start(fg, ctx, what: str, *, port: int, host: str = "127.0.0.1", listener=No
             return layout().encode()
         return None
 
+    from .subprotocol import FrontedServer, ProtocolFront
+    try:  # the user's address is the front's (engine/live/subprotocol.py): first, so a port in
+        # use is refused before the SDK starts
+        front = ProtocolFront(host, port, what=f"stillpoint {what}")
+    except (OSError, ValueError, OverflowError) as e:
+        raise LiveUnavailable(f"cannot serve {what} on {host}:{port}: "
+                              f"{getattr(e, 'strerror', None) or e}") from None
     try:
-        server = fg.start_server(name=f"stillpoint {what}", host=host, port=port, context=ctx,
+        server = fg.start_server(name=f"stillpoint {what}", host="127.0.0.1", port=0, context=ctx,
                                  server_listener=listener, asset_handler=assets,
                                  playback_time_range=time_range, capabilities=list(capabilities),
                                  message_backlog_size=backlog)
-    except Exception as e:  # the SDK raises its own error types (a port in use, a bad host)
+    except Exception as e:  # the SDK raises its own error types
+        front.close()
         raise LiveUnavailable(f"cannot serve {what} on {host}:{port}: {e}") from None
-    return server
+    front.start(server.port)
+    return FrontedServer(server, front)

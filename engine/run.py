@@ -278,7 +278,7 @@ def _qc_summary(source) -> dict:
 def process_file(path, out, settings: Optional[RunSettings] = None, *,
                  progress: Optional[Callable[[str, PipelineStats], None]] = None,
                  writer: Optional[str] = None, source_options: Optional[dict] = None,
-                 tables=None, metadata: Optional[dict] = None,
+                 tables=None, metadata=None,
                  prefetch: Optional[bool] = None) -> dict:
     """Process one recording into ``out`` (MCAP); return the run summary (see module docstring).
 
@@ -287,7 +287,8 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
     or "online"). ``tables``: an ``engine.tables.TablesSettings`` to write the epoch and day
     tables during the output pass. ``metadata``: extra MCAP metadata records
     ``{name: {key: str}}`` written with the summary (e.g. the download station's clock offset,
-    host time zone and station id). ``prefetch``: read and decode the next blocks on a thread
+    host time zone and station id), or a function that returns them, called when they are
+    written (the station's record of what its verification repaired). ``prefetch``: read and decode the next blocks on a thread
     while the engine works (engine/core/prefetch.py; the logs are the same); default:
     ``PREFETCH_BY_MODE``, where the process may use more than one core.
     """
@@ -480,7 +481,7 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
             sink.write_qc({"source": "engine", "reason": "clipping",
                            "detail": outst.clipping.describe(), **outst.clipping.as_dict()},
                           st.last_ns or 0)
-        for name, values in (metadata or {}).items():
+        for name, values in ((metadata() if callable(metadata) else metadata) or {}).items():
             sink.write_metadata(name, {str(k): str(v) for k, v in values.items()})
         sink.write_metadata("calibration", {"json": final.to_json()})
         sink.write_metadata("summary", {k: v for k, v in summary.items() if k != "wall_s"})

@@ -42,7 +42,7 @@ def runtime(tmp_path, monkeypatch):
 def emu(tmp_path, runtime):
     made = []
 
-    def make(device_id=10001, kind="AX3", faults=(), plug=True, **kw):
+    def make(device_id=10001, kind="AX3", faults=(), plug=True, pty=False, **kw):
         kw.setdefault("days", DAYS)
         kw.setdefault("remount_s", 0.05)
         kw.setdefault("replug_s", 0.3)
@@ -50,7 +50,7 @@ def emu(tmp_path, runtime):
                            slot=f"emu-{len(made) + 1}", **kw)
         made.append(d)
         if plug:
-            d.plug()
+            d.plug(pty=pty)  # pty: a pseudo-terminal port other processes open
         return d
 
     yield make

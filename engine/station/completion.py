@@ -84,12 +84,13 @@ def place_log(pending: Path, final: Path) -> bool:
 
 def complete(ledger, download_id: int, *, cwa_path, mcap_path, sha256: str, bytes_: int,
              bad_sectors: int, summary: Optional[dict] = None, with_log: bool = True,
-             reason: Optional[str] = None) -> None:
+             reason: Optional[str] = None, reread_ranges: int = 0, patched_ranges: int = 0) -> None:
     """Record the verified copy and rename its files into place (module docstring)."""
     final = Path(cwa_path)
     ledger.download_completing(download_id, bytes_=bytes_, sha256=sha256, bad_sectors=bad_sectors,
                                cwa_path=str(final), mcap_path=str(mcap_path) if mcap_path else None,
-                               summary=summary)
+                               summary=summary, reread_ranges=reread_ranges,
+                               patched_ranges=patched_ranges)
     place_raw(part_of(final), final, sha256)
     kill_point("completion:raw-renamed")
     if with_log and mcap_path:

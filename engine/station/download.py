@@ -25,7 +25,9 @@ when the ledger says so. Steps:
    agreed bytes (a read error damages a sector; a device that writes writes whole, valid sectors):
    those ranges of the copy are patched. Any other difference means the device's data changed
    between the reads: the result is ``changed`` and the device must not be cleared. After a patch
-   the corrected log is rebuilt from the patched copy.
+   the corrected log is rebuilt from the patched copy. The ranges read again and patched are in
+   the result (``reread_ranges``, ``patched_ranges``) and in the log's ``station`` record
+   (``repairs_record``; the pipeline writes its metadata last, once the verification is done).
 5. A final copy that is already there and has no ledger row (a station killed between its rename
    and its ledger write, in older versions) is adopted when it equals the device, range by range.
 
@@ -113,6 +115,32 @@ class DownloadResult:
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+
+def repairs_text(reread_ranges: int, patched_ranges: int) -> str:
+    """What the verification repaired, in words ("" when it read nothing again): "1 range
+    re-read, copy patched"; "1 range re-read, copy confirmed" (the verification read was the
+    misread one); "3 ranges re-read, 2 patched"."""
+    if not reread_ranges:
+        return ""
+    head = f"{reread_ranges} range{'s' if reread_ranges != 1 else ''} re-read"
+    if patched_ranges == 0:
+        return f"{head}, copy confirmed"
+    if patched_ranges == reread_ranges:
+        return f"{head}, copy patched"
+    return f"{head}, {patched_ranges} patched"
+
+
+def repairs_record(reread_ranges: int, patched_ranges: int) -> dict:
+    """The repair keys of the log's ``station`` record (MCAP metadata values are strings)."""
+    return {"reread_ranges": str(int(reread_ranges)), "patched_ranges": str(int(patched_ranges)),
+            "repairs": repairs_text(reread_ranges, patched_ranges) or "none"}
+
+
+def _with_repairs(metadata: dict, reread_ranges: int, patched_ranges: int) -> dict:
+    out = {k: dict(v) for k, v in (metadata or {}).items()}
+    out.setdefault("station", {}).update(repairs_record(reread_ranges, patched_ranges))
+    return out
 
 
 def _range_hash(b: bytes) -> bytes:
@@ -227,6 +255,8 @@ class _Pipeline:
         self.summary: Optional[dict] = None
         self.error: Optional[str] = None
         self.finished_at: Optional[float] = None
+        self.verified = threading.Event()  # the verification is done: ``repairs`` is known
+        self.repairs = (0, 0)  # (ranges re-read, ranges patched)
         self.thread = threading.Thread(target=self._run, name=f"pipeline-{job.stem}", daemon=True)
 
     def copy_done(self) -> bool:
@@ -234,9 +264,18 @@ class _Pipeline:
             raise DownloadAborted(self.failed)
         return self.done.is_set()
 
+    def _metadata(self) -> dict:
+        """The log's metadata records, written last: its ``station`` record says what the
+        verification re-read and patched, so the pipeline waits for the verification here."""
+        while not self.verified.wait(0.2):
+            if self.failed:
+                raise DownloadAborted(self.failed)
+        return _with_repairs(self.job.metadata, *self.repairs)
+
     def _run(self) -> None:
         try:
-            self.summary = run_pipeline(self.part, self.log, self.job, follow=self.copy_done)
+            self.summary = run_pipeline(self.part, self.log, self.job, follow=self.copy_done,
+                                        metadata=self._metadata)
         except DownloadAborted:
             self.error = "aborted"
         except BaseException as e:  # noqa: BLE001 - reported in the result, never a traceback
@@ -244,13 +283,16 @@ class _Pipeline:
         self.finished_at = time.monotonic()
 
 
-def run_pipeline(raw: Path, log: Path, job: DownloadJob, follow=None, progress=None) -> dict:
-    """The online pipeline on ``raw`` (following it while ``follow()`` is false) into ``log``."""
+def run_pipeline(raw: Path, log: Path, job: DownloadJob, follow=None, progress=None,
+                 metadata=None) -> dict:
+    """The online pipeline on ``raw`` (following it while ``follow()`` is false) into ``log``;
+    ``metadata``: the log's metadata records (default the job's; a function: called when they
+    are written, at the end)."""
     from stillpoint.engine.run import RunSettings, process_file
     s = RunSettings.from_dict(dict(job.settings, mode="online"))
     opts = {"follow": True, "follow_done": follow, "follow_idle_s": 1e9} if follow else None
-    return process_file(raw, log, s, metadata=job.metadata, source_options=opts,
-                        progress=progress)
+    return process_file(raw, log, s, metadata=job.metadata if metadata is None else metadata,
+                        source_options=opts, progress=progress)
 
 
 def _clear_stale_log(log: Path) -> None:
@@ -363,7 +405,8 @@ def _adopt(final: Path, size0: int, job: DownloadJob, res: DownloadResult, progr
     if job.pipeline and not os.path.lexists(res.mcap_path):
         _clear_stale_log(log)
         res.summary = run_pipeline(final, log, job,
-                                   progress=lambda *a: progress("finishing", size0, size0))
+                                   progress=lambda *a: progress("finishing", size0, size0),
+                                   metadata=_with_repairs(job.metadata, 0, 0))
         res.mcap_part = str(log)
     elif os.path.lexists(res.mcap_path):
         res.mcap_part = None
@@ -527,6 +570,9 @@ def run_download(job: DownloadJob, progress: Optional[Callable[[str, int, int], 
             os.fsync(fd)
             res.sha256 = _hash_file(fd, size0, job.chunk_bytes)
         res.verify_s = time.monotonic() - t_ver
+        if pipe is not None:  # the log's station record can say what was repaired now
+            pipe.repairs = (res.reread_ranges, res.patched_ranges)
+            pipe.verified.set()
         # ---------------------------------------------------------------- pipeline result
         if pipe is not None:
             while pipe.thread.is_alive():
@@ -539,7 +585,9 @@ def run_download(job: DownloadJob, progress: Optional[Callable[[str, int, int], 
             res.summary = pipe.summary
             if res.patched_ranges:  # the log followed the misread copy: rebuilt from the patched one
                 res.summary = run_pipeline(part, log, job,
-                                           progress=lambda *a: progress("finishing", pos, size0))
+                                           progress=lambda *a: progress("finishing", pos, size0),
+                                           metadata=_with_repairs(job.metadata, res.reread_ranges,
+                                                                  res.patched_ranges))
             res.pipeline_after_copy_s = max(0.0, time.monotonic() - t_last)
             res.mcap_part = str(log)
             res.mcap_after_copy_s = time.monotonic() - t_last

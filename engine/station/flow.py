@@ -56,7 +56,9 @@ from .configure import clock_offset_s, configure_device
 from . import names
 from .completion import CompletionError, complete, resolve_sent_clear
 from .device_read import DeviceDigest, device_digest
-from .download import DownloadJob
+from .download import DownloadJob, repairs_text
+from .hostlock import (DeviceBusy, DeviceLock, HostRecordError, changed_record, configured_record,
+                       forget_configured, holder_text, key_of, record_changed, record_configured)
 from .ledger import Ledger, host_timezone, kill_point, station_id
 from .profile import StudyProfile
 from .download import DownloadWorker
@@ -76,6 +78,8 @@ class StationOptions:
     erase: str = "quick"  # "quick" (FORMAT QC) | "wipe" (FORMAT WC): the clear's erase level
     store: Optional[str] = None  # calibration store: prior from it, final estimate to it ("" = default)
     products: bool = True  # the tables and report of each verified download
+    reconfigure: bool = False  # configure even a device configured for its current session (asked for)
+    wait_when_busy: bool = True  # another station holds the device: wait (False: an error now)
     remount_s: float = C.AX_COMMIT_REMOUNT_S
     volume_wait_s: float = C.AX_BOOTLOADER_S
     pipeline: bool = True
@@ -106,6 +110,8 @@ class DeviceFlow:
         self._products_for: Optional[tuple] = None  # (download id, log path)
         self._store_note: Optional[dict] = None  # the calibration store entry's product row
         self._prior = None  # the store estimate the log started from
+        self.lock: Optional[DeviceLock] = None  # the host-wide device lock, while held
+        self.configured_session: Optional[int] = None  # the session it is configured for (found or set)
         self.cancel = threading.Event()
         self.finished = threading.Event()
         self.thread = threading.Thread(target=self.run, daemon=True, name=f"flow-{att.serial}")
@@ -301,14 +307,74 @@ class DeviceFlow:
     # ------------------------------------------------------------------ the flow
     def _run(self) -> None:
         att, opts = self.att, self.opts
-        self._set("identifying")
-        if not att.volume:
-            self.wait_volume(opts.volume_wait_s)
-        client = AxClient.open(att.port, f"{att.device_id}")
+        if not self._hold():
+            return  # the device left while another station held it
         try:
-            self._with_client(client)
+            self._set("identifying")
+            if not att.volume:
+                self.wait_volume(opts.volume_wait_s)
+            client = AxClient.open(att.port, f"{att.device_id}")  # only under the device lock
+            try:
+                self._with_client(client)
+            finally:
+                client.close()
         finally:
-            client.close()
+            self._release()
+
+    def _hold(self, poll_s: float = 0.5, look_s: float = 2.0) -> bool:
+        """Take the host-wide lock of this device (``hostlock``); while another station holds it
+        the flow is ``busy`` ("held by the station on OUT (pid N)") and waits, touching nothing.
+        False: the device left (or the station stopped) meanwhile."""
+        lock = DeviceLock(key_of(self.att), self.opts.out_dir)
+        looked = time.monotonic()
+        while True:
+            try:
+                self.lock = lock.acquire(self.att.device_id)
+                return True
+            except DeviceBusy as e:
+                if not self.opts.wait_when_busy:
+                    raise DeviceError(self.att.device_id, f"busy: {e.reason}") from None
+                if (self.state, self.reason) != ("busy", e.reason):
+                    self._set("busy", e.reason)
+            if self.cancel.wait(poll_s):
+                return False
+            if time.monotonic() - looked >= look_s:
+                looked = time.monotonic()
+                if self._find() is None:
+                    return False
+
+    def _release(self) -> None:
+        if self.lock is not None:
+            self.lock.release()
+            self.lock = None
+
+    def _configured_before(self, session: int) -> Optional[str]:
+        """Why this empty device counts as configured for ``session`` already (a station of this
+        computer configured it and no clear came after), or None."""
+        att = self.att
+        try:
+            rec = configured_record(key_of(att))
+        except HostRecordError as e:
+            return f"the host-wide record cannot be read ({e}); not configured again"
+        if rec is not None and rec.get("session") == session:
+            return (f"already configured for session {session} by {holder_text(rec)} at "
+                    f"{rec.get('time_utc', '?')}")
+        row = self.ledger.configured_since_clear(att.device_id, session, att.device_type)
+        if row is not None:
+            return (f"already configured for session {session} by this station at "
+                    f"{time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime(row[0]))}")
+        return None
+
+    def _changed_elsewhere(self, session: int) -> Optional[str]:
+        """The host-wide ``changed`` verdict on this device's session (any station's), or None."""
+        try:
+            rec = changed_record(key_of(self.att))
+        except HostRecordError as e:
+            return str(e)
+        if rec is None or rec.get("session") != session:
+            return None
+        return (f"{holder_text(rec)} found its data changed between two reads of session "
+                f"{session} (download {rec.get('download_id', '?')}, {rec.get('time_utc', '?')})")
 
     def _with_client(self, client: AxClient) -> None:
         att, opts = self.att, self.opts
@@ -355,6 +421,11 @@ class DeviceFlow:
                                              f"reads in download {changed.id} of this session "
                                              "(its copy is kept); check the device, then clear it by "
                                              "hand (`stillpoint device clear`)")
+        elsewhere = self._changed_elsewhere(session) \
+            if opts.clear_after_verify and self.state == "verified" else None
+        if elsewhere is not None:  # the verdict binds every station of this computer
+            raise DeviceError(att.device_id, f"not cleared: {elsewhere}; check the device, then "
+                                             "clear it by hand (`stillpoint device clear`)")
         if opts.clear_after_verify and self.state == "verified":
             # the same byte rule whether this run downloaded it or the ledger says it was
             # ("already downloaded"): copy, device and ledger must agree before the erase
@@ -363,6 +434,17 @@ class DeviceFlow:
                            self.wait_volume, device_type=ident.device_type, erase=opts.erase,
                            reread=self.reread)
             self._set("cleared", self.info)
+            try:
+                forget_configured(key_of(att))  # the erase ended the configuration before it
+            except (HostRecordError, OSError):
+                pass
+        if configure and self.state == "empty" and not opts.reconfigure:
+            before = self._configured_before(session)
+            if before is not None:  # never configured again unless asked for explicitly
+                self.configured_session = session
+                self._set("configured", f"{before}; not configured again (ask for it "
+                                        "explicitly: --reconfigure, or the dashboard's Configure)")
+                return
         if configure and self.state in ("cleared", "empty"):
             self._set("configuring")
             try:
@@ -377,6 +459,12 @@ class DeviceFlow:
                 raise
             self.ledger.configured(att.device_id, settings["session"], settings, "ok",
                                    "; ".join(warnings) or None, device_type=att.device_type)
+            try:
+                record_configured(key_of(att), settings["session"], opts.out_dir,
+                                  start=settings.get("start"), stop=settings.get("stop"))
+            except (HostRecordError, OSError) as e:
+                warnings.append(f"the host-wide record was not written ({e})")
+            self.configured_session = settings["session"]
             self._set("configured", f"session {settings['session']}, start {settings['start']}"
                       + (f" (warning: {'; '.join(warnings)})" if warnings else ""))
 
@@ -432,6 +520,12 @@ class DeviceFlow:
         if not r.ok:
             self.ledger.download_failed(dl_id, r.reason, r.bytes,
                                         state="changed" if r.changed else "error")
+            if r.changed:  # every station of this computer honours it (``hostlock``)
+                try:
+                    record_changed(key_of(att), session, opts.out_dir, download_id=dl_id,
+                                   reason=r.reason)
+                except (HostRecordError, OSError) as e:
+                    r.reason += f" (the host-wide record was not written: {e})"
             raise DeviceError(att.device_id, r.reason + (" (resumes when the same device and "
                                                          "session come back)"
                                                          if "unplugged" in (r.reason or "") else ""))
@@ -445,7 +539,8 @@ class DeviceFlow:
                               "samples": (r.summary or {}).get("samples")},
                      with_log=with_log,
                      reason=("adopted: the final copy was already there and equals the device"
-                             if r.adopted else None))
+                             if r.adopted else None),
+                     reread_ranges=r.reread_ranges, patched_ranges=r.patched_ranges)
         except (CompletionError, OSError) as e:
             why = str(e) if isinstance(e, CompletionError) else f"{e.filename}: {e.strerror or e}"
             self.ledger.download_failed(dl_id, why, r.bytes)
@@ -453,7 +548,15 @@ class DeviceFlow:
         if not with_log:
             r.mcap_path = None
         cal = (r.summary or {}).get("calibration") or {}
-        self.info = (f"{r.bytes / 1e6:.1f} MB, {r.bad_sectors} bad sectors, calibration "
+        repairs = repairs_text(r.reread_ranges, r.patched_ranges)
+        if repairs:  # every repair on record: an event of its own, then the state line says it
+            try:
+                self.ledger.event(att.device_id, att.serial, "repaired",
+                                  f"download {dl_id}: {repairs}")
+            except StillpointError:
+                pass
+        self.info = (f"{r.bytes / 1e6:.1f} MB, {r.bad_sectors} bad sectors"
+                     + (f", {repairs}" if repairs else "") + ", calibration "
                      f"{cal.get('status', '-')}"
                      + (f" ({cal['error_before_mg']:.1f} -> {cal['error_after_mg']:.1f} mg)"
                         if cal.get("error_after_mg") is not None and cal.get("error_before_mg") is not None

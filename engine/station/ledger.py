@@ -2,7 +2,8 @@
 
 It records the devices seen (by id and type: an AX3 and an AX6 may share an id), every download
 (device type and id, session, bytes, SHA-256, verified, times, clock offset, host time zone,
-station id, battery, bad sectors, the calibration prior its log started from), every clear and
+station id, battery, bad sectors, the ranges its verification read again and the ranges of the
+copy it patched, the calibration prior its log started from), every clear and
 configuration (with the device type), every state change of a device (``events``, with its USB
 serial), the analysis products made from each verified download (``products``: the epoch and
 day tables, the report, the calibration store entry; written, kept, skipped or failed, with the
@@ -88,10 +89,12 @@ CREATE TABLE IF NOT EXISTS actions (
 # rows keep NULL there, and a NULL device type matches any type): the clear's erase level and
 # what was read back after the erase; the device type of downloads, clears and configurations
 # (an AX3 and an AX6 may share an id); the calibration prior a download's log was corrected with
-# from its first sample.
+# from its first sample; the ranges the verification read again and the ranges of the copy it
+# patched (a misread resolved: every repair is on record).
 _ADDED_COLUMNS = (("clears", "erase", "TEXT"), ("clears", "readback", "TEXT"),
                   ("clears", "device_type", "TEXT"), ("downloads", "device_type", "TEXT"),
-                  ("configurations", "device_type", "TEXT"), ("downloads", "prior", "TEXT"))
+                  ("configurations", "device_type", "TEXT"), ("downloads", "prior", "TEXT"),
+                  ("downloads", "reread_ranges", "INTEGER"), ("downloads", "patched_ranges", "INTEGER"))
 # a row of the device type asked for, or of a ledger older than the type column
 _OF_TYPE = "(? IS NULL OR device_type IS NULL OR device_type=?)"
 
@@ -282,12 +285,16 @@ class Ledger:
 
     def download_completing(self, download_id: int, *, bytes_: int, sha256: str,
                             bad_sectors: int, cwa_path: str, mcap_path: Optional[str],
-                            summary: Optional[dict] = None) -> None:
-        """The copy is verified (size and SHA-256 recorded), its files not yet renamed."""
+                            summary: Optional[dict] = None, reread_ranges: int = 0,
+                            patched_ranges: int = 0) -> None:
+        """The copy is verified (size and SHA-256 recorded, and the ranges the verification read
+        again and patched), its files not yet renamed."""
         self._tx("UPDATE downloads SET state='completing', verified=0, bytes=?, sha256=?, "
-                 "bad_sectors=?, cwa_path=?, mcap_path=?, summary=?, reason=NULL WHERE id=?",
+                 "bad_sectors=?, cwa_path=?, mcap_path=?, summary=?, reason=NULL, "
+                 "reread_ranges=?, patched_ranges=? WHERE id=?",
                  (bytes_, sha256, bad_sectors, cwa_path, mcap_path,
-                  json.dumps(summary, default=str) if summary else None, download_id))
+                  json.dumps(summary, default=str) if summary else None, int(reread_ranges),
+                  int(patched_ranges), download_id))
         kill_point("download:completing")
 
     def download_verified(self, download_id: int, *, bytes_: int, sha256: str, bad_sectors: int,
@@ -346,6 +353,12 @@ class Ledger:
         """(download id, product, path, result, reason) per product row (this download's)."""
         return self._q("SELECT download_id, product, path, result, reason FROM products WHERE "
                        "(? IS NULL OR download_id=?) ORDER BY id", (download_id, download_id))
+
+    def repairs_of(self, download_id: int) -> tuple[int, int]:
+        """(ranges re-read, ranges of the copy patched) of a download (0, 0 when not recorded)."""
+        rows = self._q("SELECT reread_ranges, patched_ranges FROM downloads WHERE id=?",
+                       (download_id,))
+        return (int(rows[0][0] or 0), int(rows[0][1] or 0)) if rows else (0, 0)
 
     def prior_of(self, download_id: int) -> Optional[dict]:
         """The calibration prior recorded for a download (None: not recorded)."""
@@ -429,6 +442,18 @@ class Ledger:
             return json.loads(rows[0][0]) if rows and rows[0][0] else None
         except ValueError:
             return None
+
+    def configured_since_clear(self, device_id: int, session_id: int,
+                               device_type: Optional[str] = None) -> Optional[tuple]:
+        """(time, settings) of the latest successful configuration of this device for
+        ``session_id`` that no completed clear of the device followed, or None."""
+        rows = self._q("SELECT time, settings FROM configurations WHERE device_id=? AND "
+                       f"session_id=? AND result='ok' AND {_OF_TYPE} AND time > COALESCE((SELECT "
+                       "MAX(time) FROM clears WHERE device_id=? AND result='ok' AND "
+                       f"{_OF_TYPE}), 0) ORDER BY id DESC LIMIT 1",
+                       (device_id, session_id, device_type, device_type, device_id, device_type,
+                        device_type))
+        return tuple(rows[0]) if rows else None
 
     def events(self, device_id: Optional[int] = None) -> list[tuple]:
         if device_id is None:

@@ -1,6 +1,7 @@
 """A one-row summary of each attached device (``stillpoint devices``), each read with a bound so
-a device that does not answer never stalls the listing; ``recording_window`` says a device's
-start and stop settings in words."""
+a device that does not answer never stalls the listing, and only under the device's host-wide
+lock (a device a station holds is listed ``busy``, its port untouched: ``hostlock``);
+``recording_window`` says a device's start and stop settings in words."""
 
 from __future__ import annotations
 
@@ -51,6 +52,20 @@ def device_status(att: Attached, ledger=None) -> dict:
            "volume": att.volume, "slot": att.slot, "emulated": att.emulated}
     if att.problem:
         row.update(state="no drive", problem=att.problem)
+    from .hostlock import DeviceBusy, DeviceLock, key_of
+    lock = DeviceLock(key_of(att), None, what="device listing")
+    try:  # a device a station holds is not asked anything (its port is the station's)
+        lock.acquire(att.device_id)
+    except DeviceBusy as e:
+        row.update(state="busy", problem=e.reason)
+        return row
+    try:
+        return _read(att, row, ledger)
+    finally:
+        lock.release()
+
+
+def _read(att: Attached, row: dict, ledger) -> dict:
     client = AxClient.open(att.port, str(att.device_id))
     try:
         from .configure import clock_offset_s

@@ -1,7 +1,8 @@
 """The actions the dashboard can ask of a running station, each checked here, logged in the
 ledger (``actions``: who, from where, the result) and carried out by the station's own code:
 
-* ``retry``: the device's ended flow runs again (``Station.rerun``).
+* ``retry``: the device's ended flow runs again (``Station.rerun``), with the station's own
+  options: a device configured for its current session is never configured again by a retry.
 * ``verify``: the device re-read past the cache (the flow's bounded ``reread``) and the raw copy
   hashed again; both must equal the ledger's verified download of the device's session.
 * ``clear``: only after a verified download of the device's session; the flow runs again with
@@ -11,7 +12,10 @@ ledger (``actions``: who, from where, the result) and carried out by the station
   code (``setting_code.profile_from_code``: typed or scanned, checked by the profile's rules); the flow
   runs again with the configuration, the subject id (typed or scanned) added to the metadata so
   it is written to the device's annotations, the ledger's configuration row and, with a
-  profile's ``file_name`` template, the name of the device's next download.
+  profile's ``file_name`` template, the name of the device's next download. A device already
+  configured for its current session is configured again only when the request names the session
+  that makes (``reconfigure=N``, which the page's confirmation states): its printed handover
+  sheet is superseded, and the sheet of the old session says so.
 
 ``Actions(station).ask(action, device_key, who=, origin=, subject=, code=)`` -> (HTTP status, message).
 A refusal touches no device.
@@ -52,21 +56,23 @@ class Actions:
         raise Refused(409, f"{key} is not attached to this station")
 
     def ask(self, action: str, key: str, *, who: str, origin: str,
-            subject: Optional[str] = None, code: Optional[str] = None) -> tuple[int, str]:
+            subject: Optional[str] = None, code: Optional[str] = None,
+            reconfigure: Optional[str] = None) -> tuple[int, str]:
         if action not in ACTIONS:
             return 404, f"no action {action!r} (one of {', '.join(ACTIONS)})"
         dev = parse_device_key(key)
         if dev is None:
             return 404, f"no device {key!r}"
         ledger = self.station.ledger
-        detail = {k: v for k, v in (("subject", subject), ("code", code)) if v} or None
+        detail = {k: v for k, v in (("subject", subject), ("code", code),
+                                    ("reconfigure", reconfigure)) if v} or None
         aid = ledger.action_asked(dev[1], dev[0], action, who=who, origin=origin, detail=detail)
         try:
             flow = self._flow(key)
             with self._lock:
                 if flow.att.serial in self._busy or not flow.finished.is_set():
                     raise Refused(409, f"{key} is busy ({flow.state}); try again when it has ended")
-            msg = (self._configure(flow, subject, code) if action == "configure"
+            msg = (self._configure(flow, subject, code, reconfigure) if action == "configure"
                    else getattr(self, "_" + action)(flow, subject))
         except Refused as e:
             ledger.action_result(aid, "refused", e.reason)
@@ -137,7 +143,7 @@ class Actions:
         self.station.rerun(flow.att.serial, clear_after_verify=True)
         return f"clear of {flow.att.device_type}-{flow.att.device_id} started (after the byte check)"
 
-    def _configure(self, flow, subject, code=None) -> str:
+    def _configure(self, flow, subject, code=None, reconfigure=None) -> str:
         from ..setting_code import profile_from_code
         from ..study import StudyRecordError
         prof = self.station.opts.profile
@@ -164,6 +170,16 @@ class Actions:
                 prof.annotation_slots()
             except Exception as e:  # noqa: BLE001 - the profile's own one-line reason
                 raise Refused(400, str(e)) from None
-        self.station.rerun(flow.att.serial, configure_after=True, profile=prof)
+        again = flow.state == "configured" and flow.configured_session is not None
+        if again:  # only when asked for by the session it makes (never a silent new session)
+            new = prof.session_for(flow.configured_session)
+            if reconfigure != str(new):
+                raise Refused(409, f"the device is configured for session "
+                                   f"{flow.configured_session} (its handover sheet names it); "
+                                   f"configuring it again makes session {new} and supersedes "
+                                   f"that sheet: confirm naming session {new} (reconfigure={new})")
+        self.station.rerun(flow.att.serial, configure_after=True, profile=prof, reconfigure=again)
         return (f"configure of {flow.att.device_type}-{flow.att.device_id} started"
-                + (f" for subject {subject}" if subject else ""))
+                + (f" for subject {subject}" if subject else "")
+                + (f" as session {prof.session_for(flow.configured_session)}, superseding "
+                   f"session {flow.configured_session}" if again else ""))

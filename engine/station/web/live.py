@@ -26,6 +26,7 @@ class LiveDock:
                "device_type": att.device_type, "state": flow.state, "reason": flow.reason,
                "info": flow.info, "done_bytes": flow.done_bytes, "total_bytes": flow.total_bytes,
                "mbps": flow.mbps, "detached": flow.detached, "session": flow.session,
+               "configured_session": getattr(flow, "configured_session", None),
                "running": not flow.finished.is_set()}  # products run after the final state
         with self._cond:
             old = self._rows.get(att.serial)

@@ -19,7 +19,7 @@ from .records import device_key, local_utc, trends
 E = html.escape
 
 # attention first: what needs a person, then what is under way, then what is done
-ORDER = {"error": 0, "changed": 0, "detached": 1, "attached": 2, "identifying": 2,
+ORDER = {"error": 0, "changed": 0, "detached": 1, "busy": 2, "attached": 2, "identifying": 2,
          "downloading": 3, "verifying": 3, "clearing": 3, "configuring": 3, "verified": 4,
          "seen": 5, "empty": 6, "cleared": 6, "configured": 6}
 STATES = ("error", "downloading", "verifying", "verified", "clearing", "cleared", "configuring",
@@ -84,9 +84,9 @@ def _actions(r: dict, token: Optional[str]) -> str:
     st = r["state"]
     out = []
 
-    def form(action, label, extra=""):
+    def form(action, label, extra="", confirm=None):
         out.append(f"<form method=post action='/action/{action}/{key}' class=act "
-                   f"data-confirm='{E(label)} {key}?'><input type=hidden name=token value='{E(token)}'>"
+                   f"data-confirm='{E(confirm or f'{label} {key}?')}'><input type=hidden name=token value='{E(token)}'>"
                    f"<input type=hidden name=confirm value=''><input type=hidden name=who value=''>{extra}"
                    f"<button name=go value=1 data-action='{action}'>{E(label)}</button></form>")
     form("retry", "Retry")
@@ -94,12 +94,19 @@ def _actions(r: dict, token: Optional[str]) -> str:
         if st == "verified":
             form("verify", "Verify again")
             form("clear", "Clear")
-    if st in ("cleared", "empty", "configured"):
-        form("configure", "Configure",
-             "<input name=subject placeholder='subject id' size=10 autocomplete=off "
-             "pattern='[A-Za-z0-9._-]*' title='letters, digits, . _ -'>"
-             "<input name=code placeholder='setting code (or the profile)' size=16 "
-             "autocomplete=off>")
+    inputs = ("<input name=subject placeholder='subject id' size=10 autocomplete=off "
+              "pattern='[A-Za-z0-9._-]*' title='letters, digits, . _ -'>"
+              "<input name=code placeholder='setting code (or the profile)' size=16 "
+              "autocomplete=off>")
+    if st in ("cleared", "empty"):
+        form("configure", "Configure", inputs)
+    elif st == "configured" and r.get("next_session") is not None:
+        # configured for its session: only again, naming the new session (the sheet is superseded)
+        cur, new = r.get("configured_session"), r["next_session"]
+        form("configure", "Configure again",
+             inputs + f"<input type=hidden name=reconfigure value='{E(str(new))}'>",
+             confirm=f"Configure {key} again as session {new}? The handover sheet of session "
+                     f"{cur} is superseded.")
     return "".join(out)
 
 
@@ -179,6 +186,15 @@ def _files(records, d: dict) -> str:
     return " · ".join(links) or "-"
 
 
+def _repairs(d: dict) -> str:
+    """What the download's verification re-read and patched ("-": not recorded, a row older
+    than the repair columns or a download that did not reach its verification)."""
+    from ..download import repairs_text
+    if d.get("reread_ranges") is None:
+        return "-"
+    return repairs_text(d["reread_ranges"], d.get("patched_ranges") or 0) or "none"
+
+
 def _when(t) -> str:
     loc, utc = local_utc(t)
     return f"{E(loc)}<br><small>{E(utc)}</small>"
@@ -206,6 +222,7 @@ def device_page(records, hist: dict, *, message: str = "") -> str:
             str(d["session_id"]), f"<span class='state s-{E(d['state'])}'>{E(d['state'])}</span>",
             _when(d.get("started")), _mb(d.get("bytes")),
             E((d.get("sha256") or "-")[:16]), E(str(d.get("bad_sectors") if d.get("bad_sectors") is not None else "-")),
+            E(_repairs(d)),
             "-" if d.get("battery_pct") is None else f"{d['battery_pct']} %",
             "-" if d.get("clock_offset_s") is None else f"{d['clock_offset_s']:+.2f} s",
             E(_calibration_text(cal) or "-") + _calibration_terms(cal), E(d.get("reason") or ""),
@@ -216,6 +233,7 @@ def device_page(records, hist: dict, *, message: str = "") -> str:
                 E(c.get("reason") or ""), f"<small>{E(c.get('readback') or '')}</small>"]
                for c in hist["clears"]]
     cf_rows = []
+    sup = superseded(hist)
     for c in hist["configurations"]:
         s = c.get("settings") or {}
         what = ", ".join(f"{k} {s[k]}" for k in ("rate_hz", "range_g", "gyro_dps", "start", "stop")
@@ -223,7 +241,10 @@ def device_page(records, hist: dict, *, message: str = "") -> str:
         cf_rows.append([_when(c.get("time")), str(c.get("session_id") if c.get("session_id") is not None else "-"),
                         E(subject_of(c) or "-"), E(what or "-"),
                         "-" if s.get("battery_pct") is None else f"{s['battery_pct']} %",
-                        E(c.get("result") or "-"), E(c.get("reason") or "")])
+                        E(c.get("result") or "-")
+                        + (f" <a href='/device/{key}/sheet?session={E(str(s.get('session')))}'>"
+                           "(superseded)</a>" if c.get("id") in sup else ""),
+                        E(c.get("reason") or "")])
     ac_rows = [[_when(a.get("time")), E(a.get("action") or ""), E(a.get("who") or ""),
                 E(a.get("origin") or ""), E(a.get("result") or ""), E(a.get("reason") or "")]
                for a in hist["actions"]]
@@ -243,7 +264,7 @@ def device_page(records, hist: dict, *, message: str = "") -> str:
             f"<div class=charts>{charts}</div>"
             "<h2>Downloads and verification</h2>"
             + _table(["session", "state", "started (local / UTC)", "size", "SHA-256", "bad sectors",
-                      "battery", "clock offset", "calibration", "reason", "files"], dl_rows,
+                      "repairs", "battery", "clock offset", "calibration", "reason", "files"], dl_rows,
                      "no download yet")
             + "<h2>Verified again</h2>"
             + _table(["when", "result", "detail"],
@@ -262,11 +283,41 @@ def device_page(records, hist: dict, *, message: str = "") -> str:
             + "</main></body></html>")
 
 
-def sheet_page(hist: dict, *, file_name: Optional[str] = None) -> str:
-    """The printable handover sheet: what was set on the device, when, and the checks."""
+def superseded(hist: dict) -> dict:
+    """{configuration id: the configuration that superseded it}: a device configured again with
+    no completed clear between the two configurations (the first sheet was never worn)."""
+    ok_cfg = [c for c in hist["configurations"] if c.get("result") == "ok"]
+    clears = [x.get("time") or 0 for x in hist["clears"] if x.get("result") == "ok"]
+    out = {}
+    for a, b in zip(ok_cfg, ok_cfg[1:]):
+        if not any((a.get("time") or 0) < t < (b.get("time") or 0) for t in clears):
+            out[a["id"]] = b
+    return out
+
+
+def sheet_page(hist: dict, *, file_name: Optional[str] = None,
+               session: Optional[int] = None) -> Optional[str]:
+    """The printable handover sheet: what was set on the device, when, and the checks; of the
+    latest configuration, or of the latest one for ``session`` (None when there is none). A
+    sheet whose configuration was superseded says so, and the sheet that superseded another
+    names it."""
     key = device_key(hist["device_type"], hist["device_id"])
     ok_cfg = [c for c in hist["configurations"] if c.get("result") == "ok"]
+    if session is not None:
+        ok_cfg = [c for c in ok_cfg if (c.get("settings") or {}).get("session") == session]
+        if not ok_cfg:
+            return None
     c = ok_cfg[-1] if ok_cfg else None
+    sup = superseded(hist)
+    later = sup.get(c["id"]) if c is not None else None
+    earlier = [a for a, b in sup.items() if c is not None and b["id"] == c["id"]]
+    if later is not None:
+        lloc, lutc = local_utc(later.get("time"))
+        banner = (f"SUPERSEDED: this device was configured again as session "
+                  f"{(later.get('settings') or {}).get('session', '-')} at {lloc} ({lutc}); "
+                  "this sheet is void.")
+    else:
+        banner = None
     s = (c or {}).get("settings") or {}
     last_dl = [d for d in hist["downloads"] if d.get("state") == "verified"]
     last_clear = [x for x in hist["clears"] if x.get("result") == "ok"]
@@ -282,7 +333,13 @@ def sheet_page(hist: dict, *, file_name: Optional[str] = None) -> str:
             ("Clock offset after setting", f"{s['clock_offset_s']:+.3f} s"
              if s.get("clock_offset_s") is not None else "-"),
             ("Metadata", ", ".join(f"{k}={v}" for k, v in (s.get("metadata") or {}).items()) or "-")]
-    if file_name:
+    if earlier:
+        prev = next(x for x in hist["configurations"] if x["id"] == earlier[-1])
+        ploc, _ = local_utc(prev.get("time"))
+        rows.append(("Supersedes", f"the sheet of session "
+                                   f"{(prev.get('settings') or {}).get('session', '-')} "
+                                   f"(configured {ploc}): void"))
+    if file_name and later is None:
         rows.append(("File name at return", file_name))
     checks = [
         ("Previous data downloaded and verified (size + SHA-256)",
@@ -298,7 +355,9 @@ def sheet_page(hist: dict, *, file_name: Optional[str] = None) -> str:
             + "<main id=sheet class=sheet>"
             f"<p class=noprint><a href='/device/{key}'>← {E(key)}</a> · "
             "<button id=print>Print</button></p>"
-            f"<h1>Device handover sheet — {E(key)}</h1><table class=kv>{body}</table>"
+            f"<h1>Device handover sheet — {E(key)}</h1>"
+            + (f"<p class=msg id=superseded>{E(banner)}</p>" if banner else "")
+            + f"<table class=kv>{body}</table>"
             f"<h2>Checks</h2><table class=kv>{chk}</table>"
             "<h2>Handover</h2><table class=kv><tr><th>Given to participant by</th><td></td></tr>"
             "<tr><th>Date and time</th><td></td></tr><tr><th>Signature</th><td></td></tr></table>"

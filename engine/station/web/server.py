@@ -10,12 +10,14 @@ GET  /                                 the dock (``?token=`` sets the token cook
 GET  /events                           server-sent events: the dock's changing part, at most 2 a second
 GET  /api/dock                         the dock's rows and disk as JSON
 GET  /device/<type>-<id>               one device's history and trends
-GET  /device/<type>-<id>/sheet         its printable handover sheet
+GET  /device/<type>-<id>/sheet         its printable handover sheet (?session=N: the sheet of that
+                                       session's configuration, marked when superseded)
 GET  /files/<path>                     a file inside the output folder (raw copy, MCAP, report)
 GET  /static/<name>                    the page's own CSS and script
 POST /action/<action>/<type>-<id>      retry | verify | clear | configure (form: token, confirm=yes,
-                                       who, subject, code); 303 back to the dock, or the refusal's
-                                       status
+                                       who, subject, code; reconfigure=N to configure a configured
+                                       device again as session N); 303 back to the dock, or the
+                                       refusal's status
 =====================================  ===============================================================
 
 Refusals answer with one line (in a small page): 403 without the token or in read-only mode,
@@ -115,8 +117,12 @@ class Dashboard:
             return rows, self.records.disk()
         facts, disk = self._ledger_facts()
         rows = self.live.rows()
+        prof = self.station.opts.profile if self.station is not None else None
         for r in rows:
             r.update(facts.get((r["device_type"], r["device_id"]), {}))
+            if prof is not None and r.get("configured_session") is not None:
+                # configuring it again makes this session (the confirmation names it)
+                r["next_session"] = prof.session_for(r["configured_session"])
         return rows, disk
 
     def setting_code(self) -> Optional[str]:
@@ -250,8 +256,14 @@ class _Handler(BaseHTTPRequestHandler):
             if not hist["known"]:
                 return self._refuse(404, f"the ledger knows no device {key}")
             if sub == "sheet":
-                return self._page(200, pages.sheet_page(hist, file_name=d.return_file_name(hist)),
-                                  hdr)
+                asked = (parse_qs(urlsplit(self.path).query).get("session") or [""])[0]
+                if asked and not asked.isdigit():
+                    return self._refuse(400, f"session must be a number, not {asked[:20]!r}")
+                page = pages.sheet_page(hist, file_name=d.return_file_name(hist),
+                                        session=int(asked) if asked else None)
+                if page is None:
+                    return self._refuse(404, f"{key} was never configured for session {asked}")
+                return self._page(200, page, hdr)
             return self._page(200, pages.device_page(d.records, hist), hdr)
         if path.startswith("/files/"):
             return self._file(path[len("/files/"):])
@@ -350,7 +362,8 @@ class _Handler(BaseHTTPRequestHandler):
         who = field("who")[:60] or "dashboard user"
         origin = f"{self.client_address[0]} ({(self.headers.get('User-Agent') or '-')[:80]})"
         status, msg = d.actions.ask(parts[1], parts[2], who=who, origin=origin,
-                                    subject=field("subject") or None, code=field("code") or None)
+                                    subject=field("subject") or None, code=field("code") or None,
+                                    reconfigure=field("reconfigure") or None)
         if status >= 400:
             return self._refuse(status, msg)
         self._send(303, b"", headers={"Location": "/?done=" + quote(msg)})

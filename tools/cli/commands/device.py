@@ -46,6 +46,10 @@ def add_arguments(p) -> None:
                          "must be cleared")
     s.add_argument("--profile", type=Path, required=True)
     s.add_argument("-o", "--output", type=Path, default=None, help="record it in this folder's ledger")
+    s.add_argument("--reconfigure", action="store_true",
+                   help="configure it even if a station or this command already configured it for "
+                        "its current session (a new session; the printed handover sheet is "
+                        "superseded)")
     dev("sync-time", "set the device clock to host local time (as OMGui does) and read it back")
     s = dev("stream", "log the STREAM preview (irregular, not analysis data) to MCAP")
     s.add_argument("-o", "--output", type=Path, required=True, help="preview MCAP")
@@ -123,6 +127,22 @@ def run(args) -> int:
     att = _find(args)
     if args.action in ("download", "clear", "verify"):
         return _with_ledger(args, att)
+    with _device_lock(att, getattr(args, "output", None)):
+        return _with_port(args, att, prof)
+
+
+def _device_lock(att, out):
+    """The host-wide lock of the device (``engine.station.hostlock``): its port is opened only
+    while no station holds it; "busy: held by the station on OUT (pid N)" otherwise."""
+    from stillpoint.engine.station.hostlock import DeviceBusy, DeviceLock, key_of
+    lock = DeviceLock(key_of(att), out, what="stillpoint device command")
+    try:
+        return lock.acquire(att.device_id)
+    except DeviceBusy as e:
+        raise _Err(f"device {att.device_id}: busy: {e.reason}") from None
+
+
+def _with_port(args, att, prof) -> int:
     from stillpoint.drivers.ax.protocol import AxClient
     from stillpoint.engine.station import configure as cfg
     with AxClient.open(att.port, str(att.device_id)) as client:
@@ -166,6 +186,11 @@ def run(args) -> int:
                 from stillpoint.engine.station.clearing import session_before_clear
                 session_now = session_before_clear(ledger, att.device_id, session_now,
                                                    att.device_type)
+            before = _configured_before(att, ident.session_id, ledger)
+            if before is not None and not args.reconfigure:
+                raise _Err(f"device {att.device_id}: {before}; not configured again: add "
+                           f"--reconfigure to configure it anew (session "
+                           f"{prof.session_for(session_now)}; its handover sheet is superseded)")
             flow_wait = _volume_waiter(att)
             settings, warnings = cfg.configure_device(client, prof, data_file=att.data_file,
                                                       wait_volume=flow_wait, session_now=session_now)
@@ -173,6 +198,9 @@ def run(args) -> int:
                 ledger.configured(att.device_id, settings["session"], settings, "ok",
                                   "; ".join(warnings) or None, device_type=att.device_type)
                 ledger.close()
+            from stillpoint.engine.station import hostlock as H
+            H.record_configured(H.key_of(att), settings["session"], args.output,
+                                start=settings.get("start"), stop=settings.get("stop"))
             for w in warnings:
                 print(f"warning: device {att.device_id}: {w}", file=sys.stderr)
             _say(f"device {att.device_id}: configured session {settings['session']}, rate "
@@ -180,6 +208,20 @@ def run(args) -> int:
                  f"stop {settings['stop']}")
             return 0
     raise _Err(f"unknown action {args.action}")
+
+
+def _configured_before(att, session: int, ledger):
+    """Why the device counts as configured for ``session`` already (the host-wide record, or
+    this folder's ledger with no clear since), or None."""
+    from stillpoint.engine.station import hostlock as H
+    rec = H.configured_record(H.key_of(att))
+    if rec is not None and rec.get("session") == session:
+        return f"already configured for session {session} by {H.holder_text(rec)} at " \
+               f"{rec.get('time_utc', '?')}"
+    if ledger is not None and ledger.configured_since_clear(att.device_id, session,
+                                                            att.device_type) is not None:
+        return f"already configured for session {session} (the ledger {ledger.path})"
+    return None
 
 
 def _volume_waiter(att):
@@ -193,6 +235,12 @@ def _with_ledger(args, att) -> int:
     from stillpoint.engine.station.ledger import Ledger, acquire_station_lock, check_station_folder
     out = check_station_folder(args.output)
     fd = acquire_station_lock(out)
+    try:
+        # verify and clear hold the device's host-wide lock; a download's flow takes it itself
+        lock = _device_lock(att, out) if args.action != "download" else None
+    except BaseException:
+        os.close(fd)
+        raise
     ledger = Ledger(out)
     from stillpoint.engine.station.completion import reconcile
     for line in reconcile(ledger):  # what a killed station or download left between two states
@@ -200,7 +248,8 @@ def _with_ledger(args, att) -> int:
     # the device's flow: a download runs it; verify and clear use its bounded re-read and its
     # wait for the drive
     flow = DeviceFlow(att, StationOptions(str(out), stall_s=getattr(args, "stall_s", 30.0),
-                                          store=getattr(args, "store", None)), ledger,
+                                          store=getattr(args, "store", None),
+                                          wait_when_busy=False), ledger,
                       on_change=_progress_printer())
     try:
         if args.action == "download":
@@ -233,11 +282,30 @@ def _with_ledger(args, att) -> int:
             _say(f"device {att.device_id}: cleared by {C.AX_ERASE_COMMANDS[args.erase]}; it will not "
                  f"record until configured (session {session}: device, raw copy and {ledger.path} "
                  "held the same bytes)")
+            settled = _settle_host_records(att, session)
+            if settled:
+                _say(f"device {att.device_id}: {settled}")
             return 0
     finally:
         ledger.close()
+        if lock is not None:
+            lock.release()
         os.close(fd)
     return 0
+
+
+def _settle_host_records(att, session: int):
+    """A person cleared the device: the host-wide ``changed`` verdict and configuration record of
+    it are settled (``engine.station.hostlock``); what was settled, in words."""
+    from stillpoint.engine.station import hostlock as H
+    key = H.key_of(att)
+    rec = H.changed_record(key)
+    H.forget_changed(key)
+    H.forget_configured(key)
+    if rec is None:
+        return None
+    return (f"the host-wide verdict of {H.holder_text(rec)} (its data changed between two reads "
+            f"of session {rec.get('session')}) is settled by this clear")
 
 
 def _progress_printer():

@@ -22,6 +22,10 @@ def add_arguments(p) -> None:
                    help="clear each device once its download is verified (also from the profile)")
     p.add_argument("--configure-after", action="store_true", default=None,
                    help="configure each cleared (or empty) device from the profile")
+    p.add_argument("--reconfigure", action="store_true",
+                   help="with --configure-after: configure even a device that a station already "
+                        "configured for its current session (by default it is left as it is; its "
+                        "printed handover sheet would be superseded)")
     p.add_argument("--erase", choices=("quick", "wipe"), default=None,
                    help="how a clear erases: quick (FORMAT QC, the default) or wipe (FORMAT WC, the "
                         "memory wiped too; slower); also [station] erase in the profile")
@@ -106,7 +110,8 @@ def run(args) -> int:
     erase = args.erase or (prof.erase if prof else "quick")
     opts = StationOptions(str(args.outdir), profile=prof, clear_after_verify=clear,
                           configure_after=configure, stall_s=args.stall_s, erase=erase,
-                          static_from_store=args.static_from_store, store=args.store)
+                          static_from_store=args.static_from_store, store=args.store,
+                          reconfigure=args.reconfigure)
     inbox = None
     if args.inbox:
         from stillpoint.engine.station.inbox import Inbox

@@ -29,7 +29,8 @@ What the reader does:
 * **idle sleep**: the seconds the device slept are filled with its last sample (as ActiLife,
   pygt3x and GGIR's reader do), flagged ``per_sample["idle_sleep"] = 1``; any other missing second
   (a gap, after a USB connection) starts a new segment; an idle-sleep period still open when the
-  log ends lasts up to the log's last record;
+  log ends lasts up to info.txt's ``Last Sample Time`` (else the log's last record), one open at
+  a USB connection up to that record;
 * **scale** (LSB/g): ``info.txt`` ``Acceleration Scale``, else the PARAMETERS ``ACCEL_SCALE``,
   else the serial-prefix table; the wGT3X-BT firmware 1.6.0 axis turn is undone.
 
@@ -874,6 +875,8 @@ class Gt3xReader:
             if typ in (C.GT3X_REC_ACTIVITY, C.GT3X_REC_ACTIVITY2):  # 1 byte (or empty): USB
                 self.usb_connections.append(ts)
                 self._event(rec_index + 1, "usb_connect", "USB connection record", time_s=ts)
+                if st.idle_since is not None:  # docked while asleep: the sleep ends here
+                    yield from fill_idle(ts if st.idle_until is None else min(st.idle_until, ts))
                 st.idle_since = st.idle_until = None
             elif typ == C.GT3X_REC_EVENT and size >= 1:
                 code = payload[0]
@@ -895,8 +898,14 @@ class Gt3xReader:
             self._event(rec_index + 1, "damaged_member", f"{C.GT3X_LOG_MEMBER}: {dmg}; the records "
                         "before the damage are returned")
         if st.idle_since is not None and self.last_record_local_s is not None:
-            # idle sleep still open when the log ends: it lasts up to the log's last record
-            end = self.last_record_local_s if st.idle_until is None else st.idle_until
+            # idle sleep still open when the log ends: it lasts up to info.txt's Last Sample Time
+            # ([GT3X] info.txt.md 47-51) or, without one, up to the log's last record
+            end = self.last_record_local_s
+            last_ns = self.info.header.get("last_sample_local_ns")
+            if last_ns is not None:
+                end = max(end, int(last_ns) // 10**9)
+            if st.idle_until is not None:
+                end = st.idle_until
             yield from fill_idle(end)
         b = flush()
         if b is not None:

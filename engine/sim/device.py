@@ -165,6 +165,10 @@ class DeviceSim:
         self.model = resolve_model(model, seed=dev_seed, device=spec.kind, duration_s=duration_s)
         if spec.kind == "geneactiv" and self.model.on("restarts"):
             raise ModelError("restarts: a GENEActiv cannot restart logging within one file")
+        if spec.kind == "gt3x":
+            for name in ("restarts", "corrupt_sectors"):
+                if self.model.on(name):
+                    raise ModelError(f"{name}: not simulated for an ActiGraph .gt3x")
         self.site_model = SiteModel(schedule, site, self.seed)
         self.t_grid, self.T_grid = temperature_track(schedule, site, self.tparams, self.seed, duration_s)
         self.Ta_grid = (first_order_lag(self.T_grid, self.t_grid, float(self.model.get("thermal_lag", "tau_s")))

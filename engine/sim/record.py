@@ -1,5 +1,5 @@
 """Streaming generation of simulated recordings: one or two devices on one body, written as real
-.cwa/.bin files through the project's writers, plus the ground truth (JSON + per-10 s-window
+.cwa/.bin/.gt3x files through the project's writers, plus the ground truth (JSON + per-10 s-window
 label CSV).
 
 API
@@ -77,6 +77,13 @@ class _FileSink:
                                     packed=spec.packed if spec.kind == "ax3" else False,
                                     gyro_range_dps=spec.gyro_range_dps,
                                     metadata={"_p": sim.site, "_sc": f"sim-seed-{sim.seed}"})
+        elif spec.kind == "gt3x":
+            from stillpoint.drivers.gt3x_writer import Gt3xWriter
+            if self.gz:
+                raise ValueError(f"{self.path}: a .gt3x is a zip already; write it without .gz")
+            self.writer = Gt3xWriter(self.plain, serial=f"MOS2E{sim.device_id:08d}", rate_hz=sim.hz,
+                                     scale=float(spec.counts_per_g[0]), subject=f"sim-seed-{sim.seed}",
+                                     idle_sleep=spec.idle_sleep)
         else:
             from stillpoint.drivers.geneactiv import GeneactivWriter
             self.writer = GeneactivWriter(self.plain, serial=f"{sim.device_id:06d}", rate_hz=sim.hz,
@@ -171,7 +178,9 @@ class _FileSink:
             self._light_grid, self._battery_grid = _aux_grids(sim)
         # slow channels from the 10 s grid (a sector keeps one value)
         light, battery = self._grid_values(t, self._light_grid, self._battery_grid)
-        if sim.spec.kind in ("ax3", "ax6"):
+        if sim.spec.kind == "gt3x":  # accelerometer only (no temperature in the format)
+            self.writer.write(c.time_ns[a:b], c.counts[a:b])
+        elif sim.spec.kind in ("ax3", "ax6"):
             traw = _ax_temperature_raw(c.temperature_c[a:b])
             self.writer.write(c.time_ns[a:b], c.counts[a:b],
                               gyro_counts=None if c.gyro_counts is None else c.gyro_counts[a:b],
@@ -323,7 +332,7 @@ def _finish(sim: DeviceSim, sink: _FileSink, corrupt: list, truth_path: Optional
 
 def _default_truth_path(path: Path) -> Path:
     name = path.name
-    for suf in (".cwa.gz", ".bin.gz", ".cwa", ".bin"):
+    for suf in (".cwa.gz", ".bin.gz", ".cwa", ".bin", ".gt3x"):
         if name.endswith(suf):
             return path.with_name(name[: -len(suf)] + ".truth.json")
     return path.with_name(name + ".truth.json")

@@ -20,6 +20,7 @@ from typing import Optional
 import numpy as np
 
 from .model import SensorModel, apply_deterministic, per_axis
+from stillpoint.drivers import constants as C
 
 CHUNK_S = 3600.0  # one hour of true time: the unit of generation and of the noise seeds
 
@@ -36,13 +37,18 @@ class DeviceSpec:
     gyro_range_dps: Optional[float] = None
     gains: tuple = (25600, 25600, 25600)  # GENEActiv header calibration
     offsets: tuple = (0, 0, 0)
+    idle_sleep: bool = True  # gt3x: the device sleeps while still (drivers/gt3x_writer.py)
 
     @staticmethod
     def make(kind: str, *, range_g: Optional[int] = None, packed: Optional[bool] = None,
              gyro_range_dps: Optional[float] = None, gains=None, offsets=None) -> "DeviceSpec":
         kind = kind.lower()
-        if kind not in ("ax3", "ax6", "geneactiv"):
-            raise ValueError(f"device must be ax3, ax6 or geneactiv, got {kind!r}")
+        if kind not in ("ax3", "ax6", "geneactiv", "gt3x"):
+            raise ValueError(f"device must be ax3, ax6, geneactiv or gt3x, got {kind!r}")
+        if kind == "gt3x":  # wGT3X-BT: +-8 g at 256 LSB/g, 12-bit ([GT3X] Activity.md 20)
+            if range_g not in (None, 8):
+                raise ValueError("the simulated ActiGraph (wGT3X-BT) records at +-8 g only")
+            return DeviceSpec("gt3x", 8)
         if kind == "geneactiv":
             if range_g not in (None, 8):
                 raise ValueError("GENEActiv records at +-8 g only")
@@ -68,6 +74,8 @@ class DeviceSpec:
             return np.asarray(self.gains, np.float64) / 100.0
         if self.kind == "ax3":
             return np.full(3, 256.0)
+        if self.kind == "gt3x":
+            return np.full(3, C.GT3X_SCALE_BY_SERIAL_PREFIX["MOS"])
         return np.full(3, 32768.0 / self.range_g)
 
     @property
@@ -81,7 +89,7 @@ class DeviceSpec:
 
     def count_limits(self) -> tuple[np.ndarray, np.ndarray]:
         """Smallest and largest storable counts per axis (after clipping at the range)."""
-        if self.kind == "geneactiv":
+        if self.kind in ("geneactiv", "gt3x"):  # 12-bit two's complement
             return np.full(3, -2048), np.full(3, 2047)
         if self.kind == "ax6":
             return np.full(3, -32768), np.full(3, 32767)

@@ -32,7 +32,7 @@ class SimSource:
                                  seed=seed, **kw)
         self.sim = sim
         spec = sim.spec
-        kind = {"ax3": "AX3", "ax6": "AX6", "geneactiv": "GENEActiv"}[spec.kind]
+        kind = {"ax3": "AX3", "ax6": "AX6", "geneactiv": "GENEActiv", "gt3x": "ActiGraph"}[spec.kind]
         gyro = spec.gyro_range_dps if spec.kind == "ax6" else None
         self.spu = 300 if spec.kind == "geneactiv" else (
             40 if gyro else (120 if spec.packed else 80))

@@ -1,4 +1,4 @@
-"""`stillpoint simulate`: write a simulated recording (.cwa or .bin) with its ground truth."""
+"""`stillpoint simulate`: write a simulated recording (.cwa, .bin or .gt3x) with its ground truth."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from ._numbers import RATE_HZ, SEED, number
 
 NAME = "simulate"
 KEEPS_EXISTING_OUTPUTS = True  # --overwrite replaces an existing output
-HELP = "simulate a free-living recording (AX3/AX6 .cwa or GENEActiv .bin) with ground truth"
+HELP = "simulate a free-living recording (AX3/AX6 .cwa, GENEActiv .bin or ActiGraph .gt3x) with ground truth"
 
 
 def _description() -> str:
@@ -44,8 +44,8 @@ parameter's unit: g/mg/ug, mg/C, %/ppm, s/min/h/d, ug/rtHz. Examples:
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.description = _description()
     p.formatter_class = argparse.RawDescriptionHelpFormatter
-    p.add_argument("-o", "--output", required=True, help="output file (.cwa for ax3/ax6, .bin for geneactiv)")
-    p.add_argument("--device", default="ax3", choices=("ax3", "ax6", "geneactiv"))
+    p.add_argument("-o", "--output", required=True, help="output file (.cwa for ax3/ax6, .bin for geneactiv, .gt3x for gt3x)")
+    p.add_argument("--device", default="ax3", choices=("ax3", "ax6", "geneactiv", "gt3x"))
     p.add_argument("--site", default="wrist", choices=("wrist", "hip", "thigh", "ankle"))
     p.add_argument("--days", type=number(0, 366, lo_open=True, unit="days"), default=7.0, help="duration in days (fractions allowed)")
     p.add_argument("--hz", type=RATE_HZ, default=100.0, help="nominal sample rate")
@@ -64,7 +64,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--pair", default=None, choices=("wrist", "hip", "thigh", "ankle"),
                    help="also simulate a second device at this site on the same body")
     p.add_argument("--pair-output", default=None, help="second device's file (default: <stem>.<site><ext>)")
-    p.add_argument("--pair-device", default=None, choices=("ax3", "ax6", "geneactiv"))
+    p.add_argument("--pair-device", default=None, choices=("ax3", "ax6", "geneactiv", "gt3x"))
     p.add_argument("--pair-hz", type=RATE_HZ, default=None, help="second device's sample rate (default --hz)")
     p.add_argument("--pair-effect", action="append", default=[], metavar="NAME:KEY=VALUE,...",
                    help="an effect for the second device only (e.g. halts:at=30h,duration=120s); "
@@ -109,7 +109,7 @@ def run(args) -> int:
         from . import _static_scenarios
         return _static_scenarios.run(args)
     out = Path(args.output)
-    ext = {"ax3": ".cwa", "ax6": ".cwa", "geneactiv": ".bin"}[args.device]
+    ext = {"ax3": ".cwa", "ax6": ".cwa", "geneactiv": ".bin", "gt3x": ".gt3x"}[args.device]
     if not (out.name.endswith(ext) or out.name.endswith(ext + ".gz")):
         raise ModelError(f"{out}: a {args.device} recording needs a {ext} file name")
     overrides = [parse_effect_option(e) for e in args.effect]
@@ -130,7 +130,7 @@ def run(args) -> int:
     try:
         if args.pair:
             dev_b = args.pair_device or args.device
-            ext_b = {"ax3": ".cwa", "ax6": ".cwa", "geneactiv": ".bin"}[dev_b]
+            ext_b = {"ax3": ".cwa", "ax6": ".cwa", "geneactiv": ".bin", "gt3x": ".gt3x"}[dev_b]
             stem = out.name[: -len(ext)] if out.name.endswith(ext) else out.stem
             out_b = Path(args.pair_output) if args.pair_output else out.with_name(f"{stem}.{args.pair}{ext_b}")
             if common["gyro_range_dps"] is None and dev_b == "ax6":

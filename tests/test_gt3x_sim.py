@@ -1,0 +1,151 @@
+"""ActiGraph .gt3x written by the project's writer (drivers/gt3x_writer.py) and the simulator, read
+back and taken through the engine: idle sleep out of the calibration, in the epoch table, in
+stillpoint.read, and kept by the MCAP log (tables made from the log equal the run's)."""
+
+from __future__ import annotations
+
+import gzip
+import zipfile
+
+import numpy as np
+import pytest
+
+from stillpoint.drivers import open_recording
+from stillpoint.drivers.gt3x import Gt3xReader, unpack12
+from stillpoint.drivers.gt3x_writer import Gt3xWriter, pack12, record_bytes
+from stillpoint.engine.core.blocks import PER_SAMPLE_IDLE_SLEEP, Block
+from stillpoint.engine.operators.windows import WindowFeaturesOperator
+
+RATE = 30
+T0 = 1_700_000_000
+
+
+def _signal(seconds: int, moving: list, seed: int = 2) -> np.ndarray:
+    """Counts at rest (z = 1 g) with noise of +-20 counts in the ``moving`` [a, b) seconds."""
+    rng = np.random.default_rng(seed)
+    c = np.zeros((seconds * RATE, 3), np.int64) + [0, 0, 256]
+    for a, b in moving:
+        c[a * RATE:b * RATE] += rng.integers(-20, 20, ((b - a) * RATE, 3))
+    return c
+
+
+def _write(path, counts, tz=3600, **kw):
+    t = np.int64(T0) * 10**9 + np.arange(counts.shape[0]) * 10**9 // RATE
+    w = Gt3xWriter(path, rate_hz=RATE, timezone_s=tz, **kw)
+    for a in range(0, counts.shape[0], 1000):  # several writes: seconds cut between them
+        w.write(t[a:a + 1000], counts[a:a + 1000])
+    w.close()
+    return t, w
+
+
+def _read(path):
+    with Gt3xReader(path) as src:
+        b = Block.concat(list(src))
+    return src, b
+
+
+def test_pack12_is_the_readers_inverse():
+    c = np.random.default_rng(1).integers(-2048, 2048, (5, 31, 3))
+    assert np.array_equal(unpack12(pack12(c), 31)[..., [1, 0, 2]], c)
+
+
+def test_record_checksum_is_ones_complement_xor():
+    # [GT3X] LogRecords/Metadata.md 14-22, 63-65: this record's checksum byte is 0xF8
+    payload = (b'{"MetadataType":"Bio","SubjectName":"CLE2A14151617","Race":"","Limb":"","Side":"",'
+               b'"Dominance":"","Parsed":false,"JSON":null}')
+    r = record_bytes(6, 1421142129, payload)
+    assert r[:8].hex() == "1e0671e8b4547c00" and r[-1] == 0xF8
+
+
+def test_writer_round_trip_with_idle_sleep(tmp_path):
+    counts = _signal(400, [(0, 100), (200, 250)])
+    t, w = _write(tmp_path / "w.gt3x", counts)
+    src, b = _read(tmp_path / "w.gt3x")
+    assert src.info.timezone_offset_s == 3600 and src.info.header["idle_sleep_enabled"] is True
+    assert b.n == counts.shape[0] and np.array_equal(b.time_ns, t)
+    idle = b.per_sample[PER_SAMPLE_IDLE_SLEEP].astype(bool)
+    # 10 still seconds, then asleep until it moves (or the recording ends)
+    assert src.idle_periods == [(T0 + 3600 + 110, 90), (T0 + 3600 + 260, 140)]
+    assert w.idle_seconds == idle.sum() // RATE == 230
+    assert np.array_equal(b.accel[~idle], counts[~idle])
+    assert (np.abs(b.accel[idle] - counts[idle]) <= 10).all()  # the still signal, repeated
+    assert src.qc.segments == 1
+
+
+def test_idle_sleep_never_enters_the_calibration_windows(tmp_path):
+    counts = _signal(400, [(0, 100), (200, 250)])
+    _write(tmp_path / "w.gt3x", counts)
+    op = WindowFeaturesOperator(RATE, min_fill=0.0)
+    with open_recording(tmp_path / "w.gt3x") as src:
+        blocks = list(src)
+    f = op.push(Block.concat(blocks))
+    f = type(f).concat([f, op.flush()])
+    idle = Block.concat(blocks).per_sample[PER_SAMPLE_IDLE_SLEEP]
+    assert f.n.sum() == (idle == 0).sum()
+    # every 10 s window of the idle stretches is gone; the ones before sleep are kept
+    w = (f.start_ns // 10**9 - T0).tolist()
+    assert 100 in w and 110 not in w and 190 not in w and 200 in w and 260 not in w
+    # the default fill rule drops what idle sleep leaves of a window
+    op = WindowFeaturesOperator(RATE)
+    with open_recording(tmp_path / "w.gt3x") as src:
+        n = sum(len(op.push(b)) for b in src) + len(op.flush())
+    assert n == 10 + 1 + 5 + 1  # moving 0-100 s, still 100-110 s, moving 200-250 s, still 250-260 s
+
+
+@pytest.fixture(scope="module")
+def simulated(tmp_path_factory):
+    """A simulated 6 h wrist recording at 30 Hz with idle sleep, processed once."""
+    from stillpoint.tools.cli import main
+    d = tmp_path_factory.mktemp("gt3xsim")
+    rec = d / "sim.gt3x"
+    assert main(["simulate", "--device", "gt3x", "--hz", "30", "--days", "0.25", "-o", str(rec),
+                 "-q", "--start", "2025-03-03T20:00:00Z"]) == 0
+    assert main(["process", str(rec), "-o", str(d / "sim.mcap"), "-q"]) == 0
+    return d, rec
+
+
+def test_simulated_gt3x_processes_with_idle_sleep_column(simulated):
+    d, rec = simulated
+    with Gt3xReader(rec) as src:
+        flags = np.concatenate([b.per_sample[PER_SAMPLE_IDLE_SLEEP] for b in src])
+    assert src.idle_sleep_s > 600  # the simulated wearer is still for long stretches
+    with gzip.open(d / "sim.epochs.csv.gz", "rt") as f:
+        head = f.readline().strip().split(",")
+        rows = [line.rstrip("\n").split(",") for line in f]
+    i = head.index("idle_sleep")
+    assert head[i - 1] == "filter_warmup"
+    n = np.array([int(r[head.index("n")]) for r in rows])
+    share = np.array([float(r[i]) if r[i] else 0.0 for r in rows])
+    # the column's idle samples add up to the reader's flags
+    assert abs(float((share * n).sum()) - float(flags.sum())) < 0.5 * len(rows)
+    assert share.max() == 1.0 and share.min() == 0.0
+
+
+def test_tables_from_the_log_keep_idle_sleep(simulated, tmp_path):
+    from stillpoint.engine.workflows.tables_from_mcap import tables_from_mcap
+    d, _ = simulated
+    ep, dp = tmp_path / "e.csv.gz", tmp_path / "d.csv"
+    tables_from_mcap(d / "sim.mcap", ep, dp)
+    with gzip.open(ep, "rt") as f:
+        again = f.read().splitlines()
+    with gzip.open(d / "sim.epochs.csv.gz", "rt") as f:
+        first = f.read().splitlines()
+    k = first[0].split(",").index("idle_sleep") + 1
+    assert [r.split(",")[:k] for r in again] == [r.split(",")[:k] for r in first]
+
+
+def test_stillpoint_read_has_idle_sleep(simulated):
+    import stillpoint
+    _, rec = simulated
+    df = stillpoint.read(rec)
+    with Gt3xReader(rec) as src:
+        flags = np.concatenate([b.per_sample[PER_SAMPLE_IDLE_SLEEP] for b in src])
+    assert df["idle_sleep"].dtype == bool and np.array_equal(df["idle_sleep"].to_numpy(), flags > 0)
+
+
+def test_simulated_file_is_a_zip_of_log_and_info(simulated):
+    _, rec = simulated
+    with zipfile.ZipFile(rec) as z:
+        assert z.namelist() == ["log.bin", "info.txt"]
+        info = z.read("info.txt").decode()
+    assert "Acceleration Scale: 256.0\r\n" in info and "Sample Rate: 30\r\n" in info

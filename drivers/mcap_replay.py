@@ -238,9 +238,8 @@ class McapRawSource:
         CalibrationEstimate, checked: an estimate the run applied must hold usable coefficients
         (engine/calibration/validate.py), any other only its status and reason. An identity
         estimate when the log has none. A damaged record is a typed error naming it."""
-        from stillpoint.engine.calibration.estimate import CalibrationEstimate
+        from stillpoint.engine.calibration.estimate import CalibrationEstimate, status_applied
         from stillpoint.engine.calibration.validate import validate_estimate
-        from stillpoint.engine.settings import APPLIED_STATUSES
         from .errors import StillpointError
         cal = self.metadata.get("calibration") or {}
         if "json" not in cal:
@@ -251,7 +250,7 @@ class McapRawSource:
                 or not isinstance(d.get("reason", ""), str):
             raise McapReadError(self.path, "calibration metadata: not an estimate (a JSON object "
                                            "with a text status and reason)", record=where)
-        if d.get("status") not in APPLIED_STATUSES:
+        if not status_applied(d.get("status")):
             return CalibrationEstimate(status=d.get("status", "identity"),
                                        reason=d.get("reason", "no calibration applied"))
         try:

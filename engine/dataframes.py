@@ -47,7 +47,6 @@ def _estimate(path, fmt: str, calibrate, timezone, override: bool):
     True (an MCAP's logged estimate; a recording's own autocalibration), a
     ``CalibrationEstimate`` or its dict."""
     from stillpoint.engine.calibration.estimate import CalibrationEstimate
-    from stillpoint.engine.settings import APPLIED_STATUSES
     if calibrate is None or calibrate is False:
         return None
     if isinstance(calibrate, CalibrationEstimate):
@@ -65,7 +64,7 @@ def _estimate(path, fmt: str, calibrate, timezone, override: bool):
         from stillpoint.engine.timezones import reader_timezone
         tz, _ = reader_timezone(path, fmt, timezone, override)
         est = calibrate_recording(path, open_options={} if tz is None else {"timezone": tz}).estimate
-    return est if est.status in APPLIED_STATUSES else None
+    return est if est.applied else None
 
 
 class _Resampler:

@@ -37,6 +37,8 @@ import numpy as np
 from stillpoint.drivers.errors import StillpointError
 from stillpoint.drivers.outputs import atomic_output, check_output_path
 
+from .calibration.estimate import status_applied
+
 DAYS_SHOWN = 14
 HIST_RANGE_MG = 60.0
 
@@ -351,7 +353,7 @@ def _calibration_panels(fig, spec, windows, est):
         ax.text(0, 0.5, "calibration: no nonmovement windows", fontsize=7)
         return
     before = (np.linalg.norm(windows.mean, axis=1) - 1.0) * 1000.0
-    if est is not None and est.status in ("ok", "high_error"):
+    if est is not None and est.applied:
         t = windows.temperature
         if est.uses_temperature:
             t = np.where(np.isfinite(t), t, est.temperature_ref)
@@ -422,7 +424,7 @@ def _qc_text(rec: dict, days: list[dict]) -> str:
         f"{f(total.get('enmo_mean_mg'), '{:.2f}')} mg",
         f"calibration: {cal.get('status', '?')} - error {f(cal.get('error_before_mg'), '{:.2f}')} -> "
         f"{f(cal.get('error_after_mg'), '{:.2f}')} mg on {cal.get('windows', '?')} windows"
-        + (f", T_ref {cal['temperature_ref']:.2f} degC" if cal.get("status") in ("ok", "high_error")
+        + (f", T_ref {cal['temperature_ref']:.2f} degC" if status_applied(cal.get("status"))
            and cal.get("temperature_ref") is not None and any(cal.get("tempoffset") or []) else ""),
     ]
     reason = str(cal.get("reason", ""))

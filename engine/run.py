@@ -35,9 +35,9 @@ from .core.blocks import Block
 from .calibration import OnlineCalibrator, fit_batch_schedule
 from .calibration.trust import CountStep
 from .calibration.estimate import CalibrationEstimate
+from .calibration.outcome import CalibrationOutcome
 from .calibration.quantisation import release_tables
 from .calibration.validate import validate_estimate
-from .calibration.select import SD_THRESHOLD_G
 from .clipping import ClippingMonitor
 from .features import WindowFeatures
 from .core.malloc import one_arena, trim
@@ -51,7 +51,7 @@ from .operators.windows import WindowFeaturesOperator
 from .core.pipeline import Pipeline, PipelineStats
 from .core.prefetch import Prefetched, cores_available
 # the settings of a run live beside it; callers take them from here with process_file
-from .settings import APPLIED_STATUSES, RunSettings
+from .settings import RunSettings
 
 
 class OutputError(StillpointError):
@@ -207,19 +207,6 @@ def _loggable(info):
     return replace(info, path=_utf8_text(info.path))
 
 
-def _calibration_summary(est: CalibrationEstimate, quietest_sd_g: float = float("inf"),
-                         sd_threshold_g: float = SD_THRESHOLD_G) -> dict:
-    from .calibration.explain import explain_no_nonmovement
-    explain_no_nonmovement(est, quietest_sd_g, sd_threshold_g)
-    return {"offset": est.offset.tolist(), "scale": est.scale.tolist(),
-            "tempoffset": est.tempoffset.tolist(), "temperature_ref": est.temperature_ref,
-            "error_before_mg": est.error_before_mg, "error_after_mg": est.error_after_mg,
-            "hours_used": est.hours_used, "status": est.status, "reason": est.reason,
-            "method": est.method, "windows": est.windows,
-            "fit_start_ns": est.fit_start_ns, "fit_end_ns": est.fit_end_ns,
-            "uncertainty": est.uncertainty, "warnings": est.extra.get("warnings", [])}
-
-
 def _static_estimate(d: dict, info, first_ns, summary: dict) -> CalibrationEstimate:
     """The static calibration to apply: same device only; the gap to the recording is logged."""
     from .calibration.estimate import STATIC_METHOD
@@ -371,18 +358,16 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
                         zstd_level=s.zstd_level, view_hz=s.view_hz, chunk_s=chunk_span(s))
         try:
             sink.write_metadata(CLOCK_RECORD, clock_record(zone, src.info.timezone_offset_s))
-            applied = est.status in APPLIED_STATUSES
-            initial = est if applied else CalibrationEstimate.identity(est.reason)
-            sink.write_estimate(est, applied, st1.first_ns or 0)
-            sink.write_qc({"source": "engine", "reason": "calibration", "status": est.status,
-                           "applied": applied, "method": est.method, "detail": est.reason},
-                          st1.first_ns or 0)
-            estimates_log.append({"status": est.status, "applied": applied})
+            # explained before it is logged: the message, the record and the summary agree
+            outcome = CalibrationOutcome(est).explain(quietest, s.sd_threshold_g)
+            initial = est if outcome.applied else CalibrationEstimate.identity(est.reason)
+            sink.write_outcome(outcome, st1.first_ns or 0)
+            sink.write_qc(outcome.qc_event(), st1.first_ns or 0)
+            estimates_log.append({"status": est.status, "applied": outcome.applied})
             outst = OutputStage(s, rate, sink, src, initial)
             _add_tables(outst, tables, s, rate, band, src)
             st = Pipeline(src, [outst], rate_hz=rate, max_block_s=s.max_block_s).run(
                 _progress_wrapper(progress, "pass 2/2"))
-            final = est
         except BaseException as e:
             _abort(sink, e)
             _abort_tables(outst if "outst" in locals() else None)
@@ -408,8 +393,8 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
 
         def publish(ests):
             for e in ests:
-                accepted = bool(e.extra.get("accepted")) and s.calibrate and not static
-                sink.write_estimate(e, accepted, e.effective_from_ns or 0)
+                accepted = bool(e.diagnostics.accepted) and s.calibrate and not static
+                sink.write_outcome(CalibrationOutcome(e, accepted), e.effective_from_ns or 0)
                 estimates_log.append({"status": e.status, "applied": accepted,
                                       "effective_from_ns": e.effective_from_ns})
                 if accepted:
@@ -440,8 +425,8 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
             src.close()
             raise
         windows, nonmove = feat.windows.windows, feat.nonmovement.count
-        quietest = feat.nonmovement.quietest_sd_g
-        final = outst.correction.schedule.current
+        outcome = CalibrationOutcome(outst.correction.schedule.current).explain(
+            feat.nonmovement.quietest_sd_g, s.sd_threshold_g)
         summary["estimates"] = estimates_log
     # ---------------------------------------------------------------- wrap up
     src.close()
@@ -452,7 +437,7 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
         "windows": windows,
         "nonmovement_windows": nonmove,
         "epochs": outst.epochs,
-        "calibration": _calibration_summary(final, quietest, s.sd_threshold_g),
+        "calibration": outcome.summary(),
         "enmo_mean_mg": outst.enmo_mean_mg,
         "qc": _qc_summary(src),
         "clipping": outst.clipping.as_dict(),
@@ -470,7 +455,7 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
         summary["timezone_override"] = True
     for tap in outst.taps:  # the epoch and day tables
         try:
-            summary["tables"] = tap.close(final.status)
+            summary["tables"] = tap.close(outcome.table_status)
         except BaseException as e:
             _abort(sink, e)
             tap.abort()
@@ -483,7 +468,7 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
                           st.last_ns or 0)
         for name, values in ((metadata() if callable(metadata) else metadata) or {}).items():
             sink.write_metadata(name, {str(k): str(v) for k, v in values.items()})
-        sink.write_metadata("calibration", {"json": final.to_json()})
+        sink.write_metadata("calibration", outcome.record())
         sink.write_metadata("summary", {k: v for k, v in summary.items() if k != "wall_s"})
         sink.close()
     except BaseException as e:
@@ -582,7 +567,8 @@ class _LogPrior:
 
     def push(self, block: Block) -> None:
         if self.prior is not None and block.n:
-            self.sink.write_estimate(self.prior, self.applied, int(block.time_ns[0]), prior=True)
+            self.sink.write_outcome(CalibrationOutcome(self.prior, self.applied),
+                                    int(block.time_ns[0]), prior=True)
             self.prior = None
 
     def flush(self) -> None:

@@ -1,7 +1,6 @@
 """The settings of a run: ``RunSettings`` (everything that determines a run's output, logged as
 the MCAP ``settings`` record), ``settings_problem(d)`` (the first unusable value of such a record,
-checked when it is read) and ``APPLIED_STATUSES`` (the fit outcomes whose parameters a run
-applies). Plain data, read by the run and by the readers of its log (``drivers.mcap_replay``)
+checked when it is read). Plain data, read by the run and by the readers of its log (``drivers.mcap_replay``)
 without importing the run itself.
 """
 
@@ -24,12 +23,6 @@ from .operators.windows import WINDOW_S
 # 31 B record header, 16 B index entry; zstd keeps ~half of the first two): at 1 Hz ~26 MB a
 # week, ~11 % of a 7-day 100 Hz log (2 Hz: 53 MB), still 86,400 points a day for a plot.
 VIEW_HZ = 1.0
-
-# fit outcomes whose parameters are applied: a converged fit whose residual error is high is
-# still better than none, so it is applied (and its status says so); every other outcome
-# (identity, reverted, no nonmovement, sphere not covered) leaves the data uncorrected
-APPLIED_STATUSES = ("ok", "high_error")
-
 
 @dataclass
 class RunSettings:

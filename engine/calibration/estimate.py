@@ -12,11 +12,57 @@ from __future__ import annotations
 
 import json
 from dataclasses import asdict, dataclass, field
-from typing import Optional
+from enum import Enum
+from typing import Optional, Union
 
 import numpy as np
 
 STATIC_METHOD = "static-6"  # the method of an estimate from a six-orientation session (static.py)
+
+
+class CalibrationStatus(str, Enum):
+    """The outcome of a calibration fit (the ``status`` of an estimate, its logs and its tables).
+
+    A text enum: a member equals, hashes, formats and serialises as its value, so ``"ok"`` in a
+    log and ``CalibrationStatus.OK`` are the same thing. ``applied`` says whether a run applies an
+    estimate with this status: a converged fit whose residual error is high is still better than
+    none, so it is applied (and its status says so); every other outcome leaves the data
+    uncorrected."""
+
+    OK = "ok"
+    HIGH_ERROR = "high_error"  # converged, residual error above the bound: applied, flagged
+    IDENTITY = "identity"  # no calibration (switched off, no samples, online before a refit)
+    REVERTED = "reverted"  # the fit made the error worse: not applied
+    NO_NONMOVEMENT = "no_nonmovement"
+    SPHERE_NOT_COVERED = "sphere_not_covered"
+    TOO_FEW_WINDOWS = "too_few_windows"
+    FAILED = "failed"
+    INCOMPLETE = "incomplete"  # a six-orientation session missing a face
+
+    __str__ = str.__str__
+    __format__ = str.__format__
+
+    @property
+    def applied(self) -> bool:
+        """Whether a run applies an estimate with this status."""
+        return self in (CalibrationStatus.OK, CalibrationStatus.HIGH_ERROR)
+
+    @classmethod
+    def parse(cls, value) -> Union["CalibrationStatus", str]:
+        """The member for a status text; a text no member has (a log written by another
+        version) is kept as it is, and is never applied."""
+        try:
+            return cls(value)
+        except ValueError:
+            return value
+
+
+def status_applied(status) -> bool:
+    """Whether a run applies an estimate of this status (a text from a log, or a member)."""
+    s = CalibrationStatus.parse(status)
+    return isinstance(s, CalibrationStatus) and s.applied
+
+
 
 
 @dataclass
@@ -25,7 +71,7 @@ class CalibrationEstimate:
     scale: np.ndarray = field(default_factory=lambda: np.ones(3))
     tempoffset: np.ndarray = field(default_factory=lambda: np.zeros(3))
     temperature_ref: float = 0.0
-    status: str = "identity"  # "ok", "identity", "reverted", "no_nonmovement", "sphere_not_covered", ...
+    status: str = CalibrationStatus.IDENTITY  # a CalibrationStatus (a text no member has is kept)
     reason: str = "no calibration applied"  # one line for humans
     method: str = "identity"  # "autocal-c1", "autocal-c2", "static-6", "identity", ...
     error_before_mg: Optional[float] = None
@@ -47,10 +93,21 @@ class CalibrationEstimate:
         self.offset = np.asarray(self.offset, np.float64).reshape(3)
         self.scale = np.asarray(self.scale, np.float64).reshape(3)
         self.tempoffset = np.asarray(self.tempoffset, np.float64).reshape(3)
+        self.status = CalibrationStatus.parse(self.status)
 
     @staticmethod
     def identity(reason: str = "no calibration applied") -> "CalibrationEstimate":
         return CalibrationEstimate(reason=reason)
+
+    @property
+    def applied(self) -> bool:
+        """Whether a run applies this estimate (its status; see ``CalibrationStatus.applied``)."""
+        return status_applied(self.status)
+
+    @property
+    def diagnostics(self) -> "FitDiagnostics":
+        """The fit's diagnostics (``extra``) as typed fields."""
+        return FitDiagnostics.from_extra(self.extra)
 
     @property
     def uses_temperature(self) -> bool:
@@ -79,3 +136,37 @@ class CalibrationEstimate:
 
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), sort_keys=True)
+
+
+@dataclass(frozen=True)
+class FitDiagnostics:
+    """What a fit reports beside its coefficients, typed (read from an estimate's ``extra``,
+    which is what the logs, the store and old logs hold; fields absent there are None/empty).
+
+    ``warnings``: (code, message) dicts, most important first; ``flags``: their codes and other
+    conditions (``short``, ``not_converged``, ...); ``accepted``: online, whether the refit took
+    effect (None in batch); ``schedule``: batch, every attempt (hours, windows, status, errors)."""
+
+    converged: Optional[bool] = None
+    flags: tuple = ()
+    warnings: tuple = ()
+    temperature_used: Optional[bool] = None
+    temperature_reason: Optional[str] = None
+    windows_offered: Optional[int] = None
+    stop_rule: Optional[str] = None
+    accepted: Optional[bool] = None
+    mode: Optional[str] = None
+    schedule: tuple = ()
+    quietest_window_sd_mg: Optional[float] = None
+
+    @staticmethod
+    def from_extra(extra: Optional[dict]) -> "FitDiagnostics":
+        """The typed view of an estimate's ``extra`` dict (unknown keys are ignored)."""
+        e = extra or {}
+        return FitDiagnostics(
+            converged=e.get("converged"), flags=tuple(e.get("flags") or ()),
+            warnings=tuple(e.get("warnings") or ()), temperature_used=e.get("temperature_used"),
+            temperature_reason=e.get("temperature_reason"),
+            windows_offered=e.get("windows_offered"), stop_rule=e.get("stop_rule"),
+            accepted=e.get("accepted"), mode=e.get("mode"), schedule=tuple(e.get("schedule") or ()),
+            quietest_window_sd_mg=e.get("quietest_window_sd_mg"))

@@ -513,7 +513,7 @@ def _judge(est: CalibrationEstimate, feats: WindowFeatures, t_used: bool,
                 "offset": est.offset.tolist(), "scale": est.scale.tolist(),
                 "tempoffset": est.tempoffset.tolist(), "temperature_ref": est.temperature_ref,
                 "uncertainty": est.uncertainty, "error_after_mg": est.error_after_mg}
-            if c1.status in ("ok", "high_error"):
+            if c1.applied:
                 # the fallback's own warnings are already in; the reason for it goes first
                 c1.extra["warnings"].insert(0, tw.to_dict())
                 c1.extra["flags"].append(tw.code)

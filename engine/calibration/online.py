@@ -30,7 +30,6 @@ from .schedule import CHUNK_HOURS
 from .select import MAX_ABS_MEAN_G, SD_THRESHOLD_G, select_calibration_windows
 
 _NS_PER_HOUR = 3_600_000_000_000
-APPLICABLE = ("ok", "high_error")  # fit outcomes that carry non-identity parameters
 
 
 class OnlineCalibrator:
@@ -177,11 +176,11 @@ class OnlineCalibrator:
                               max_abs_mean=self.max_abs_mean, windows_offered=self._offered,
                               start=start, quantisation_step_g=self._step,
                               means_dequantised=self._step is not None, **self.fit_options)
-        if est.status in APPLICABLE:
+        if est.applied:  # a fit that carries non-identity parameters
             self._last_fit = est
         est.effective_from_ns = int(effective_ns)
         est.extra["mode"] = "online"
-        if est.status in APPLICABLE and len(wins):
+        if est.applied and len(wins):
             # compare both on the same windows (those with a temperature if either needs it)
             if est.uses_temperature or self.current.uses_temperature:
                 with_t = wins.select(np.isfinite(wins.temperature))

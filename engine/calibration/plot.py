@@ -57,7 +57,7 @@ def plot_calibration(windows: WindowFeatures, estimate: CalibrationEstimate, pat
     if thinned:  # a readable figure; thin deterministically
         w = w.select(np.linspace(0, len(w) - 1, max_points).astype(np.int64))
     before = w.mean
-    applied = estimate.status in ("ok", "high_error")
+    applied = estimate.applied
     after = _calibrated(w, estimate) if len(w) else before
     rb = (np.linalg.norm(before, axis=1) - 1) * 1000 if len(w) else np.zeros(0)
     ra = (np.linalg.norm(after, axis=1) - 1) * 1000 if len(w) else np.zeros(0)

@@ -30,7 +30,6 @@ from ..features import WindowFeatures
 from .estimate import CalibrationEstimate
 from .fit import PARAM_TOL, icp_sphere_fit, rereference, temperature_check
 
-APPLICABLE = ("ok", "high_error")  # fit outcomes with parameters worth starting from
 DEPTH = 5  # earlier iterates mixed into each new one (Walker & Ni's m)
 MAX_STEPS = 60  # mixed iterations at most (then the fit's own loop takes over from the best)
 
@@ -96,7 +95,7 @@ def extrapolated_start(previous: CalibrationEstimate, windows: WindowFeatures, *
     """A start for the fit on ``windows`` near its fixed point, from ``previous`` (a fit on a
     subset of them; Anderson-mixed ICP iterations, module docstring); None when ``previous`` is
     not a usable start."""
-    if previous is None or previous.status not in APPLICABLE:
+    if previous is None or not previous.applied:  # no parameters worth starting from
         return None
     if variant not in ("auto", "c1", "c2"):
         return previous  # offset- or scale-only fits: plain warm start

@@ -110,7 +110,7 @@ def _qc_detail(qc: dict) -> str:
 
 
 def summary_row(entry, final: Path, done: dict, summary: dict) -> dict:
-    from stillpoint.engine.settings import APPLIED_STATUSES
+    from stillpoint.engine.calibration.estimate import status_applied
     from stillpoint.engine.timezones import ZoneError, local_text, utc_text, zone_from_label
     dev = summary.get("device") or {}
     qc = summary.get("qc") or {}
@@ -137,7 +137,7 @@ def summary_row(entry, final: Path, done: dict, summary: dict) -> dict:
         "qc_detail": _qc_detail(qc),
         "windows": summary.get("windows"), "nonmovement_windows": summary.get("nonmovement_windows"),
         "calibration_status": cal.get("status"),
-        "calibration_applied": cal.get("status") in APPLIED_STATUSES,
+        "calibration_applied": status_applied(cal.get("status")),
         "calibration_reason": cal.get("reason"),
         "error_before_mg": cal.get("error_before_mg"), "error_after_mg": cal.get("error_after_mg"),
         "hours_used": cal.get("hours_used"), "temperature_ref": cal.get("temperature_ref"),

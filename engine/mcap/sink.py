@@ -62,7 +62,7 @@ from typing import Optional
 import numpy as np
 
 from ..core.blocks import Block, DeviceInfo, PER_SAMPLE_BUTTON, PER_SAMPLE_LIGHT_RAW
-from ..calibration.estimate import CalibrationEstimate
+from ..calibration.outcome import CalibrationOutcome
 from ..core.jsonsafe import dumps, jsonable
 from .schemas import (ACCEL_BATCH, ACCEL_BATCH_RAW, EPOCH_METRICS, GYRO_BATCH_RAW, TEMPERATURE,
                       VIEW_SAMPLE, INT32_MAX, max_step_ok, time_deltas)
@@ -168,15 +168,6 @@ def epoch_messages(m: EpochMetrics) -> list[bytes]:
     buf = epoch_records(m).tobytes()
     w = _EPOCH_DTYPE.itemsize
     return [buf[i * w:(i + 1) * w] for i in range(len(m))]
-
-
-def estimate_message(est: CalibrationEstimate, applied: bool) -> dict:
-    """The ``/calibration`` message: the estimate, whether it is applied, and ``fitted_at_ns``
-    (the end of the data it was fitted on)."""
-    d = est.to_dict()
-    d["applied"] = bool(applied)
-    d["fitted_at_ns"] = est.fit_end_ns
-    return d
 
 
 class _RawCells:
@@ -412,12 +403,10 @@ class McapSink(McapLog):
                             epoch_records(m)):
                 self._end_chunk(False)
 
-    def write_estimate(self, est: CalibrationEstimate, applied: bool, log_time_ns: int,
-                       **fields) -> None:
-        """Log an estimate on ``/calibration`` (``fields`` are added to the message)."""
-        d = estimate_message(est, applied)
-        d.update(fields)
-        self.write_json(TOPIC_CALIBRATION, log_time_ns, d, schema=CALIBRATION)
+    def write_outcome(self, outcome: CalibrationOutcome, log_time_ns: int, **fields) -> None:
+        """Log a calibration outcome on ``/calibration`` (``fields`` are added to the message)."""
+        self.write_json(TOPIC_CALIBRATION, log_time_ns, outcome.message(**fields),
+                        schema=CALIBRATION)
 
     def write_qc(self, event: dict, log_time_ns: int) -> None:
         self.write_json(TOPIC_QC, log_time_ns, event, schema=QC)

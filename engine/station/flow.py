@@ -236,6 +236,7 @@ class DeviceFlow:
         if self.opts.store is None or self.opts.static_from_store is not None:
             return None
         from stillpoint.engine.calibration.estimate import CalibrationEstimate
+        from stillpoint.engine.calibration.outcome import store_refusal
         store = self._store()
         row = {"product": "calibration store", "path": str(store.dir)}
         try:
@@ -247,8 +248,9 @@ class DeviceFlow:
                 == (p.fit_start_ns, p.fit_end_ns, list(p.offset), list(p.scale)):
             return dict(row, result="kept", reason="no refit was accepted: the estimate in force "
                                                    "is the store's own")
-        if est.status not in ("ok", "high_error"):
-            return dict(row, result="skipped", reason=f"final estimate {est.status}: not stored")
+        refusal = store_refusal(est)
+        if refusal is not None:
+            return dict(row, result="skipped", reason=refusal)
         try:
             store.add(est, device_key=f"{self.att.device_type}-{self.att.device_id}",
                       source=raw_copy)

@@ -88,17 +88,17 @@ def _batch_tables(mcap, settings, ts) -> dict:
     """Correct the logged raw stream with the run's one estimate and write the tables."""
     from stillpoint.drivers.mcap_replay import McapRawSource
     from ..calibration.estimate import CalibrationEstimate
+    from ..calibration.outcome import CalibrationOutcome
     from ..operators.correction import CorrectionOperator
     from ..operators.filters import band_used
     from ..operators.metrics import EpochMetrics, MetricsOperator
-    from ..settings import APPLIED_STATUSES
     from ..core.blocks import coalesce_blocks
     from ..tables.writer import TablesTap
 
     src = McapRawSource(mcap)
     try:
         est = src.logged_calibration()  # checked: a damaged record is one typed line
-        applied = est.status in APPLIED_STATUSES and settings.calibrate
+        applied = est.applied and settings.calibrate
         initial = est if applied else CalibrationEstimate.identity(est.reason)
         initial.effective_from_ns = None
         rate = float(src.info.sample_rate_nominal or 0) or 100.0
@@ -116,7 +116,7 @@ def _batch_tables(mcap, settings, ts) -> dict:
                 step(block, correction.push(block))
             step(None, correction.flush())
             tap.flush(metrics.flush())
-            return tap.close(est.status)
+            return tap.close(CalibrationOutcome(est, applied).table_status)
         except BaseException:
             tap.abort()
             raise

@@ -40,7 +40,7 @@ def calibrated_samples(path, summary):
     from stillpoint.drivers import open_recording
     from stillpoint.engine.calibration.estimate import CalibrationEstimate
     est = CalibrationEstimate.from_dict(dict(summary["calibration"]))
-    applied = est.status in ("ok", "high_error")
+    applied = est.applied
     opts = {}
     tz = summary.get("_reader_tz")
     if tz is not None:

@@ -136,12 +136,13 @@ def print_human(est, out=None, title: str = "") -> None:
     u = getattr(est, "uncertainty", None)
     if u:
         w(uncertainty_lines(est))
-    rule = est.extra.get("stop_rule")
+    diag = est.diagnostics
+    rule = diag.stop_rule
     if rule:
-        conv = "converged" if est.extra.get("converged") else "NOT converged"
+        conv = "converged" if diag.converged else "NOT converged"
         w(f"  iterations   {est.iterations} ({conv}; "
           f"{'GGIR rule |d res| < 1e-10' if rule == 'ggir-res' else 'parameter change < 1e-9'})\n")
-    flags = est.extra.get("flags") or []
+    flags = diag.flags
     if flags:
         w(f"  flags        {', '.join(flags)}\n")
 

@@ -13,6 +13,7 @@ import json
 import sys
 
 from stillpoint.drivers.errors import StillpointError
+from stillpoint.engine.calibration.estimate import FitDiagnostics
 
 NAME = "calibration"
 HELP = "the per-device calibration store: list | show DEVICE | export [-o FILE]"
@@ -85,7 +86,7 @@ def run(args) -> int:
                 from stillpoint.engine.calibration import CalibrationEstimate
                 from .calibrate import uncertainty_lines
                 print(uncertainty_lines(CalibrationEstimate.from_dict(e), indent="    "), end="")
-            for wn in (e.get("extra") or {}).get("warnings") or []:
+            for wn in FitDiagnostics.from_extra(e.get("extra")).warnings:
                 print(f"    warning: {wn['message']}")
             if r.get("source"):
                 print(f"    source {r['source']}")

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from stillpoint.engine.calibration.estimate import status_applied
 from stillpoint.engine.run import RunSettings, process_file
 from ._numbers import SEED as SEED_NUMBER, number
 
@@ -115,7 +116,7 @@ def run(args) -> int:
         print(f"\nstillpoint process --mode batch demo.cwa  ({t_proc:.1f} s)\n")
         print(human_summary(s))
         c = s["calibration"]
-        if c["status"] in ("ok", "high_error"):
+        if status_applied(c["status"]):
             off, sc, to = true_correction(truth["model"], c["temperature_ref"])
             print("\n                 x          y          z")
             print("offset  true  " + " ".join(f"{x:+.5f}  " for x in off))

@@ -7,6 +7,7 @@ from pathlib import Path
 
 from stillpoint.drivers.outputs import check_distinct_outputs, check_output_path
 from stillpoint.engine.calibration.estimate import CalibrationEstimate
+from stillpoint.engine.calibration.outcome import store_refusal
 from stillpoint.engine.run import RunSettings, process_file
 
 from ._numbers import SECONDS_DAY
@@ -180,7 +181,7 @@ def execute(args, settings: RunSettings, out: Path) -> int:
     progress.done()
     if getattr(args, "store", None) is not None:
         est = CalibrationEstimate.from_dict(dict(summary["calibration"]))
-        if est.status in ("ok", "high_error") and summary.get("device") and est.method != "static-6":
+        if store_refusal(est) is None and summary.get("device"):
             d = summary["device"]
             store = _store(args.store)
             store.add(est, device_key=f"{d['type']}-{d['id']}", source=str(args.file))

@@ -69,6 +69,8 @@ MAX_MEMBER_BYTES = 64 * 1024**3  # a member larger than this is not a recording 
 BOMB_RATIO = 100.0  # a member over BOMB_MIN_BYTES that expands more than this is refused
 BOMB_MIN_BYTES = 64 * 1024**2
 MAX_QC_EVENTS = 10_000  # QC events listed per file (as the other readers); the rest are counted
+RUN_LOOKAHEAD = 256  # records checked at once on the fast path (other records cut runs anyway)
+HEADER_MASK = np.uint64(0xFFFF_0000_0000_FFFF)  # separator, type and size of a record header (LE)
 MAX_METADATA_BYTES = 1 << 16  # a METADATA record's JSON kept for the header (longer: skipped)
 SERIAL_MODELS = (("MOS0", "wGT3XBT"), ("MOS2", "wGT3XBT"), ("MOS3", "wActiSleepPlus"),
                  ("MOS4", "wActiSleepBT"), ("NEO", "GT3XPlus"), ("MRA", "ActiSleepPlus"),
@@ -88,11 +90,15 @@ def unpack12(payload: np.ndarray, n_samples: int) -> np.ndarray:
         p = np.concatenate([p, pad], axis=-1)
     elif nbytes > need:
         p = p[..., :need]
-    g = p.reshape(lead + (-1, 3)).astype(np.uint16)
-    v = np.empty(lead + (g.shape[-2], 2), np.uint16)
-    v[..., 0] = (g[..., 0] << 4) | (g[..., 1] >> 4)
-    v[..., 1] = ((g[..., 1] & 0xF) << 8) | g[..., 2]
-    vals = ((v << 4).view(np.int16) >> 4).reshape(lead + (-1,))[..., :3 * n_samples]
+    # each 3 bytes hold two values: the big-endian int16 at byte 0 shifted right 4 (the top 12
+    # bits, sign-extended by the arithmetic shift) and the one at byte 1 with its top nibble
+    # shifted out (<< 4, then >> 4)
+    flat = np.ascontiguousarray(p).reshape(-1)
+    m = flat.shape[0] // 3
+    v = np.empty((m, 2), np.int16)
+    v[:, 0] = np.ndarray((m,), ">i2", flat, 0, (3,)) >> 4
+    v[:, 1] = (np.ndarray((m,), ">i2", flat, 1, (3,)) << 4) >> 4
+    vals = v.reshape(lead + (-1,))[..., :3 * n_samples]
     return vals.reshape(lead + (n_samples, 3))
 
 
@@ -507,7 +513,27 @@ def _prescan(z: _Zip, path: Path) -> dict:
 
 
 def _xor(buf: bytes, a: int, b: int) -> int:
-    return int(np.bitwise_xor.reduce(np.frombuffer(buf, np.uint8, b - a, a))) if b > a else 0
+    """XOR of the bytes buf[a:b] (a short record in Python, a long one with numpy)."""
+    if b - a <= 64:
+        x = 0
+        for c in buf[a:b]:
+            x ^= c
+        return x
+    return int(np.bitwise_xor.reduce(np.frombuffer(buf, np.uint8, b - a, a)))
+
+
+def xor_rows(rows: np.ndarray) -> np.ndarray:
+    """(k,) XOR of each row's bytes of a (k, w) uint8 array: 8 bytes at a time, then folded."""
+    w8 = rows.shape[1] // 8 * 8
+    x = np.zeros(rows.shape[0], np.uint64)
+    if w8:
+        x = np.bitwise_xor.reduce(rows[:, :w8].view("<u8"), axis=1)
+        for s in (32, 16, 8):
+            x ^= x >> np.uint64(s)
+    x = (x & np.uint64(0xFF)).astype(np.uint8)
+    if rows.shape[1] > w8:
+        x ^= np.bitwise_xor.reduce(rows[:, w8:], axis=1)
+    return x
 
 
 def read_header(path, *, timezone=None) -> DeviceInfo:
@@ -566,6 +592,7 @@ class Gt3xReader:
         self._n_events = 0
         self._iterated = False
         self._member = None
+        self._carry = np.zeros(3, np.int16)  # the last sample of the previous block
         self._read_bytes = 0
         self._total_bytes = self._zip.size(C.GT3X_LOG_MEMBER if self.layout == "log.bin"
                                            else C.GT3X_ACTIVITY_MEMBER)
@@ -629,26 +656,69 @@ class Gt3xReader:
 
     # ------------------------------------------------------------------ block assembly
     def _new_acc(self):
-        return {"secs": [], "acc": [], "idle": [], "idx": [], "light": [], "batt": [], "n": 0}
+        # runs of seconds: (secs (k,), kind "a12"/"a16"/"fill", payload rows (k, S) or None,
+        # first record index, lux, battery); decoded together when the block is made
+        return {"runs": [], "n": 0}
+
+    def _decode(self, kind: str, P: np.ndarray) -> np.ndarray:
+        """Payload rows (k, S) of one record kind -> (k, rate, 3) int16 X Y Z."""
+        rate = self.rate
+        S = P.shape[1]
+        if kind == "a12":
+            n = S * 8 // C.GT3X_BITS_PER_SAMPLE
+            v = unpack12(P, n)[..., [1, 0, 2]]  # stored Y X Z -> X Y Z
+        else:
+            n = S // 6
+            v = np.ascontiguousarray(P[:, :n * 6]).view("<i2").reshape(-1, n, 3)
+        if n > rate:
+            v = v[:, :rate]
+        elif n < rate:
+            v = np.concatenate([v, np.repeat(v[:, -1:], rate - n, axis=1)], axis=1)
+        return self._fix_axes(v)
 
     def _emit(self, acc, segment: int, first_sample: int) -> Optional[Block]:
-        if not acc["secs"]:
+        runs = acc["runs"]
+        if not runs:
             return None
-        secs = np.concatenate(acc["secs"]).astype(np.int64)
-        accel = np.concatenate(acc["acc"]).reshape(-1, 3)
-        per_sec = accel.shape[0] // secs.shape[0]
-        idle = np.repeat(np.concatenate(acc["idle"]).astype(np.uint8), per_sec)
-        t = (secs[:, None] * 10**9 - self._tz_ns + self._offsets[None, :per_sec]).reshape(-1)
-        m = secs.shape[0]
+        rate = self.rate
+        lengths = np.array([r[0].shape[0] for r in runs], np.int64)
+        total = int(lengths.sum())
+        out = np.empty((total, rate, 3), np.int16)
+        ptr, i = 0, 0
+        while i < len(runs):
+            kind, pl = runs[i][1], runs[i][2]
+            if kind == "fill":
+                k = int(lengths[i])
+                out[ptr:ptr + k] = out[ptr - 1, -1] if ptr > 0 else self._carry
+                ptr += k
+                i += 1
+                continue
+            j = i + 1
+            while j < len(runs) and runs[j][1] == kind and runs[j][2].shape[1] == pl.shape[1]:
+                j += 1
+            P = pl if j == i + 1 else np.concatenate([r[2] for r in runs[i:j]])
+            k = P.shape[0]
+            out[ptr:ptr + k] = self._decode(kind, P)
+            ptr += k
+            i = j
+        self._carry = out[ptr - 1, -1].copy()
+        secs = np.concatenate([r[0] for r in runs]).astype(np.int64)
+        fill = np.array([r[1] == "fill" for r in runs])
+        starts = np.cumsum(lengths) - lengths
+        within = np.arange(total, dtype=np.int64) - np.repeat(starts, lengths)
+        idx = np.where(np.repeat(fill, lengths), -1,
+                       np.repeat(np.array([r[3] for r in runs], np.int64), lengths) + within)
+        idle = np.repeat(fill.astype(np.uint8), lengths * rate)
+        t = (secs[:, None] * 10**9 - self._tz_ns + self._offsets[None, :]).reshape(-1)
         return Block(
-            time_ns=t, accel=accel,
+            time_ns=t, accel=out.reshape(-1, 3),
             accel_counts_per_g=np.full(3, self.scale), accel_zero=np.zeros(3),
-            unit_index=np.concatenate(acc["idx"]).astype(np.int64), unit_sequence=secs,
-            unit_start=np.arange(m, dtype=np.int64) * per_sec,
-            temperature_c=np.full(m, np.nan), temperature_raw=np.full(m, -1, np.int32),
-            light=np.concatenate(acc["light"]).astype(np.int32),
-            battery_v=np.concatenate(acc["batt"]).astype(np.float64),
-            events=np.zeros(m, np.uint8), per_sample={PER_SAMPLE_IDLE_SLEEP: idle},
+            unit_index=idx, unit_sequence=secs,
+            unit_start=np.arange(total, dtype=np.int64) * rate,
+            temperature_c=np.full(total, np.nan), temperature_raw=np.full(total, -1, np.int32),
+            light=np.repeat(np.array([r[4] for r in runs], np.int32), lengths),
+            battery_v=np.repeat(np.array([r[5] for r in runs], np.float64), lengths),
+            events=np.zeros(total, np.uint8), per_sample={PER_SAMPLE_IDLE_SLEEP: idle},
             segment=segment, first_sample=first_sample)
 
     def _fix_axes(self, a: np.ndarray) -> np.ndarray:
@@ -680,54 +750,51 @@ class Gt3xReader:
                 first_sample += b.n
             return b
 
-        def add_seconds(secs, samples, idle_flag, idx):
-            """Append whole seconds (secs (k,), samples (k, rate, 3)), splitting segments."""
+        def add_seconds(secs, kind, payload, idx0):
+            """Append whole seconds (secs (k,); payload rows (k, S), None for idle sleep),
+            splitting segments where the seconds are not consecutive."""
             nonlocal segment
             out = []
             secs = np.asarray(secs, np.int64)
+            k = secs.shape[0]
             # breaks inside this run: non-consecutive seconds
-            if secs.shape[0] > 1:
+            if k > 1 and int(secs[-1]) - int(secs[0]) != k - 1:
                 br = np.flatnonzero(np.diff(secs) != 1) + 1
             else:
                 br = np.zeros(0, np.int64)
-            edges = [0] + br.tolist() + [secs.shape[0]]
+            edges = [0] + br.tolist() + [k]
+            idx = None if idx0 < 0 else (lambda q: idx0 + q)
             for a, b in zip(edges[:-1], edges[1:]):
                 s0 = int(secs[a])
                 if st.last_sec is not None and s0 <= st.last_sec:
                     # a second already returned (the clock went back): drop these
                     keep = secs[a:b] > st.last_sec
                     if not keep.any():
-                        self._event(int(idx[a]) if idx is not None else -1, "overlapping_time",
+                        self._event(idx(a) if idx is not None else -1, "overlapping_time",
                                     f"{b - a} second(s) at or before the last returned second; dropped",
                                     time_s=s0, samples=(b - a) * rate)
                         continue
                     j = a + int(np.argmax(keep))
-                    self._event(int(idx[a]) if idx is not None else -1, "overlapping_time",
+                    self._event(idx(a) if idx is not None else -1, "overlapping_time",
                                 f"{j - a} second(s) at or before the last returned second; dropped",
                                 time_s=s0, samples=(j - a) * rate)
                     a, s0 = j, int(secs[j])
                 if st.last_sec is not None and s0 != st.last_sec + 1:
                     gap = s0 - st.last_sec - 1
-                    self._event(int(idx[a]) if idx is not None else -1, "time_gap",
+                    self._event(idx(a) if idx is not None else -1, "time_gap",
                                 f"{gap} s without samples before this second (not idle sleep); "
                                 "a new segment starts", time_s=s0)
                     fb = flush()
                     if fb is not None:
                         out.append(fb)
                     segment += 1
-                n = b - a
-                acc["secs"].append(secs[a:b])
-                acc["acc"].append(samples[a:b].reshape(-1, 3))
-                acc["idle"].append(np.full(n, idle_flag, np.uint8))
-                acc["idx"].append(np.asarray(idx[a:b], np.int64) if idx is not None else np.full(n, -1, np.int64))
-                acc["light"].append(np.full(n, st.lux, np.int32))
-                acc["batt"].append(np.full(n, st.battery, np.float64))
-                acc["n"] += n
+                acc["runs"].append((secs[a:b], kind, None if payload is None else payload[a:b],
+                                    -1 if idx0 < 0 else idx0 + a, st.lux, st.battery))
+                acc["n"] += b - a
                 st.last_sec = int(secs[b - 1])
                 if self.first_local_s is None:
                     self.first_local_s = int(secs[a])
                 self.last_local_s = st.last_sec
-                st.last_sample = samples[b - 1, -1].copy()
                 if acc["n"] >= self.batch_seconds:
                     fb = flush()
                     if fb is not None:
@@ -736,7 +803,7 @@ class Gt3xReader:
 
         def fill_idle(until_s: int):
             """Idle-sleep seconds from the last returned one up to ``until_s`` (exclusive)."""
-            if st.last_sec is None or st.last_sample is None or until_s <= st.last_sec + 1:
+            if st.last_sec is None or until_s <= st.last_sec + 1:
                 return []
             secs = np.arange(st.last_sec + 1, until_s, dtype=np.int64)
             self.idle_sleep_s += secs.shape[0]
@@ -751,32 +818,22 @@ class Gt3xReader:
                                  else "left out")))
             if not self.fill_idle_sleep:
                 return []
-            samples = np.broadcast_to(st.last_sample, (secs.shape[0], rate, 3))
-            return add_seconds(secs, samples, 1, None)
+            return add_seconds(secs, "fill", None, -1)
 
-        def activity(secs, payloads, typ, idx):
-            """Decode k activity records (payloads (k, S))."""
+        def activity(secs, payloads, typ, idx0):
+            """k activity records (payloads (k, S)), decoded when their block is made."""
             S = payloads.shape[1]
-            if typ == C.GT3X_REC_ACTIVITY:
-                n = S * 8 // C.GT3X_BITS_PER_SAMPLE
-                v = unpack12(payloads, n)[..., [1, 0, 2]]  # stored Y X Z -> X Y Z
-            else:
-                n = S // 6
-                v = payloads[:, :n * 6].copy().view("<i2").reshape(-1, n, 3).astype(np.int16)
+            kind = "a12" if typ == C.GT3X_REC_ACTIVITY else "a16"
+            n = S * 8 // C.GT3X_BITS_PER_SAMPLE if kind == "a12" else S // 6
             if n != rate:
                 if not st.size_warned:
                     st.size_warned = True
-                    self._event(int(idx[0]), "record_size",
+                    self._event(idx0, "record_size",
                                 f"an activity record holds {n} samples, the rate is {rate} Hz "
                                 "(logged once); samples beyond the rate are dropped, missing ones "
                                 "repeat the record's last", time_s=int(secs[0]))
-                if n > rate:
-                    v = v[:, :rate]
-                elif n == 0:
+                if n == 0:
                     return []
-                else:
-                    v = np.concatenate([v, np.repeat(v[:, -1:], rate - n, axis=1)], axis=1)
-            v = self._fix_axes(v)
             out = []
             if st.idle_since is not None or st.idle_until is not None:
                 # an idle-sleep period ended (or is still marked): fill up to the exit event, or
@@ -784,7 +841,7 @@ class Gt3xReader:
                 end = int(secs[0]) if st.idle_until is None else min(st.idle_until, int(secs[0]))
                 out += fill_idle(end)
                 st.idle_since = st.idle_until = None
-            out += add_seconds(secs, v, 0, idx)
+            out += add_seconds(secs, kind, payloads, idx0)
             return out
 
         def more() -> bool:
@@ -838,24 +895,24 @@ class Gt3xReader:
             if is_act:
                 # fast path: a run of equal-sized activity records
                 stride = size + 9
-                k = (len(buf) - pos) // stride
+                k = min((len(buf) - pos) // stride, RUN_LOOKAHEAD)
                 arr = np.frombuffer(buf, np.uint8, k * stride, pos).reshape(k, stride)
-                ok = ((arr[:, 0] == C.GT3X_SEPARATOR) & (arr[:, 1] == typ)
-                      & (arr[:, 6] == (size & 0xFF)) & (arr[:, 7] == (size >> 8)))
+                head = arr[:, :8].view("<u8")[:, 0] & HEADER_MASK
+                ok = head == (head[0] if k else 0)
                 run = k if ok.all() else int(np.argmin(ok))
                 arr = arr[:run]
-                good = np.bitwise_xor.reduce(arr, axis=1) == C.GT3X_CHECKSUM_OK
+                good = xor_rows(arr) == C.GT3X_CHECKSUM_OK
                 if not good.all():
                     run = int(np.argmin(good))
                     arr = arr[:run]
                 if run > 0:
                     secs = arr[:, 2:6].copy().view("<u4").reshape(-1).astype(np.int64)
-                    idx = np.arange(rec_index + 1, rec_index + 1 + run, dtype=np.int64)
+                    idx0 = rec_index + 1
                     rec_index += run
                     self.qc.total += run
                     self.qc.valid += run
                     self.last_record_local_s = int(secs[-1])
-                    blocks = activity(secs, arr[:, 8:8 + size], typ, idx)
+                    blocks = activity(secs, arr[:, 8:8 + size], typ, idx0)
                     pos += run * stride
                     yield from blocks
                     continue
@@ -1000,12 +1057,11 @@ class Gt3xReader:
 class _LogState:
     """What the log.bin parser carries from record to record."""
 
-    __slots__ = ("last_sec", "last_sample", "idle_since", "idle_until", "battery", "lux", "junk",
+    __slots__ = ("last_sec", "idle_since", "idle_until", "battery", "lux", "junk",
                  "zeros", "size_warned")
 
     def __init__(self):
         self.last_sec: Optional[int] = None
-        self.last_sample: Optional[np.ndarray] = None
         self.idle_since: Optional[int] = None
         self.idle_until: Optional[int] = None
         self.battery = float("nan")

@@ -156,6 +156,11 @@ def test_night_columns_are_documented():
     assert names[1] == table.DAY_NIGHT_COLUMNS
 
 
+def test_rhythm_columns_are_documented():
+    from stillpoint.engine.rhythm import RHYTHM_COLUMNS
+    assert _documented("rhythm-table") == RHYTHM_COLUMNS
+
+
 def test_cohort_table_columns_are_documented():
     c = importlib.import_module("stillpoint.engine.cohort.collate")
     assert _documented("cohort-summary") == _expand(c.SUMMARY_FIELDS)

@@ -304,7 +304,9 @@ def run_job(entry: dict, outdir: str, settings: dict, code: str, attempt: int = 
             # side by side, and a reader thread per file would take them from the other workers
             # and hold its own allocator arena (peak RSS per worker 123-127 -> 180-200 MB on
             # 1-day files, tools/benchmarks/bench_cohort.py)
-            tables = TablesSettings(*table_paths(tmp / MCAP_NAME), **table_options(settings))
+            from stillpoint.engine.rhythm.table import rhythm_path
+            tables = TablesSettings(*table_paths(tmp / MCAP_NAME), **table_options(settings),
+                                    rhythm_path=rhythm_path(tmp / MCAP_NAME))
             if (settings.get("tables") or {}).get("sleep"):
                 from stillpoint.engine.sleep import SleepOptions, nights_path
                 tables.sleep, tables.nights_path = SleepOptions(), nights_path(tmp / MCAP_NAME)
@@ -320,6 +322,9 @@ def run_job(entry: dict, outdir: str, settings: dict, code: str, attempt: int = 
             if "tables" in summary:  # names inside the folder, not the temporary path
                 for k in ("epochs", "days"):
                     summary["tables"][k] = summary["outputs"][k] = Path(summary["tables"][k]).name
+                if "rhythm" in summary["tables"]:
+                    summary["tables"]["rhythm"] = summary["outputs"]["rhythm"] = \
+                        Path(summary["tables"]["rhythm"]).name
                 if "sleep" in summary["tables"]:
                     sl = summary["tables"]["sleep"]
                     sl["nights"] = summary["outputs"]["nights"] = Path(sl["nights"]).name

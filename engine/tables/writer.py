@@ -70,6 +70,7 @@ class TablesSettings:
     outcomes: OutcomeSettings = field(default_factory=OutcomeSettings)
     sleep: Optional[object] = None  # engine.sleep.SleepOptions: sleep on when the zone is known
     nights_path: Optional[Path] = None
+    rhythm_path: Optional[Path] = None  # <stem>.rhythm.csv (engine/rhythm); None: not written
 
     def to_dict(self) -> dict:
         out = {"epochs": str(self.epochs_path), "days": str(self.days_path),
@@ -154,6 +155,11 @@ class TablesTap:
         self.assembler = EpochAssembler(rate_hz, epoch_s, band, source=source,
                                         nonwear_version=ts.nonwear_version,
                                         clip_g=clip_threshold_g(getattr(info, "accel_range_g", None)))
+        self.rhythm = None
+        if ts.rhythm_path is not None:
+            from ..rhythm.table import RhythmTap
+            check_output_path(ts.rhythm_path, what="rhythm table")
+            self.rhythm = RhythmTap(ts.rhythm_path, ts.zone, epoch_s, sleep=self.sleep is not None)
         self.outcomes = DailyOutcomes(ts.outcomes, epoch_s) if ts.outcomes.active else None
         self.steps = None
         if self.outcomes is not None and ts.outcomes.steps:
@@ -275,6 +281,11 @@ class TablesTap:
         for r, x, c in items:
             self._gz.write(format_rows(r, self.ts.zone, self.epoch_ns, x, idle=self.idle).encode())
             self.days.push(r, steps=c)
+            if self.rhythm is not None:
+                if self.sleep is not None:  # the sleep tap's last two columns: spt, sib
+                    self.rhythm.push(r, np.array(x[-2]) == "1", np.array(x[-1]) == "1")
+                else:
+                    self.rhythm.push(r)
 
     def push(self, block, batches, metrics) -> None:
         if self.steps is not None:
@@ -310,6 +321,7 @@ class TablesTap:
         cols = self.days.columns
         if self.sleep is not None:
             cols = self.sleep.close(days, self.sink, self.ts.zone, cols)
+        rhythm = self.rhythm.close(days) if self.rhythm is not None else None
         with atomic_output(self.ts.days_path, binary=False, what="day table") as f:
             w = csv.writer(f, lineterminator="\n")
             w.writerow(cols)
@@ -329,6 +341,8 @@ class TablesTap:
             out["outcomes"] = self.ts.outcomes.to_dict()
         if self.sleep is not None:
             out["sleep"] = self.sleep.summary()
+        if rhythm is not None:
+            out["rhythm"] = str(self.ts.rhythm_path)
         return out
 
     def abort(self) -> None:
@@ -336,6 +350,8 @@ class TablesTap:
             return
         if self.average_day is not None:
             self.average_day.close()
+        if self.rhythm is not None:
+            self.rhythm.abort()
         try:
             self._gz.close()
         except Exception:

@@ -136,7 +136,9 @@ def execute(args, settings: RunSettings, out: Path) -> int:
     named = {"MCAP output": out, "summary": getattr(args, "summary", None)}
     if getattr(args, "tables", False):
         from stillpoint.engine.tables import table_paths
+        from stillpoint.engine.rhythm.table import rhythm_path
         named["epoch table"], named["day table"] = table_paths(out)
+        named["rhythm table"] = rhythm_path(out)
         if getattr(args, "sleep", False):
             from stillpoint.engine.sleep import nights_path
             named["nights table"] = nights_path(out)

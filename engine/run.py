@@ -45,6 +45,7 @@ from .mcap.sink import McapSink
 
 from .operators.correction import CorrectionOperator
 from .operators.filters import band_used
+from .operators.extras import ExtraMetrics
 from .operators.metrics import EpochMetrics, MetricsOperator
 from .operators.nonmovement import NonmovementOperator
 from .operators.windows import WindowFeaturesOperator
@@ -117,6 +118,7 @@ class OutputStage:
         self.source = source
         self.correction = CorrectionOperator(initial, rate_hz=rate_hz, gate=gate)
         self.metrics = MetricsOperator(rate_hz, s.epoch_s, s.bfen_band_hz)
+        self.extras = ExtraMetrics(s, rate_hz)  # counts, MIMS-units (when on)
         self.epochs = 0
         self.enmo_weighted = 0.0
         self.samples_metrics = 0
@@ -147,8 +149,11 @@ class OutputStage:
             self.enmo_weighted += float(np.dot(m.enmo_mg, m.n))
             self.samples_metrics += int(m.n.sum())
         self.sink.write_slices(block, batches, m)
+        ex = self.extras.push(batches)
+        if ex:
+            self.sink.write_extras(ex)
         for tap in self.taps:
-            tap.push(block, batches, m)
+            tap.push(block, batches, m, ex)
 
     def push(self, block: Block) -> None:
         self._last_ns = int(block.time_ns[0])
@@ -173,8 +178,11 @@ class OutputStage:
             self.enmo_weighted += float(np.dot(m.enmo_mg, m.n))
             self.samples_metrics += int(m.n.sum())
             self.sink.write_slices(None, [], m)
+        ex = self.extras.flush()
+        if ex:
+            self.sink.write_extras(ex)
         for tap in self.taps:
-            tap.flush(m)
+            tap.flush(m, ex)
 
     @property
     def enmo_mean_mg(self) -> Optional[float]:
@@ -578,7 +586,8 @@ class _LogPrior:
 def _add_tables(outst: OutputStage, tables, s: RunSettings, rate: float, band, src) -> None:
     if tables is not None:
         from .tables import TablesTap
-        outst.taps.append(TablesTap(tables, rate, s.epoch_s, band, src, src.info, sink=outst.sink))
+        outst.taps.append(TablesTap(tables, rate, s.epoch_s, band, src, src.info, sink=outst.sink,
+                                    extras=outst.extras.keys))
 
 
 def _abort_tables(outst) -> None:

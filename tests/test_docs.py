@@ -141,6 +141,11 @@ def test_epoch_columns_are_documented():
     assert _documented("epoch-table") == list(EPOCH_COLUMNS)
 
 
+def test_count_columns_are_documented():
+    from stillpoint.engine.tables.writer import metric_columns
+    assert _documented("epoch-metric-columns") == metric_columns(True, False)
+
+
 def test_day_columns_are_documented():
     from stillpoint.engine.tables import day_columns
     assert _documented("day-table") == day_columns()

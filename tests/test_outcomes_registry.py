@@ -57,13 +57,36 @@ def test_mad_row_agrees_with_the_article():
     assert (row.table, row.page) == ("abstract (Results)", "e0134813")
 
 
+# ActiLife-count rows: (light, moderate, vigorous) per the publication's epoch (s), as quoted in
+# each row's ``transcribed_from`` (Troiano's from Am J Epidemiol 2016 Table 2)
+QUOTED_COUNTS = {
+    "freedson1998_adults_axis1": ((100, 1952, 5725), 60, "axis1"),
+    "troiano2008_nhanes_adults_axis1": ((100, 2020, 5999), 60, "axis1"),
+    "evenson2008_children_axis1": ((26, 574, 1003), 15, "axis1"),
+    "sasaki2011_adults_vm": ((None, 2690, 6167), 60, "vm"),
+}
+
+
+@pytest.mark.parametrize("key", sorted(QUOTED_COUNTS))
+def test_count_rows(key):
+    (light, moderate, vigorous), epoch, column = QUOTED_COUNTS[key]
+    row = lookup(key)
+    assert (row.light, row.moderate, row.vigorous) == (light, moderate, vigorous)
+    assert row.epoch_s == epoch and row.column == column and row.counts
+    assert row.doi and "not yet checked" in row.transcribed_from
+    # counts add up over time: thresholds scale with the epoch (mg thresholds do not)
+    five = row.scaled(5.0)
+    assert five.moderate == pytest.approx(moderate * 5.0 / epoch)
+    assert lookup("vahaypya2015_mad_hip").scaled(5.0) == lookup("vahaypya2015_mad_hip")
+
+
 def test_every_registry_row_is_quoted():
-    assert set(registry()) == set(QUOTED)
+    assert set(registry()) == set(QUOTED) | set(QUOTED_COUNTS)
 
 
 def test_metrics_and_columns():
     assert lookup("vahaypya2015_mad_hip").column == "mad_mg"
-    assert {r.metric for r in registry().values()} == {"ENMO", "MAD"}
+    assert {r.metric for r in registry().values()} == {"ENMO", "MAD", "COUNTS_AXIS1", "COUNTS_VM"}
     assert all(r.column == "enmo_mg" for r in registry().values() if r.metric == "ENMO")
 
 

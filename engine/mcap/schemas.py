@@ -262,13 +262,30 @@ EPOCH_METRICS = CdrType("stillpoint/msg/EpochMetrics", [
     ("temperature_c", "float32"),
 ], doc="One epoch: ENMO, BFEN, MAD (mg), mean calibrated acceleration (g), mean temperature.")
 
+EPOCH_COUNTS = CdrType("stillpoint/msg/EpochCounts", [
+    ("stamp", "time"),
+    ("n", "int32"),
+    ("axis1", "int32"), ("axis2", "int32"), ("axis3", "int32"),
+    ("vm", "float32"),
+], doc="ActiLife counts of one epoch (and segment): axis1 = Y, axis2 = X, axis3 = Z; vm = their\n"
+       "vector magnitude; n = 10 Hz values summed (engine/operators/counts.py).")
+
+EPOCH_MIMS = CdrType("stillpoint/msg/EpochMims", [
+    ("stamp", "time"),
+    ("n", "int32"),
+    ("mims", "float32"),
+    ("x", "float32"), ("y", "float32"), ("z", "float32"),
+], doc="MIMS-units of one epoch (and segment) and per axis; NaN where undefined; n = 100 Hz\n"
+       "samples (engine/operators/mims.py).")
+
 VIEW_SAMPLE = CdrType("stillpoint/msg/AccelSample", [
     ("stamp", "time"),
     ("x", "float32"), ("y", "float32"), ("z", "float32"),
     ("norm", "float32"),
 ], doc="One corrected sample (g) of the decimated view stream, with its norm.")
 
-ALL_TYPES = (ACCEL_BATCH_RAW, GYRO_BATCH_RAW, ACCEL_BATCH, TEMPERATURE, EPOCH_METRICS, VIEW_SAMPLE)
+ALL_TYPES = (ACCEL_BATCH_RAW, GYRO_BATCH_RAW, ACCEL_BATCH, TEMPERATURE, EPOCH_METRICS, VIEW_SAMPLE,
+             EPOCH_COUNTS, EPOCH_MIMS)
 
 INT32_MAX = 2**31 - 1
 

@@ -12,6 +12,8 @@ topic                encoding / schema            one message per
 /temperature         cdr Temperature              raw message (mean of its units)
 /view/accel          cdr AccelSample              view sample (``view_hz`` a second; 0 = off)
 /metrics/epoch       cdr EpochMetrics             epoch (plot-friendly preview, one value each)
+/metrics/counts      cdr EpochCounts              epoch and segment (with ``--counts``)
+/metrics/mims        cdr EpochMims                epoch and segment (with ``--mims``)
 /calibration         json + jsonschema            estimate published (with fit range, effect)
 /qc                  json + jsonschema            QC event (reader and engine)
 ==================== ============================ =============================================
@@ -64,8 +66,8 @@ import numpy as np
 from ..core.blocks import Block, DeviceInfo, PER_SAMPLE_BUTTON, PER_SAMPLE_LIGHT_RAW
 from ..calibration.outcome import CalibrationOutcome
 from ..core.jsonsafe import dumps, jsonable
-from .schemas import (ACCEL_BATCH, ACCEL_BATCH_RAW, EPOCH_METRICS, GYRO_BATCH_RAW, TEMPERATURE,
-                      VIEW_SAMPLE, INT32_MAX, max_step_ok, time_deltas)
+from .schemas import (ACCEL_BATCH, ACCEL_BATCH_RAW, EPOCH_COUNTS, EPOCH_METRICS, EPOCH_MIMS,
+                      GYRO_BATCH_RAW, TEMPERATURE, VIEW_SAMPLE, INT32_MAX, max_step_ok, time_deltas)
 from ..operators.correction import CorrectedBatch
 from ..operators.metrics import EpochMetrics
 
@@ -74,6 +76,8 @@ TOPIC_GYRO = "/raw/gyro"
 TOPIC_CORRECTED = "/corrected/accel"
 TOPIC_TEMPERATURE = "/temperature"
 TOPIC_METRICS = "/metrics/epoch"
+TOPIC_COUNTS = "/metrics/counts"
+TOPIC_MIMS = "/metrics/mims"
 TOPIC_CALIBRATION = "/calibration"
 TOPIC_QC = "/qc"
 
@@ -160,6 +164,34 @@ def epoch_records(m: EpochMetrics) -> np.ndarray:
     a["enmo"], a["bfen"], a["mad"] = m.enmo_mg, m.bfen_mg, m.mad_mg
     a["x"], a["y"], a["z"] = m.mean[:, 0], m.mean[:, 1], m.mean[:, 2]
     a["temp"] = m.temperature
+    return a
+
+
+_COUNTS_DTYPE = np.dtype([("hdr", "V4"), ("sec", "<i4"), ("nsec", "<u4"), ("n", "<i4"),
+                          ("axis1", "<i4"), ("axis2", "<i4"), ("axis3", "<i4"), ("vm", "<f4")])
+_MIMS_DTYPE = np.dtype([("hdr", "V4"), ("sec", "<i4"), ("nsec", "<u4"), ("n", "<i4"),
+                        ("mims", "<f4"), ("x", "<f4"), ("y", "<f4"), ("z", "<f4")])
+
+
+def counts_records(c) -> np.ndarray:
+    """EPOCH_COUNTS payloads of an ``EpochCounts`` as one structured array."""
+    a = np.zeros(len(c), _COUNTS_DTYPE)
+    a["hdr"] = np.void(b"\x00\x01\x00\x00")
+    a["sec"], a["nsec"] = np.divmod(c.start_ns, 10**9)
+    a["n"] = c.n
+    a["axis1"], a["axis2"], a["axis3"] = c.counts[:, 0], c.counts[:, 1], c.counts[:, 2]
+    a["vm"] = c.vm
+    return a
+
+
+def mims_records(m) -> np.ndarray:
+    """EPOCH_MIMS payloads of an ``EpochMims`` as one structured array."""
+    a = np.zeros(len(m), _MIMS_DTYPE)
+    a["hdr"] = np.void(b"\x00\x01\x00\x00")
+    a["sec"], a["nsec"] = np.divmod(m.start_ns, 10**9)
+    a["n"] = m.n
+    a["mims"] = m.mims
+    a["x"], a["y"], a["z"] = m.axes[:, 0], m.axes[:, 1], m.axes[:, 2]
     return a
 
 
@@ -402,6 +434,17 @@ class McapSink(McapLog):
             if ch.add_fixed(ch.channel(TOPIC_METRICS, "cdr", EPOCH_METRICS.name), m.start_ns,
                             epoch_records(m)):
                 self._end_chunk(False)
+
+    def write_extras(self, extras: dict) -> None:
+        """Log the optional epoch metrics of one step (``{"counts": EpochCounts, "mims":
+        EpochMims}``) on their topics."""
+        for key, topic, schema, records in (("counts", TOPIC_COUNTS, EPOCH_COUNTS, counts_records),
+                                            ("mims", TOPIC_MIMS, EPOCH_MIMS, mims_records)):
+            m = extras.get(key)
+            if m is not None and len(m):
+                ch = self._chunk
+                if ch.add_fixed(ch.channel(topic, "cdr", schema.name), m.start_ns, records(m)):
+                    self._end_chunk(False)
 
     def write_outcome(self, outcome: CalibrationOutcome, log_time_ns: int, **fields) -> None:
         """Log a calibration outcome on ``/calibration`` (``fields`` are added to the message)."""

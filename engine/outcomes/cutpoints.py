@@ -2,10 +2,12 @@
 placement and metric, read from ``cutpoints.csv`` (package data).
 
 Each row: ``key``, the publication (``authors``, ``year``, ``doi``, ``table``, ``page``),
-``population`` and ``age_range``, ``device``, ``placement``, ``metric`` (``ENMO`` or ``MAD``, in mg),
-``epoch_s`` (when the publication's epoch is recorded), the lower edges of ``light``, ``moderate``
-and ``vigorous`` in mg (empty when the publication gives none), and ``transcribed_from``: where the
-values were read (the one place every threshold's source is named).
+``population`` and ``age_range``, ``device``, ``placement``, ``metric`` (``ENMO`` or ``MAD``, in mg;
+``COUNTS_AXIS1`` or ``COUNTS_VM``, ActiLife counts of axis1 or of the vector magnitude per
+``epoch_s`` of the publication: ``--counts`` must be on, and the thresholds are scaled to the run's
+epoch by ``scaled``), ``epoch_s`` (when the publication's epoch is recorded), the lower edges of
+``light``, ``moderate`` and ``vigorous`` (empty when the publication gives none), and
+``transcribed_from``: where the values were read (the one place every threshold's source is named).
 """
 
 from __future__ import annotations
@@ -17,7 +19,9 @@ from pathlib import Path
 from typing import Optional
 
 REGISTRY = Path(__file__).with_name("cutpoints.csv")
-METRICS = {"ENMO": "enmo_mg", "MAD": "mad_mg"}  # registry metric -> epoch-table column
+# registry metric -> epoch-table column
+METRICS = {"ENMO": "enmo_mg", "MAD": "mad_mg", "COUNTS_AXIS1": "axis1", "COUNTS_VM": "vm"}
+COUNT_METRICS = ("COUNTS_AXIS1", "COUNTS_VM")  # counts per publication epoch: scaled to the run's
 
 
 @dataclass(frozen=True)
@@ -43,6 +47,21 @@ class CutPoints:
     def column(self) -> str:
         """The epoch-table column the thresholds apply to."""
         return METRICS[self.metric]
+
+    @property
+    def counts(self) -> bool:
+        """Thresholds on ActiLife counts (the run needs ``--counts``)."""
+        return self.metric in COUNT_METRICS
+
+    def scaled(self, epoch_s: float) -> "CutPoints":
+        """The thresholds for epochs of ``epoch_s``: counts thresholds are per the publication's
+        epoch (counts add up over time), mg thresholds are means and stay as they are."""
+        if not self.counts:
+            return self
+        from dataclasses import replace
+        f = float(epoch_s) / float(self.epoch_s)
+        return replace(self, **{b: None if getattr(self, b) is None else getattr(self, b) * f
+                                for b in ("light", "moderate", "vigorous")})
 
     def bands(self) -> dict:
         """Band name -> (lower, upper) mg; upper None is open. ``mvpa`` is moderate and above.

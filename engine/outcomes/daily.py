@@ -63,7 +63,9 @@ class DailyOutcomes:
 
     def __post_init__(self):
         s = self.settings
-        self.cut = lookup(s.cutpoints) if s.cutpoints else None
+        self.cut = lookup(s.cutpoints).scaled(self.epoch_s) if s.cutpoints else None
+        if self.cut is not None and self.cut.counts and s.impute:
+            raise ValueError("GGIR's imputation works on ENMO or MAD: not with a counts cut-point set")
         for name in s.steps:
             if name not in PARAMETER_SETS:
                 raise ValueError(f"unknown Verisense parameter set {name!r}; known: "

@@ -13,7 +13,10 @@ batches, the epoch metrics) and returns ``EpochRows`` once every part of a row i
 * ``idle_sleep`` (ActiGraph only): the share of the epoch's samples the device spent in idle sleep
   (its last sample repeated; engine/operators/windows.py keeps them out of the calibration);
 * ``filter_warmup``: the epoch starts within the BFEN filter's start-up time after a segment start
-  (the time its response to a 1 g step needs to fall below 1 mg).
+  (the time its response to a 1 g step needs to fall below 1 mg);
+* when the run computes them, ActiLife counts (``axis1``, ``axis2``, ``axis3``, ``vm``:
+  engine/operators/counts.py) and MIMS-units (``mims``: engine/operators/mims.py), summed over
+  the parts of an epoch cut by a segment break.
 
 Rows wait for the nonwear decision (about 75 min of data), so memory holds about an hour and a
 half of epochs whatever the recording's length.
@@ -69,9 +72,20 @@ class EpochRows:
     # share of the epoch's samples an ActiGraph spent in idle sleep (its last sample repeated);
     # None for sources without idle sleep
     idle_sleep: Optional[np.ndarray] = None
+    # (k, len(EXTRA_COLUMNS)): counts and MIMS-units when the run computes them, else NaN
+    extra: Optional[np.ndarray] = None
+
+    def __post_init__(self):
+        if self.extra is None:
+            self.extra = np.full((len(self), len(EXTRA_COLUMNS)), np.nan)
 
     def __len__(self) -> int:
         return int(self.start_ns.shape[0])
+
+    def __getattr__(self, name):  # axis1, axis2, axis3, vm, mims
+        if name in EXTRA_COLUMNS:
+            return self.extra[:, EXTRA_COLUMNS.index(name)]
+        raise AttributeError(name)
 
     @property
     def clean(self) -> np.ndarray:
@@ -84,7 +98,7 @@ class EpochRows:
         if not parts:
             return EpochRows(**{f.name: np.zeros(0, np.int64 if f.name in ("start_ns", "n") else
                                                  (bool if f.name in FLAGS else np.float64))
-                                for f in fields(EpochRows) if f.name != "idle_sleep"})
+                                for f in fields(EpochRows) if f.name not in ("idle_sleep", "extra")})
         idle = None
         if any(p.idle_sleep is not None for p in parts):
             idle = np.concatenate([p.idle_sleep if p.idle_sleep is not None else np.zeros(len(p))
@@ -94,6 +108,10 @@ class EpochRows:
 
 
 FLAGS = ("nonwear", "clipping", "gap", "qc", "filter_warmup")
+# optional metric columns: ActiLife counts (ActiLife's order) and MIMS-units, per epoch
+COUNT_COLUMNS = ("axis1", "axis2", "axis3", "vm")
+EXTRA_COLUMNS = COUNT_COLUMNS + ("mims",)
+EXTRA_WIDTH = {"counts": 3, "mims": 1}  # per-epoch sums the assembler keeps for each
 _SECTORS = re.compile(r"sectors? (\d+)\.\.(\d+)")
 
 
@@ -124,7 +142,7 @@ def sums_between(idx: np.ndarray, sums: np.ndarray, lo: int, hi: int) -> tuple[n
 
 class EpochAssembler:
     def __init__(self, rate_hz: float, epoch_s: float, band, *, source=None,
-                 nonwear_version: str = "2023", clip_g: float = 7.5):
+                 nonwear_version: str = "2023", clip_g: float = 7.5, extras=()):
         self.rate_hz = float(rate_hz)
         self.epoch_ns = int(round(epoch_s * 1e9))
         self.nominal = epoch_s * rate_hz
@@ -135,6 +153,10 @@ class EpochAssembler:
         # per-epoch sums waiting for their row: (epoch indices, sorted; sums)
         self._metrics = (np.zeros(0, np.int64), np.zeros((0, 5)))  # n, enmo*n, bfen*n, mad*n, temp*n
         self._angle = (np.zeros(0, np.int64), np.zeros((0, 2)))  # n, anglez*n
+        # optional metrics ("counts": axis sums (3); "mims": MIMS-units (1)): per-epoch sums
+        # and the epoch below which they are final
+        self._extras = {k: (np.zeros(0, np.int64), np.zeros((0, EXTRA_WIDTH[k]))) for k in extras}
+        self._extras_done = {k: None for k in extras}
         # medium windows (indices, increasing; (k, 2) nonwear, clipping)
         self._windows = (np.zeros(0, np.int64), np.zeros((0, 2), bool))
         self.medium_ns = self.nonwear.medium_ns
@@ -168,6 +190,16 @@ class EpochAssembler:
         # metrics are emitted in time order: the last row's epoch may still get a second part
         last = int(idx[-1])
         self._metrics_done = last if self._metrics_done is None else max(self._metrics_done, last)
+
+    def _take_extras(self, extras) -> None:
+        for k, m in (extras or {}).items():
+            if k not in self._extras or m is None or not len(m):
+                continue
+            idx = m.start_ns // self.epoch_ns
+            self._extras[k] = fold_sums(*self._extras[k], idx, m.epoch_values())
+            last = int(idx[-1])
+            done = self._extras_done[k]
+            self._extras_done[k] = last if done is None else max(done, last)
 
     def _take_angle(self, res) -> None:
         s, n, v = res
@@ -241,19 +273,21 @@ class EpochAssembler:
         return out
 
     # ------------------------------------------------------------------ rows
-    def push(self, block, batches, metrics) -> Iterator[EpochRows]:
+    def push(self, block, batches, metrics, extras=None) -> Iterator[EpochRows]:
         """Take one output step; returns the rows it made final, in slices of at most
         ``ROWS_PER_SLICE`` (an iterator: consume it before the next push). A recording with a
         gap of months has millions of gap rows; they are never one array."""
         self._take_block(block)
         self._take_batches(batches)
         self._take_metrics(metrics)
+        self._take_extras(extras)
         self._take_qc()
         return self._emit(final=False)
 
-    def flush(self, metrics=None) -> Iterator[EpochRows]:
+    def flush(self, metrics=None, extras=None) -> Iterator[EpochRows]:
         """The rows still held, in slices as ``push``."""
         self._take_metrics(metrics)
+        self._take_extras(extras)
         self._take_windows(self.nonwear.flush())
         self._take_angle(self.anglez.flush())
         self._take_qc()
@@ -261,6 +295,7 @@ class EpochAssembler:
 
     def _emit(self, final: bool) -> Iterator[EpochRows]:
         pending = [i for i in (self._metrics[0], self._angle[0]) if i.shape[0]]
+        pending += [e[0] for e in self._extras.values() if e[0].shape[0]]
         if self._next is None:
             if not pending:
                 return
@@ -268,10 +303,11 @@ class EpochAssembler:
         if final:
             stop = max(int(i[-1]) for i in pending) + 1 if pending else self._next
         else:
-            if None in (self._metrics_done, self._angle_done, self._windows_done):
+            extra_done = list(self._extras_done.values())
+            if None in (self._metrics_done, self._angle_done, self._windows_done, *extra_done):
                 return
             stop = min(self._metrics_done, self._angle_done,
-                       (self._windows_done * self.medium_ns) // self.epoch_ns)
+                       (self._windows_done * self.medium_ns) // self.epoch_ns, *extra_done)
         while self._next < stop:
             end = min(stop, self._next + ROWS_PER_SLICE)
             rows = self._rows(np.arange(self._next, end, dtype=np.int64))
@@ -304,6 +340,17 @@ class EpochAssembler:
         for a0, a1 in self._warmups:
             warm |= (start < a1) & (end > a0)
         gap = n < GAP_FILL * self.nominal
+        extra = None
+        if self._extras:
+            extra = np.full((m, len(EXTRA_COLUMNS)), np.nan)
+            if "counts" in self._extras:
+                at, c = sums_between(*self._extras["counts"], lo, hi)
+                extra[at, :3] = c
+                extra[at, 3] = np.sqrt(np.einsum("ij,ij->i", c, c))
+            if "mims" in self._extras:
+                at, v = sums_between(*self._extras["mims"], lo, hi)
+                extra[at, 4] = v[:, 0]
+
         idle = None
         if self._idle is not None:
             idle = np.zeros(m)
@@ -311,7 +358,7 @@ class EpochAssembler:
             idle[at] = c[:, 0]
             idle = np.where(n > 0, idle / np.maximum(n, 1), np.nan)
         return EpochRows(start, n, vals[:, 1], vals[:, 2], vals[:, 3], ang, vals[:, 4], nonwear,
-                         clipping, gap, qc, warm, idle)
+                         clipping, gap, qc, warm, idle, extra)
 
     def _window_flags(self, wi: np.ndarray) -> np.ndarray:
         """(2, k): nonwear and clipping of the medium windows ``wi`` (False for windows not seen)."""
@@ -330,6 +377,8 @@ class EpochAssembler:
         self._angle = tuple(x[self._angle[0] >= stop] for x in self._angle)
         if self._idle is not None:
             self._idle = tuple(x[self._idle[0] >= stop] for x in self._idle)
+        for k, e in self._extras.items():
+            self._extras[k] = tuple(x[e[0] >= stop] for x in e)
         self._windows = tuple(x[self._windows[0] >= w] for x in self._windows)
         self._warmups = [x for x in self._warmups if x[1] > t] or self._warmups[-1:]
         self._qc_intervals = [x for x in self._qc_intervals if x[1] > t - 3600 * 10**9]

@@ -8,9 +8,11 @@ Epoch table columns: ``time_utc`` (ISO 8601, ``Z``; only when the zone is known:
 a recording whose zone is unknown has no UTC column), ``time_local`` (ISO 8601 with the offset
 in force, or without offset when the zone is unknown: the device clock), ``n`` (samples),
 ``enmo_mg``, ``bfen_mg``, ``mad_mg``, ``anglez_deg``, ``temperature_c`` (empty without data),
-then the flags ``nonwear``, ``clipping``, ``gap``, ``qc``, ``filter_warmup`` (0/1), and for an
-ActiGraph ``.gt3x`` ``idle_sleep`` (share of the epoch's samples in idle sleep). Times are
-epoch starts. With activity outcomes (``TablesSettings.outcomes``: a cut-point set, steps) the
+then the flags ``nonwear``, ``clipping``, ``gap``, ``qc``, ``filter_warmup`` (0/1), for an
+ActiGraph ``.gt3x`` ``idle_sleep`` (share of the epoch's samples in idle sleep), then, when the
+run computes them, ActiLife counts ``axis1``, ``axis2``, ``axis3`` (integers) and ``vm`` (2
+decimals) and MIMS-units ``mims`` (3 decimals), empty without data. Times are epoch starts. With
+activity outcomes (``TablesSettings.outcomes``: a cut-point set, steps) the
 epoch table ends with their columns (``engine.outcomes.daily``); rows then wait until the step
 counter has decided every step before their end (at most about twice its horizon). With sleep on
 (``TablesSettings.sleep`` and a known zone; engine/sleep) the last two columns are ``spt``
@@ -35,11 +37,17 @@ from ..operators.nonwear import DEFAULT_VERSION, clip_threshold_g
 from ..outcomes.daily import DailyOutcomes, OutcomeSettings
 from ..timezones import Zone
 from .days import DAY_NS, ENMO_BANDS_MG, MVPA_BOUT_S, VALID_DAY_HOURS, DayAccumulator, _slice
-from .epochs import FLAGS, EpochAssembler, EpochRows
+from .epochs import COUNT_COLUMNS, FLAGS, EpochAssembler, EpochRows
 
 EPOCH_COLUMNS = ["time_utc", "time_local", "n", "enmo_mg", "bfen_mg", "mad_mg", "anglez_deg",
                  "temperature_c"] + list(FLAGS)
-_DECIMALS = {"enmo_mg": 3, "bfen_mg": 3, "mad_mg": 3, "anglez_deg": 3, "temperature_c": 2}
+_DECIMALS = {"enmo_mg": 3, "bfen_mg": 3, "mad_mg": 3, "anglez_deg": 3, "temperature_c": 2,
+             "axis1": 0, "axis2": 0, "axis3": 0, "vm": 2, "mims": 3}
+
+
+def metric_columns(counts: bool, mims: bool) -> list:
+    """The optional metric columns of a run's epoch table (after the flags)."""
+    return (list(COUNT_COLUMNS) if counts else []) + (["mims"] if mims else [])
 
 # gzip level of the epoch table: on a week of 5 s epochs (8.5 MB of CSV) level 1 takes 0.06 s
 # for 2.37 MB, level 6 0.30 s for 2.06 MB (zlib, measured on tools/benchmarks/bench_process.py's file)
@@ -112,9 +120,11 @@ def _offset_text(off_s: np.ndarray) -> np.ndarray:
     return out.astype(str)
 
 
-def format_rows(rows: EpochRows, zone: Zone, epoch_ns: int, extra=(), idle: bool = False) -> str:
+def format_rows(rows: EpochRows, zone: Zone, epoch_ns: int, extra=(), idle: bool = False,
+                metrics=()) -> str:
     """The rows as CSV text; ``extra``: more columns (lists of cell text), appended; ``idle``:
-    the ``idle_sleep`` column after the flags (an ActiGraph source)."""
+    the ``idle_sleep`` column after the flags (an ActiGraph source); ``metrics``: optional metric
+    columns (``metric_columns``) after it."""
     if not len(rows):
         return ""
     unit = "s" if epoch_ns % 10**9 == 0 else "ms"
@@ -134,6 +144,8 @@ def format_rows(rows: EpochRows, zone: Zone, epoch_ns: int, extra=(), idle: bool
     if idle:
         v = rows.idle_sleep if rows.idle_sleep is not None else np.zeros(len(rows))
         cols.append(_num(v, 4))
+    for name in metrics:
+        cols.append(_num(getattr(rows, name), _DECIMALS[name]))
     cols.extend(extra)
     return "\n".join(map(",".join, zip(*cols))) + "\n"
 
@@ -142,8 +154,10 @@ class TablesTap:
     """Pushed by the output stage; writes both tables; ``close()`` returns the table summary."""
 
     def __init__(self, ts: TablesSettings, rate_hz: float, epoch_s: float, band, source, info,
-                 sink=None):
+                 sink=None, extras=()):
         self.ts = ts
+        # optional metrics the run computes ("counts", "mims") and their columns
+        self.metrics = metric_columns("counts" in extras, "mims" in extras)
         self.epoch_ns = int(round(epoch_s * 1e9))
         check_output_path(ts.epochs_path, what="epoch table")
         check_output_path(ts.days_path, what="day table")
@@ -154,7 +168,8 @@ class TablesTap:
             self.sleep = open_sleep(ts, epoch_s)
         self.assembler = EpochAssembler(rate_hz, epoch_s, band, source=source,
                                         nonwear_version=ts.nonwear_version,
-                                        clip_g=clip_threshold_g(getattr(info, "accel_range_g", None)))
+                                        clip_g=clip_threshold_g(getattr(info, "accel_range_g", None)),
+                                        extras=tuple(extras))
         self.rhythm = None
         if ts.rhythm_path is not None:
             from ..rhythm.table import RhythmTap
@@ -180,7 +195,7 @@ class TablesTap:
         self._gz = gzip.GzipFile(filename="", mode="wb", fileobj=self._out.file, mtime=0,
                                  compresslevel=GZIP_LEVEL)
         self.idle = getattr(info, "device_type", None) == "ActiGraph"  # idle_sleep column
-        head = epoch_columns(ts.zone) + (["idle_sleep"] if self.idle else []) \
+        head = epoch_columns(ts.zone) + (["idle_sleep"] if self.idle else []) + self.metrics \
             + (self.outcomes.epoch_columns() if self.outcomes else []) \
             + (self.sleep.columns if self.sleep is not None else [])
         self._gz.write((",".join(head) + "\n").encode())
@@ -279,7 +294,8 @@ class TablesTap:
         if self.sleep is not None:
             items = self.sleep.feed(items, final)
         for r, x, c in items:
-            self._gz.write(format_rows(r, self.ts.zone, self.epoch_ns, x, idle=self.idle).encode())
+            self._gz.write(format_rows(r, self.ts.zone, self.epoch_ns, x, idle=self.idle,
+                                       metrics=self.metrics).encode())
             self.days.push(r, steps=c)
             if self.rhythm is not None:
                 if self.sleep is not None:  # the sleep tap's last two columns: spt, sib
@@ -287,16 +303,16 @@ class TablesTap:
                 else:
                     self.rhythm.push(r)
 
-    def push(self, block, batches, metrics) -> None:
+    def push(self, block, batches, metrics, extras=None) -> None:
         if self.steps is not None:
             for b in batches:
                 self.steps.push(b)
-        self._write(self.assembler.push(block, batches, metrics))
+        self._write(self.assembler.push(block, batches, metrics, extras))
 
-    def flush(self, metrics=None) -> None:
+    def flush(self, metrics=None, extras=None) -> None:
         if self.steps is not None:
             self.steps.flush()
-        self._write(self.assembler.flush(metrics), final=True)
+        self._write(self.assembler.flush(metrics, extras), final=True)
         if self.outcomes is not None:
             self._finish_day()
         if self.sleep is not None:

@@ -91,6 +91,7 @@ def _batch_tables(mcap, settings, ts) -> dict:
     from ..calibration.outcome import CalibrationOutcome
     from ..operators.correction import CorrectionOperator
     from ..operators.filters import band_used
+    from ..operators.extras import ExtraMetrics
     from ..operators.metrics import EpochMetrics, MetricsOperator
     from ..core.blocks import coalesce_blocks
     from ..tables.writer import TablesTap
@@ -105,17 +106,18 @@ def _batch_tables(mcap, settings, ts) -> dict:
         band = band_used(rate, settings.bfen_band_hz)
         correction = CorrectionOperator(initial, rate_hz=rate)
         metrics = MetricsOperator(rate, settings.epoch_s, settings.bfen_band_hz)
-        tap = TablesTap(ts, rate, settings.epoch_s, band, src, src.info)
+        extras = ExtraMetrics(settings, rate)
+        tap = TablesTap(ts, rate, settings.epoch_s, band, src, src.info, extras=extras.keys)
         try:
             def step(block, batches):
                 ms = [metrics.push(b) for b in batches]
                 m = EpochMetrics.concat(ms) if len(ms) != 1 else ms[0]
-                tap.push(block, batches, m)
+                tap.push(block, batches, m, extras.push(batches))
 
             for block in coalesce_blocks(src):
                 step(block, correction.push(block))
             step(None, correction.flush())
-            tap.flush(metrics.flush())
+            tap.flush(metrics.flush(), extras.flush())
             return tap.close(CalibrationOutcome(est, applied).table_status)
         except BaseException:
             tap.abort()

@@ -163,6 +163,11 @@ def execute(args, settings: RunSettings, out: Path) -> int:
     _sleep_settings(args, tables, out)
     if tables is not None and hasattr(args, "cutpoints"):
         tables.outcomes = outcome_settings(args)
+        if tables.outcomes.cutpoints and not settings.counts:
+            from stillpoint.engine.outcomes.cutpoints import lookup
+            if lookup(tables.outcomes.cutpoints).counts:
+                raise OptionError(f"--cutpoints {tables.outcomes.cutpoints} is on ActiLife counts: "
+                                  "add --counts normal (or lfe)")
     if getattr(args, "report", False):
         from stillpoint.engine.report import require_matplotlib
         require_matplotlib()

@@ -1,0 +1,33 @@
+"""The optional epoch metrics of a run, side by side: ActiLife counts (``RunSettings.counts``) and
+MIMS-units (``RunSettings.mims``). ``push(batches)`` -> ``{"counts": EpochCounts, "mims":
+EpochMims}`` of the epochs each completed (only the metrics switched on; ``{}`` when none is).
+"""
+
+from __future__ import annotations
+
+
+class ExtraMetrics:
+    def __init__(self, settings, rate_hz: float):
+        self.ops = {}
+        if getattr(settings, "counts", None):
+            from .counts import CountsOperator
+            self.ops["counts"] = CountsOperator(rate_hz, settings.epoch_s, settings.counts)
+        if getattr(settings, "mims", False):
+            from .mims import MimsOperator
+            self.ops["mims"] = MimsOperator(rate_hz, settings.epoch_s)
+
+    @property
+    def keys(self) -> tuple:
+        return tuple(self.ops)
+
+    def push(self, batches) -> dict:
+        if not self.ops:
+            return {}
+        out = {}
+        for k, op in self.ops.items():
+            parts = [op.push(b) for b in batches]
+            out[k] = type(parts[0]).concat(parts) if parts else None
+        return {k: v for k, v in out.items() if v is not None}
+
+    def flush(self) -> dict:
+        return {k: op.flush() for k, op in self.ops.items()}

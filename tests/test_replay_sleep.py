@@ -46,11 +46,12 @@ def test_replay_check_of_a_run_with_a_zone_exits_0(rec, capsys):
     assert (d / "zoned.replay.nights.csv").read_text() == (d / "zoned.nights.csv").read_text()
 
 
-def test_replay_of_a_run_without_a_zone_writes_no_tables(rec):
+def test_replay_of_a_run_without_a_zone_repeats_its_device_clock_nights(rec):
     d, cwa = rec
     mcap = d / "plain.mcap"
     assert main(["process", str(cwa), "-o", str(mcap), "-q"]) == 0
     out = d / "plain.replay.mcap"
     assert main(["replay", str(mcap), "-o", str(out), "--check", "-q"]) == 0
-    assert not (d / "plain.replay.days.csv").exists()
-    assert not (d / "plain.replay.nights.csv").exists()
+    res = compare(mcap, out)
+    assert res["/sleep/night"]["identical"] and res["/sleep/night"]["messages"][0] > 0
+    assert (d / "plain.replay.nights.csv").read_text() == (d / "plain.nights.csv").read_text()

@@ -108,3 +108,24 @@ def test_sleep_with_activity_outcomes(run, tmp_path):
     nights = list(csv.DictReader(open(tmp_path / "o.nights.csv")))
     spt_h = sum(r["spt"] == "1" for r in rows) * 5 / 3600
     assert nights and spt_h == pytest.approx(sum(float(n["spt_hours"]) for n in nights), abs=1e-3)
+
+
+def test_sleep_without_a_zone_is_on_the_device_clock(run, tmp_path, capsys):
+    """GGIR computes sleep on the device's clock when the zone is not known: nights of 24 h, no
+    DST, no UTC; the summary says which clock the nights are on."""
+    _, cwa, _, _ = run
+    mcap = tmp_path / "dev.mcap"
+    assert main(["process", str(cwa), "-o", str(mcap)]) == 0
+    out = capsys.readouterr().out
+    assert "times: device local time, zone unknown" in out
+    assert "night(s) on the device's clock (zone unknown: nights of 24 h, DST not applied" in out
+    nights = list(csv.DictReader(open(tmp_path / "dev.nights.csv")))
+    assert len(nights) >= 1 and list(nights[0]) == NIGHT_COLUMNS
+    full = [n for n in nights if n["window_cut"] == ""]
+    assert full and all(n["window_hours"] == "24" and n["dst"] == "0" for n in full)
+    for n in nights:
+        assert n["onset_utc"] == n["wake_utc"] == ""  # the device clock is not UTC
+        if n["onset_local"]:
+            assert "+" not in n["onset_local"][10:] and not n["onset_local"].endswith("Z")
+    with gzip.open(tmp_path / "dev.epochs.csv.gz", "rt") as f:
+        assert {"spt", "sib"} <= set(next(csv.reader(f)))

@@ -116,17 +116,17 @@ def check_sleep_outputs(ts) -> None:
     """Before any work: the nights table may be written, and a sleep log has local nights."""
     if ts.sleep is None:
         return
-    if not ts.zone.known:
-        if ts.sleep.sleep_log is not None:
-            raise SleepLogError(f"sleep log {ts.sleep.sleep_log.path}: its nights are local "
-                                "times: give the participant's --timezone")
-        return
+    if not ts.zone.known and ts.sleep.sleep_log is not None:
+        raise SleepLogError(f"sleep log {ts.sleep.sleep_log.path}: its nights are local "
+                            "times: give the participant's --timezone")
     check_output_path(ts.nights_path, what="nights table")
 
 
 def open_sleep(ts, epoch_s: float):
-    """The sleep part of the table writer, or None when the zone is unknown (local nights need it)."""
-    if ts.sleep is None or not ts.zone.known:
+    """The sleep part of the table writer (None when sleep is off). Without a zone the nights are
+    on the device's clock, as GGIR computes them: every noon-to-noon window 24 h, no DST, times
+    labelled as the tables' (device local time, zone unknown; no UTC columns)."""
+    if ts.sleep is None:
         return None
     check_output_path(ts.nights_path, what="nights table")
     return SleepTap(ts, epoch_s)

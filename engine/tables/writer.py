@@ -76,7 +76,7 @@ class TablesSettings:
     enmo_bands_mg: tuple = ENMO_BANDS_MG
     mvpa_bout_s: float = MVPA_BOUT_S
     outcomes: OutcomeSettings = field(default_factory=OutcomeSettings)
-    sleep: Optional[object] = None  # engine.sleep.SleepOptions: sleep on when the zone is known
+    sleep: Optional[object] = None  # engine.sleep.SleepOptions: sleep on (device clock without a zone)
     nights_path: Optional[Path] = None
     rhythm_path: Optional[Path] = None  # <stem>.rhythm.csv (engine/rhythm); None: not written
 

@@ -88,8 +88,12 @@ def tables_text(summary: dict) -> str:
         sl = t.get("sleep")
         if sl:
             g = ", ".join(f"{k} {v}" for k, v in sl["guiders"].items()) or "none"
-            lines.append(f"sleep: {sl['night_rows']} night(s) (guider: {g}), {sl['sib_bouts']:,} "
-                         f"inactivity bouts; nights table {sl['nights']}")
+            from stillpoint.engine.timezones import UNKNOWN_LABEL
+            clock = (" on the device's clock (zone unknown: nights of 24 h, DST not applied; "
+                     "--timezone gives local nights)"
+                     if summary.get("timezone") == UNKNOWN_LABEL else "")
+            lines.append(f"sleep: {sl['night_rows']} night(s){clock} (guider: {g}), "
+                         f"{sl['sib_bouts']:,} inactivity bouts; nights table {sl['nights']}")
         if t.get("epochs_not_in_table"):
             lines.append(f"warning: {t['epochs_not_in_table']:,} epochs are in the MCAP log but not "
                          "in the tables: the clock went back at a restart, to before rows already "

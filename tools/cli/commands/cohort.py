@@ -70,7 +70,7 @@ def add_arguments(p) -> None:
     add_outcome_arguments(r)
     r.add_argument("--sleep", action="store_true",
                    help="also sleep (engine/sleep): spt/sib epoch columns and each file's nights "
-                        "table, collated into cohort_nights.csv (needs the zone)")
+                        "table, collated into cohort_nights.csv (without a zone: on the device clock)")
     s = sub.add_parser("status", help="done / failed by class / pending")
     s.add_argument("outdir", type=Path)
     s.add_argument("--json", action="store_true", help="one JSON object")

@@ -61,8 +61,10 @@ def add_arguments(p) -> None:
 
 
 def _add_sleep_arguments(p) -> None:
-    """Sleep (engine/sleep): on with the tables when the zone is known."""
-    g = p.add_argument_group("sleep (GGIR's HDCZA and sustained inactivity bouts; needs the zone)")
+    """Sleep (engine/sleep): on with the tables; without a zone on the device's clock."""
+    g = p.add_argument_group("sleep (GGIR's HDCZA and sustained inactivity bouts; nights in the "
+                             "zone's local time, or on the device's clock without --timezone: "
+                             "24 h nights, no DST)")
     g.add_argument("--no-sleep", dest="sleep", action="store_false",
                    help="no spt/sib columns and no <stem>.nights.csv")
     g.add_argument("--sleep-log", type=Path, metavar="LOG.csv",

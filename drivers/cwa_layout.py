@@ -8,12 +8,12 @@ Pure encode/decode helpers shared by the reader (``cwa_reader``) and the writer
 
 from __future__ import annotations
 
-import re
 import urllib.parse
-from datetime import datetime, timezone
 from typing import Optional
 
 import numpy as np
+
+from stillpoint.engine.core.times import iso_utc, parse_offset
 
 from . import constants as C
 
@@ -125,15 +125,12 @@ def parse_timezone(tz) -> int:
     if isinstance(tz, float) and tz.is_integer():
         return int(tz)
     if isinstance(tz, str):
-        s = tz.strip().upper()
-        if s in ("UTC", "Z", "GMT", ""):
+        if not tz.strip():
             return 0
-        m = re.fullmatch(r"(?:UTC|GMT)?\s*([+-])(\d{1,2}):?(\d{2})?", s)
-        if m:
-            sign = -1 if m.group(1) == "-" else 1
-            hh, mm = int(m.group(2)), int(m.group(3) or 0)
-            if hh <= 14 and mm < 60:
-                return sign * (hh * 3600 + mm * 60)
+        try:
+            return parse_offset(tz)
+        except ValueError:
+            pass
     raise ValueError(f"time zone must be seconds or like '+01:00' / 'UTC', got {tz!r}")
 
 
@@ -187,7 +184,7 @@ def _ts_field(value: int, tz_s: int) -> Optional[str]:
     s = unpack_timestamp(value)
     if s is None:
         return None
-    return datetime.fromtimestamp(s - tz_s, tz=timezone.utc).isoformat().replace("+00:00", "Z")
+    return iso_utc((s - tz_s) * 10**9)
 
 
 def parse_header(buf: bytes, tz_s: int = 0) -> dict:

@@ -13,6 +13,8 @@ from typing import Optional, Union
 
 import numpy as np
 
+from stillpoint.engine.core.times import offset_text, parse_offset
+
 from .constants import GNA_PAGE_MARKER, gna_rate_hz
 
 # Section headings of the standard header [GNA] §2 (a free-text line that is none of these and has no
@@ -26,7 +28,6 @@ SUBJECT_KEYS = ("Device Location Code", "Subject Code", "Date of Birth", "Sex", 
 CALIBRATION_KEYS = ("x gain", "x offset", "y gain", "y offset", "z gain", "z offset")
 
 _STRIP = " \t\r\x00"
-_TZ_RE = re.compile(r"^(?:GMT|UTC|Z)?\s*(?:([+-])\s*)?(\d{1,2})?(?::?(\d{2}))?$", re.IGNORECASE)
 _TIME_RE = re.compile(r"^\s*(\d{1,4})-(\d{1,2})-(\d{1,2})[ T](\d{1,2}):(\d{1,2}):(\d{1,2})"
                       r"(?:([:.])(\d{1,3}))?\s*$")
 
@@ -119,23 +120,12 @@ def parse_timezone(value: Union[str, int, float, _dt.timedelta, None]) -> int:
         return int(value.total_seconds())
     if isinstance(value, (int, float, np.integer, np.floating)):
         return int(value)
-    text = clean(str(value))
-    m = _TZ_RE.match(text)
-    if not m or (m.group(2) is None and m.group(3) is None and text.upper() not in ("GMT", "UTC", "Z")):
-        raise ValueError(f"cannot read time zone {text!r} (expected e.g. 'GMT +01:00' or '-04:00')")
-    sign = -1 if m.group(1) == "-" else 1
-    hours = int(m.group(2) or 0)
-    minutes = int(m.group(3) or 0)
-    if hours > 14 or minutes >= 60:
-        raise ValueError(f"time zone {text!r} is out of range")
-    return sign * (hours * 3600 + minutes * 60)
+    return parse_offset(clean(str(value)))
 
 
 def format_timezone(offset_s: int) -> str:
     """"GMT +01:00" form of an offset in seconds (the header's own format)."""
-    sign = "-" if offset_s < 0 else "+"
-    a = abs(int(offset_s)) // 60
-    return f"GMT {sign}{a // 60:02d}:{a % 60:02d}"
+    return f"GMT {offset_text(offset_s)}"
 
 
 def days_from_civil(y, m, d):

@@ -42,6 +42,7 @@ from typing import Optional
 import numpy as np
 
 from stillpoint.drivers.errors import StillpointError
+from stillpoint.engine.core.times import iso_local, iso_text, iso_utc, offset_text, parse_offset
 
 UNKNOWN_LABEL = "device local time, zone unknown"
 _HOUR_NS = 3600 * 10**9
@@ -52,9 +53,8 @@ class ZoneError(StillpointError):
 
 
 def _fixed_offset(spec: str) -> Optional[int]:
-    from stillpoint.drivers.geneactiv_header import parse_timezone
     try:
-        return parse_timezone(spec)
+        return parse_offset(spec)
     except ValueError:
         return None
 
@@ -180,9 +180,7 @@ def parse_zone(spec) -> Zone:
 
 
 def fixed_zone(offset_s: int) -> Zone:
-    sign = "-" if offset_s < 0 else "+"
-    a = abs(int(offset_s)) // 60
-    return Zone(f"{sign}{a // 60:02d}:{a % 60:02d}", int(offset_s))
+    return Zone(offset_text(offset_s), int(offset_s))
 
 
 def reader_timezone(path, fmt: str, spec, override: bool = False) -> tuple[Optional[int], Zone]:
@@ -272,16 +270,12 @@ def zone_from_label(label) -> Zone:
     return parse_zone(str(label))
 
 
-def _iso_s(t_ns: int, unit: str) -> str:
-    return str(np.datetime64(int(t_ns), "ns").astype(f"datetime64[{unit}]"))
-
-
 def utc_text(t_ns, zone: Zone, unit: str = "s") -> str:
     """ISO 8601 UTC (``...Z``) of an instant when the zone is known; "" when it is not (the
     instant is then the device clock, not UTC)."""
     if t_ns is None or not zone.known:
         return ""
-    return _iso_s(t_ns, unit) + "Z"
+    return iso_utc(t_ns, unit)
 
 
 def local_text(t_ns, zone: Zone, unit: str = "s") -> str:
@@ -290,11 +284,8 @@ def local_text(t_ns, zone: Zone, unit: str = "s") -> str:
     if t_ns is None:
         return ""
     if not zone.known:
-        return _iso_s(t_ns, unit)
-    off = int(zone.offsets_s(np.array([int(t_ns)], np.int64))[0])
-    a = abs(off) // 60
-    sign = "-" if off < 0 else "+"
-    return _iso_s(int(t_ns) + off * 10**9, unit) + f"{sign}{a // 60:02d}:{a % 60:02d}"
+        return iso_text(t_ns, unit)
+    return iso_local(t_ns, int(zone.offsets_s(np.array([int(t_ns)], np.int64))[0]), unit)
 
 
 def time_column(zone: Zone) -> str:

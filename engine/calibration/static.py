@@ -31,7 +31,6 @@ A missing face is an error naming it; the reference's silent NaNs only with ``al
 
 from __future__ import annotations
 
-import datetime as _dt
 from dataclasses import asdict, dataclass, field
 from typing import Optional
 
@@ -39,6 +38,7 @@ import numpy as np
 
 from stillpoint.drivers.errors import StillpointError
 
+from ..core.times import iso_utc
 from .estimate import STATIC_METHOD, CalibrationEstimate
 from .sixface import FACE_WORDS, FACES, FaceSearch, find_faces
 
@@ -64,10 +64,7 @@ class MissingFaceError(StaticCalibrationError):
 
 
 def _iso(ns):
-    if ns is None:
-        return None
-    return _dt.datetime.fromtimestamp(ns / 1e9, tz=_dt.timezone.utc).isoformat(
-        timespec="milliseconds").replace("+00:00", "Z")
+    return None if ns is None else iso_utc(ns, "ms")
 
 
 @dataclass

@@ -15,17 +15,17 @@ six-orientation calibration writes here too (``method="static-6"``).
 from __future__ import annotations
 
 import contextlib
-import datetime as _dt
 import hashlib
 import json
 import os
 import re
-import tempfile
+import time
 from pathlib import Path
 from typing import Optional
 
 from stillpoint.drivers.errors import StillpointError
 
+from ..core.times import iso_utc
 from .estimate import STATIC_METHOD, CalibrationEstimate
 from .validate import validate_estimate
 
@@ -46,15 +46,11 @@ def default_root() -> Path:
 
 
 def _iso(ns: Optional[int]) -> Optional[str]:
-    if ns is None:
-        return None
-    return _dt.datetime.fromtimestamp(ns / 1e9, tz=_dt.timezone.utc).isoformat(
-        timespec="milliseconds").replace("+00:00", "Z")
+    return None if ns is None else iso_utc(ns, "ms")
 
 
 def _now_iso() -> str:
-    return _dt.datetime.now(tz=_dt.timezone.utc).isoformat(timespec="seconds").replace(
-        "+00:00", "Z")
+    return iso_utc(time.time_ns())
 
 
 def device_file_name(device_key: str) -> str:

@@ -51,6 +51,7 @@ from stillpoint.drivers.names import recording_stem
 from stillpoint.drivers.outputs import atomic_output, fsync_folder
 
 from ..core.malloc import set_block_thresholds
+from ..core.times import iso_utc
 from .plan import canonical_settings, code_version, entry_settings, fingerprint, make_key
 
 try:
@@ -179,7 +180,7 @@ def write_failure(outdir, entry: dict, cls: str, error: str, *, attempt: int = 1
 
 # ---------------------------------------------------------------------------- helpers
 def _utc(t: Optional[float] = None) -> str:
-    return time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(t))
+    return iso_utc(int(time.time() if t is None else t) * 10**9)
 
 
 _MALLOC_TUNED = False

@@ -37,6 +37,7 @@ from stillpoint.drivers.errors import StillpointError
 from stillpoint.drivers.names import csv_cell
 from stillpoint.drivers.outputs import atomic_output, check_output_path
 
+from ..core.times import iso_texts
 from .reading import McapReadError, check_raw_message, decode, text
 from .stream import iter_messages
 
@@ -105,7 +106,7 @@ def _not_exportable(topic: str) -> "ExportError":
 
 
 def _iso(t: np.ndarray, utc: bool = True) -> np.ndarray:
-    text = np.datetime_as_string(t.astype("datetime64[ns]"), unit="us")
+    text = iso_texts(t, "us")
     return np.char.add(text, "Z") if utc else text
 
 

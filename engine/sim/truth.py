@@ -6,12 +6,12 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
 from pathlib import Path
 from typing import Optional
 
 import numpy as np
 
+from ..core.times import iso_local
 from .model import ModelError, SensorModel, _jsonable
 from .wearer import ACTIVITIES, MOTIONS, POSTURES
 
@@ -75,7 +75,7 @@ class Truth:
 
 
 def _iso(ns: int) -> str:
-    return datetime.fromtimestamp(ns / 1e9, tz=timezone.utc).isoformat(timespec="microseconds")
+    return iso_local(ns, 0, "us")
 
 
 def load_truth(path) -> dict:

@@ -50,6 +50,7 @@ from stillpoint.drivers.ax.discovery import Attached, discover
 from stillpoint.drivers.ax.errors import DeviceError, IdentityMismatch
 from stillpoint.drivers.ax.protocol import AxClient
 from stillpoint.drivers.errors import StillpointError
+from stillpoint.engine.core.times import iso_utc
 
 from .clearing import clear_verified, session_before_clear
 from .configure import clock_offset_s, configure_device
@@ -364,7 +365,7 @@ class DeviceFlow:
         row = self.ledger.configured_since_clear(att.device_id, session, att.device_type)
         if row is not None:
             return (f"already configured for session {session} by this station at "
-                    f"{time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime(row[0]))}")
+                    f"{iso_utc(int(row[0]) * 10**9)}")
         return None
 
     def _changed_elsewhere(self, session: int) -> Optional[str]:
@@ -486,7 +487,7 @@ class DeviceFlow:
                             "clock_offset_vs_utc_s": f"{offset + time.localtime().tm_gmtoff:.3f}",
                             "device_serial": att.serial,
                             "dock_slot": att.slot, "battery_pct": str(battery),
-                            "attached_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+                            "attached_utc": iso_utc(time.time_ns()),
                             "calibration_prior": json.dumps(prior, sort_keys=True)}}
         if opts.static_from_store is not None:
             from stillpoint.engine.calibration.static import with_static_calibration

@@ -40,6 +40,8 @@ from typing import Optional
 from stillpoint.drivers.ax.errors import DeviceError
 from stillpoint.drivers.errors import StillpointError
 
+from ..core.times import iso_utc
+
 HOST_DIR_ENV = "STILLPOINT_STATION_HOST_DIR"
 _NOFOLLOW = os.O_NOFOLLOW | getattr(os, "O_CLOEXEC", 0)
 
@@ -213,7 +215,7 @@ def _drop_record(key: str, kind: str) -> None:
 def _stamp(out_dir) -> dict:
     return {"out": str(Path(out_dir).resolve()) if out_dir else None, "pid": os.getpid(),
             "host": socket.gethostname(), "time": time.time(),
-            "time_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
+            "time_utc": iso_utc(time.time_ns())}
 
 
 def record_changed(key: str, session: int, out_dir, *, download_id=None,

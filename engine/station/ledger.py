@@ -40,6 +40,7 @@ from typing import Optional
 
 from stillpoint.drivers.errors import StillpointError
 
+from ..core.times import offset_text
 LEDGER_NAME = "stillpoint-ledger.sqlite"
 LOCK_NAME = ".stillpoint-station.lock"
 KILL_ENV = "STILLPOINT_KILL_AT"
@@ -150,8 +151,7 @@ def station_id() -> str:
 
 def host_timezone() -> str:
     off = time.localtime().tm_gmtoff
-    sign = "+" if off >= 0 else "-"
-    return f"{time.strftime('%Z')} (UTC{sign}{abs(off) // 3600:02d}:{abs(off) % 3600 // 60:02d})"
+    return f"{time.strftime('%Z')} (UTC{offset_text(off)})"
 
 
 def check_station_folder(folder) -> Path:

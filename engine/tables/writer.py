@@ -33,6 +33,7 @@ import numpy as np
 from stillpoint.drivers.names import cell_text, csv_cell
 from stillpoint.drivers.outputs import AtomicOutput, atomic_output, check_output_path
 
+from ..core.times import iso_texts, offset_texts
 from ..operators.nonwear import DEFAULT_VERSION, clip_threshold_g
 from ..outcomes.daily import DailyOutcomes, OutcomeSettings
 from ..timezones import Zone
@@ -106,20 +107,6 @@ def _flag(f: np.ndarray) -> list:
 _BITS = ("0", "1")
 
 
-def _iso(t_ns: np.ndarray, unit: str) -> np.ndarray:
-    return np.datetime_as_string(t_ns.astype("datetime64[ns]").astype(f"datetime64[{unit}]"),
-                                 unit=unit)
-
-
-def _offset_text(off_s: np.ndarray) -> np.ndarray:
-    out = np.empty(off_s.shape, object)
-    for o in np.unique(off_s):
-        sign = "-" if o < 0 else "+"
-        a = abs(int(o)) // 60
-        out[off_s == o] = f"{sign}{a // 60:02d}:{a % 60:02d}"
-    return out.astype(str)
-
-
 def format_rows(rows: EpochRows, zone: Zone, epoch_ns: int, extra=(), idle: bool = False,
                 metrics=()) -> str:
     """The rows as CSV text; ``extra``: more columns (lists of cell text), appended; ``idle``:
@@ -130,12 +117,12 @@ def format_rows(rows: EpochRows, zone: Zone, epoch_ns: int, extra=(), idle: bool
     unit = "s" if epoch_ns % 10**9 == 0 else "ms"
     t = rows.start_ns
     if zone.known:
-        utc = np.char.add(_iso(t, unit), "Z").tolist()
+        utc = np.char.add(iso_texts(t, unit), "Z").tolist()
         off = zone.offsets_s(t)
-        local = np.char.add(_iso(t + off * 10**9, unit), _offset_text(off)).tolist()
+        local = np.char.add(iso_texts(t + off * 10**9, unit), offset_texts(off)).tolist()
     else:
         utc = None
-        local = _iso(t, unit).tolist()
+        local = iso_texts(t, unit).tolist()
     cols = ([utc] if utc is not None else []) + [local, [str(x) for x in rows.n.tolist()]]
     for name in EPOCH_COLUMNS[3:8]:
         cols.append(_num(getattr(rows, name), _DECIMALS[name]))

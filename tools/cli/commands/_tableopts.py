@@ -10,7 +10,9 @@ ENMO_BANDS = number_list(number(0, 10_000, lo_open=True, unit="mg"), increasing=
                          what="increasing mg values")
 
 
-def add_timezone_argument(p) -> None:
+def add_zone_arguments(p) -> None:
+    """``--timezone ZONE`` and ``--timezone-override``: every command that reads a recording's
+    times takes them with this one help text (engine/timezones.py applies them)."""
     p.add_argument("--timezone", default=None, metavar="ZONE",
                    help="the participant's time zone: an IANA name (Europe/London) or an offset "
                         "(+01:00). .cwa: the device clock is that zone's wall-clock time (DST-aware); "

@@ -62,8 +62,8 @@ def add_arguments(p) -> None:
     r.add_argument("--shard", type=shard, metavar="K/N", help="process only shard K of N (0-based; for job "
                    "arrays: --shard $SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT); no collation")
     _exec_arguments(r)
-    from ._tableopts import add_table_arguments, add_timezone_argument
-    add_timezone_argument(r)
+    from ._tableopts import add_table_arguments, add_zone_arguments
+    add_zone_arguments(r)
     add_setting_arguments(r)
     add_table_arguments(r, with_switch=False)
     from ._outcomeopts import add_outcome_arguments

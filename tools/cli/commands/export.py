@@ -57,6 +57,8 @@ from stillpoint.drivers.errors import StillpointError, UnsupportedFormatError
 from stillpoint.drivers.outputs import atomic_output, check_output_path
 from stillpoint.engine.core.blocks import PER_SAMPLE_BUTTON, PER_SAMPLE_IDLE_SLEEP, PER_SAMPLE_LIGHT_RAW
 
+from ._tableopts import add_zone_arguments
+
 NAME = "export"
 KEEPS_EXISTING_OUTPUTS = True  # --overwrite replaces an existing output
 HELP = "write per-sample time, accel (g), gyro (dps), temperature, light, battery to CSV or NPZ"
@@ -73,11 +75,7 @@ def add_arguments(parser) -> None:
                         help="CSV time column: iso (microseconds; default), epoch (seconds, 9 "
                              "decimals) or ns (integer nanoseconds); UTC in a `time` column when the "
                              "zone is known, else the device clock in a `time_local` column")
-    parser.add_argument("--timezone", default=None,
-                        help="device clock time zone, e.g. +01:00 or Europe/London (GENEActiv: a "
-                             "zone that contradicts the header's needs --timezone-override)")
-    parser.add_argument("--timezone-override", action="store_true",
-                        help="GENEActiv: let --timezone replace a header zone it contradicts")
+    add_zone_arguments(parser)
     parser.add_argument("--compress", action="store_true", help="NPZ: deflate the columns")
     parser.add_argument("--actilife", action="store_true",
                         help="ActiGraph .gt3x: write ActiLife's raw CSV layout (header lines, "

@@ -25,8 +25,10 @@ import numpy as np
 from stillpoint.drivers import open_recording, sniff_format
 from stillpoint.drivers.errors import StillpointError
 from stillpoint.engine.core.jsonsafe import jsonable
+from stillpoint.engine.core.times import iso_utc as _iso_utc, offset_text
 
 from ._numbers import SECONDS_DAY
+from ._tableopts import add_zone_arguments
 
 NAME = "inspect"
 HELP = "summarise a recording (device, samples, rate, times, QC); --json for machine-readable output"
@@ -43,20 +45,12 @@ def add_arguments(parser) -> None:
     parser.add_argument("--follow", nargs="?", const=5.0, default=None, type=SECONDS_DAY,
                         metavar="IDLE_S", help="read a file that is still being written (a download "
                         "in progress) until it has not grown for IDLE_S seconds (default 5)")
-    parser.add_argument("--timezone", default=None,
-                        help="the device clock's time zone: an IANA name (Europe/London; DST-aware) or "
-                             "an offset (+01:00). GENEActiv: a zone that contradicts the header's "
-                             "needs --timezone-override; AX: without it times are device local "
-                             "time, zone unknown")
-    parser.add_argument("--timezone-override", action="store_true",
-                        help="GENEActiv: let --timezone replace a header zone it contradicts")
+    add_zone_arguments(parser)
 
 
 def iso_utc(t_ns: Optional[int]) -> Optional[str]:
     """int ns since 1970 (UTC) -> '2013-05-30T09:12:54.500000000Z' (ISO 8601, nanoseconds)."""
-    if t_ns is None:
-        return None
-    return str(np.datetime64(int(t_ns), "ns")) + "Z"
+    return None if t_ns is None else _iso_utc(t_ns, "ns")
 
 
 def _open(path, fmt: str, timezone, follow_idle_s=None, override: bool = False):
@@ -251,7 +245,7 @@ def _actigraph(info, src) -> dict:
     stored = h.get("timezone_stored_s")
     d = {"model": h.get("model"), "layout": h.get("layout"), "scale_lsb_per_g": h.get("scale"),
          "scale_source": h.get("scale_source"),
-         "timezone_stored": None if stored is None else _offset_text(stored),
+         "timezone_stored": None if stored is None else offset_text(stored),
          "idle_sleep_enabled": h.get("idle_sleep_enabled"),
          "axis_swap_fixed": h.get("axis_swap_fixed")}
     if src is not None:
@@ -259,11 +253,6 @@ def _actigraph(info, src) -> dict:
                   "idle_sleep_periods": len(src.idle_periods),
                   "usb_connections": len(src.usb_connections)})
     return d
-
-
-def _offset_text(s: int) -> str:
-    a = abs(int(s))
-    return f"{'-' if s < 0 else '+'}{a // 3600:02d}:{a % 3600 // 60:02d}"
 
 
 def format_text(d: dict) -> str:
@@ -281,7 +270,7 @@ def format_text(d: dict) -> str:
         + (f", {d['sample_rate_measured']:.6f} Hz measured" if d.get("sample_rate_measured") else "")
         + (f"   range {rng}" if rng else ""))
     tz = d.get("timezone_offset_s") or 0
-    clock = f"UTC{'+' if tz >= 0 else '-'}{abs(tz) // 3600:02d}:{abs(tz) % 3600 // 60:02d}"
+    clock = f"UTC{offset_text(tz)}"
     unknown = bool(d.get("timezone")) and "unknown" in d["timezone"]
     if unknown:
         clock = d["timezone"] + " (start/end below are the device clock, not UTC)"

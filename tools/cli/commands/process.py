@@ -13,7 +13,7 @@ from stillpoint.engine.run import RunSettings, process_file
 from ._numbers import SECONDS_DAY
 from ._staticopts import add_static_arguments, resolve_static
 from ._outcomeopts import add_outcome_arguments, outcome_settings
-from ._tableopts import (add_table_arguments, add_timezone_argument, table_settings, zone_settings,
+from ._tableopts import (add_table_arguments, add_zone_arguments, table_settings, zone_settings,
                          tables_text)
 from ._runopts import (OptionError, Progress, add_setting_arguments, human_summary,
                        settings_overrides, write_summary)
@@ -52,7 +52,7 @@ def add_arguments(p) -> None:
                         "IDLE_S seconds (default 5); use with --mode online (one pass)")
     p.add_argument("--report", action="store_true",
                    help="also write a one-page PNG report (+ HTML) beside the MCAP (needs matplotlib)")
-    add_timezone_argument(p)
+    add_zone_arguments(p)
     add_static_arguments(p)
     add_setting_arguments(p)
     add_table_arguments(p)

@@ -1,9 +1,12 @@
 """One device through the station's states (``DeviceFlow.run`` on its own thread).
 
-States: ``identifying`` -> ``empty`` (nothing recorded) | ``downloading`` -> ``verifying`` ->
+States: [``busy`` ->] ``identifying`` -> ``empty`` (nothing recorded) | ``downloading`` -> ``verifying`` ->
 ``verified`` -> [``clearing`` -> ``cleared``] -> [``configuring`` -> ``configured``]; or ``error``
 (with the reason) from any state. Every state change is one ledger transaction (``events``).
 
+* busy: another station of this computer holds the device's host-wide lock (``hostlock``):
+  "held by the station on OUT (pid N)"; nothing is touched until it is free. The lock is held from
+  identifying to the end of configuring, and the serial port is opened only under it.
 * identifying: a preview left streaming is stopped; ``ID`` must name the device id and type
   the USB serial says; clock offset, battery and session are read; a clear of this device a
   killed station left at ``sent`` is settled from the device (``completion.resolve_sent_clear``).
@@ -16,10 +19,14 @@ States: ``identifying`` -> ``empty`` (nothing recorded) | ``downloading`` -> ``v
 * clearing (``--clear-after-verify``): the same byte rule whether this run downloaded the data
   or the ledger already held it (``clearing.clear_verified``; the device re-read in a worker with
   the stall bound, ``reread``); a device whose data changed between two reads of one session (a
-  ``changed`` download) is never cleared here. A profile the device cannot record is refused
-  before the clear.
+  ``changed`` download, in this ledger or in the host-wide record any station of the computer
+  wrote) is never cleared here. A profile the device cannot record is refused before the clear.
 * configuring (``--configure-after`` with a profile): a cleared or empty device, from the profile
-  (``configure.configure_device``; "increment" counts from the session its last clear erased).
+  (``configure.configure_device``; "increment" counts from the session its last clear erased). An
+  empty device that a station of this computer already configured for its current session (no
+  clear since) is left ``configured`` unless ``reconfigure`` asks for it (never silently).
+* The verification's repairs (ranges re-read, ranges patched) go to the download row, a
+  ``repaired`` event and the state line.
 
 The calibration prior: with a calibration store (``StationOptions.store``), the log is corrected
 from its first sample with the device's latest good estimate in the store (the online refits

@@ -47,6 +47,40 @@ class ProfileError(StillpointError):
     """The study profile cannot be read or holds an invalid value."""
 
 
+# The example study profile (``station --write-profile FILE`` writes it; the station guide shows
+# it): every device type, a recording from an hour after unplugging for eight days.
+EXAMPLE_PROFILE = """\
+[device]
+rate_hz = 100            # 3200 / 2^k Hz the device records: AX3 12.5-3200, AX6 6.25-1600
+range_g = 8              # 2, 4, 8, 16
+gyro_dps = 0             # AX6 only: 0 (off), 125 ... 2000; with the gyro on, at least 25 Hz
+start = "+1h"            # "0" (when unplugged), "+<n>m|h|d" from now, or an ISO local time
+stop = "+8d"             # "-1" (never), "+<n>m|h|d" after the start, or an ISO local time
+session = "increment"    # "increment", "keep" or a number 0 .. 2147483647
+min_battery_pct = 80
+[metadata]               # URL-encoded into the 14 x 32-character annotation slots
+study = "ABC"
+[station]
+clear_after_verify = true
+configure_after = true
+erase = "quick"          # the clear's erase: "quick" (FORMAT QC) or "wipe" (FORMAT WC)
+"""
+
+
+def write_example_profile(path) -> Path:
+    """Write ``EXAMPLE_PROFILE`` to ``path``, a new file (an existing one is never replaced)."""
+    p = Path(path)
+    try:
+        with open(p, "x", encoding="utf-8") as f:
+            f.write(EXAMPLE_PROFILE)
+    except FileExistsError:
+        raise ProfileError(f"{p}: already exists; it is never replaced (remove it, or write the "
+                           "example profile to another name)") from None
+    except OSError as e:
+        raise ProfileError(f"{p}: cannot write the example profile: {e.strerror or e}") from None
+    return p
+
+
 _DEVICE_KEYS = ("type", "rate_hz", "range_g", "gyro_dps", "start", "stop", "session",
                 "min_battery_pct", "led_flash")
 _STATION_KEYS = ("clear_after_verify", "configure_after", "erase", "file_name")

@@ -14,10 +14,13 @@ HELP = "watch for AX3/AX6 devices: verified download + corrected MCAP, clear onl
 
 
 def add_arguments(p) -> None:
-    p.add_argument("outdir", type=Path,
+    p.add_argument("outdir", type=Path, nargs="?", default=None,
                    help="output folder (raw copies, MCAP logs, tables, reports, the ledger); it "
                         "must exist (a missing folder is refused, never created)")
     p.add_argument("--profile", type=Path, default=None, help="study profile (TOML)")
+    p.add_argument("--write-profile", type=Path, default=None, metavar="FILE",
+                   help="write the example study profile (every key, commented) to FILE, a new "
+                        "file, and exit; edit it for a study, then --profile FILE")
     p.add_argument("--clear-after-verify", action="store_true", default=None,
                    help="clear each device once its download is verified (also from the profile)")
     p.add_argument("--configure-after", action="store_true", default=None,
@@ -99,6 +102,16 @@ def run(args) -> int:
     from stillpoint.engine.station.flow import StationOptions
     from stillpoint.engine.station.profile import ProfileError, load_profile
     from stillpoint.engine.station.station import Station
+    if args.write_profile is not None:
+        from stillpoint.engine.station.profile import write_example_profile
+        p = write_example_profile(args.write_profile)
+        load_profile(p)  # what was written is a profile the station accepts
+        print(f"example study profile written to {p}: edit it for the study, then `stillpoint "
+              f"station OUTDIR --profile {p}`", flush=True)
+        return 0
+    if args.outdir is None:
+        raise ProfileError("an output folder is needed: `stillpoint station OUTDIR` (or "
+                           "--write-profile FILE to write the example study profile)")
     if args.foxglove is not None:  # the extra is checked before anything is touched
         from stillpoint.engine.live.sdk import load
         load("--foxglove")

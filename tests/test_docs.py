@@ -166,6 +166,11 @@ def test_rhythm_columns_are_documented():
     assert _documented("rhythm-table") == RHYTHM_COLUMNS
 
 
+def test_windows_columns_are_documented():
+    from stillpoint.engine.timeuse import WINDOW_COLUMNS
+    assert _documented("windows-table") == WINDOW_COLUMNS
+
+
 def test_cohort_table_columns_are_documented():
     c = importlib.import_module("stillpoint.engine.cohort.collate")
     assert _documented("cohort-summary") == _expand(c.SUMMARY_FIELDS)

@@ -306,8 +306,10 @@ def run_job(entry: dict, outdir: str, settings: dict, code: str, attempt: int = 
             # and hold its own allocator arena (peak RSS per worker 123-127 -> 180-200 MB on
             # 1-day files, tools/benchmarks/bench_cohort.py)
             from stillpoint.engine.rhythm.table import rhythm_path
+            from stillpoint.engine.timeuse.table import windows_path
             tables = TablesSettings(*table_paths(tmp / MCAP_NAME), **table_options(settings),
-                                    rhythm_path=rhythm_path(tmp / MCAP_NAME))
+                                    rhythm_path=rhythm_path(tmp / MCAP_NAME),
+                                    windows_path=windows_path(tmp / MCAP_NAME))
             if (settings.get("tables") or {}).get("sleep"):
                 from stillpoint.engine.sleep import SleepOptions, nights_path
                 tables.sleep, tables.nights_path = SleepOptions(), nights_path(tmp / MCAP_NAME)
@@ -323,9 +325,9 @@ def run_job(entry: dict, outdir: str, settings: dict, code: str, attempt: int = 
             if "tables" in summary:  # names inside the folder, not the temporary path
                 for k in ("epochs", "days"):
                     summary["tables"][k] = summary["outputs"][k] = Path(summary["tables"][k]).name
-                if "rhythm" in summary["tables"]:
-                    summary["tables"]["rhythm"] = summary["outputs"]["rhythm"] = \
-                        Path(summary["tables"]["rhythm"]).name
+                for k in ("rhythm", "windows"):
+                    if k in summary["tables"]:
+                        summary["tables"][k] = summary["outputs"][k] = Path(summary["tables"][k]).name
                 if "sleep" in summary["tables"]:
                     sl = summary["tables"]["sleep"]
                     sl["nights"] = summary["outputs"]["nights"] = Path(sl["nights"]).name

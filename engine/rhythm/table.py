@@ -1,8 +1,8 @@
 """The rhythm table (``<stem>.rhythm.csv``): one row per recording, written at the end of the
 output pass. ``RhythmTap.push`` is given the epoch rows in order (with their ``spt`` / ``sib``
 flags when sleep is on) and keeps each epoch's start, ENMO, validity and sleep flags in a
-temporary file (19 bytes an epoch); ``close`` reads them back once (about 2.3 MB for a week of 5 s
-epochs, 10 MB for 30 days), computes ``series.rhythm_row`` and writes the table."""
+temporary file (19 bytes an epoch); ``close`` reads them back once (about 3.4 MB for a week of 5 s
+epochs, 15 MB for 30 days; the windows table is computed from the same read), computes ``series.rhythm_row`` and writes the table."""
 
 from __future__ import annotations
 
@@ -17,8 +17,8 @@ from stillpoint.drivers.outputs import atomic_output
 
 from .series import RHYTHM_COLUMNS, rhythm_row
 
-_RECORD = np.dtype([("t_ns", "<i8"), ("enmo_mg", "<f8"), ("invalid", "?"), ("sib", "i1"),
-                    ("spt", "i1")])
+_RECORD = np.dtype([("t_ns", "<i8"), ("enmo_mg", "<f8"), ("mad_mg", "<f8"), ("invalid", "?"),
+                    ("nonwear", "?"), ("sib", "i1"), ("spt", "i1")])
 
 
 def rhythm_path(mcap_path) -> Path:
@@ -42,16 +42,22 @@ class RhythmTap:
         if not n:
             return
         rec = np.empty(n, _RECORD)
-        rec["t_ns"], rec["enmo_mg"], rec["invalid"] = rows.start_ns, rows.enmo_mg, ~rows.clean
+        rec["t_ns"], rec["enmo_mg"], rec["mad_mg"] = rows.start_ns, rows.enmo_mg, rows.mad_mg
+        rec["invalid"], rec["nonwear"] = ~rows.clean, rows.nonwear
         rec["sib"] = 0 if sib is None else sib
         rec["spt"] = 0 if spt is None else spt
         self._spill.write(rec.tobytes())
         self.rows += n
 
-    def close(self, days: list) -> dict:
+    def load(self) -> np.ndarray:
+        """Every epoch's record back (read once; the temporary file is closed)."""
         self._spill.seek(0)
         rec = np.frombuffer(self._spill.read(), _RECORD)
         self._spill.close()
+        return rec
+
+    def close(self, days: list, rec=None) -> dict:
+        rec = self.load() if rec is None else rec
         self.row = rhythm_row(rec["t_ns"], rec["enmo_mg"], rec["invalid"], self.zone, self.epoch_s,
                               sib=rec["sib"] if self.sleep else None,
                               spt=rec["spt"] if self.sleep else None, days=days)

@@ -80,6 +80,7 @@ class TablesSettings:
     sleep: Optional[object] = None  # engine.sleep.SleepOptions: sleep on (device clock without a zone)
     nights_path: Optional[Path] = None
     rhythm_path: Optional[Path] = None  # <stem>.rhythm.csv (engine/rhythm); None: not written
+    windows_path: Optional[Path] = None  # <stem>.windows.csv (engine/timeuse; with sleep and rhythm)
 
     def to_dict(self) -> dict:
         out = {"epochs": str(self.epochs_path), "days": str(self.days_path),
@@ -324,7 +325,14 @@ class TablesTap:
         cols = self.days.columns
         if self.sleep is not None:
             cols = self.sleep.close(days, self.sink, self.ts.zone, cols)
-        rhythm = self.rhythm.close(days) if self.rhythm is not None else None
+        rhythm = windows = None
+        if self.rhythm is not None:
+            rec = self.rhythm.load()
+            rhythm = self.rhythm.close(days, rec)
+            if self.sleep is not None and self.ts.windows_path is not None:
+                from ..timeuse.table import write_windows
+                windows = write_windows(self.ts.windows_path, rec, self.sleep.stage.nights,
+                                        self.ts.zone, self.epoch_ns / 1e9, self.outcomes)
         with atomic_output(self.ts.days_path, binary=False, what="day table") as f:
             w = csv.writer(f, lineterminator="\n")
             w.writerow(cols)
@@ -346,6 +354,8 @@ class TablesTap:
             out["sleep"] = self.sleep.summary()
         if rhythm is not None:
             out["rhythm"] = str(self.ts.rhythm_path)
+        if windows is not None:
+            out["windows"] = str(self.ts.windows_path)
         return out
 
     def abort(self) -> None:

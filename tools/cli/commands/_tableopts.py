@@ -44,10 +44,11 @@ def table_settings(args, mcap_out: Path):
     from stillpoint.engine.tables import TablesSettings, table_paths
     bands = tuple(args.enmo_bands)  # the three options are checked when parsed (_numbers)
     from stillpoint.engine.rhythm.table import rhythm_path
+    from stillpoint.engine.timeuse.table import windows_path
     ep, dp = table_paths(mcap_out)
     return TablesSettings(ep, dp, nonwear_version=args.nonwear, valid_day_hours=args.valid_day_hours,
                           enmo_bands_mg=bands, mvpa_bout_s=args.mvpa_bout_s,
-                          rhythm_path=rhythm_path(mcap_out))
+                          rhythm_path=rhythm_path(mcap_out), windows_path=windows_path(mcap_out))
 
 
 def check_zone(spec):

@@ -143,7 +143,9 @@ def execute(args, settings: RunSettings, out: Path) -> int:
         named["rhythm table"] = rhythm_path(out)
         if getattr(args, "sleep", False):
             from stillpoint.engine.sleep import nights_path
+            from stillpoint.engine.timeuse.table import windows_path
             named["nights table"] = nights_path(out)
+            named["windows table"] = windows_path(out)
     if getattr(args, "report", False):
         from stillpoint.engine.report import report_paths
         named["report"], named["report page"] = report_paths(out)

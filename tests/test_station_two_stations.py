@@ -143,3 +143,35 @@ def test_device_clear_settles_the_changed_verdict(emu, tmp_path, capsys):
     assert "cleared by FORMAT QC" in said and "changed" in said
     assert changed_record(key) is None
     forget_changed(key)  # idempotent
+
+
+def test_devices_and_device_commands_leave_a_held_device_alone(emu, tmp_path, capsys):
+    """`stillpoint devices` lists a device a station holds as busy without asking it anything;
+    a `device` command on it stops with one line naming the holder, exit 2."""
+    import json
+
+    from stillpoint.tools.cli import main
+    d = emu(10001)
+    other = tmp_path / "other-study"
+    lock = DeviceLock(device_key("AX3", 10001, emulated=True), other).acquire()
+    out = tmp_path / "out"
+    out.mkdir()
+    try:
+        assert main(["devices", "--json"]) == 0
+        [row] = json.loads(capsys.readouterr().out)
+        assert row["state"] == "busy"
+        assert row["problem"] == f"held by the station on {other.resolve()} (pid {os.getpid()})"
+        assert "firmware" not in row  # its port was not opened
+        for args in (["device", "download", "10001", "-o", str(out)],
+                     ["device", "clear", "10001", "-o", str(out)],
+                     ["device", "sync-time", "10001"]):
+            assert main(args) == 2, args
+            err = capsys.readouterr().err.strip().splitlines()
+            assert "busy: held by the station on" in err[-1], (args, err)
+            assert "Traceback" not in "\n".join(err)
+    finally:
+        lock.release()
+    assert d.clears == [] and not (out / "AX3-10001_1.cwa").exists()
+    assert main(["devices", "--json"]) == 0
+    [row] = json.loads(capsys.readouterr().out)
+    assert row["state"] != "busy" and "firmware" in row

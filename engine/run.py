@@ -118,7 +118,9 @@ class OutputStage:
         self.source = source
         self.correction = CorrectionOperator(initial, rate_hz=rate_hz, gate=gate)
         self.metrics = MetricsOperator(rate_hz, s.epoch_s, s.bfen_band_hz)
-        self.extras = ExtraMetrics(s, rate_hz)  # counts, MIMS-units (when on)
+        # counts, MIMS-units (when on)
+        self.extras = ExtraMetrics(s, rate_hz, getattr(getattr(source, "info", None),
+                                                       "accel_range_g", None))
         self.epochs = 0
         self.enmo_weighted = 0.0
         self.samples_metrics = 0
@@ -445,6 +447,7 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
         "windows": windows,
         "nonmovement_windows": nonmove,
         "epochs": outst.epochs,
+        **({"mims_near_range_epochs": outst.extras.near_range_epochs} if s.mims else {}),
         "calibration": outcome.summary(),
         "enmo_mean_mg": outst.enmo_mean_mg,
         "qc": _qc_summary(src),

@@ -61,14 +61,15 @@ class RunSettings:
     # ActiLife counts per epoch (engine/operators/counts.py): None (off), "normal" or "lfe" (the
     # low-frequency extension); they need a whole-second epoch
     counts: Optional[str] = None
+    mims: bool = False  # MIMS-units per epoch (engine/operators/mims.py)
 
     def __post_init__(self):
         if self.mode not in ("batch", "online"):
             raise ValueError(f"mode must be 'batch' or 'online', not {self.mode!r}")
         if self.counts is not None and self.counts not in COUNT_MODES:
             raise ValueError(f"counts must be one of {', '.join(COUNT_MODES)}, not {self.counts!r}")
-        if self.counts and float(self.epoch_s) != int(self.epoch_s):
-            raise ValueError(f"counts need a whole-second epoch, not {self.epoch_s:g} s")
+        if (self.counts or self.mims) and float(self.epoch_s) != int(self.epoch_s):
+            raise ValueError(f"counts and MIMS-units need a whole-second epoch, not {self.epoch_s:g} s")
         self.bfen_band_hz = tuple(float(x) for x in self.bfen_band_hz)
 
     def to_dict(self) -> dict:
@@ -124,14 +125,15 @@ def settings_problem(d: dict) -> Optional[str]:
         "timezone": (lambda v: v is None or (isinstance(v, str) and 0 < len(v) <= 64), "null or a zone name"),
         "timezone_override": (lambda v: isinstance(v, bool), "true or false"),
         "counts": (lambda v: v is None or v in COUNT_MODES, "null, " + " or ".join(COUNT_MODES)),
+        "mims": (lambda v: isinstance(v, bool), "true or false"),
     })
     if not isinstance(d, dict):
         return f"not a JSON object ({type(d).__name__})"
     for key, (ok, what) in rules.items():
         if key in d and not ok(d[key]):
             return f"{key} is {d[key]!r}, expected {what}"
-    if d.get("counts") and not float(d.get("epoch_s", EPOCH_S)).is_integer():
-        return f"epoch_s is {d.get('epoch_s')!r}, expected whole seconds with counts"
+    if (d.get("counts") or d.get("mims")) and not float(d.get("epoch_s", EPOCH_S)).is_integer():
+        return f"epoch_s is {d.get('epoch_s')!r}, expected whole seconds with counts or MIMS-units"
     for key in ("prior", "static_calibration"):
         v = d.get(key)
         if v is None:

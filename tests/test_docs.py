@@ -143,7 +143,7 @@ def test_epoch_columns_are_documented():
 
 def test_count_columns_are_documented():
     from stillpoint.engine.tables.writer import metric_columns
-    assert _documented("epoch-metric-columns") == metric_columns(True, False)
+    assert _documented("epoch-metric-columns") == metric_columns(True, True)
 
 
 def test_day_columns_are_documented():

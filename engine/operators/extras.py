@@ -7,14 +7,14 @@ from __future__ import annotations
 
 
 class ExtraMetrics:
-    def __init__(self, settings, rate_hz: float):
+    def __init__(self, settings, rate_hz: float, range_g=None):
         self.ops = {}
         if getattr(settings, "counts", None):
             from .counts import CountsOperator
             self.ops["counts"] = CountsOperator(rate_hz, settings.epoch_s, settings.counts)
         if getattr(settings, "mims", False):
             from .mims import MimsOperator
-            self.ops["mims"] = MimsOperator(rate_hz, settings.epoch_s)
+            self.ops["mims"] = MimsOperator(rate_hz, settings.epoch_s, range_g)
 
     @property
     def keys(self) -> tuple:
@@ -28,6 +28,12 @@ class ExtraMetrics:
             parts = [op.push(b) for b in batches]
             out[k] = type(parts[0]).concat(parts) if parts else None
         return {k: v for k, v in out.items() if v is not None}
+
+    @property
+    def near_range_epochs(self) -> int:
+        """MIMS epochs with samples the reference would have extrapolated (0 without MIMS)."""
+        op = self.ops.get("mims")
+        return op.near_range_epochs if op is not None else 0
 
     def flush(self) -> dict:
         return {k: op.flush() for k, op in self.ops.items()}

@@ -106,7 +106,7 @@ def _batch_tables(mcap, settings, ts) -> dict:
         band = band_used(rate, settings.bfen_band_hz)
         correction = CorrectionOperator(initial, rate_hz=rate)
         metrics = MetricsOperator(rate, settings.epoch_s, settings.bfen_band_hz)
-        extras = ExtraMetrics(settings, rate)
+        extras = ExtraMetrics(settings, rate, src.info.accel_range_g)
         tap = TablesTap(ts, rate, settings.epoch_s, band, src, src.info, extras=extras.keys)
         try:
             def step(block, batches):

@@ -39,6 +39,8 @@ def add_setting_arguments(p, *, defaults_from_input: bool = False) -> None:
     g.add_argument("--counts", choices=("normal", "lfe"), default=None,
                    help="ActiLife activity counts per epoch (axis1 = Y, axis2 = X, axis3 = Z, vm; "
                         "lfe: the low-frequency extension); needs a whole-second epoch")
+    g.add_argument("--mims", dest="mims", action="store_const", const=True, default=d(None),
+                   help="MIMS-units per epoch (John et al. 2019, as R MIMSunit); needs a whole-second epoch")
     g.add_argument("--flush-every-s", type=SECONDS_DAY, default=None,
                    help="flush the MCAP every N s of data time (default 10: a kill loses <= 10 s)")
     g.add_argument("--compression", choices=("zstd", "lz4", "none"), default=None,
@@ -54,15 +56,15 @@ def settings_overrides(args) -> dict:
         "chunk_hours": args.chunk_hours, "epoch_s": args.epoch_s,
         "flush_every_s": args.flush_every_s, "compression": args.compression,
         "view_hz": getattr(args, "view_hz", None),
-        "counts": getattr(args, "counts", None),
+        "counts": getattr(args, "counts", None), "mims": getattr(args, "mims", None),
         "sd_threshold_g": None if args.sd_threshold_mg is None else args.sd_threshold_mg / 1000.0,
         "bfen_band_hz": {None: None, "ggir": (0.2, 15.0), "vanhees": (0.5, 15.0)}[args.bfen_band],
     }
     for k in ("first_hours", "chunk_hours", "epoch_s", "sd_threshold_g"):
         if o[k] is not None and o[k] <= 0:
             raise OptionError(f"--{k.replace('_', '-')} must be positive")
-    if o["counts"] and o["epoch_s"] is not None and not float(o["epoch_s"]).is_integer():
-        raise OptionError(f"--counts needs a whole-second --epoch-s, not {o['epoch_s']:g}")
+    if (o["counts"] or o["mims"]) and o["epoch_s"] is not None and not float(o["epoch_s"]).is_integer():
+        raise OptionError(f"--counts and --mims need a whole-second --epoch-s, not {o['epoch_s']:g}")
     if o["view_hz"] is not None and o["view_hz"] < 0:
         raise OptionError("--view-hz must be 0 (off) or positive")
     return {k: v for k, v in o.items() if v is not None}

@@ -25,6 +25,55 @@ from .operators.windows import WINDOW_S
 # week, ~11 % of a 7-day 100 Hz log (2 Hz: 53 MB), still 86,400 points a day for a plot.
 VIEW_HZ = 1.0
 
+# Bounds of every setting that sets how much is held in memory or how much work a run does,
+# (low, high, unit), both inclusive: the one place they are kept. The command line's options
+# are parsed with these (tools/cli/commands/_runopts.py) and a logged settings record is checked
+# against them (``settings_problem``), so a run's memory stays flat within them:
+# - ``window_s``/``epoch_s``: each operator's ring holds 2x one window/epoch of samples
+#   (operators/base.py ring_capacity): 900 s at 3,200 Hz is 5.8 M samples (~140 MB), at
+#   100 Hz 4 MB; 1 s is the shortest epoch of the reference tools (ActiLife counts).
+# - ``flush_every_s``: a cell's corrected samples wait in the sink until the cell ends, and a
+#   pipeline step is cut into cells; below 1 s a message holds less than one .cwa sector.
+# - ``max_block_s``: one pipeline step's samples are in memory at once; per-step overhead
+#   below 1 s.
+# - ``chunk_s``: chunks span whole cells; ``chunk_size`` caps the uncompressed chunk in memory.
+# - ``first_hours``/``chunk_hours``: one refit per ``chunk_hours`` of data (at 0.25 h, 672 fits
+#   for 7 days).
+# - ``view_hz``: view samples per second (0 = off).
+BOUNDS = {
+    "window_s": (1.0, 900.0, "s"),
+    "epoch_s": (1.0, 900.0, "s"),
+    "flush_every_s": (1.0, 600.0, "s"),
+    "max_block_s": (1.0, 3600.0, "s"),
+    "chunk_s": (1.0, 86_400.0, "s"),
+    "first_hours": (0.25, 8760.0, "h"),
+    "chunk_hours": (0.25, 8760.0, "h"),
+    "chunk_size": (1024, 64 << 20, "bytes"),
+    "view_hz": (0.001, 5000.0, "Hz"),
+}
+
+
+class SettingsError(StillpointError, ValueError):
+    """A run setting outside its bounds (``BOUNDS``) or of the wrong kind."""
+
+
+def bound_problem(key: str, v) -> Optional[str]:
+    """Why ``v`` is not a usable value of the bounded setting ``key`` ("key is v, expected ..."),
+    or None. ``view_hz`` may also be 0 (off), ``chunk_s`` None (the engine's default)."""
+    import math
+    lo, hi, unit = BOUNDS[key]
+    integer = key == "chunk_size"
+    if (key == "view_hz" and v == 0 and not isinstance(v, bool)) or (key == "chunk_s" and v is None):
+        return None
+    ok = (isinstance(v, int) if integer else isinstance(v, (int, float))) and not isinstance(v, bool)
+    ok = ok and math.isfinite(v) and lo <= v <= hi
+    if ok:
+        return None
+    what = "an integer" if integer else "a number"
+    extra = " (or 0: off)" if key == "view_hz" else (" (or null)" if key == "chunk_s" else "")
+    return f"{key} is {v!r}, expected {what} in [{lo:g}, {hi:g}] {unit}{extra}"
+
+
 @dataclass
 class RunSettings:
     """Everything that determines a run's output (logged as the MCAP ``settings`` record)."""
@@ -71,6 +120,10 @@ class RunSettings:
         if (self.counts or self.mims) and float(self.epoch_s) != int(self.epoch_s):
             raise ValueError(f"counts and MIMS-units need a whole-second epoch, not {self.epoch_s:g} s")
         self.bfen_band_hz = tuple(float(x) for x in self.bfen_band_hz)
+        for key in BOUNDS:
+            problem = bound_problem(key, getattr(self, key))
+            if problem:
+                raise SettingsError(f"settings: {problem}")
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -100,9 +153,8 @@ def settings_problem(d: dict) -> Optional[str]:
     def within(lo: float, hi: float, unit: str):  # (lo, hi]: the command line's ranges
         return (lambda v: num(v) and lo < v <= hi), f"a number in ({lo:g}, {hi:g}] {unit}"
 
-    rules = {"window_s": within(0, 86_400, "s"), "epoch_s": within(0, 86_400, "s"),
-             "first_hours": within(0, 8760, "h"), "chunk_hours": within(0, 8760, "h"),
-             "sd_threshold_g": within(0, 1, "g"), "max_abs_mean_g": within(0, 1000, "g")}
+    rules = {key: ((lambda v, key=key: bound_problem(key, v) is None), None) for key in BOUNDS}
+    rules.update({"sd_threshold_g": within(0, 1, "g"), "max_abs_mean_g": within(0, 1000, "g")})
     rules.update({
         "mode": (lambda v: v in ("batch", "online"), "'batch' or 'online'"),
         "min_fill": (lambda v: num(v) and 0 < v <= 1, "a fraction in (0, 1]"),
@@ -112,16 +164,9 @@ def settings_problem(d: dict) -> Optional[str]:
         "ggir_compatible": (lambda v: isinstance(v, bool), "true or false"),
         "calibrate": (lambda v: isinstance(v, bool), "true or false"),
         "corrected_quantum_g": (lambda v: num(v) and 0 <= v <= 1, "a step in g in [0, 1]"),
-        # bounded: the block and chunk sizes set how much of the recording is held in memory
-        "max_block_s": (lambda v: num(v) and 0 < v <= 86_400, "seconds in (0, 86400]"),
-        "flush_every_s": (lambda v: num(v) and 0 < v <= 86_400, "seconds in (0, 86400]"),
-        "chunk_s": (lambda v: v is None or (num(v) and 0 < v <= 86_400), "null or seconds in (0, 86400]"),
         "compression": (lambda v: v in COMPRESSIONS, "one of " + ", ".join(COMPRESSIONS)),
         "zstd_level": (lambda v: isinstance(v, int) and not isinstance(v, bool) and 1 <= v <= 22,
                        "an integer zstd level 1..22"),
-        "chunk_size": (lambda v: isinstance(v, int) and not isinstance(v, bool) and 0 < v <= 1 << 30,
-                       "a byte count in (0, 1 GiB]"),
-        "view_hz": (lambda v: num(v) and 0 <= v <= 5000, "0 (off) or samples per second up to 5000"),
         "timezone": (lambda v: v is None or (isinstance(v, str) and 0 < len(v) <= 64), "null or a zone name"),
         "timezone_override": (lambda v: isinstance(v, bool), "true or false"),
         "counts": (lambda v: v is None or v in COUNT_MODES, "null, " + " or ".join(COUNT_MODES)),
@@ -131,7 +176,7 @@ def settings_problem(d: dict) -> Optional[str]:
         return f"not a JSON object ({type(d).__name__})"
     for key, (ok, what) in rules.items():
         if key in d and not ok(d[key]):
-            return f"{key} is {d[key]!r}, expected {what}"
+            return bound_problem(key, d[key]) if what is None else f"{key} is {d[key]!r}, expected {what}"
     if (d.get("counts") or d.get("mims")) and not float(d.get("epoch_s", EPOCH_S)).is_integer():
         return f"epoch_s is {d.get('epoch_s')!r}, expected whole seconds with counts or MIMS-units"
     for key in ("prior", "static_calibration"):

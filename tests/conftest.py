@@ -64,3 +64,10 @@ def fuzz3(real_data_dir):
     """fuzz3("name") -> Path of a reliability campaign's reproducer, kept beside the real
     recordings (STILLPOINT_REAL_DATA/../fuzz3, README there); skipped and failed as they are."""
     return _files_in(real_data_dir.parent / "fuzz3", "reproducer")
+
+
+@pytest.fixture(scope="session")
+def fuzz4(real_data_dir):
+    """fuzz4("name") -> Path of a resource-bounds campaign's reproducer, kept beside the real
+    recordings (STILLPOINT_REAL_DATA/../fuzz4, README there); skipped and failed as they are."""
+    return _files_in(real_data_dir.parent / "fuzz4", "reproducer")

@@ -73,7 +73,8 @@ def _output_hashes(out: Path) -> dict:
 
 def test_folder_with_bad_files_on_the_default_pool(cohort_dir, tmp_path, capsys):
     out = tmp_path / "out"
-    assert cli(["cohort", "run", str(cohort_dir), "-o", str(out), "-j", "2"]) == 0
+    # exit 1: some files failed (the failure table lists them), the others are done
+    assert cli(["cohort", "run", str(cohort_dir), "-o", str(out), "-j", "2"]) == 1
     err = capsys.readouterr().err
     assert "on processes (2 worker(s))" in err
     assert "FAILED" in err and "corrupt.cwa (corrupt_input)" in err
@@ -92,7 +93,7 @@ def test_folder_with_bad_files_on_the_default_pool(cohort_dir, tmp_path, capsys)
     # a .cwa without a zone: its start is the device clock, never in a UTC column
     assert r["start_utc"] == "" and r["start_local"] and not r["start_local"].endswith("Z")
     assert by["g07.bin"]["start_utc"].endswith("Z")  # GENEActiv: the header's zone
-    # a rerun does nothing; --strict turns the failures into exit 1
+    # a rerun does nothing; --strict (the default now) still exits 1
     assert cli(["cohort", "run", str(cohort_dir), "-o", str(out), "--strict", "-q"]) == 1
     assert "0 done now, 8 already done" in capsys.readouterr().err
     st = status(out)
@@ -134,7 +135,7 @@ def test_resume_after_sigkill_of_the_whole_run(cohort_dir, tmp_path):
                 outs = json.loads((folder / DONE).read_text())["outputs"]
                 assert all((folder / n).stat().st_size == m["bytes"] for n, m in outs.items())
     r = subprocess.run(cmd[:-1], capture_output=True, text=True, timeout=120)
-    assert r.returncode == 0, r.stderr
+    assert r.returncode == 1, r.stderr  # the corrupt and vanished files failed
     assert f"{N_GOOD - len(finished)} done now, {len(finished)} already done" in r.stderr
     after = _markers(out, DONE)
     assert len(after) == N_GOOD
@@ -208,9 +209,10 @@ def test_shards_cover_the_plan_exactly_once(cohort_dir, tmp_path, capsys):
     assert a and b and len(a) + len(b) == len(plan.entries) == N_GOOD + 2
     assert {e.key for e in a}.isdisjoint(e.key for e in b)
     out = tmp_path / "out"
-    for k in (0, 1):
+    for k, entries in ((0, a), (1, b)):
+        bad = any(Path(e.path).name in ("corrupt.cwa", "vanished.cwa") for e in entries)
         assert cli(["cohort", "run", str(cohort_dir), "-o", str(out), "--shard", f"{k}/2",
-                    "--scheduler", "serial", "-q"]) == 0
+                    "--scheduler", "serial", "-q"]) == (1 if bad else 0)
     err = capsys.readouterr().err
     assert "shard 0/2" in err and "shard 1/2" in err and "cohort collate" in err
     assert len(_markers(out, DONE)) == N_GOOD and len(_markers(out, FAILED)) == 2
@@ -223,16 +225,16 @@ def test_process_pool_without_dask_and_retry(cohort_dir, tmp_path, capsys, monke
     monkeypatch.setattr(execute, "have_dask", lambda: False)
     out = tmp_path / "out"
     files = [str(cohort_dir / "p03.cwa"), str(cohort_dir / "corrupt.cwa")]
-    assert cli(["cohort", "run", *files, "-o", str(out), "-j", "2", "--scheduler", "local"]) == 0
+    assert cli(["cohort", "run", *files, "-o", str(out), "-j", "2", "--scheduler", "local"]) == 1
     err = capsys.readouterr().err
     assert "Dask is not installed: running on a local process pool" in err
     assert "pip install 'stillpoint[cohort]'" in err
     assert status(out).done == 1
     failed = next(iter(_markers(out, FAILED).values()))
     t0 = failed.stat().st_mtime_ns
-    assert cli(["cohort", "retry", str(out), "--class", "transient_io", "-q"]) == 0
+    assert cli(["cohort", "retry", str(out), "--class", "transient_io", "-q"]) == 1
     assert failed.stat().st_mtime_ns == t0  # another class: left alone
-    assert cli(["cohort", "retry", str(out), "--class", "corrupt_input", "--scheduler", "serial", "-q"]) == 0
+    assert cli(["cohort", "retry", str(out), "--class", "corrupt_input", "--scheduler", "serial", "-q"]) == 1
     assert failed.stat().st_mtime_ns > t0 and status(out).failed == {"corrupt_input": 1}
 
 
@@ -275,7 +277,7 @@ def test_ctrl_c_stops_cleanly_and_a_rerun_finishes(cohort_dir, tmp_path):
     assert "interrupted" in err and "Rerun the same command to resume" in err
     assert "Traceback" not in err
     r = subprocess.run(cmd[:-4] + ["--scheduler", "serial", "-q"], capture_output=True, text=True, timeout=120)
-    assert r.returncode == 0, r.stderr
+    assert r.returncode == 1, r.stderr  # the corrupt and vanished files failed
     assert len(_markers(out, DONE)) == N_GOOD and not list((out / "files").glob("*/*.tmp"))
 
 

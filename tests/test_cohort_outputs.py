@@ -154,7 +154,7 @@ def test_a_cohort_zone_that_contradicts_a_geneactiv_header_fails_that_file(tmp_p
                        labels_path=False)  # header zone +00:00
     out = tmp_path / "o"
     assert main(["cohort", "run", str(rec), "-o", str(out), "--scheduler", "serial", "-q",
-                 "--timezone", "America/Chicago"]) == 0
+                 "--timezone", "America/Chicago"]) == 2  # its only file failed
     [fail] = _rows(out / "cohort_failures.csv")
     assert fail["class"] == "corrupt_input" and str(rec) in fail["error"]
     assert "+00:00" in fail["error"] and "--timezone-override" in fail["error"]

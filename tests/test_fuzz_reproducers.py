@@ -502,3 +502,110 @@ def _fill(log, field, head):
             if ch.topic == "/raw/accel":
                 logged = list(np.asarray(ACCEL_BATCH_RAW.decode(m.data)[field], np.float64))
                 return head + logged[len(head):]
+
+
+# ----------------------------------------------------------------------------- fuzz4 reproducers
+# The resource-bounds campaign's reproducers: the ``fuzz4`` fixture (conftest.py), README there.
+def test_logged_flush_interval_below_its_bound_is_one_line(fuzz4, tmp_path):
+    name = "settings_flush_every_s_1e-9.mcap"
+    rc, out, err = cli("replay", fuzz4(name), "-o", tmp_path / "r.mcap")
+    assert_one_line_error(rc, err, name)
+    assert "flush_every_s is 1e-09, expected a number in [1, 600] s" in err, err
+    assert not (tmp_path / "r.mcap").exists()
+
+
+@pytest.mark.parametrize("key, value", [
+    ("flush_every_s", 1e-5), ("flush_every_s", 601.0), ("max_block_s", 0.01), ("max_block_s", 86_400.0),
+    ("epoch_s", 0.01), ("epoch_s", 86_400.0), ("window_s", 1e5), ("chunk_hours", 1e-9),
+    ("first_hours", 0.0), ("chunk_s", 1e-3), ("chunk_size", 1), ("chunk_size", 1 << 30), ("view_hz", 1e-6),
+])
+def test_every_bounded_setting_is_refused_outside_its_bounds(key, value):
+    """One table of bounds (engine.settings.BOUNDS): the record check and RunSettings agree."""
+    from stillpoint.engine.settings import BOUNDS, RunSettings, SettingsError, settings_problem
+    lo, hi, _unit = BOUNDS[key]
+    assert not lo <= value <= hi
+    assert settings_problem({key: value}).startswith(f"{key} is ")
+    with pytest.raises(SettingsError, match=key):
+        RunSettings(**{key: value})
+    for inside in (lo, hi):  # both ends are usable
+        assert settings_problem({key: inside}) is None
+        RunSettings(**{key: inside})
+
+
+@pytest.mark.parametrize("option, value", [("--flush-every-s", "1e-9"), ("--flush-every-s", "1e-5"),
+                                           ("--flush-every-s", "3600"), ("--chunk-hours", "1e-6"),
+                                           ("--epoch-s", "0.01"), ("--view-hz", "1e-9")])
+def test_command_line_takes_the_same_bounds(option, value, tmp_path):
+    rc, out, err = cli("process", tmp_path / "none.cwa", "-o", tmp_path / "o.mcap", option, value)
+    assert rc == 2 and "Traceback" not in err
+    assert f"argument {option}: {value} is outside [" in err, err
+
+
+def test_profile_nested_thousands_deep_is_one_line(fuzz4, tmp_path):
+    name = "profile_deep_nest.toml"
+    rc, out, err = cli("station", tmp_path / "out", "--profile", fuzz4(name), "--once")
+    assert_one_line_error(rc, err, name)
+    assert "nested too deeply" in err, err
+
+
+def test_profile_larger_than_a_profile_is_one_line(tmp_path):
+    p = tmp_path / "big.toml"
+    p.write_text("[study]\n" + "# filler\n" * 200_000)
+    rc, out, err = cli("station", tmp_path / "out", "--profile", p, "--once")
+    assert_one_line_error(rc, err, "big.toml")
+    assert "KiB, not a study profile" in err, err
+
+
+def test_long_file_name_template_is_refused_at_profile_load(tmp_path):
+    from stillpoint.engine.station.profile import ProfileError, load_profile
+    from stillpoint.engine.station.study import MAX_TEMPLATE_CHARS
+    base = "[station]\nfile_name = \"{}\"\n"
+    ok = "x" * (MAX_TEMPLATE_CHARS - len("{device}_{session}")) + "{device}_{session}"
+    (tmp_path / "ok.toml").write_text(base.format(ok))
+    load_profile(tmp_path / "ok.toml")
+    (tmp_path / "long.toml").write_text(base.format("a" * 5000 + "{device}_{session}"))
+    with pytest.raises(ProfileError, match="5,018 characters, at most"):
+        load_profile(tmp_path / "long.toml")
+
+
+def test_sleep_log_cell_over_the_csv_field_limit_is_one_line(real_file, tmp_path):
+    rec = real_file("ax3_ggirread_testfile_100hz_145blocks.cwa")
+    sl = tmp_path / "sl.csv"
+    sl.write_text("ID,on,wk\np01," + "1" * 200_000 + ",07:00\n")
+    rc, out, err = cli("process", rec, "-o", tmp_path / "o.mcap", "--timezone", "UTC",
+                       "--sleep-log", sl, "--sleep-log-id", "p01")
+    assert_one_line_error(rc, err, "sl.csv")
+    assert "field larger than field limit" in err, err
+
+
+def test_manifest_without_a_path_column_names_the_columns_found(fuzz4, tmp_path):
+    import shutil
+    name = "manifest_no_path_column.csv"
+    shutil.copy(fuzz4(name), tmp_path / name)
+    (tmp_path / "p01.cwa").write_bytes(b"")
+    rc, out, err = cli("cohort", "run", tmp_path / name, "-o", tmp_path / "co")
+    assert_one_line_error(rc, err, name)
+    assert "no 'path' column (columns found: file, timezone)" in err, err
+
+
+def test_manifest_cell_over_the_csv_field_limit_is_one_line(tmp_path):
+    m = tmp_path / "m.csv"
+    m.write_text("path,timezone\n" + "a" * 200_000 + ".cwa,UTC\n")
+    rc, out, err = cli("cohort", "run", m, "-o", tmp_path / "co")
+    assert_one_line_error(rc, err, "m.csv")
+
+
+def test_manifest_of_plain_paths_still_reads_without_a_header(tmp_path):
+    from stillpoint.engine.cohort import discover_inputs
+    (tmp_path / "a.cwa").write_bytes(b"")
+    (tmp_path / "m.csv").write_text("a.cwa\nb.bin\n")
+    assert [p.name for p in discover_inputs([tmp_path / "m.csv"])] == ["a.cwa", "b.bin"]
+
+
+def test_cohort_run_exits_2_when_every_file_failed(tmp_path):
+    for n in ("a.cwa", "b.cwa"):
+        (tmp_path / n).write_bytes(b"\x00" * 2048)
+    rc, out, err = cli("cohort", "run", tmp_path / "a.cwa", tmp_path / "b.cwa", "-o", tmp_path / "co",
+                       "--scheduler", "serial", "-q")
+    assert rc == 2 and "Traceback" not in err
+    assert "every file failed (2)" in err, err

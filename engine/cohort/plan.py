@@ -95,7 +95,8 @@ def is_recording_name(name: str) -> bool:
 
 
 def _read_manifest_csv(path: Path, attributes: Optional[dict] = None) -> list[Path]:
-    """A manifest CSV: a header row with a ``path`` column, or one path per line (first column);
+    """A manifest CSV: a header row with a ``path`` column, or one path per line (first column;
+    then the first row names a recording); a header row without ``path`` is refused;
     relative paths are relative to the CSV's folder; blank lines and lines starting with # are
     ignored. With a header, the optional ``timezone`` and ``participant`` columns of each row
     go into ``attributes`` (absolute path -> {"timezone", "participant"})."""
@@ -103,10 +104,20 @@ def _read_manifest_csv(path: Path, attributes: Optional[dict] = None) -> list[Pa
         text = path.read_text(encoding="utf-8-sig")
     except (OSError, UnicodeError) as e:
         raise CohortInputError(f"{path}: cannot read the manifest ({e})") from None
-    rows = [r for r in csv.reader(io.StringIO(text)) if r and r[0].strip() and not r[0].startswith("#")]
+    try:
+        rows = [r for r in csv.reader(io.StringIO(text)) if r and r[0].strip() and not r[0].startswith("#")]
+    except csv.Error as e:  # e.g. a cell over csv's field limit (131,072 characters)
+        raise CohortInputError(f"{path}: not a readable manifest ({e})") from None
     if not rows:
         raise CohortInputError(f"{path}: the manifest lists no files")
     header = [c.strip().lower() for c in rows[0]]
+    first = Path(rows[0][0].strip()).expanduser()
+    names_a_file = (any(is_recording_name(c.strip()) for c in rows[0])
+                    or (first if first.is_absolute() else path.parent / first).is_file())
+    if "path" not in header and not names_a_file:  # a header row without the paths' column
+        found = ", ".join(c.strip() for c in rows[0])[:200]
+        raise CohortInputError(f"{path}: no 'path' column (columns found: {found}); name the "
+                               "column of the recordings' paths 'path', or list one path per line")
     col = header.index("path") if "path" in header else 0
     extra = {}
     if "path" in header:

@@ -88,7 +88,10 @@ def read_sleep_log(path, participant: str) -> SleepLog:
         raise SleepLogError(f"sleep log {path}: cannot be read ({e})") from None
     sample = text[:4096]
     delim = ";" if sample.count(";") > sample.count(",") else ("\t" if sample.count("\t") > sample.count(",") else ",")
-    rows = list(csv.reader(text.splitlines(), delimiter=delim))
+    try:
+        rows = list(csv.reader(text.splitlines(), delimiter=delim))
+    except csv.Error as e:  # e.g. a cell over csv's field limit (131,072 characters)
+        raise SleepLogError(f"sleep log {path}: not a readable table ({e})") from None
     if len(rows) < 2:
         raise SleepLogError(f"sleep log {path}: no header and participant rows")
     header = [h.strip() for h in rows[0]]

@@ -90,6 +90,10 @@ _SESSION_RE = re.compile(r"^[0-9]+$")
 _YEARS = (max(r["years"][0] for r in C.AX_RULES.values()), min(r["years"][1] for r in C.AX_RULES.values()))
 
 
+# a study profile is a page of settings; anything larger is not one (and is not parsed)
+MAX_PROFILE_BYTES = 1 << 20
+
+
 def _toml_load(path: Path) -> dict:
     try:
         import tomllib  # Python 3.11+
@@ -101,7 +105,12 @@ def _toml_load(path: Path) -> dict:
                                "'tomli' package on Python 3.10") from None
     try:
         with open(path, "rb") as f:
-            return tomllib.load(f)
+            data = f.read(MAX_PROFILE_BYTES + 1)
+        if len(data) > MAX_PROFILE_BYTES:
+            raise ProfileError(f"{path}: over {MAX_PROFILE_BYTES // 1024} KiB, not a study profile")
+        return tomllib.loads(data.decode("utf-8"))
+    except RecursionError:  # tables or arrays nested thousands deep
+        raise ProfileError(f"{path}: not a study profile (tables nested too deeply)") from None
     except OSError as e:
         raise ProfileError(f"{path}: cannot read: {e.strerror}") from None
     except tomllib.TOMLDecodeError as e:

@@ -32,9 +32,16 @@ class StudyRecordError(StillpointError):
     """A file-name template or a setting code that cannot be used."""
 
 
+# the longest file_name template: a file name holds 255 bytes, and each field's value adds to it
+MAX_TEMPLATE_CHARS = 120
+
+
 def check_template(template: str, where: str = "file_name") -> None:
     """Refuse a template whose literal text is not safe in a file name or that lacks
     ``{device}`` or ``{session}``."""
+    if len(template) > MAX_TEMPLATE_CHARS:
+        raise StudyRecordError(f"{where} {template[:40]!r}...: {len(template):,} characters, at most "
+                               f"{MAX_TEMPLATE_CHARS} (a file name holds 255 bytes)")
     fields = _FIELD.findall(template)
     literal = _FIELD.sub("", template)
     if not _LITERAL.match(literal) or "{" in literal or "}" in literal:

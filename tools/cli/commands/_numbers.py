@@ -141,6 +141,15 @@ def shard(text: str) -> str:
     return text
 
 
+def setting(key: str):
+    """An argparse ``type`` for the run setting ``key``, with its bounds from
+    ``engine.settings.BOUNDS`` (the one place they are kept; a logged settings record is checked
+    against the same)."""
+    from stillpoint.engine.settings import BOUNDS
+    lo, hi, unit = BOUNDS[key]
+    return number(lo, hi, integer=key == "chunk_size", unit=unit, or_zero=key == "view_hz")
+
+
 HOURS = number(0, 8760, lo_open=True, unit="h")  # up to a year of data
 MG = number(0, 1000, lo_open=True, unit="mg")
 SECONDS_DAY = number(0, 86_400, lo_open=True, unit="s")

@@ -6,7 +6,7 @@ import json
 
 from stillpoint.drivers.errors import StillpointError
 
-from ._numbers import EPOCH_S, HOURS, MG, SECONDS_DAY, number
+from ._numbers import MG, setting
 
 
 class OptionError(StillpointError):
@@ -27,13 +27,13 @@ def add_setting_arguments(p, *, defaults_from_input: bool = False) -> None:
                    default=d(None), help="fit offset and scale only (no temperature term)")
     g.add_argument("--ggir-compatible", dest="ggir_compatible", action="store_const", const=True,
                    default=d(None), help="GGIR's stopping rule and error rounding (batch only)")
-    g.add_argument("--first-hours", type=HOURS, default=None,
+    g.add_argument("--first-hours", type=setting("first_hours"), default=None,
                    help="batch schedule: hours of data in the first fit (default 72; GGIR>=3.0 uses 168)")
-    g.add_argument("--chunk-hours", type=HOURS, default=None,
+    g.add_argument("--chunk-hours", type=setting("chunk_hours"), default=None,
                    help="hours added per refit (batch) / between refits (online); default 12")
     g.add_argument("--sd-threshold-mg", type=MG, default=None,
                    help="nonmovement: window SD below this on all axes (default 13 mg)")
-    g.add_argument("--epoch-s", type=EPOCH_S, default=None, help="metric epoch length (default 5 s)")
+    g.add_argument("--epoch-s", type=setting("epoch_s"), default=None, help="metric epoch length (default 5 s)")
     g.add_argument("--bfen-band", choices=("ggir", "vanhees"), default=None,
                    help="BFEN band-pass: ggir = 0.2-15 Hz (default), vanhees = 0.5-15 Hz")
     g.add_argument("--counts", choices=("normal", "lfe"), default=None,
@@ -41,11 +41,11 @@ def add_setting_arguments(p, *, defaults_from_input: bool = False) -> None:
                         "lfe: the low-frequency extension); needs a whole-second epoch")
     g.add_argument("--mims", dest="mims", action="store_const", const=True, default=d(None),
                    help="MIMS-units per epoch (John et al. 2019, as R MIMSunit); needs a whole-second epoch")
-    g.add_argument("--flush-every-s", type=SECONDS_DAY, default=None,
+    g.add_argument("--flush-every-s", type=setting("flush_every_s"), default=None,
                    help="flush the MCAP every N s of data time (default 10: a kill loses <= 10 s)")
     g.add_argument("--compression", choices=("zstd", "lz4", "none"), default=None,
                    help="MCAP chunk compression (default zstd)")
-    g.add_argument("--view-hz", type=number(0.001, 5000, unit="Hz", or_zero=True), default=None,
+    g.add_argument("--view-hz", type=setting("view_hz"), default=None,
                    help="samples per second on the plottable /view/accel topic (default 1; 0 = off)")
 
 

@@ -11,8 +11,9 @@ distributed (laptop to cluster) into one output folder that is the single source
 --valid-day-hours, --enmo-bands, --mvpa-bout-s), all part of each file's key.
 
 A rerun of the same command does only what is not finished; Ctrl-C stops cleanly (exit 130).
-Exit codes: 0 (failed files are in the failure table), 1 with ``--strict`` when any file failed,
-2 for unusable arguments or an unusable output folder, 130 when interrupted.
+Exit codes: 0 when every file is done, 1 when some file failed (the failure table lists
+them; the others are done), 2 when every file failed, no recording was found, or for unusable
+arguments or an unusable output folder, 130 when interrupted.
 """
 
 from __future__ import annotations
@@ -46,7 +47,7 @@ def _exec_arguments(p) -> None:
                         "workers); implies --scheduler local when no scheduler is given")
     g.add_argument("--max-in-flight", type=number(1, 1_000_000, integer=True), default=None,
                    help="jobs submitted at a time (default: twice the worker slots)")
-    g.add_argument("--strict", action="store_true", help="exit 1 when any file failed")
+    g.add_argument("--strict", action="store_true", help="exit 1 when any file failed (the default; kept for older scripts)")
     g.add_argument("-q", "--quiet", action="store_true", help="no progress and no failure lines")
 
 
@@ -152,12 +153,21 @@ def _execute(args, plan, outdir: Path, retry_classes=(), collate_after=True) -> 
               f"{col.failures_csv} ({len(col.failures)})", file=sys.stderr)
         for w in col.warnings:
             print(f"warning: {w}", file=sys.stderr)
-        n_failed = len(col.failures)
+        n_failed, n_done = len(col.failures), len(col.rows)
     else:
         print("shard finished; when every shard is done: stillpoint cohort collate "
               f"{outdir}", file=sys.stderr)
-        n_failed = res.failed_total + res.already_failed
-    return 1 if (args.strict and n_failed) else 0
+        n_failed, n_done = res.failed_total + res.already_failed, res.done + res.already_done
+    return exit_code(n_done, n_failed)
+
+
+def exit_code(done: int, failed: int) -> int:
+    """0: every file done; 1: some failed (the others are done); 2: every file failed."""
+    if failed and not done:
+        print(f"stillpoint cohort: every file failed ({failed}); the failure table says why",
+              file=sys.stderr)
+        return 2
+    return 1 if failed else 0
 
 
 def _run(args) -> int:

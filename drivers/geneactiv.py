@@ -55,7 +55,7 @@ from .geneactiv_header import (CALIBRATION_KEYS, SUBJECT_KEYS, TRIAL_KEYS, Genea
                                header_range_g, header_rate_hz, parse_header_text, parse_number,
                                parse_time_ms, parse_times_ms, parse_timezone)
 
-__all__ = ["GeneactivReader", "read_header", "decode_hex_samples", "GeneactivWriter"]
+__all__ = ["GeneactivReader", "read_header", "decode_hex_samples", "GeneactivWriter"]  # noqa: F822 - lazy (__getattr__)
 
 PAGE_HEX_CHARS = GNA_SAMPLES_PER_PAGE * GNA_HEX_PER_SAMPLE  # 3600
 APPROX_PAGE_BYTES = 3800  # a page with its 9 text lines, for sizing reads (never for allocation)

@@ -197,7 +197,7 @@ class GeneactivWriter:
         eol = self.eol
         out = bytearray()
         npages_pos = None
-        for si, (section, kvs) in enumerate(layout):
+        for section, kvs in layout:
             out += section.encode() + eol
             for key, default in kvs:
                 value = str(self.header_fields.get(key, default))

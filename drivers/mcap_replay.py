@@ -28,6 +28,7 @@ from stillpoint.engine.mcap.stream import iter_messages, read_metadata
 from . import constants as C
 from .byteio import check_recording_path
 from .errors import CorruptRecordingError, UnsupportedFormatError
+from .sniff import MCAP_MAGIC, sniff_format
 
 NOT_A_STILLPOINT_LOG = "MCAP has no 'device' metadata record: not a stillpoint log"
 TOPIC_RAW = "/raw/accel"
@@ -44,7 +45,6 @@ def check_is_log(path) -> None:
     damage: a recording (``.cwa``, ``.bin``, ``.gt3x``, plain or gzipped) is named as such, with
     the command that makes its log; anything else as not an MCAP file. Every command that reads
     a log (``view``, ``report``, ``replay``, ``recover``, ``export``) starts here."""
-    from . import MCAP_MAGIC, sniff_format
     p = Path(path)
     check_recording_path(p)
     with open(p, "rb") as f:

@@ -136,7 +136,6 @@ def _sphere(mcap, est_json: Optional[dict], settings: dict, progress=None):
     """Nonmovement window means (raw g), temperatures, and the estimate to apply."""
     from stillpoint.drivers.mcap_replay import McapRawSource
     from .calibration.estimate import CalibrationEstimate
-    from .features import WindowFeatures
     from .operators.nonmovement import NonmovementOperator
     from .operators.windows import WindowFeaturesOperator
 

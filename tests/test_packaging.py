@@ -7,6 +7,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 TOP = {"engine": "stillpoint.engine", "drivers": "stillpoint.drivers", "tools": "stillpoint.tools"}
+# developers' scripts kept out of the wheel (they stay in the repository, under tools/)
+NOT_SHIPPED = {"stillpoint.tools.benchmarks", "stillpoint.tools.crosschecks"}
 
 
 def test_every_package_dir_is_listed_in_pyproject():
@@ -15,8 +17,18 @@ def test_every_package_dir_is_listed_in_pyproject():
     for top, dotted in TOP.items():
         for init in (ROOT / top).rglob("__init__.py"):
             rel = init.parent.relative_to(ROOT / top)
-            found.add(".".join([dotted, *rel.parts]) if rel.parts else dotted)
+            name = ".".join([dotted, *rel.parts]) if rel.parts else dotted
+            if not any(name == d or name.startswith(d + ".") for d in NOT_SHIPPED):
+                found.add(name)
     assert found - listed == set(), f"add these packages to pyproject.toml: {sorted(found - listed)}"
+    shipped = {p for p in listed if any(p == d or p.startswith(d + ".") for d in NOT_SHIPPED)}
+    assert not shipped, f"benchmarks and cross-checks are not shipped: remove {sorted(shipped)}"
+
+
+def test_the_package_says_it_is_typed():
+    conf = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
+    assert (ROOT / "_stillpoint" / "py.typed").is_file()
+    assert "py.typed" in conf["package-data"]["stillpoint"]
 
 
 def test_cli_help_lists_commands():

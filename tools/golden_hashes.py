@@ -22,6 +22,7 @@ import golden  # noqa: E402  (tests/golden.py: the cases and the fingerprints)
 
 
 def main(argv=None) -> int:
+    """Recompute the chosen cases (default: all), print what changed, write the JSON file."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("cases", nargs="*", help="case names (default: all)")
     ap.add_argument("--check", action="store_true", help="compare only; write nothing")

@@ -108,7 +108,7 @@ def mount_block_device(device: Optional[str], *, run: Callable[[list], tuple] = 
         try:
             os.makedirs(target, mode=0o700, exist_ok=True)
         except OSError as e:
-            raise MountError(device, f"cannot create the mount folder {target}: {e.strerror or e}")
+            raise MountError(device, f"cannot create the mount folder {target}: {e.strerror or e}") from None
         if os.path.ismount(target):  # the station's own mount of the medium before the COMMIT
             run(["umount", "-l", target])
         seq = disk_sequence(device, sys_root)

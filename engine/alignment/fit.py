@@ -573,7 +573,7 @@ def fit_robust(blocks: Sequence[BlockLag], rate: float,
     # step objects, located with the sub-block lags
     by_index = {b.index: b for b in blocks}
     step_objs = []
-    for k, (tau, j) in enumerate(zip(steps, step_pos)):
+    for k, (_tau, j) in enumerate(zip(steps, step_pos)):
         size = float(coef[2 + k])
         others = [(s2, float(coef[2 + kk])) for kk, s2 in enumerate(steps) if kk != k]
 

@@ -41,6 +41,7 @@ class QCEvent:
     end_ns: Optional[int] = None  # end of an event that lasts (ActiGraph idle sleep), exclusive
 
     def as_dict(self) -> dict:
+        """The event as JSON-ready data (``detail`` only when there is one)."""
         d = {"index": self.index, "reason": self.reason}
         if self.detail:
             d["detail"] = self.detail
@@ -65,9 +66,11 @@ class QCReport:
     segments: int = 0  # continuous stretches of logging
 
     def add(self, event: QCEvent) -> None:
+        """Record one event."""
         self.events.append(event)
 
     def as_dict(self) -> dict:
+        """The report as JSON-ready data (the run summary's ``qc``)."""
         return {
             "unit": self.unit,
             "total": self.total,
@@ -129,6 +132,7 @@ class Block:
     # ------------------------------------------------------------------ derived views
     @property
     def n(self) -> int:
+        """Number of samples."""
         return int(self.time_ns.shape[0]) if self.time_ns is not None else self.clock.n
 
     def time_at(self, rows) -> np.ndarray:
@@ -139,6 +143,7 @@ class Block:
 
     @property
     def m(self) -> int:
+        """Number of units (sectors or pages)."""
         return int(self.unit_start.shape[0])
 
     def accel_g(self, dtype=np.float64) -> np.ndarray:
@@ -150,6 +155,7 @@ class Block:
         return a
 
     def gyro_dps(self, dtype=np.float64) -> Optional[np.ndarray]:
+        """Gyro in degrees per second, (n, 3); None without a gyro."""
         if self.gyro is None:
             return None
         return self.gyro.astype(dtype) * dtype(self.gyro_dps_per_count)
@@ -173,7 +179,7 @@ class Block:
         us = np.maximum(self.unit_start[keep], start) - start
         return replace(
             self,
-            time_ns=self.time_ns[start:stop],
+            time_ns=self.time_ns[start:stop],  # type: ignore[index]  # slicing needs the times
             accel=self.accel[start:stop],
             gyro=None if self.gyro is None else self.gyro[start:stop],
             unit_index=self.unit_index[keep],
@@ -238,7 +244,8 @@ COALESCE_S = 600.0  # the longest run of blocks joined by coalesce_blocks (10 mi
 def coalesce_blocks(src, max_s: float = COALESCE_S):
     """The source's Blocks joined into runs of one segment and scale, up to ``max_s`` of data
     (every operator's output is independent of block cuts, so this only saves per-block work)."""
-    run, t0 = [], None
+    run: list[Block] = []
+    t0 = 0  # the first block's start, set with it
     for b in src:
         if b.n == 0:
             continue

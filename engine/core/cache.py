@@ -43,7 +43,7 @@ def cached_array(name: str, key, build: Callable[[], np.ndarray], shape: tuple) 
         except (OSError, ValueError, EOFError):
             pass
     a = np.ascontiguousarray(build(), np.float64)
-    if path is not None:
+    if path is not None and folder is not None:
         try:
             folder.mkdir(parents=True, exist_ok=True)
             fd, tmp = tempfile.mkstemp(prefix=f".{name}-", suffix=".npy", dir=folder)

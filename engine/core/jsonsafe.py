@@ -17,6 +17,7 @@ import numpy as np
 
 
 def jsonable(x):
+    """``x`` as JSON-ready data (see the module docstring)."""
     if isinstance(x, dict):
         return {(k if isinstance(k, str) else str(k)): jsonable(v) for k, v in x.items()}
     if isinstance(x, (list, tuple)):
@@ -40,4 +41,5 @@ def jsonable(x):
 
 
 def dumps(obj) -> str:
+    """JSON text of ``jsonable(obj)``, keys sorted, no NaN."""
     return json.dumps(jsonable(obj), sort_keys=True, allow_nan=False)

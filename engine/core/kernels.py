@@ -31,6 +31,8 @@ def scipy_extension(subpackage: str, module: str) -> Optional[object]:
         name = f"scipy.{subpackage}.{module}"
         loader = importlib.machinery.ExtensionFileLoader(name, paths[0])
         spec = importlib.util.spec_from_file_location(name, paths[0], loader=loader)
+        if spec is None:
+            return None
         mod = importlib.util.module_from_spec(spec)
         loader.exec_module(mod)
         return mod

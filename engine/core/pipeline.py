@@ -22,6 +22,7 @@ from .blocks import Block
 
 @dataclass
 class PipelineStats:
+    """What a pipeline run saw: samples, blocks, first/last sample time, segments, wall time."""
     samples: int = 0
     blocks: int = 0
     first_ns: Optional[int] = None
@@ -32,7 +33,8 @@ class PipelineStats:
 
     @property
     def data_s(self) -> float:
-        if self.first_ns is None:
+        """Data time from the first to the last sample, in seconds."""
+        if self.first_ns is None or self.last_ns is None:
             return 0.0
         return (self.last_ns - self.first_ns) / 1e9
 
@@ -60,6 +62,7 @@ def split_block(block: Block, max_samples: Optional[int]) -> list[Block]:
 
 
 class Pipeline:
+    """A source pushed through a chain of stages, block by block (see the module docstring)."""
     def __init__(self, source, stages: Iterable, *, rate_hz: float,
                  max_block_s: Optional[float] = 10.0):
         """``max_block_s``: blocks longer than this (data time) are cut into pieces; None: the
@@ -77,6 +80,7 @@ class Pipeline:
             return None
 
     def run(self, progress: Optional[Callable[[PipelineStats], None]] = None) -> PipelineStats:
+        """Run the source to its end through every stage; ``progress(stats)`` after each block."""
         st = self.stats
         t0 = time.perf_counter()
         for block in self.source:

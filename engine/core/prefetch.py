@@ -25,7 +25,7 @@ import os
 import queue
 import threading
 from dataclasses import replace
-from typing import Iterator
+from typing import Iterator, Optional
 
 from .blocks import Block
 
@@ -53,8 +53,8 @@ class Prefetched:
         self.source = source
         self.depth = max(1, int(depth))
         self._qc = getattr(source, "qc", None)
-        self._thread = None
-        self._queue = None
+        self._thread: Optional[threading.Thread] = None
+        self._queue: Optional[queue.Queue] = None
         self._stop = threading.Event()
 
     def __getattr__(self, name):
@@ -64,14 +64,17 @@ class Prefetched:
 
     @property
     def qc(self):
+        """The source's QC report."""
         return self._qc
 
     def __iter__(self) -> Iterator[Block]:
         if self._thread is not None:
             raise RuntimeError("a source is single-pass; open it again for another pass")
-        self._queue = q = queue.Queue(self.depth)
-        self._thread = threading.Thread(target=self._produce, name="source-prefetch", daemon=True)
-        self._thread.start()
+        q: queue.Queue = queue.Queue(self.depth)
+        self._queue = q
+        self._thread = t = threading.Thread(target=self._produce, name="source-prefetch",
+                                            daemon=True)
+        t.start()
         try:
             while True:
                 kind, item, qc = q.get()
@@ -97,7 +100,9 @@ class Prefetched:
         queue is released by ``_halt``, which empties the queue after setting the stop flag."""
         if self._stop.is_set():
             return False
-        self._queue.put(item)
+        q = self._queue
+        assert q is not None  # set before the producer starts
+        q.put(item)
         return not self._stop.is_set()
 
     def _produce(self) -> None:

@@ -19,6 +19,7 @@ import numpy as np
 
 
 class RingBuffer:
+    """A fixed-capacity buffer of equal-length numpy columns (see the module docstring)."""
     def __init__(self, capacity: int, **columns):
         if capacity <= 0:
             raise ValueError("capacity must be positive")
@@ -36,10 +37,12 @@ class RingBuffer:
 
     @property
     def free(self) -> int:
+        """Rows that can still be appended."""
         return self.capacity - len(self)
 
     @property
     def nbytes(self) -> int:
+        """Bytes held by the columns."""
         return sum(a.nbytes for a in self._data.values())
 
     def clear(self) -> None:
@@ -52,7 +55,7 @@ class RingBuffer:
         if set(values) != set(self._data):
             raise KeyError(f"append needs exactly the columns {sorted(self._data)}")
         n = None
-        for name, v in values.items():
+        for v in values.values():
             if n is None:
                 n = len(v)
             elif len(v) != n:

@@ -13,9 +13,11 @@ from .blocks import Block, DeviceInfo, QCReport
 
 @runtime_checkable
 class Source(Protocol):
+    """A reader as a block source: ``info`` before iterating, ``qc`` complete after."""
     info: DeviceInfo  # available before iteration starts
     qc: QCReport  # complete once iteration has finished
 
     def __iter__(self) -> Iterator[Block]: ...
 
-    def close(self) -> None: ...
+    def close(self) -> None:
+        """Release the file or device."""

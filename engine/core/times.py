@@ -31,7 +31,7 @@ def iso_text(t_ns: int, unit: str = "s") -> str:
 def iso_texts(t_ns: np.ndarray, unit: str = "s") -> np.ndarray:
     """``iso_text`` of every instant of an int64 array (an array of str)."""
     t = np.asarray(t_ns).astype("datetime64[ns]").astype(f"datetime64[{unit}]")
-    return np.datetime_as_string(t, unit=unit)
+    return np.datetime_as_string(t, unit=unit)  # type: ignore[call-overload]  # unit: a str
 
 
 def iso_utc(t_ns: int, unit: str = "s") -> str:

@@ -15,9 +15,9 @@ from __future__ import annotations
 import struct
 
 try:  # ISA-L's CRC-32 (same polynomial and values as zlib's, ~7x faster: SIMD carry-less multiply)
-    from isal.isal_zlib import crc32
+    from isal.isal_zlib import crc32  # noqa: F401 - the module's crc32 (imported from here)
 except ImportError:  # pragma: no cover - the standard library's
-    from zlib import crc32
+    from zlib import crc32  # noqa: F401
 
 MAGIC = b"\x89MCAP0\r\n"
 

@@ -197,7 +197,7 @@ def iter_topic_messages(f: BinaryIO, topics: Optional[Iterable[str]], *,
             yield from walk(data)
             return
         offs = []
-        for cid, e in wanted:
+        for _cid, e in wanted:
             offs.extend(struct.unpack_from(f"<{len(e) // 8}Q", e)[1::2])
         offs.sort()
         mv = memoryview(data)

@@ -8,7 +8,10 @@ for): the concatenated outputs do not depend on how the input stream was cut int
 
 from __future__ import annotations
 
-from typing import Any, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
+
+if TYPE_CHECKING:
+    import numpy as np
 
 
 @runtime_checkable
@@ -30,7 +33,7 @@ def ring_capacity(width_s: float, rate_hz: float, minimum: int = 4096) -> int:
 # (3, n) array whose transpose, an (n, 3) view, is returned.
 
 
-def accel_g_columns(block) -> "np.ndarray":
+def accel_g_columns(block) -> np.ndarray:
     """``block.accel_g()`` (float64 g, (n, 3)), computed column by column."""
     import numpy as np
     acc = block.accel
@@ -47,7 +50,7 @@ def accel_g_columns(block) -> "np.ndarray":
     return out.T
 
 
-def apply_columns(est, accel, temperature, out_t=None) -> "np.ndarray":
+def apply_columns(est, accel, temperature, out_t=None) -> np.ndarray:
     """``est.apply(accel, temperature)`` ((x + offset) * scale [+ (T - ref) * tempoffset]),
     column by column; ``out_t``: a (3, n) array to write into. Returns the (n, 3) view."""
     import numpy as np

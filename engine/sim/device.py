@@ -199,7 +199,7 @@ class DeviceSim:
         t, keep = self.clock.sample_times(i0, i1)
         # restarts: first kept sample after each restart gap
         restarts = []
-        for a, b in self.clock.restarts:
+        for _a, b in self.clock.restarts:
             if t.size and t[0] <= b <= t[-1] + 1.0 / rate:
                 pos = int(np.searchsorted(t, b, side="left"))
                 restarts.append(int(np.count_nonzero(keep[:pos])))

@@ -102,11 +102,12 @@ class SleepStage:
     HOLD_EPOCHS = 36 * 720  # a still stretch held undecided at most this long (36 h)
     TAKE_EPOCHS = 720  # rows are taken in batches of about an hour
 
-    def __init__(self, zone: Zone, epoch_s: float, options: SleepOptions = SleepOptions()):
+    def __init__(self, zone: Zone, epoch_s: float, options: Optional[SleepOptions] = None):
         self.zone = zone
         self.epoch_ns = int(round(epoch_s * 1e9))
         self.per_h = int(round(3600 / epoch_s))
         self.half = 12 * self.per_h
+        options = options if options is not None else SleepOptions()
         self.opts = options
         self.sib = SibStream(epoch_s, options.angle_deg, options.time_min)
         self.first_ns = None

@@ -25,7 +25,6 @@ from __future__ import annotations
 import os
 import threading
 from pathlib import Path
-from typing import Optional
 
 TABLES = "tables"
 REPORT = "report"

@@ -21,7 +21,7 @@ offset_drift           k       t since start        u_k                   mg/day
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable, List, Optional, Tuple
+from typing import List, Optional, Tuple
 
 import numpy as np
 

@@ -412,7 +412,7 @@ def levenberg_marquardt(fun, jac, x0, lo, hi, loss_scale, max_iter=60, tol=1e-10
     lam = 1e-4
     converged = False
     it = 0
-    for it in range(1, max_iter + 1):
+    for it in range(1, max_iter + 1):  # noqa: B007 - returned as the iteration count
         w = 1.0 / np.sqrt(1.0 + (r / loss_scale) ** 2)
         A = np.einsum("ij,ik->jk", J, w[:, None] * J)
         g = np.einsum("ij,i->j", J, w * r)

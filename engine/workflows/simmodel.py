@@ -14,7 +14,7 @@ import numpy as np
 
 from stillpoint.engine.sim import model as sim
 
-from .sensor_fit import AXES, EFFECT_COMPONENTS, PAIR_INDEX, PAIRS, SensorModel, component_index
+from .sensor_fit import EFFECT_COMPONENTS, PAIR_INDEX, PAIRS, SensorModel, component_index
 
 FITTED_EFFECTS = tuple(EFFECT_COMPONENTS)  # the simulator's deterministic terms we fit
 

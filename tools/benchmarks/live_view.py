@@ -83,7 +83,7 @@ def serve_and_read(log: Path, speed: float, show: bool) -> dict:
                 break
             except OSError:
                 if time.monotonic() > end or proc.poll() is not None:
-                    raise SystemExit(f"the server did not start: {proc.stderr.read()}")
+                    raise SystemExit(f"the server did not start: {proc.stderr.read()}") from None
                 time.sleep(0.2)
         c.pump(10.0, until=lambda: len(c.channels) == len(want))
         c.subscribe()

@@ -183,7 +183,7 @@ def inspect_recording(path, *, header_only: bool = False, timezone=None,
                       follow_idle_s: Optional[float] = None, timezone_override: bool = False) -> dict:
     """Summary of a recording as a plain dict (see the module docstring). ``follow_idle_s``:
     read a file that is still being written until it has not grown for that many seconds."""
-    from stillpoint.engine.timezones import local_text, utc_text
+    from stillpoint.engine.timezones import local_text
     fmt = follow_format(path) if follow_idle_s is not None else sniff_format(path)
     zone = (zone_of(path, fmt, timezone, timezone_override)
             if fmt in ("cwa", "geneactiv", "gt3x", "mcap") else None)

@@ -78,7 +78,7 @@ def test_two_stations_share_three_devices(emu, tmp_path, start):
         copies = [o / f"AX3-{i}_1.cwa" for o in outs if (o / f"AX3-{i}_1.cwa").exists()]
         assert len(copies) == 1 and copies[0].read_bytes() == held[i]
     # the verdict stays on record for every station of this computer until a person clears it
-    rec = changed_record(device_key("AX3", CHANGED, emulated=True))
+    rec = changed_record(device_key("AX3", CHANGED, True, str(devs[CHANGED].root)))
     assert rec is not None and rec["session"] == 1
     refusals = [line for line in both.splitlines()
                 if f"{CHANGED} [" in line and "not cleared" in line]
@@ -95,7 +95,7 @@ def test_a_held_device_is_busy_until_released(emu, tmp_path):
     and pid, and untouched; once released the flow goes on by itself."""
     d = emu(10001)
     other = tmp_path / "other-study"
-    lock = DeviceLock(device_key("AX3", 10001, emulated=True), other).acquire()
+    lock = DeviceLock(device_key("AX3", 10001, True, str(d.root)), other).acquire()
     out = tmp_path / "out"
     out.mkdir()
     seen = []
@@ -125,11 +125,11 @@ def test_device_clear_settles_the_changed_verdict(emu, tmp_path, capsys):
     """The host-wide verdict is settled only by a person's `device clear` (after a verified
     download of the session)."""
     from stillpoint.tools.cli import main
-    emu(10001, faults=("change-between-reads",))
+    d = emu(10001, faults=("change-between-reads",))
     out = tmp_path / "out"
     out.mkdir()
     assert main(["device", "download", "10001", "-o", str(out)]) == 2
-    key = device_key("AX3", 10001, emulated=True)
+    key = device_key("AX3", 10001, True, str(d.root))
     assert changed_record(key)["session"] == 1
     out2 = tmp_path / "out2"
     out2.mkdir()
@@ -153,7 +153,7 @@ def test_devices_and_device_commands_leave_a_held_device_alone(emu, tmp_path, ca
     from stillpoint.tools.cli import main
     d = emu(10001)
     other = tmp_path / "other-study"
-    lock = DeviceLock(device_key("AX3", 10001, emulated=True), other).acquire()
+    lock = DeviceLock(device_key("AX3", 10001, True, str(d.root)), other).acquire()
     out = tmp_path / "out"
     out.mkdir()
     try:
@@ -175,3 +175,14 @@ def test_devices_and_device_commands_leave_a_held_device_alone(emu, tmp_path, ca
     assert main(["devices", "--json"]) == 0
     [row] = json.loads(capsys.readouterr().out)
     assert row["state"] != "busy" and "firmware" in row
+
+
+def test_device_keys():
+    """A real device is known by type and id on the whole computer; an emulated one also by its
+    emulator session and folder, so a fresh emulator run's devices (the same ids) inherit no
+    verdict of the last run's."""
+    assert device_key("AX3", 10001) == "AX3-10001"
+    assert device_key("AX6", 10001) != device_key("AX3", 10001)
+    a = device_key("AX3", 10001, True, "/tmp/run-a/10001")
+    assert a.startswith("emulated.") and a.endswith(".AX3-10001")
+    assert a != device_key("AX3", 10001, True, "/tmp/run-b/10001")

@@ -24,7 +24,7 @@ or ``/tmp/stillpoint-<uid>``); ``<records>`` is ``<home>/station`` (the calibrat
 ``$STILLPOINT_STATION_HOST_DIR`` both are in that folder (``locks/``, ``records/``). Each is
 private to the user (mode 0700).
 The key is the device type and id (``AX3-10001``; an emulated device's also names its emulator
-session, whose devices no other session sees).
+session, whose devices no other session sees, and its emulator's folder).
 """
 
 from __future__ import annotations
@@ -91,18 +91,26 @@ def record_dir() -> Path:
     return _private_dir(default_root() / "station")
 
 
-def device_key(device_type: str, device_id: int, emulated: bool = False) -> str:
-    """``AX3-10001``; an emulated device's key names its emulator session too."""
+def device_key(device_type: str, device_id: int, emulated: bool = False,
+               instance: Optional[str] = None) -> str:
+    """``AX3-10001``; an emulated device's key names its emulator session and the emulator's
+    folder (``instance``: a fresh emulator run gives the same ids to new devices, which must
+    not inherit what was found on the last run's)."""
     key = f"{device_type}-{int(device_id)}"
     if emulated:
+        import hashlib
         from stillpoint.drivers.ax.registry import session_name
-        key = f"emulated.{session_name()}.{key}"
+        tag = hashlib.sha256(str(instance or "").encode()).hexdigest()[:10]
+        key = f"emulated.{session_name()}.{tag}.{key}"
     return key
 
 
 def key_of(att) -> str:
-    """The key of an attached device (``discovery.Attached``)."""
-    return device_key(att.device_type, att.device_id, bool(getattr(att, "emulated", False)))
+    """The key of an attached device (``discovery.Attached``; an emulated one's control folder
+    is its emulator's)."""
+    emulated = bool(getattr(att, "emulated", False))
+    return device_key(att.device_type, att.device_id, emulated,
+                      str(Path(att.control).parent) if emulated and att.control else None)
 
 
 def holder_text(holder: dict) -> str:

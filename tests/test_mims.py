@@ -18,7 +18,8 @@ from stillpoint.tools.crosschecks import mims_reference as mr
 
 CLI = "import sys; from stillpoint.tools.cli import main; sys.exit(main(sys.argv[1:]))"
 # recordings without samples within 0.15 g of their range (the reference extrapolates those)
-CLEAN = [mr.ACTILIFE_CSV, "ax3_skdh_sample_200hz_490blocks.cwa",
+CLEAN = [mr.ACTILIFE_CSV, "actigraph_pygt3x_neo_30hz_legacy.gt3x", "actigraph_actfast_mos_60hz_81s.gt3x",
+         "actigraph_pygt3x_tas_30hz_ism_disabled.gt3x", "ax3_skdh_sample_200hz_490blocks.cwa",
          "geneactiv_sleeppy_test_100hz_64pages.bin",
          "geneactiv_ggirread_testfile_85p7hz_truncated64k.bin",
          "geneactiv_actfast_cmi_60hz_20pages_LF_fw0617.bin"]
@@ -91,7 +92,9 @@ def test_segments_restart():
 @pytest.mark.parametrize("name", mr.FILES)
 def test_mims_equal_r_mimsunit(real_file, name):
     """To 1e-3 per 1 s epoch (measured: below 3e-5) on recordings without samples near their
-    range; with such samples (which the reference extrapolates) the epochs that hold them are
+    range, but for an axis whose area is within that of the truncation threshold (0.01 per
+    second: one epoch of the NEO .gt3x, 0.01000122 here against just below 0.01 in R, so one
+    keeps it and the other truncates it to 0); with such samples (which the reference extrapolates) the epochs that hold them are
     reported and the epochs 30 s or more away from them agree to 1e-3 too."""
     range_g, segs = mr.segments(real_file(name))
     got = [mr.ours(t, a, range_g, seed=5) for t, a in segs]
@@ -99,7 +102,9 @@ def test_mims_equal_r_mimsunit(real_file, name):
     assert r["valid"] > 50 and r["undefined_agree"] == r["undefined"], r
     near = sum(n for _, n in got)
     if name in CLEAN:
-        assert near == 0 and r["max_abs_diff"] < 1e-3, r
+        assert near == 0 and r["over_1e-3"] <= 1 and r["max_abs_diff"] < 0.0101, r
+        if r["over_1e-3"] == 0:
+            assert r["max_abs_diff"] < 1e-4, r
     else:
         assert near > 0 and r["far"] > 20 and r["max_abs_diff_far"] < 1e-3, r
 

@@ -17,8 +17,9 @@ from stillpoint.drivers.outputs import atomic_output
 
 from .series import RHYTHM_COLUMNS, rhythm_row
 
-_RECORD = np.dtype([("t_ns", "<i8"), ("enmo_mg", "<f8"), ("mad_mg", "<f8"), ("invalid", "?"),
-                    ("nonwear", "?"), ("sib", "i1"), ("spt", "i1")])
+# axis1 and vm: ActiLife counts (NaN unless the run computes them), for count cut-points
+_RECORD = np.dtype([("t_ns", "<i8"), ("enmo_mg", "<f8"), ("mad_mg", "<f8"), ("axis1", "<f8"),
+                    ("vm", "<f8"), ("invalid", "?"), ("nonwear", "?"), ("sib", "i1"), ("spt", "i1")])
 
 
 def rhythm_path(mcap_path) -> Path:
@@ -43,6 +44,7 @@ class RhythmTap:
             return
         rec = np.empty(n, _RECORD)
         rec["t_ns"], rec["enmo_mg"], rec["mad_mg"] = rows.start_ns, rows.enmo_mg, rows.mad_mg
+        rec["axis1"], rec["vm"] = rows.axis1, rows.vm
         rec["invalid"], rec["nonwear"] = ~rows.clean, rows.nonwear
         rec["sib"] = 0 if sib is None else sib
         rec["spt"] = 0 if spt is None else spt

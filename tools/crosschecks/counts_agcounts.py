@@ -10,7 +10,8 @@ low-frequency-extension path fails on 2-D input) and to our ``CountsOperator`` i
 length (with the nominal sample clock from a whole hour, so that our UTC-grid epochs are
 agcounts' epochs from the first sample). Epoch: 1 s (60 s for the 3-hour AX3 file).
 
-    --regenerate   run agcounts and write its counts to tests/data/counts/<file>.<mode>.csv
+    --regenerate [FILE...]   run agcounts (on FILEs only, if named) and write its counts to
+                   tests/data/counts/<file>.<mode>.csv
     (default)      compare ours with those committed fixtures and print the agreement
 
     STILLPOINT_REAL_DATA=/work/shared/data/real python tools/crosschecks/counts_agcounts.py [--regenerate]
@@ -32,6 +33,9 @@ ACTILIFE_CSV = "actigraph_pygt3x_neo_30hz_legacy.actilife.csv"
 # (file, epoch s, modes)
 FILES = [
     (ACTILIFE_CSV, 1, ("normal", "lfe")),
+    ("actigraph_pygt3x_neo_30hz_legacy.gt3x", 1, ("normal",)),
+    ("actigraph_actfast_mos_60hz_81s.gt3x", 1, ("normal",)),
+    ("actigraph_pygt3x_tas_30hz_ism_disabled.gt3x", 1, ("normal",)),
     ("ax3_ggirread_testfile_100hz_145blocks.cwa", 1, ("normal", "lfe")),
     ("ax3_openmovement_example_610_steps_fw30_nofrac.cwa", 1, ("normal",)),
     ("ax6_ggirread_testfile_100hz_16g_gyro250dps.cwa", 1, ("normal",)),
@@ -141,12 +145,13 @@ def main(argv) -> int:
         print("set STILLPOINT_REAL_DATA to the folder of real recordings")
         return 2
     regenerate = "--regenerate" in argv
+    only = [a for a in argv if not a.startswith("--")]  # regenerate these files only
     print(f"{'file':55s} {'mode':6s} {'rate':>5s} {'epoch':>5s} {'epochs':>7s} {'equal':>7s} "
           f"{'max|d|':>6s}")
     for name, epoch, modes in FILES:
         rate, segs = segments(Path(real) / name)
         for mode in modes:
-            if regenerate:
+            if regenerate and (not only or name in only):
                 write_fixture(fixture_path(name, mode), [agcounts(a, rate, epoch, mode) for a in segs],
                               rate, epoch)
             ref = read_fixture(fixture_path(name, mode))

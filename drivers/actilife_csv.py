@@ -10,6 +10,8 @@ info.txt's ``Start Date`` (the header's start; rows carry no times):
 * a missing second (before the first record, between segments, after a USB-connect record) is
   zeros, as is every second from the log's last second with samples to the download time
   (log.bin layout; [ALF]). The legacy layout has no record times: its rows are its samples.
+  A run of zeros longer than ``MAX_ZERO_RUN_S`` (a damaged clock or download time) is cut there
+  and the cut is counted (``zero_seconds_cut``; the command says so).
 
 The first header line names the ActiLife version whose layout this is (``ActiLife v6.13.4``, the
 version that wrote the reference export we compare with), because readers of these files parse
@@ -23,7 +25,6 @@ from typing import Optional
 
 import numpy as np
 
-from .constants import GT3X_ACTILIFE_DECIMALS
 from .gt3x import Gt3xReader, scale_round_half_away
 
 ACTILIFE_LAYOUT_VERSION = "6.13.4"  # the export checked byte for byte (data/real PROVENANCE.md)
@@ -37,15 +38,36 @@ EOL = "\r\n"
 MODE_RAW = 12  # "Mode = 12" of the reference raw export
 
 
+TABLE_KMAX = 200_000  # values of +-200 g at 3 decimals come from one table; larger ones one by one
+MAX_ZERO_RUN_S = 31 * 86400  # a run of zero rows (a gap, the padding to the download) is cut here
+
+
+def _text(v: int) -> str:
+    a = abs(v)
+    whole, frac = divmod(a, 1000)
+    s = str(whole) if frac == 0 else f"{whole}.{frac:03d}".rstrip("0")
+    return ("-" + s) if v < 0 else s
+
+
+_TABLES: dict = {}  # kmax -> value_table(kmax), grown in powers of two as values need
+
+
+def _table(need: int):
+    """(table, kmax) covering +-need thousandths, or (None, 0) beyond ``TABLE_KMAX``."""
+    if need >= TABLE_KMAX:
+        return None, 0
+    kmax = 1 << max(10, int(need).bit_length())
+    if kmax not in _TABLES:
+        _TABLES[kmax] = value_table(kmax)
+    return _TABLES[kmax], kmax
+
+
 def value_table(kmax: int) -> np.ndarray:
     """Text of k thousandths for k in [-kmax, kmax] (index k + kmax): ``-1``, ``0.214``, ``0``."""
     k = np.arange(-kmax, kmax + 1)
     out = np.empty(k.shape[0], dtype=object)
     for i, v in enumerate(k.tolist()):
-        a = abs(v)
-        whole, frac = divmod(a, 1000)
-        s = str(whole) if frac == 0 else f"{whole}.{frac:03d}".rstrip("0")
-        out[i] = ("-" + s) if v < 0 else s
+        out[i] = _text(v)
     return out
 
 
@@ -90,16 +112,17 @@ def write_actilife_csv(src: Gt3xReader, f) -> dict:
     """Write the CSV of an open (not yet iterated) reader to text stream ``f``; return counts."""
     rate = src.rate
     scale = src.scale
-    kmax = int(np.ceil(32768 / scale * 10 ** GT3X_ACTILIFE_DECIMALS)) + 1
-    table = value_table(kmax)
     h = src.info.header
     f.write(EOL.join(header_lines(src)) + EOL)
     zero_row = "0,0,0" + EOL
-    rows = {"samples": 0, "zero_rows": 0, "idle_rows": 0}
+    rows = {"samples": 0, "zero_rows": 0, "idle_rows": 0, "zero_seconds_cut": 0}
     start_ns = h.get("start_local_ns")
     next_s = None if start_ns is None else int(start_ns) // 10**9  # next second due (local)
 
     def zeros(seconds: int):
+        if seconds > MAX_ZERO_RUN_S:  # a damaged clock or download time: never weeks of zeros
+            rows["zero_seconds_cut"] += seconds - MAX_ZERO_RUN_S
+            seconds = MAX_ZERO_RUN_S
         if seconds > 0:
             n = seconds * rate
             rows["zero_rows"] += n
@@ -112,8 +135,13 @@ def write_actilife_csv(src: Gt3xReader, f) -> dict:
             next_s = int(secs[0])
         if src.layout == "log.bin" and int(secs[0]) > next_s:
             zeros(int(secs[0]) - next_s)
-        k = scale_round_half_away(b.accel, scale) + kmax
-        txt = table[k]
+        k = scale_round_half_away(b.accel, scale)
+        table, kmax = _table(int(np.abs(k).max(initial=0)))
+        if table is not None:
+            txt = table[k + kmax]
+        else:  # beyond the table (a tiny scale): value by value
+            u, inv = np.unique(k, return_inverse=True)
+            txt = np.array([_text(v) for v in u.tolist()], dtype=object)[inv.reshape(k.shape)]
         lines = EOL.join(map(",".join, zip(txt[:, 0], txt[:, 1], txt[:, 2])))
         f.write(lines + EOL)
         rows["samples"] += b.n

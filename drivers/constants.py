@@ -332,3 +332,6 @@ GT3X_LUX_SCALE_BY_SERIAL_PREFIX = {"NEO": (1.25, 2500.0), "MRA": (3.25, 6000.0)}
 # 3 decimals; idle-sleep seconds repeat the last sample; other missing seconds (after a USB-connect
 # record, and from the last record to the download time) are zeros.
 GT3X_ACTILIFE_DECIMALS = 3
+# A scale (LSB/g) outside this range is damage: real devices store 341 (GT3X+), 256 (wGT3X-BT,
+# GT9X) and 2048 (GT9X IMU) ([GT3X] Activity.md 20, Parameters.md 225-238)
+GT3X_PLAUSIBLE_SCALE = (1.0, 100_000.0)

@@ -83,6 +83,8 @@ def unpack12(payload: np.ndarray, n_samples: int) -> np.ndarray:
     order). ``payload``: (..., bytes) uint8. [GT3X] LogRecords/Activity.md 4-13."""
     p = np.asarray(payload, np.uint8)
     lead = p.shape[:-1]
+    if n_samples <= 0:
+        return np.zeros(lead + (0, 3), np.int16)
     nbytes = p.shape[-1]
     need = ((3 * n_samples + 1) // 2) * 3
     if nbytes < need:
@@ -224,6 +226,35 @@ class _LocalMember:
         self._f.close()
 
 
+class _CheckedMember:
+    """A zip member stream whose CRC-32 is checked here, not by zipfile: zipfile raises on the read
+    that reaches the end and drops that read's data; here every byte is returned and a mismatch
+    is reported in ``damage`` (the reader logs it)."""
+
+    def __init__(self, f, crc: int):
+        self._f = f
+        self._want = crc & 0xFFFFFFFF
+        self._crc = 0
+        self._eof = False
+        self.damage: Optional[str] = None
+        if hasattr(f, "_expected_crc"):
+            f._expected_crc = None  # zipfile's own check off (ours below)
+
+    def read(self, n: int) -> bytes:
+        data = self._f.read(n)
+        if data:
+            self._crc = zlib.crc32(data, self._crc)
+        elif not self._eof:
+            self._eof = True
+            if self._crc != self._want:
+                self.damage = (f"the member's CRC-32 is {self._crc:08x}, the zip says {self._want:08x}: "
+                               "its data may be damaged")
+        return data
+
+    def close(self) -> None:
+        self._f.close()
+
+
 def _local_members(path: Path) -> dict:
     """name -> (data offset, method, compressed size or None) from the local file headers."""
     out: dict = {}
@@ -294,7 +325,7 @@ class _Zip:
                     self.path, f"{name} claims {zi.file_size} bytes from {zi.compress_size} compressed: "
                                "not a recording (a zip bomb?)")
             try:
-                return self.zf.open(zi)
+                return _CheckedMember(self.zf.open(zi), zi.CRC)
             except NotImplementedError as e:
                 raise UnsupportedFormatError(self.path, f"{name}: {e}") from None
             except (zipfile.BadZipFile, OSError, ValueError, EOFError) as e:
@@ -391,14 +422,15 @@ def _header(z: _Zip, path: Path, timezone) -> tuple[DeviceInfo, dict]:
     params = pre["params"]
     scale, scale_source = None, None
     v = info.get("Acceleration Scale")
+    lo_s, hi_s = C.GT3X_PLAUSIBLE_SCALE
     try:
-        if v is not None and 0 < float(v) < 1e6:
+        if v is not None and lo_s <= float(v) <= hi_s:
             scale, scale_source = float(v), "info.txt Acceleration Scale"
     except ValueError:
         pass
     if scale is None and C.GT3X_PARAM_ACCEL_SCALE in params:
         s = ssp_decode(params[C.GT3X_PARAM_ACCEL_SCALE])
-        if np.isfinite(s) and 0 < s < 1e6:
+        if np.isfinite(s) and lo_s <= s <= hi_s:
             scale, scale_source = float(s), "PARAMETERS ACCEL_SCALE"
     if scale is None:
         for prefix, s in C.GT3X_SCALE_BY_SERIAL_PREFIX.items():

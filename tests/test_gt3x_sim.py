@@ -149,3 +149,69 @@ def test_simulated_file_is_a_zip_of_log_and_info(simulated):
         assert z.namelist() == ["log.bin", "info.txt"]
         info = z.read("info.txt").decode()
     assert "Acceleration Scale: 256.0\r\n" in info and "Sample Rate: 30\r\n" in info
+
+
+# ---------------------------------------------------------------------- damage found by fuzzing
+def _members(path) -> dict:
+    with zipfile.ZipFile(path) as z:
+        return {n: z.read(n) for n in z.namelist()}
+
+
+def _zip(path, members: dict, compress=zipfile.ZIP_STORED):
+    with zipfile.ZipFile(path, "w", compress) as z:
+        for n, b in members.items():
+            z.writestr(n, b)
+    return path
+
+
+def test_bad_crc_keeps_every_sample_and_says_so(tmp_path):
+    """zipfile drops the data of the read that meets a bad CRC-32; the reader keeps it all and
+    logs the damage (the same samples whatever the block size)."""
+    counts = _signal(60, [(0, 60)])
+    _write(tmp_path / "w.gt3x", counts)
+    raw = bytearray((tmp_path / "w.gt3x").read_bytes())
+    with zipfile.ZipFile(tmp_path / "w.gt3x") as z:
+        zi = z.getinfo("log.bin")
+    crc = zi.CRC.to_bytes(4, "little")
+    i = raw.index(crc)  # the local header's CRC field
+    raw[i] ^= 0xFF
+    j = raw.index(crc, i + 4)  # the central directory's
+    raw[j] ^= 0xFF
+    p = tmp_path / "badcrc.gt3x"
+    p.write_bytes(bytes(raw))
+    for batch in (3600, 7):
+        with Gt3xReader(p, batch_seconds=batch) as src:
+            n = sum(b.n for b in src)
+        assert n == counts.shape[0]
+        assert [e.reason for e in src.qc.events] == ["damaged_member"]
+        assert "CRC-32" in src.qc.events[0].detail
+
+
+def test_actilife_export_of_a_tiny_scale_and_a_far_download_time(tmp_path):
+    import io
+
+    from stillpoint.drivers.actilife_csv import MAX_ZERO_RUN_S, write_actilife_csv
+    counts = _signal(20, [(0, 20)])
+    _write(tmp_path / "w.gt3x", counts)
+    m = _members(tmp_path / "w.gt3x")
+    info = m["info.txt"].decode()
+    lines = [ln for ln in info.split("\r\n") if not ln.startswith(("Acceleration Scale", "Download Date"))]
+    far = 662_065_056_000_000_000  # 2099-01-01 in .NET ticks
+    m["info.txt"] = ("\r\n".join(lines) + f"Acceleration Scale: 1.0\r\nDownload Date: {far}\r\n").encode()
+    p = _zip(tmp_path / "odd.gt3x", m)
+    f = io.StringIO()
+    with Gt3xReader(p) as src:
+        rows = write_actilife_csv(src, f)
+    assert rows["samples"] == counts.shape[0]
+    assert rows["zero_rows"] == MAX_ZERO_RUN_S * RATE and rows["zero_seconds_cut"] > 0
+    first = f.getvalue().split("\r\n")[11].split(",")
+    assert first == [str(int(v)) for v in counts[0]]  # 1 LSB/g: the counts themselves
+
+
+def test_legacy_activity_shorter_than_one_sample(tmp_path):
+    """A legacy activity.bin of 3 bytes holds no whole sample (36 bits): none is returned."""
+    p = _zip(tmp_path / "short.gt3x", {
+        "activity.bin": b"\x00\x60\x08", "info.txt": b"Serial Number: NEO1C00000001\r\n"
+        b"Sample Rate: 30\r\nStart Date: 638000000000000000\r\n"})
+    with Gt3xReader(p) as src:
+        assert sum(b.n for b in src) == 0

@@ -1,4 +1,4 @@
-"""Fuzz the readers: mutated .cwa, .bin, gzip and MCAP inputs, each read the way the commands read
+"""Fuzz the readers: mutated .cwa, .bin, gzip, MCAP and ActiGraph .gt3x inputs, each read the way the commands read
 them, counted by outcome.
 
     python -m tools.fuzz                          # 100,000 inputs per format (cwa, bin, gz, mcap)
@@ -40,7 +40,7 @@ from typing import Callable, Optional
 
 import numpy as np
 
-FORMATS = ("cwa", "bin", "gz", "mcap")
+FORMATS = ("cwa", "bin", "gz", "mcap", "gt3x")
 FUZZ_DATA = Path(__file__).resolve().parent.parent / "tests" / "data" / "fuzz"
 T0 = 1_700_000_000_000_000_000
 
@@ -94,6 +94,38 @@ def _bin_seed(pages: int = 3, rate: float = 50.0) -> bytes:
         return p.read_bytes()
 
 
+def _gt3x_seed(kind: str, seconds: int = 40, rate: int = 30) -> bytes:
+    """A small .gt3x: ``log`` (log.bin with idle sleep, stored), ``deflated`` (the same, deflated)
+    or ``legacy`` (activity.bin, lux.bin and info.txt of the NHANES-era layout)."""
+    import zipfile
+    from stillpoint.drivers.gt3x_writer import Gt3xWriter, pack12
+    rng = np.random.default_rng(11)
+    n = seconds * rate
+    c = np.zeros((n, 3), np.int64) + [0, 0, 256]
+    c[: n // 3] += rng.integers(-40, 40, (n // 3, 3))  # moving, then still (the device sleeps)
+    t = T0 + np.arange(n) * 10**9 // rate
+    with tempfile.TemporaryDirectory() as d:
+        p = Path(d) / "s.gt3x"
+        if kind == "legacy":
+            with zipfile.ZipFile(p, "w", zipfile.ZIP_DEFLATED) as z:
+                z.writestr("activity.bin", pack12(c[None, :, :])[0].tobytes())
+                z.writestr("lux.bin", np.full(seconds, 300, "<u2").tobytes())
+                z.writestr("info.txt", "Serial Number: NEO1C00000001\r\nFirmware: 2.5.0\r\n"
+                                       f"Sample Rate: {rate}\r\nStart Date: 638000000000000000\r\n"
+                                       "TimeZone: -05:00:00\r\n")
+            return p.read_bytes()
+        w = Gt3xWriter(p, rate_hz=rate, timezone_s=-18000)
+        w.write(t, c)
+        w.close()
+        if kind == "deflated":
+            q = Path(d) / "d.gt3x"
+            with zipfile.ZipFile(p) as zin, zipfile.ZipFile(q, "w", zipfile.ZIP_DEFLATED) as zout:
+                for name in zin.namelist():
+                    zout.writestr(name, zin.read(name))
+            return q.read_bytes()
+        return p.read_bytes()
+
+
 def _mcap_seed(cwa: bytes, compression: str) -> bytes:
     from stillpoint.engine.run import RunSettings, process_file
     with tempfile.TemporaryDirectory() as d:
@@ -119,7 +151,9 @@ def build_seeds() -> dict:
     long_cwa = _cwa_seed("ax6", 30, 25.0)
     mcap = [_mcap_seed(long_cwa, "none"), _mcap_seed(_cwa_seed("packed", 30, 25.0), "zstd"),
             _mcap_seed(_cwa_seed("unpacked", 30, 25.0), "lz4")]
-    return {"cwa": cwa, "bin": bins, "gz": gz, "mcap": mcap}
+    gt3x = [_gt3x_seed("log"), _gt3x_seed("deflated"), _gt3x_seed("legacy"),
+            _gt3x_seed("log", 130, 60)]
+    return {"cwa": cwa, "bin": bins, "gz": gz, "mcap": mcap, "gt3x": gt3x}
 
 
 # ----------------------------------------------------------------------------- mutators
@@ -327,8 +361,67 @@ def _mutate_mcap_messages(data: bytes, r) -> bytes:
     return out.getvalue()
 
 
-MUTATORS = {"cwa": mutate_cwa, "bin": mutate_bin, "gz": mutate_gz, "mcap": mutate_mcap}
-SUFFIX = {"cwa": ".cwa", "bin": ".bin", "gz": ".gz", "mcap": ".mcap"}
+def _fix_gt3x_checksums(log: bytes) -> bytes:
+    """Walk the records of a log.bin and make each complete record's checksum valid (the decoder,
+    not the checksum test, then sees a change)."""
+    b = bytearray(log)
+    p = 0
+    while p + 8 < len(b):
+        if b[p] != 0x1E:
+            p += 1
+            continue
+        end = p + 8 + (b[p + 6] | b[p + 7] << 8)
+        if end >= len(b):
+            break
+        x = 0
+        for c in b[p:end]:
+            x ^= c
+        b[end] = (~x) & 0xFF
+        p = end + 1
+    return bytes(b)
+
+
+def mutate_gt3x(data: bytes, r, others=()) -> bytes:
+    """Bytes of the zip (a damaged or truncated download), or a member's content re-zipped with
+    valid CRCs: log.bin records (sizes, types, times, payloads; checksums made valid again half
+    the time), info.txt values, an oversized member (a zip bomb), a cut member."""
+    import zipfile
+    u = r.random()
+    if u < 0.3:
+        return mutate_bytes(data, r, others)
+    try:
+        with zipfile.ZipFile(io.BytesIO(data)) as z:
+            members = {zi.filename: (z.read(zi), zi.compress_type) for zi in z.infolist()}
+    except Exception:
+        return mutate_bytes(data, r, others)
+    name = "log.bin" if "log.bin" in members else "activity.bin"
+    body, comp = members[name]
+    if u < 0.7:
+        body = mutate_bytes(body, r)
+        if name == "log.bin" and r.random() < 0.5:
+            body = _fix_gt3x_checksums(body)
+    elif u < 0.85 and "info.txt" in members:
+        lines = members["info.txt"][0].split(b"\r\n")
+        i = int(r.integers(0, len(lines)))
+        key = lines[i].split(b":", 1)[0]
+        lines[i] = key + b": " + HOSTILE_VALUES[int(r.integers(0, len(HOSTILE_VALUES)))]
+        members["info.txt"] = (b"\r\n".join(lines), members["info.txt"][1])
+    elif u < 0.92:
+        body = body + b"\0" * int(r.integers(1, 3_000_000))  # zeros between/after records
+        comp = zipfile.ZIP_DEFLATED
+    else:
+        body = body[:int(r.integers(0, max(1, len(body))))]
+    members[name] = (body, comp)
+    out = io.BytesIO()
+    with zipfile.ZipFile(out, "w") as z:
+        for n, (b, c) in members.items():
+            z.writestr(n, b, compress_type=c)
+    return out.getvalue()
+
+
+MUTATORS = {"cwa": mutate_cwa, "bin": mutate_bin, "gz": mutate_gz, "mcap": mutate_mcap,
+            "gt3x": mutate_gt3x}
+SUFFIX = {"cwa": ".cwa", "bin": ".bin", "gz": ".gz", "mcap": ".mcap", "gt3x": ".gt3x"}
 
 
 # ----------------------------------------------------------------------------- reading
@@ -409,8 +502,31 @@ def read_bin_every_batch(path: Path) -> None:
         raise ref
 
 
+def read_gt3x(path: Path) -> None:
+    """A .gt3x read as ``read_recording`` does and again in 7-second blocks (the two must agree),
+    then written as ActiLife's CSV (``export --actilife``) to memory."""
+    from stillpoint.drivers.actilife_csv import write_actilife_csv
+    from stillpoint.drivers.gt3x import Gt3xReader
+    ref, small = _whole_read(path), _whole_read(path, batch_seconds=7)
+    same = (type(ref) is type(small)) if isinstance(ref, Exception) else (ref == small)
+    if not same:
+        what = lambda r: type(r).__name__ if isinstance(r, Exception) else f"{r[1]}"  # noqa: E731
+        raise Mismatch(f"batch_seconds=7 gives {what(small)}, the default {what(ref)}")
+    if isinstance(ref, Exception):
+        raise ref
+    with Gt3xReader(path) as src:
+        write_actilife_csv(src, _Discard())
+
+
+class _Discard:
+    """A text sink that keeps nothing (the CSV's rows are formatted, not stored)."""
+
+    def write(self, text: str) -> int:
+        return len(text)
+
+
 READERS = {"cwa": read_recording, "bin": read_bin_every_batch, "gz": read_recording,
-           "mcap": read_mcap}
+           "mcap": read_mcap, "gt3x": read_gt3x}
 
 
 def classify(fmt: str, path: Path, timeout_s: float) -> tuple[str, str]:

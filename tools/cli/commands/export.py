@@ -486,6 +486,9 @@ def run(args) -> int:
         print(f"wrote {r['rows']} rows in ActiLife's raw CSV layout to {rep['output']} "
               f"({r['samples']} samples, {r['idle_rows']} of them idle sleep; {r['zero_rows']} zero "
               "rows for missing seconds)")
+        if r.get("zero_seconds_cut"):
+            print(f"note: {r['zero_seconds_cut']} s of zero rows were not written (a run of zeros "
+                  "longer than 31 days: a damaged clock or download time)")
         return 0
     with Progress("export", quiet=args.quiet) as bar:
         rep = export_recording(args.file, args.output, time_format=args.time,

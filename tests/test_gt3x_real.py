@@ -138,7 +138,8 @@ def test_neo_legacy_export_equals_actilife_byte_for_byte(real_file):
     f = io.StringIO(newline="")
     with G.Gt3xReader(path) as src:
         rows = write_actilife_csv(src, f)
-    assert rows == {"samples": 18004, "zero_rows": 0, "idle_rows": 0, "rows": 18004}
+    assert rows == {"samples": 18004, "zero_rows": 0, "idle_rows": 0, "rows": 18004,
+                    "zero_seconds_cut": 0}
     assert f.getvalue().encode() == ref.read_bytes()
 
 
@@ -195,7 +196,7 @@ def test_actilife_gap_rules_on_the_idle_sleep_file(real_file):
         rows = write_actilife_csv(src, f)
     # 15:57:00 to the download time 16:12:12: 912 s at 30 Hz; idle repeated, the rest zeros
     assert rows == {"samples": 9000, "zero_rows": (912 - 300) * 30, "idle_rows": 227 * 30,
-                    "rows": 912 * 30}
+                    "rows": 912 * 30, "zero_seconds_cut": 0}
     lines = f.getvalue().split("\r\n")
     assert lines[10] == "Accelerometer X,Accelerometer Y,Accelerometer Z"
     assert lines[1] == "Serial Number: TAS1E42150038" and lines[5] == "Download Time 16:12:12"

@@ -4,7 +4,8 @@
 ``poll_s``; a device that appears gets a ``DeviceFlow`` on its own thread (downloads run in their
 own worker processes); a device that leaves is marked ``detached`` and, when it comes back, runs
 again (an interrupted download resumes). ``once=True`` handles the devices attached at start and
-returns when they are all in a final state. The ledger lock refuses a second station on the same
+returns when they are all in a final state (a device another station of the computer holds waits
+in ``busy`` until it is free: ``hostlock``). The ledger lock refuses a second station on the same
 folder. At start the ledger rows a killed station left between two states are resolved
 (``completion.reconcile``). ``render`` draws the live table (TTY) or prints one plain line per
 state change. The table's lines are cut to the terminal's width (``$COLUMNS``, else the

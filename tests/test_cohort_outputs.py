@@ -118,7 +118,8 @@ def test_table_options_and_manifest_zone_are_in_the_key(cohort):
     d, out = cohort
     plan = json.loads((out / "cohort.json").read_text())
     assert plan["settings"]["tables"] == {"nonwear_version": "2023", "valid_day_hours": 2.0,
-                                          "enmo_bands_mg": [30.0, 100.0, 400.0], "mvpa_bout_s": 60.0}
+                                          "enmo_bands_mg": [30.0, 100.0, 400.0], "mvpa_bout_s": 60.0,
+                                          "sleep": True}
     from stillpoint.engine.cohort import make_plan
     from stillpoint.engine.cohort.plan import read_plan
     old = read_plan(out)

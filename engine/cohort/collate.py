@@ -43,6 +43,8 @@ FAILURES_CSV = "cohort_failures.csv"
 DAYS_CSV = "cohort_days.csv"
 PARTICIPANTS_CSV = "cohort_participants.csv"
 NIGHTS_CSV = "cohort_nights.csv"
+RHYTHM_CSV = "cohort_rhythm.csv"
+WINDOWS_CSV = "cohort_windows.csv"
 
 # the day table's summaries a study reads, taken from each file's ``all`` row (band minutes,
 # MVPA and M10/L5 are means over its valid days; ENMO/MAD over its clean epochs)
@@ -69,7 +71,15 @@ SUMMARY_FIELDS = (
     "mcap", "summary", "epochs", "days", "folder", "wall_s", "peak_rss_mb", "finished_utc")
 PARTICIPANT_FIELDS = ("participant", "files", "shared_dates", "valid_days", "valid_weekdays",
                       "valid_weekend_days", "wear_time_h", "enmo_mean_mg", "mad_mean_mg",
-                      "BANDS", "mvpa_bout_min", "m10_mg", "l5_mg", "timezones")
+                      "BANDS", "mvpa_bout_min", "m10_mg", "l5_mg", "nights", "nights_valid",
+                      "spt_hours", "sleep_hours", "waso_hours", "sleep_efficiency", "is", "iv",
+                      "ra_avday", "ra_day_mean", "sri", "cosinor_acrophase_h", "ext_up_mesor_h",
+                      "ext_down_mesor_h", "timezones")
+# the participants' sleep means (over valid nights) and rhythm means (over files)
+_NIGHT_MEANS = (("spt_hours", "spt_hours"), ("sleep_hours", "sleep_hours"),
+                ("waso_hours", "waso_hours"), ("sleep_efficiency", "efficiency"))
+_RHYTHM_MEANS = ("is", "iv", "ra_avday", "ra_day_mean", "sri", "cosinor_acrophase_h",
+                 "ext_up_mesor_h", "ext_down_mesor_h")
 FAILURE_FIELDS = ("file", "key", "class", "error", "attempts", "time_utc", "folder")
 
 
@@ -258,12 +268,15 @@ def _overlapping(files: list) -> list:
             if b[0][0] < a[0][1]]
 
 
-def participant_rows(rows: list, days: list, bands: list, warnings: Optional[list] = None) -> list:
+def participant_rows(rows: list, days: list, bands: list, warnings: Optional[list] = None,
+                     nights: Optional[list] = None, rhythm: Optional[list] = None) -> list:
     """One row per participant from the file rows and the stacked day rows: valid days (also
     split into weekdays and weekend days, by the local date), wear hours, ENMO/MAD over every
     clean epoch of their files (wear-weighted means of the files'), and the band minutes, MVPA
     and M10/L5 averaged over their valid days. Each date counts once (``_one_row_per_date``);
-    files that overlap in time add a line to ``warnings``."""
+    files that overlap in time add a line to ``warnings``. With the stacked nights: the nights,
+    the valid ones (``night_valid``: GGIR's cleaned nights not cut by a recording's edge) and the
+    sleep means over the valid nights; with the stacked rhythm rows: their means over the files."""
     out = []
     for who in sorted({r["participant"] for r in rows}):
         files = [r for r in rows if r["participant"] == who]
@@ -291,6 +304,16 @@ def participant_rows(rows: list, days: list, bands: list, warnings: Optional[lis
         for k in list(bands) + list(_ACTIVITY):
             v = [_num(d.get(k)) for d in valid]
             v = [x for x in v if x is not None]
+            p[k] = sum(v) / len(v) if v else None
+        own_nights = [n for n in (nights or []) if n.get("participant") == who]
+        good = [n for n in own_nights if n.get("night_valid", "1") == "1" and n.get("spt_hours")]
+        p["nights"], p["nights_valid"] = len(own_nights), len(good)
+        for k, col in _NIGHT_MEANS:
+            v = [x for x in (_num(n.get(col)) for n in good) if x is not None]
+            p[k] = sum(v) / len(v) if v else None
+        own_rhythm = [r for r in (rhythm or []) if r.get("participant") == who]
+        for k in _RHYTHM_MEANS:
+            v = [x for x in (_num(r.get(k)) for r in own_rhythm) if x is not None]
             p[k] = sum(v) / len(v) if v else None
         out.append(p)
     return out
@@ -361,7 +384,9 @@ def collate(outdir, *, verify: bool = False, write: bool = True) -> Collation:
     bands = [c for c in day_cols if _is_band(c)]
     if not bands:
         bands = sorted({k for r in kept for k in r if _is_band(k)})
-    out.participants = participant_rows(kept, days, bands, out.warnings)
+    rhythm_cols, rhythm_rows = _stacked(out, ".rhythm.csv", "rhythm table")
+    windows_cols, windows_rows = _stacked(out, ".windows.csv", "windows table")
+    out.participants = participant_rows(kept, days, bands, out.warnings, out.nights, rhythm_rows)
     if write:
         out.summary_csv = _write_csv(outdir / SUMMARY_CSV, _fields(SUMMARY_FIELDS, bands), out.rows)
         out.days_csv = _write_csv(outdir / DAYS_CSV,
@@ -370,10 +395,37 @@ def collate(outdir, *, verify: bool = False, write: bool = True) -> Collation:
         out.participants_csv = _write_csv(outdir / PARTICIPANTS_CSV,
                                           _fields(PARTICIPANT_FIELDS, bands), out.participants)
         out.failures_csv = _write_csv(outdir / FAILURES_CSV, FAILURE_FIELDS, out.failures)
-        if night_cols:  # cohorts run with --sleep
+        if night_cols:  # cohorts run with sleep
             out.nights_csv = _write_csv(outdir / NIGHTS_CSV,
                                         ["participant", "file", "key"] + night_cols, out.nights)
+        if rhythm_cols:
+            _write_csv(outdir / RHYTHM_CSV, ["participant", "file", "key"] + rhythm_cols, rhythm_rows)
+        if windows_cols:
+            _write_csv(outdir / WINDOWS_CSV, ["participant", "file", "key"] + windows_cols,
+                       windows_rows)
     return out
+
+
+def _stacked(out: Collation, suffix: str, what: str) -> tuple:
+    """Every finished file's ``<stem><suffix>`` table stacked, each row led by the participant,
+    file and key: (columns, rows); a table that cannot be read is a failure of its file."""
+    cols: list = []
+    rows: list = []
+    for r in out.rows:
+        path = Path(r["folder"]) / (MCAP_NAME[:-len(".mcap")] + suffix)
+        if not path.exists():
+            continue
+        try:
+            with open(path, encoding="utf-8", newline="") as f:
+                rd = csv.DictReader(f)
+                cols.extend(c for c in (rd.fieldnames or []) if c not in cols)
+                for x in rd:
+                    x.update(participant=r["participant"], file=r["file"], key=r["key"])
+                    rows.append(x)
+        except (OSError, UnicodeError, csv.Error) as e:
+            out.failures.append({"file": r["file"], "key": r["key"], "class": "unreadable_output",
+                                 "error": f"{path}: unreadable {what} ({e})", "folder": r["folder"]})
+    return cols, rows
 
 
 def _night_rows(out: Collation) -> list:

@@ -261,6 +261,25 @@ def _subject_code(mcap: Path) -> str:
         return ""
 
 
+def _participant_id(entry: dict, path) -> str:
+    """The id the cohort tables give the file's participant, before the file is processed: the
+    manifest's, else the recording header's subject code, else the file name without its ending
+    (the sleep log's row is looked up by it)."""
+    if entry.get("participant"):
+        return str(entry["participant"])
+    try:
+        from stillpoint.drivers import open_recording
+        src = open_recording(path)
+        try:
+            code = str(((getattr(src.info, "metadata", None) or {}).get("Subject Code")) or "").strip()
+        finally:
+            src.close()
+    except Exception:  # noqa: BLE001 - the id is a convenience: the file name stands in
+        code = ""
+    name = Path(path).name
+    return code or (name.split(".", 1)[0] if "." in name else name)
+
+
 def run_job(entry: dict, outdir: str, settings: dict, code: str, attempt: int = 1) -> dict:
     """Process one entry of the plan (``path``, ``key``, ``folder``, ``error``) into its folder.
 
@@ -312,7 +331,12 @@ def run_job(entry: dict, outdir: str, settings: dict, code: str, attempt: int = 
                                     windows_path=windows_path(tmp / MCAP_NAME))
             if (settings.get("tables") or {}).get("sleep"):
                 from stillpoint.engine.sleep import SleepOptions, nights_path
-                tables.sleep, tables.nights_path = SleepOptions(), nights_path(tmp / MCAP_NAME)
+                log = (settings.get("tables") or {}).get("sleep_log")
+                if log:  # the cohort's one sleep log: this participant's row, if any
+                    from stillpoint.engine.sleep.diary import participant_sleep_log
+                    log = participant_sleep_log(log["path"], _participant_id(entry, path))
+                tables.sleep = SleepOptions(sleep_log=log or None)
+                tables.nights_path = nights_path(tmp / MCAP_NAME)
             summary = process_file(path, tmp / MCAP_NAME, RunSettings.from_dict(settings),
                                    tables=tables, prefetch=False,
                                    progress=_progress_writer(tmp / PROGRESS))

@@ -75,11 +75,13 @@ def code_version() -> str:
 
 def default_table_options() -> dict:
     """The epoch/day table options a cohort's settings carry when none are given (those of
-    ``process``): a plan's settings always hold them, so they are part of every key."""
+    ``process``, sleep included): a plan's settings always hold them, so they are part of every
+    key."""
     from stillpoint.engine.operators.nonwear import DEFAULT_VERSION
     from stillpoint.engine.tables.days import ENMO_BANDS_MG, MVPA_BOUT_S, VALID_DAY_HOURS
     return {"nonwear_version": DEFAULT_VERSION, "valid_day_hours": float(VALID_DAY_HOURS),
-            "enmo_bands_mg": [float(x) for x in ENMO_BANDS_MG], "mvpa_bout_s": float(MVPA_BOUT_S)}
+            "enmo_bands_mg": [float(x) for x in ENMO_BANDS_MG], "mvpa_bout_s": float(MVPA_BOUT_S),
+            "sleep": True}
 
 
 def canonical_settings(settings) -> str:

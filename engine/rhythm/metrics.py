@@ -188,9 +188,11 @@ def _correct_acrophase(b: float, g: float) -> float:
 
 
 def _ext_model(p, t):
+    """min + amp * exp(u) / (1 + exp(u)), u = beta (cos(2 pi (t - phi) / 24) - alpha); the
+    logistic as ``expit`` (equal where exp(u) is finite, and finite where it is not)."""
+    from scipy.special import expit
     ct = np.cos((t - p[4]) * 2 * np.pi / 24)
-    z = np.exp(p[3] * (ct - p[2]))
-    return p[0] + p[1] * z / (1 + z)
+    return p[0] + p[1] * expit(p[3] * (ct - p[2]))
 
 
 def _add24ifneg(x: float) -> float:
@@ -219,9 +221,12 @@ def cosinor(minutes: np.ndarray, time_offset_h: float, threshold: Optional[float
     p0 = [max(mesor - amp, 0.0), 2 * amp, 0.0, 2.0, acrotime]
     lo, hi = np.array(rules.EXT_LOWER), np.array(rules.EXT_UPPER)
     p0 = np.clip(p0, lo, hi)
-    fit = least_squares(lambda p: y - _ext_model(p, t), p0, bounds=(lo, hi), method="trf",
-                        xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=20000)
-    p = fit.x
+    try:
+        fit = least_squares(lambda p: y - _ext_model(p, t), p0, bounds=(lo, hi), method="trf",
+                            xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=20000)
+        p = fit.x
+    except ValueError:  # a fit that leaves the finite numbers: no extended cosinor
+        p = np.full(5, np.nan)
     fext = _ext_model(p, t)
     rss_cos = float(np.sum((y - fitted) ** 2))
     rss_ext = float(np.sum((y - fext) ** 2))
@@ -233,6 +238,9 @@ def cosinor(minutes: np.ndarray, time_offset_h: float, threshold: Optional[float
     k = math.ceil(abs(a) / (2 * math.pi))
     out.acrophase_rad = a + k * 2 * math.pi if a < 0 else a
     out.r2 = float(np.corrcoef(y, fitted)[0, 1] ** 2)
+    out.ivis = ivis(x, 60.0, threshold)
+    if not np.isfinite(p).all():
+        return out
     out.ext_minimum, out.ext_amplitude, out.ext_alpha, out.ext_beta = (float(v) for v in p[:4])
     out.ext_acrophase_h = _add24ifneg(float(p[4]) - off)
     out.ext_f_pseudo = ((rss_cos - rss_ext) / 2) / (rss_ext / (y.shape[0] - 5))
@@ -241,7 +249,6 @@ def cosinor(minutes: np.ndarray, time_offset_h: float, threshold: Optional[float
     out.ext_down_mesor_h = _add24ifneg(spread + float(p[4]) - off)
     out.ext_mesor = float(p[0] + p[1] / 2)
     out.ext_r2 = float(np.corrcoef(y, fext)[0, 1] ** 2)
-    out.ivis = ivis(x, 60.0, threshold)
     return out
 
 

@@ -115,6 +115,33 @@ def read_sleep_log(path, participant: str) -> SleepLog:
                         f"(IDs in the log: {shown or 'none'}; set it with --sleep-log-id)")
 
 
+def sleep_log_ids(path) -> list:
+    """The participant IDs of a sleep log, every row checked (a cohort's one log for all its
+    participants is refused before any work when one row is malformed)."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except (OSError, UnicodeDecodeError) as e:
+        raise SleepLogError(f"sleep log {path}: cannot be read ({e})") from None
+    sample = text[:4096]
+    delim = ";" if sample.count(";") > sample.count(",") else ("\t" if sample.count("\t") > sample.count(",") else ",")
+    ids = [r[0].strip().strip('"') for r in list(csv.reader(text.splitlines(), delimiter=delim))[1:]
+           if r and any(c.strip() for c in r)]
+    if not ids:
+        raise SleepLogError(f"sleep log {path}: no header and participant rows")
+    for pid in dict.fromkeys(ids):
+        read_sleep_log(path, pid)
+    return ids
+
+
+def participant_sleep_log(path, participant: str):
+    """The participant's nights from a cohort's sleep log, or None when the log has no row for
+    them (their nights are then guided by HDCZA, as GGIR does for a missing log night)."""
+    if participant not in sleep_log_ids(path):
+        return None
+    return read_sleep_log(path, participant)
+
+
 def _basic(row: list, header: list, where: str) -> dict:
     cells = row[1:]
     if len(cells) % 2:

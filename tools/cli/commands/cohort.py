@@ -69,9 +69,15 @@ def add_arguments(p) -> None:
     add_table_arguments(r, with_switch=False)
     from ._outcomeopts import add_outcome_arguments
     add_outcome_arguments(r)
-    r.add_argument("--sleep", action="store_true",
-                   help="also sleep (engine/sleep): spt/sib epoch columns and each file's nights "
-                        "table, collated into cohort_nights.csv (without a zone: on the device clock)")
+    r.add_argument("--sleep", dest="sleep", action="store_true", default=True,
+                   help="sleep (engine/sleep), the default as for process: spt/sib epoch columns, "
+                        "each file's nights and windows tables, collated into cohort_nights.csv "
+                        "and cohort_windows.csv (without a zone: on the device clock)")
+    r.add_argument("--no-sleep", dest="sleep", action="store_false", help="no sleep")
+    r.add_argument("--sleep-log", type=Path, metavar="LOG.csv",
+                   help="one sleep diary for the cohort in GGIR's basic or advanced sleep-log "
+                        "format: each file's nights are taken from the participant's row (the "
+                        "manifest's participant, else the file name without its ending)")
     s = sub.add_parser("status", help="done / failed by class / pending")
     s.add_argument("outdir", type=Path)
     s.add_argument("--json", action="store_true", help="one JSON object")
@@ -186,8 +192,23 @@ def _run(args) -> int:
     outcomes = outcome_settings(args)
     if outcomes.active:  # only then: a cohort without outcomes keeps its files' keys
         settings["tables"]["outcomes"] = outcomes.to_dict()
-    if getattr(args, "sleep", False):  # only when asked: older plans' keys stay the same
+    if getattr(args, "sleep", False):  # on by default, as for process
         settings["tables"]["sleep"] = True
+    if getattr(args, "sleep_log", None) is not None:
+        if not getattr(args, "sleep", False):
+            raise OptionError("--sleep-log needs sleep (not with --no-sleep)")
+        from stillpoint.drivers.byteio import sha256_file
+        from stillpoint.engine.sleep import SleepLogError
+        from stillpoint.engine.sleep.diary import sleep_log_ids
+        try:
+            sleep_log_ids(args.sleep_log)  # a bad log is refused before any work
+            digest = sha256_file(args.sleep_log)
+        except OSError as e:
+            raise OptionError(f"--sleep-log {args.sleep_log}: {e.strerror or e}") from None
+        except SleepLogError as e:
+            raise OptionError(str(e)) from None
+        # the log's bytes are part of every file's key: an edited log reruns the files
+        settings["tables"]["sleep_log"] = {"path": str(args.sleep_log.absolute()), "sha256": digest}
     attributes: dict = {}  # a manifest's per-file timezone / participant
     files = discover_inputs(args.inputs, attributes)
     if not files:

@@ -196,7 +196,8 @@ def test_cohort_days_columns_are_documented(tmp_path):
     res = collate(out)
     header = (out / "cohort_days.csv").read_text(encoding="utf-8").splitlines()[0].split(",")
     lead = _documented("cohort-days")
-    assert header == lead + [c for c in day_columns() if c != "date"], res.failures
+    from stillpoint.engine.sleep.table import DAY_NIGHT_COLUMNS  # sleep is on by default
+    assert header == lead + [c for c in day_columns() if c != "date"] + DAY_NIGHT_COLUMNS, res.failures
     summary = (out / "cohort_summary.csv").read_text(encoding="utf-8").splitlines()[0].split(",")
     assert summary == _documented("cohort-summary")
 

@@ -274,7 +274,7 @@ class AxClient:
         """``STATUS`` lines, ended by the ``ECHO=`` sentinel (axconfig's trick)."""
         check_allowed("STATUS")
         self._write(b"\r\nSTATUS\r\nECHO\r\n")
-        out = []
+        out: list[str] = []
         deadline = time.monotonic() + self.timeout_s
         while True:
             line = self._readline(deadline)
@@ -287,7 +287,7 @@ class AxClient:
     def event_log(self) -> list[str]:
         """``LOG``: the device's event log lines (up to ``OK``)."""
         self._write(b"\r\nLOG\r\n")
-        out = []
+        out: list[str] = []
         deadline = time.monotonic() + self.timeout_s
         while True:
             line = self._readline(deadline)

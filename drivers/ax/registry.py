@@ -145,7 +145,7 @@ def _alive(pid: int) -> bool:
 def entries() -> list[dict]:
     """Registered devices whose emulator process is still running (stale entries are removed)."""
     d = devices_dir()
-    out = []
+    out: list[dict] = []
     if not d.is_dir():
         return out
     for p in sorted(d.glob("*.json")):

@@ -68,7 +68,7 @@ TABLES = ("epochs", "days")  # --table of an MCAP input
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("file", help="recording (.cwa, .bin, optionally .gz) or a run's .mcap")
+    parser.add_argument("file", help="recording (.cwa, .bin, optionally .gz; .gt3x) or a run's .mcap")
     parser.add_argument("-o", "--output", required=True, help="OUT.csv, OUT.csv.gz or OUT.npz")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
     parser.add_argument("--time", choices=TIME_FORMATS, default="iso",

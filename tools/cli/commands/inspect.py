@@ -36,7 +36,7 @@ HELP = "summarise a recording (device, samples, rate, times, QC); --json for mac
 
 def add_arguments(parser) -> None:
     parser.add_argument("file", nargs="+",
-                        help="recording(s): .cwa, .bin (GENEActiv), optionally .gz. With several files "
+                        help="recording(s): .cwa, .bin (GENEActiv), optionally .gz; .gt3x (ActiGraph). With several files "
                              "--json prints one JSON object per line; a bad file is reported on "
                              "stderr and the others are still inspected (exit code 2 if any failed)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")

@@ -37,7 +37,7 @@ def default_output(path: Path) -> Path:
 
 
 def add_arguments(p) -> None:
-    p.add_argument("file", type=Path, help="recording (.cwa, .cwa.gz, .bin) or a stillpoint MCAP")
+    p.add_argument("file", type=Path, help="recording (.cwa, .cwa.gz, .bin, .gt3x) or a stillpoint MCAP")
     p.add_argument("-o", "--output", type=Path, help="output MCAP (default: FILE with .mcap)")
     p.add_argument("--summary", type=Path, help="write the run summary as JSON here")
     p.add_argument("--json", action="store_true", help="print the summary JSON instead of text")

@@ -290,3 +290,35 @@ def test_view_serves_clients_that_speak_only_foxglove_websocket_v1(logged, caplo
                    for m in msgs), msgs
     finally:
         player.stop()
+
+
+def test_view_keeps_answering_when_nobody_reads_its_stderr(logged):
+    """A client sending thousands of bad messages: the server's log lines (one per message from
+    the SDK) are rate-limited and written off the server's threads, so with its stderr a pipe
+    nobody reads the server still answers a new client, and the log holds a summary line."""
+    import re
+    import signal
+    LiveClient, _ = _sdk()
+    p = subprocess.Popen([sys.executable, "-m", "stillpoint.tools", "view", str(logged), "--port", "0"],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        port = int(re.search(r"ws://127\.0\.0\.1:(\d+)", p.stdout.readline()).group(1))
+        bad = LiveClient(port)
+        for i in range(3000):  # unthrottled: ~250 kB of lines, 4 pipes' worth
+            bad.ws.send("{not json " + "x" * (i % 50))
+            bad.ws.send(b"\x99garbage")
+        bad.close()
+        c = LiveClient(port)
+        c.pump(10.0, until=lambda: len(c.channels) == 7)
+        assert len(c.channels) == 7
+        c.close()
+    finally:
+        p.send_signal(signal.SIGINT)
+        try:
+            rc = p.wait(30)
+        finally:
+            err = p.stderr.read()
+    assert rc == 0, err
+    lines = err.splitlines()
+    assert len(lines) <= 60 and "Traceback" not in err, err[:2000]
+    assert any("more like" in ln for ln in lines) or len(lines) <= 10, err[:2000]

@@ -43,6 +43,9 @@ def start(fg, ctx, what: str, *, port: int, host: str = "127.0.0.1", listener=No
             return layout().encode()
         return None
 
+    from stillpoint.engine.core import ratelog
+    for name in ("stillpoint.live", "foxglove"):  # ours and the SDK's (one line per bad client
+        ratelog.install(name)                    # message): rate-limited, never blocking
     from .subprotocol import FrontedServer, ProtocolFront
     try:  # the user's address is the front's (engine/live/subprotocol.py): first, so a port in
         # use is refused before the SDK starts

@@ -10,7 +10,9 @@ loopback port of its own. For each connection the front reads the HTTP upgrade r
 an offered ``foxglove.websocket.v1`` to ``foxglove.sdk.v1`` when the client does not offer the
 new name, renames the selected subprotocol back in the server's answer, and then passes bytes
 through unchanged in both directions. A request it cannot read, or a client offering neither
-name, is logged with the reason (logger ``stillpoint.live``) and left to the SDK to refuse.
+name, is logged with the reason (logger ``stillpoint.live``: rate-limited and never blocking,
+engine/core/ratelog.py) and left to the SDK to refuse. At most ``MAX_CLIENTS`` connections are
+served at once; one more is closed at once (and logged).
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ LEGACY_PROTOCOL = "foxglove.websocket.v1"  # the older name of foxglove.sdk.v1
 HEAD_LIMIT = 16384  # bytes of an HTTP upgrade request (or response) head
 HANDSHAKE_TIMEOUT_S = 10.0  # for the request head to arrive, and for the SDK's answer
 CHUNK = 65536
+MAX_CLIENTS = 64  # connections at once (each holds two threads while it lasts); more are closed
 
 log = logging.getLogger("stillpoint.live")
 
@@ -118,6 +121,7 @@ class ProtocolFront:
         self._sock = socket.create_server((host, port))
         self.port = self._sock.getsockname()[1]
         self._conns: set = set()
+        self._clients = 0  # connections being served
         self._lock = threading.Lock()
         self._closed = False
         self._thread = threading.Thread(target=self._accept_loop, name="live-front", daemon=True)
@@ -133,6 +137,14 @@ class ProtocolFront:
                 conn, addr = self._sock.accept()
             except OSError:
                 return
+            with self._lock:
+                full = self._clients >= MAX_CLIENTS
+                self._clients += not full
+            if full:
+                log.warning("%s: refusing %s: %d clients already connected", self.what, addr[0],
+                            MAX_CLIENTS)
+                conn.close()
+                continue
             threading.Thread(target=self._serve, args=(conn, addr), name="live-front-conn",
                              daemon=True).start()
 
@@ -181,6 +193,8 @@ class ProtocolFront:
         except OSError:
             pass
         finally:
+            with self._lock:
+                self._clients -= 1
             for s in (client, backend):
                 if s is not None:
                     try:

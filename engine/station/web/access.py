@@ -2,8 +2,10 @@
 
 * The address: ``[HOST:]PORT`` (``parse_address``); the host is 127.0.0.1 unless given, the port
   0 (or omitted) asks the system for a free one.
-* The token: every dashboard has one (given with ``--token`` or made here, 128 random bits,
-  printed at start with the address). On a loopback address the pages can be read without it,
+* The token: every dashboard has one (given with ``--token`` or made here, 192 random bits,
+  printed at start with the address); a given one is refused for an address other than
+  loopback when it is shorter than ``TOKEN_MIN_CHARS`` or its entropy estimate is below
+  ``TOKEN_MIN_BITS``. On a loopback address the pages can be read without it,
   if the request names a loopback host (``Host``: a page of another site whose name was made to
   point at 127.0.0.1 cannot read them); on any other address every request needs it
   (``?token=`` once, then a same-site cookie).
@@ -36,7 +38,7 @@ def parse_address(text: Optional[str]) -> tuple[str, int]:
     if not sep:
         host, port = "127.0.0.1", text
     host = host.strip("[]") or "127.0.0.1"
-    if not port.isdigit() or int(port) > 65535:
+    if not (port.isascii() and port.isdigit()) or len(port) > 5 or int(port) > 65535:
         raise AddressError(f"--web {text}: the port must be a number from 0 to 65535 "
                            "([HOST:]PORT; 0 picks a free port)")
     return host, int(port)
@@ -61,8 +63,40 @@ def loopback_host(header: Optional[str]) -> bool:
     return bool(h) and is_loopback(h)
 
 
+# a token for a network bind: at least this long, and at least TOKEN_MIN_BITS by the estimate of
+# ``token_bits`` (a generated one: 32 characters of the URL-safe base64 alphabet, 192 random bits;
+# OWASP's session-identifier guidance asks for 64 bits of entropy at least)
+TOKEN_MIN_CHARS = 16
+TOKEN_MIN_BITS = 64.0
+TOKEN_BYTES = 24
+
+
+class TokenError(StillpointError):
+    """A --token too short or too predictable for a dashboard on a network address."""
+
+
 def new_token() -> str:
-    return secrets.token_urlsafe(16)
+    return secrets.token_urlsafe(TOKEN_BYTES)
+
+
+def token_bits(token: str) -> float:
+    """A conservative estimate of a token's entropy in bits: its length times the Shannon entropy
+    of its own characters (``aaaa...`` is 0, a repeated short word little)."""
+    import math
+    from collections import Counter
+    n = len(token)
+    if not n:
+        return 0.0
+    h = -sum(c / n * math.log2(c / n) for c in Counter(token).values())
+    return n * h
+
+
+def check_token(token: str, where: str) -> None:
+    """Refuse a given token that is too short or predictable for a network address."""
+    if len(token) < TOKEN_MIN_CHARS or token_bits(token) < TOKEN_MIN_BITS:
+        raise TokenError(f"{where}: --token is too guessable for an address other than loopback "
+                         f"(at least {TOKEN_MIN_CHARS} characters and {TOKEN_MIN_BITS:g} bits "
+                         "of entropy; leave --token out to get a random one)")
 
 
 def token_ok(given: Optional[str], token: str) -> bool:

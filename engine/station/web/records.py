@@ -45,7 +45,7 @@ def device_key(device_type: str, device_id: int) -> str:
 
 def parse_device_key(key: str) -> Optional[tuple[str, int]]:
     kind, _, num = key.partition("-")
-    if kind not in ("AX3", "AX6") or not num.isdigit() or len(num) > 9:
+    if kind not in ("AX3", "AX6") or not (num.isascii() and num.isdigit()) or len(num) > 9:
         return None
     return kind, int(num)
 

@@ -1,4 +1,6 @@
-"""The dashboard's HTTP server (standard library ``ThreadingHTTPServer``, one thread per request).
+"""The dashboard's HTTP server: a fixed number of threads (engine/station/web/serving.py: one
+waiting on every connection, ``Limits.workers`` answering, one pushing every live stream), caps on
+connections and live streams per client and in total, read, idle and write timeouts.
 
 ``Dashboard(folder, station=None, host=, port=, token=None, read_only=False)``; ``start()`` serves
 on a thread and returns the address; ``close()`` stops. With a ``station`` the dock is live (a
@@ -21,8 +23,11 @@ POST /action/<action>/<type>-<id>      retry | verify | clear | configure (form:
 =====================================  ===============================================================
 
 Refusals answer with one line (in a small page): 403 without the token or in read-only mode,
-404 for an unknown page, device or file (files outside the folder are unknown), 409 when the
-device's state forbids the action, 400 for a malformed request.
+404 for an unknown page, device or file (files outside the folder are unknown; no page names the
+folder), 409 when the device's state forbids the action, 400 for a malformed request, 503 over a
+connection or live-stream limit, 413 for a body over ``FORM_MAX_BYTES`` (the connection is
+closed). Refusals and failures are logged to stderr through the rate-limited, non-blocking log
+(engine/core/ratelog.py, logger ``stillpoint.dashboard``).
 """
 
 from __future__ import annotations
@@ -32,7 +37,7 @@ import mimetypes
 import os
 import threading
 import time
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from http.server import BaseHTTPRequestHandler
 from importlib import resources
 from pathlib import Path
 from typing import Optional
@@ -42,21 +47,29 @@ from . import access, pages
 from .actions import Actions
 from .live import LiveDock
 from .records import Records, parse_device_key
+from .serving import BoundedHTTPServer, Limits, OneRequestHandler, log
 
 PUSH_MIN_S = 0.5  # the live stream sends at most this often (a change is shown within 1 s)
 KEEPALIVE_S = 15.0
 FORM_MAX_BYTES = 4096
+STREAM_WRITE_TIMEOUT_S = 2.0  # a live stream that does not take a push in this time is closed
+PATH_SHOWN = 80  # characters of an unknown path repeated in its 404 page
 
 
 class Dashboard:
     def __init__(self, folder, station=None, *, host: str = "127.0.0.1", port: int = 0,
-                 token: Optional[str] = None, read_only: bool = False):
+                 token: Optional[str] = None, read_only: bool = False,
+                 limits: Optional[Limits] = None):
+        from stillpoint.engine.core import ratelog
+        ratelog.install(log.name)
         self.folder = Path(folder)
         self.records = Records(self.folder)
         self.station = station
         self.read_only = read_only or station is None
-        self.token = token or access.new_token()
         self.loopback = access.is_loopback(host)
+        if token is not None and not self.loopback:
+            access.check_token(token, f"--web {host}:{port}")
+        self.token = token or access.new_token()
         self.live: Optional[LiveDock] = None
         self.actions = None if self.read_only else Actions(station)
         if station is not None:
@@ -69,12 +82,13 @@ class Dashboard:
         self._facts_lock = threading.Lock()
         self.stopping = threading.Event()
         handler = type("Handler", (_Handler,), {"dash": self})
+        limits = limits or Limits(max_body=FORM_MAX_BYTES)
         try:
-            self.httpd = ThreadingHTTPServer((host, port), handler)
-        except OSError as e:
+            self.httpd = BoundedHTTPServer((host, port), handler, limits)
+        except (OSError, OverflowError, ValueError) as e:
             raise access.AddressError(f"--web {host}:{port}: cannot serve there: "
-                                      f"{e.strerror or e}") from None
-        self.httpd.daemon_threads = True
+                                      f"{getattr(e, 'strerror', None) or e}") from None
+        self.streams = _Streams(self)
         self._thread: Optional[threading.Thread] = None
 
     @property
@@ -86,6 +100,8 @@ class Dashboard:
         self._thread = threading.Thread(target=self.httpd.serve_forever, kwargs={"poll_interval": 0.5},
                                         daemon=True, name="dashboard")
         self._thread.start()
+        if self.live is not None:
+            self.streams.start()
         return self.url
 
     def close(self) -> None:
@@ -93,6 +109,9 @@ class Dashboard:
         if self.live is not None:
             self.live.wake()
         self.httpd.shutdown()
+        if self._thread is not None:
+            self._thread.join(timeout=5)
+        self.streams.close()
         self.httpd.server_close()
 
     # ------------------------------------------------------------------ what the pages show
@@ -152,7 +171,83 @@ class Dashboard:
         return pages.dock_fragment(rows, disk, token=token, live=self.live is not None)
 
 
-class _Handler(BaseHTTPRequestHandler):
+class _Streams:
+    """Every live stream (``/events``) pushed by one thread: each change of the dock (at most one
+    push per ``PUSH_MIN_S``) is rendered once per kind of stream (with or without the token) and
+    written to every stream whose page it changes; a keep-alive comment every ``KEEPALIVE_S``
+    finds the closed ones. A stream that does not take a push within ``STREAM_WRITE_TIMEOUT_S``
+    is closed."""
+
+    def __init__(self, dash: Dashboard):
+        self.dash = dash
+        self._lock = threading.Lock()
+        self._streams: list = []  # [socket, client host, with token, last fragment sent]
+        self._thread = threading.Thread(target=self._loop, name="dashboard-streams", daemon=True)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def __len__(self) -> int:
+        with self._lock:
+            return len(self._streams)
+
+    def adopt(self, sock, host: str, with_token: bool, sent: str) -> None:
+        sock.settimeout(STREAM_WRITE_TIMEOUT_S)
+        with self._lock:
+            self._streams.append([sock, host, with_token, sent])
+
+    def _drop(self, st) -> None:
+        with self._lock:
+            if st not in self._streams:
+                return
+            self._streams.remove(st)
+        try:
+            st[0].close()
+        except OSError:
+            pass
+        self.dash.httpd.release_stream(st[1])
+
+    def _send(self, st, data: bytes) -> None:
+        try:
+            st[0].sendall(data)
+        except OSError:
+            self._drop(st)
+
+    def _loop(self) -> None:
+        d = self.dash
+        version = d.live.version
+        last = 0.0
+        while not d.stopping.is_set():
+            new = d.live.wait(version, KEEPALIVE_S)
+            if d.stopping.is_set():
+                break
+            with self._lock:
+                streams = list(self._streams)
+            if new == version:
+                for st in streams:
+                    self._send(st, b": keepalive\n\n")
+                continue
+            wait = PUSH_MIN_S - (time.monotonic() - last)
+            if wait > 0:
+                d.stopping.wait(wait)
+            version = d.live.version
+            frags: dict = {}
+            for st in streams:
+                if st[2] not in frags:
+                    frags[st[2]] = d.fragment(st[2])
+                if frags[st[2]] != st[3]:  # progress that does not change the page sends nothing
+                    st[3] = frags[st[2]]
+                    self._send(st, pages.sse_payload(st[3]))
+            last = time.monotonic()
+
+    def close(self) -> None:
+        with self._lock:
+            streams = list(self._streams)
+        for st in streams:
+            self._drop(st)
+
+
+class _Handler(OneRequestHandler, BaseHTTPRequestHandler):
     dash: Dashboard
     server_version = "stillpoint-dashboard"
     protocol_version = "HTTP/1.1"
@@ -202,13 +297,24 @@ class _Handler(BaseHTTPRequestHandler):
         (500), never a traceback."""
         try:
             handle()
-        except (BrokenPipeError, ConnectionResetError):
-            pass
+        except OSError as e:
+            if isinstance(e, (BrokenPipeError, ConnectionResetError, TimeoutError)):
+                self.close_connection = True
+                return
+            self._fail(e)
         except Exception as e:  # noqa: BLE001 - one line, never a traceback
-            try:
-                self._refuse(500, f"{type(e).__name__}: {getattr(e, 'reason', None) or e}")
-            except OSError:
-                pass
+            self._fail(e)
+
+    def _fail(self, e: Exception) -> None:
+        """500 without the error's text (it may name the output folder); the log has it."""
+        log.warning("%s %s failed: %s: %s", self.command, self.path[:PATH_SHOWN], type(e).__name__,
+                    str(e)[:200])
+        self.close_connection = True
+        try:
+            self._refuse(500, "the dashboard could not answer this request (the station's "
+                              "terminal says why)")
+        except OSError:
+            pass
 
     def do_GET(self):
         self._answer(self._get)
@@ -251,13 +357,13 @@ class _Handler(BaseHTTPRequestHandler):
             key, _, sub = rest.partition("/")
             dev = parse_device_key(key)
             if dev is None or sub not in ("", "sheet"):
-                return self._refuse(404, f"no page {path}")
+                return self._refuse(404, f"no page {path[:PATH_SHOWN]}")
             hist = d.records.history(*dev)
             if not hist["known"]:
-                return self._refuse(404, f"the ledger knows no device {key}")
+                return self._refuse(404, f"the ledger knows no device {key[:PATH_SHOWN]}")
             if sub == "sheet":
                 asked = (parse_qs(urlsplit(self.path).query).get("session") or [""])[0]
-                if asked and not asked.isdigit():
+                if asked and not (asked.isascii() and asked.isdigit() and len(asked) < 10):
                     return self._refuse(400, f"session must be a number, not {asked[:20]!r}")
                 page = pages.sheet_page(hist, file_name=d.return_file_name(hist),
                                         session=int(asked) if asked else None)
@@ -267,21 +373,24 @@ class _Handler(BaseHTTPRequestHandler):
             return self._page(200, pages.device_page(d.records, hist), hdr)
         if path.startswith("/files/"):
             return self._file(path[len("/files/"):])
-        return self._refuse(404, f"no page {path}")
+        return self._refuse(404, f"no page {path[:PATH_SHOWN]}")
 
     def _static(self, name: str):
         if name not in ("dashboard.css", "dashboard.js"):
-            return self._refuse(404, f"no file /static/{name}")
+            return self._refuse(404, f"no file /static/{name[:PATH_SHOWN]}")
         body = resources.files(__package__).joinpath("static", name).read_bytes()
         self._send(200, body, "text/css" if name.endswith(".css") else "text/javascript")
 
     def _file(self, rel: str):
         d = self.dash
-        p = d.records.inside(str(d.folder / rel)) if rel and not os.path.isabs(rel) else None
+        try:
+            p = d.records.inside(str(d.folder / rel)) if rel and not os.path.isabs(rel) else None
+            size = p.stat().st_size if p is not None else 0
+        except (OSError, ValueError):  # a name too long for the system, a NUL byte, ...
+            p = None
         if p is None:
-            return self._refuse(404, f"no file {rel} inside the output folder")
+            return self._refuse(404, f"no file {rel[:PATH_SHOWN]} inside the output folder")
         ctype = mimetypes.guess_type(p.name)[0] or "application/octet-stream"
-        size = p.stat().st_size
         self.send_response(200)
         self.send_header("Content-Type", ctype)
         self.send_header("Content-Length", str(size))
@@ -301,6 +410,12 @@ class _Handler(BaseHTTPRequestHandler):
         d = self.dash
         if d.live is None:
             return self._send(204, b"", "text/plain")  # no station: nothing will change
+        host = self.client_address[0]
+        if self.command != "HEAD" and not d.httpd.reserve_stream(host):
+            log.warning("refused a live stream to %s: stream limit reached", host)
+            self.close_connection = True
+            return self._refuse(503, "too many live streams are open; the page still works "
+                                     "(reload it to update)")
         self.send_response(200)
         self.send_header("Content-Type", "text/event-stream")
         self.send_header("Cache-Control", "no-store")
@@ -309,29 +424,14 @@ class _Handler(BaseHTTPRequestHandler):
         self.close_connection = True
         if self.command == "HEAD":
             return
-        version = d.live.version
-        sent = d.fragment(with_token)
-        self.wfile.write(pages.sse_payload(sent))
-        self.wfile.flush()
-        last = time.monotonic()
-        while not d.stopping.is_set():
-            new = d.live.wait(version, KEEPALIVE_S)
-            if d.stopping.is_set():
-                break
-            if new == version:
-                self.wfile.write(b": keepalive\n\n")
-                self.wfile.flush()
-                continue
-            wait = PUSH_MIN_S - (time.monotonic() - last)
-            if wait > 0:
-                d.stopping.wait(wait)
-            version = d.live.version
-            frag = d.fragment(with_token)
-            if frag != sent:  # progress that does not change the page sends nothing
-                self.wfile.write(pages.sse_payload(frag))
-                self.wfile.flush()
-                sent = frag
-            last = time.monotonic()
+        try:
+            sent = d.fragment(with_token)
+            self.wfile.write(pages.sse_payload(sent))
+        except BaseException:
+            d.httpd.unreserve_stream(host)  # the worker closes the connection
+            raise
+        self.detach()  # the stream thread pushes from now on (``_Streams``)
+        d.streams.adopt(self.connection, host, with_token, sent)
 
     # ------------------------------------------------------------------ POST
     def do_POST(self):
@@ -348,7 +448,8 @@ class _Handler(BaseHTTPRequestHandler):
         except ValueError:
             n = -1
         if n < 0 or n > FORM_MAX_BYTES:
-            return self._refuse(400, f"the form must be at most {FORM_MAX_BYTES} bytes")
+            self.close_connection = True  # the body is never read as a next request
+            return self._refuse(413, f"the form must be at most {FORM_MAX_BYTES} bytes")
         form = parse_qs(self.rfile.read(n).decode("utf-8", "replace"))
 
         def field(name):

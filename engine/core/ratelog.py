@@ -53,6 +53,7 @@ class BoundedLogHandler(logging.Handler):
 
     # ------------------------------------------------------------------ the logging thread
     def emit(self, record: logging.LogRecord) -> None:
+        """Queue the record's line, or count it when its kind or the window is over the rate."""
         try:
             key = (record.name, _DIGITS.sub("#", str(record.msg))[:200])
             now = self.clock()

@@ -215,3 +215,23 @@ def test_legacy_activity_shorter_than_one_sample(tmp_path):
         b"Sample Rate: 30\r\nStart Date: 638000000000000000\r\n"})
     with Gt3xReader(p) as src:
         assert sum(b.n for b in src) == 0
+
+
+def test_replay_of_a_gt3x_log_gives_the_same_tables(simulated, tmp_path):
+    """The log keeps the idle-sleep periods: a replay marks the same samples, so its epoch table
+    (idle_sleep column included) and its sleep are the run's."""
+    from stillpoint.tools.cli import main
+    d, _ = simulated
+    out = tmp_path / "re.mcap"
+    assert main(["replay", str(d / "sim.mcap"), "-o", str(out), "-q"]) == 0
+    with gzip.open(d / "sim.epochs.csv.gz", "rt") as f1, gzip.open(tmp_path / "re.epochs.csv.gz", "rt") as f2:
+        a, b = f1.read(), f2.read()
+    assert "idle_sleep" in a.splitlines()[0] and a == b
+
+
+def test_cohort_finds_gt3x_files(tmp_path):
+    from stillpoint.engine.cohort.plan import discover_inputs
+    (tmp_path / "a").mkdir()
+    for name in ("a/p1.gt3x", "a/p2.GT3X", "a/notes.txt"):
+        (tmp_path / name).write_bytes(b"x")
+    assert [p.name for p in discover_inputs([tmp_path])] == ["p1.gt3x", "p2.GT3X"]

@@ -11,7 +11,10 @@ recording cut mid-night, a spring DST week with nonwear nights) the series (ENMO
 local midnights, our SIBs and sleep periods) goes to ``ggir_rhythm_fixtures.R``
 (``apply_cosinor_IS_IV_Analyses`` as GGIR part 2 calls it, ``CalcSleepRegularityIndex`` as part
 3, ``g.fragmentation`` as part 6) and GGIR's figures are kept as ``<scenario>.json``.
-``--check``: print our agreement with the new figures instead of writing.
+``--check``: print our agreement with the new figures instead of writing. ``--real DIR``: also
+each real recording there, through ``process`` (UTC, sleep on): GGIR's functions on our epoch
+table's series, the agreement printed (recordings of a few hours: GGIR fits no cosinor and no SRI
+on less than a day, and neither do we).
 """
 
 from __future__ import annotations
@@ -154,6 +157,38 @@ def report(name: str, fx: dict, got: dict) -> None:
     print(f"{name}: " + "; ".join(parts))
 
 
+class _Series:
+    """An epoch table read back as the simulated series' fields (t_ns, enmo, nonwear, zone)."""
+
+    def __init__(self, t_ns, enmo, nonwear, zone):
+        self.t_ns, self.enmo, self.nonwear, self.zone = t_ns, enmo, nonwear, zone
+
+
+def real_series(path: Path, tmp: Path):
+    """``process`` on a real recording (UTC, sleep on) and its epoch table's series: (series,
+    sib, spt), invalid = not clean; None when it cannot be processed or has no epochs."""
+    import gzip
+    from stillpoint.engine.timezones import parse_zone
+    out = tmp / (path.name + ".mcap")
+    exe = Path(sys.executable).with_name("stillpoint")
+    extra = ["--timezone-override"] if path.suffix == ".bin" else []  # GENEActiv: header zone
+    r = subprocess.run([str(exe), "process", str(path), "-o", str(out), "--timezone", "UTC", "-q",
+                        "--overwrite"] + extra, capture_output=True, text=True)
+    if r.returncode:
+        return None
+    stem = out.name[:-5]
+    rows = list(csv.DictReader(gzip.open(out.with_name(stem + ".epochs.csv.gz"), "rt")))
+    if not rows or "sib" not in rows[0]:
+        return None
+    t = np.array([np.datetime64(x["time_utc"][:-1], "ns").astype(np.int64) for x in rows])
+    enmo = np.array([float(x["enmo_mg"]) if x["enmo_mg"] else np.nan for x in rows])
+    flags = ("nonwear", "clipping", "gap", "qc", "filter_warmup")
+    inv = np.array([any(x[f] == "1" for f in flags) for x in rows])
+    sib = np.array([x["sib"] == "1" for x in rows], np.int8)
+    spt = np.array([x["spt"] == "1" for x in rows])
+    return _Series(t, np.where(inv, 0.0, enmo), inv, parse_zone("UTC")), sib, spt
+
+
 def ggir_commit(ggir: Path) -> str:
     r = subprocess.run(["git", "-C", str(ggir), "rev-parse", "HEAD"], capture_output=True, text=True)
     return r.stdout.strip() or "unknown"
@@ -165,6 +200,7 @@ def main(argv=None) -> int:
     ap.add_argument("--actcr", type=Path, required=True, help="R file with ActCR's functions")
     ap.add_argument("--check", action="store_true", help="print agreement, write nothing")
     ap.add_argument("--only", help="one scenario")
+    ap.add_argument("--real", type=Path, help="folder of real recordings (printed, not stored)")
     a = ap.parse_args(argv)
     commit = ggir_commit(a.ggir)
     OUT.mkdir(parents=True, exist_ok=True)
@@ -181,6 +217,16 @@ def main(argv=None) -> int:
             report(name, fx, ours(s, sib, spt))
             if not a.check:
                 (OUT / f"{name}.json").write_text(json.dumps(fx, indent=1) + "\n")
+        for p in sorted(a.real.iterdir()) if a.real else []:
+            if p.suffix not in (".cwa", ".bin", ".gz", ".gt3x"):
+                continue
+            got = real_series(p, tmp)
+            if got is None:
+                continue
+            s, sib, spt = got
+            write_series(tmp / "real.csv", s, sib, spt)
+            res = run_ggir(a.ggir, a.actcr, tmp / "real.csv", "UTC", tmp / "real")
+            report(f"{p.name} ({s.t_ns.shape[0]} epochs)", res, ours(s, sib, spt))
     return 0
 
 

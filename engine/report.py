@@ -410,6 +410,7 @@ def _qc_text(rec: dict, days: list[dict]) -> str:
             return "n/a"
     unit = qc.get("unit", "sector")
     reasons = ", ".join(f"{k} {v}" for k, v in (qc.get("reasons") or {}).items()) or "none"
+    errors = f"{f(cal.get('error_before_mg'), '{:.2f}')} -> {f(cal.get('error_after_mg'), '{:.2f}')} mg"
     lines = [
         f"device {dev.get('type', '?')} {dev.get('id', '?')}, {f(dev.get('rate_hz'), '{:g}')} Hz, "
         f"+-{f(dev.get('range_g'), '{:g}')} g     times: {total.get('timezone', '?')}",
@@ -421,8 +422,9 @@ def _qc_text(rec: dict, days: list[dict]) -> str:
         f"valid days (>= 16 h clean wear by default): {total.get('valid_day', '?')} of "
         f"{len([d for d in days if d['date'] != 'all'])}; mean ENMO over clean epochs "
         f"{f(total.get('enmo_mean_mg'), '{:.2f}')} mg",
-        f"calibration: {cal.get('status', '?')} - error {f(cal.get('error_before_mg'), '{:.2f}')} -> "
-        f"{f(cal.get('error_after_mg'), '{:.2f}')} mg on {cal.get('windows', '?')} windows"
+        f"calibration: {cal.get('status', '?')}"
+        + ("" if errors in str(cal.get("reason", "")) else  # the reason says it already
+           f" - error {errors} on {cal.get('windows', '?')} windows")
         + (f", T_ref {cal['temperature_ref']:.2f} degC" if status_applied(cal.get("status"))
            and cal.get("temperature_ref") is not None and any(cal.get("tempoffset") or []) else ""),
     ]

@@ -369,7 +369,8 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
         try:
             sink.write_metadata(CLOCK_RECORD, clock_record(zone, src.info.timezone_offset_s))
             # explained before it is logged: the message, the record and the summary agree
-            outcome = CalibrationOutcome(est).explain(quietest, s.sd_threshold_g)
+            outcome = CalibrationOutcome(est).explain(quietest, s.sd_threshold_g,
+                                                      _rate(src.info))
             initial = est if outcome.applied else CalibrationEstimate.identity(est.reason)
             sink.write_outcome(outcome, st1.first_ns or 0)
             sink.write_qc(outcome.qc_event(), st1.first_ns or 0)
@@ -436,7 +437,7 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
             raise
         windows, nonmove = feat.windows.windows, feat.nonmovement.count
         outcome = CalibrationOutcome(outst.correction.schedule.current).explain(
-            feat.nonmovement.quietest_sd_g, s.sd_threshold_g)
+            feat.nonmovement.quietest_sd_g, s.sd_threshold_g, _rate(src.info))
         summary["estimates"] = estimates_log
     # ---------------------------------------------------------------- wrap up
     src.close()

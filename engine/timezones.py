@@ -36,6 +36,7 @@ as before, as UTC shifted by the device record's ``timezone_offset_s``).
 from __future__ import annotations
 
 import datetime as _dt
+import re
 from dataclasses import dataclass, field
 from typing import Optional
 
@@ -153,6 +154,12 @@ class Zone:
                 "fixed_offset_s": self.fixed_s}
 
 
+# "GMT+1", "UTC-5": opposite signs in the IANA database (Etc/GMT+1 = UTC-01:00, POSIX TZ) and in
+# everyday use, so refused (a GENEActiv header's "GMT +01:00", with a space and minutes, is read
+# as the vendor writes it, by drivers/geneactiv_header.parse_timezone)
+_AMBIGUOUS_GMT = re.compile(r"(?i)(GMT|UTC)[+-]\d{1,2}")
+
+
 def parse_zone(spec) -> Zone:
     """IANA name, fixed offset text/seconds, or None (unknown)."""
     if spec is None or (isinstance(spec, str) and not spec.strip()):
@@ -162,6 +169,10 @@ def parse_zone(spec) -> Zone:
     if isinstance(spec, (int, float, np.integer)) and not isinstance(spec, bool):
         return fixed_zone(int(spec))
     text = str(spec).strip()
+    if _AMBIGUOUS_GMT.fullmatch(text):
+        raise ZoneError(f"--timezone {text!r} is ambiguous: in the IANA database Etc/GMT+1 is one "
+                        "hour behind UTC, in everyday use GMT+1 is one hour ahead; give the "
+                        "offset (+01:00 or -01:00) or an IANA name (e.g. Europe/London)")
     off = _fixed_offset(text)
     if off is not None and not ("/" in text):
         return fixed_zone(off)

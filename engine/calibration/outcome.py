@@ -36,17 +36,20 @@ class CalibrationOutcome:
         """The estimate's ``CalibrationStatus``."""
         return self.estimate.status
 
-    def explain(self, quietest_sd_g: float, sd_threshold_g: float) -> "CalibrationOutcome":
+    def explain(self, quietest_sd_g: float, sd_threshold_g: float,
+                rate_hz: Optional[float] = None) -> "CalibrationOutcome":
         """Say why no window was still when even the quietest one is noisier than the threshold
         (in the estimate's reason, so every report below gives the same reason). Once only."""
         est = self.estimate
         if (est.status != "no_nonmovement" or not math.isfinite(quietest_sd_g)
                 or quietest_sd_g < sd_threshold_g or "quietest_window_sd_mg" in est.extra):
             return self
+        rate_text = (f"{rate_hz:,.6g} Hz" if rate_hz and math.isfinite(rate_hz) and rate_hz > 0
+                     else "this sample rate")
         est.reason += (f"; even the quietest window has an SD of {quietest_sd_g * 1000:.1f} mg on "
                        f"its noisiest axis, above the {sd_threshold_g * 1000:g} mg threshold: if "
-                       "the device ever lay still, its noise at this sample rate (e.g. 3,200 Hz) "
-                       "exceeds the threshold (--sd-threshold-mg sets it)")
+                       f"the device ever lay still, its noise at {rate_text} exceeds the "
+                       "threshold (--sd-threshold-mg sets it)")
         est.extra["quietest_window_sd_mg"] = round(quietest_sd_g * 1000, 3)
         return self
 

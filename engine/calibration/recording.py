@@ -103,7 +103,7 @@ def calibrate_source(source, *, first_hours: float = FIRST_HOURS, chunk_hours: f
     if info.path:
         est.extra["source"] = str(info.path)
     est.extra["flags"] = list(dict.fromkeys(est.extra.get("flags", [])))
-    CalibrationOutcome(est).explain(nm.quietest_sd_g, sd_threshold)
+    CalibrationOutcome(est).explain(nm.quietest_sd_g, sd_threshold, rate)
     return RecordingCalibration(estimate=est, info=info, windows=nm.selected,
                                 windows_total=wop.windows, samples=samples,
                                 read_to_end=not stopped_early, qc=getattr(source, "qc", None))

@@ -145,6 +145,8 @@ class BatchSchedule:
             if total_h < self.first_hours:
                 est.extra["flags"].append("short")
                 dur = f"{total_h:.1f} h" if total_h >= 1 else f"{total_h * 60:.1f} min"
+                if round(total_h, 1) >= self.first_hours:  # not "72.0 h (< 72 h ...)"
+                    dur = f"{total_h:.3f} h, {(self.first_hours - total_h) * 60:.1f} min short"
                 est.reason += (f"; recording only {dur} (< {self.first_hours:g} h "
                                "first load): flagged short")
                 if total_h < SHORT_RECORDING_HOURS:

@@ -126,3 +126,35 @@ ALIGNMENT_ESTIMATE = _schema("stillpoint.AlignmentEstimate", "Clock alignment es
 })
 
 ALL_JSON = (CALIBRATION, STATIC_CALIBRATION, QC, ALIGNMENT_BLOCK_LAG, ALIGNMENT_ESTIMATE)
+
+# the sleep topics (engine/sleep/tap.py): one message per night at its onset, one per sustained
+# inactivity bout at its start; the night's fields are the nights table's (docs/sleep.md)
+SLEEP_NIGHT = _schema("stillpoint.SleepNight", "Night (sleep period and its summary)", {
+    "night": _str("the evening's local date, YYYY-MM-DD"),
+    "guider": _str("what guided the sleep period: sleeplog, HDCZA, HDCZA+invalid, L512 or none"),
+    "onset_local": _str("sleep onset, local ISO 8601 (device clock when the zone is unknown)"),
+    "wake_local": _str("wake, local ISO 8601"),
+    "onset_utc": _str("sleep onset, ISO 8601 UTC (empty when the zone is unknown)"),
+    "wake_utc": _str("wake, ISO 8601 UTC"),
+    "onset_ns": _int("sleep onset, ns (the log's time base)"),
+    "wake_ns": _int("wake, ns"),
+    "spt_hours": _num("sleep period time, h"),
+    "sleep_hours": _num("sustained inactivity inside the sleep period, h"),
+    "waso_hours": _num("wake after sleep onset, h"),
+    "awakenings": _int("wake runs between inactivity bouts"),
+    "efficiency": _num("sleep / sleep period"),
+    "nonwear_spt_hours": _num("nonwear or gap inside the sleep period, h"),
+    "window_hours": _num("the noon-to-noon window in the data, h"),
+    "dst": _int("1 when the window is 23 or 25 h"),
+    "daysleeper": _int("1 when the window came from the re-run 6 h later"),
+    "hdcza_threshold_deg": _num("HDCZA angle threshold, degrees"),
+    "fraction_night_invalid": _num("GGIR's fraction of the night without valid data"),
+    "cleaningcode": _int("GGIR part 4 cleaning code"),
+    "window_cut": _str("start, end or both: the recording starts or ends inside the window"),
+    "night_valid": _int("1: the night counts in summaries"),
+}, required=("night", "guider"))
+SLEEP_BOUT = _schema("stillpoint.SleepInactivityBout", "Sustained inactivity bout", {
+    "start_ns": _int("start, ns (the log's time base)"),
+    "end_ns": _int("end, ns"),
+    "duration_s": _num("duration, s"),
+}, required=("start_ns", "end_ns"))

@@ -9,6 +9,7 @@ import numpy as np
 
 from stillpoint.drivers.outputs import check_output_path
 
+from ..mcap.jsonschemas import SLEEP_BOUT, SLEEP_NIGHT
 from .diary import SleepLogError
 from .nights import SleepStage
 from .table import DAY_NIGHT_COLUMNS, day_night_values, night_record, write_nights
@@ -91,10 +92,11 @@ class SleepTap:
         if sink is not None:
             for r in self.records:
                 at = r.get("onset_ns") or 0
-                sink.write_json(TOPIC_NIGHT, int(at), r)
+                sink.write_json(TOPIC_NIGHT, int(at), r, schema=SLEEP_NIGHT)
             for a, b in self.bouts:
                 sink.write_json(TOPIC_SIB, int(a), {"start_ns": a, "end_ns": b,
-                                                     "duration_s": (b - a) / 1e9})
+                                                     "duration_s": (b - a) / 1e9},
+                                schema=SLEEP_BOUT)
         return cols + DAY_NIGHT_COLUMNS
 
     def summary(self) -> dict:

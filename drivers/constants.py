@@ -313,6 +313,11 @@ GT3X_PARAM_UTC_OFFSET = (1, 40)  # Parameters.md 798-805: seconds (often 0; info
 # Accelerometer scale (LSB/g) when neither info.txt "Acceleration Scale" nor the PARAMETERS
 # ACCEL_SCALE gives one: [GT3X] LogRecords/Activity.md 20, Activity2.md 11 ("NEO and CLE use 341
 # LSB/g (+-6g). MOS devices use 256 LSB/g (+-8g)"); [NHANES] fileformats/activity.bin.md 24 (341).
+# device model by serial prefix (info.txt "Device Type" names), when info.txt has no Device Type:
+# [GT3X] README.md 9-16; [NHANES] README.md 16
+GT3X_MODEL_BY_SERIAL_PREFIX = (("MOS0", "wGT3XBT"), ("MOS2", "wGT3XBT"), ("MOS3", "wActiSleepPlus"),
+                               ("MOS4", "wActiSleepBT"), ("NEO", "GT3XPlus"), ("MRA", "ActiSleepPlus"),
+                               ("CLE", "wGT3XPlus"), ("TAS", "Link"))
 GT3X_SCALE_BY_SERIAL_PREFIX = {"NEO": 341.0, "CLE": 341.0, "MRA": 341.0, "MOS": 256.0}
 GT3X_RANGE_BY_SCALE = {341.0: 6.0, 256.0: 8.0}  # [GT3X] Activity.md 20: 341 -> +-6 g, 256 -> +-8 g
 # wGT3X-BT firmware 1.6.0 turns the axes 90 degrees about Z: fixed x = y, fixed y = -x

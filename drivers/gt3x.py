@@ -72,9 +72,6 @@ MAX_QC_EVENTS = 10_000  # QC events listed per file (as the other readers); the 
 RUN_LOOKAHEAD = 256  # records checked at once on the fast path (other records cut runs anyway)
 HEADER_MASK = np.uint64(0xFFFF_0000_0000_FFFF)  # separator, type and size of a record header (LE)
 MAX_METADATA_BYTES = 1 << 16  # a METADATA record's JSON kept for the header (longer: skipped)
-SERIAL_MODELS = (("MOS0", "wGT3XBT"), ("MOS2", "wGT3XBT"), ("MOS3", "wActiSleepPlus"),
-                 ("MOS4", "wActiSleepBT"), ("NEO", "GT3XPlus"), ("MRA", "ActiSleepPlus"),
-                 ("CLE", "wGT3XPlus"), ("TAS", "Link"))  # [GT3X] README.md 9-16 (serial -> device)
 
 
 # ---------------------------------------------------------------------- pure helpers
@@ -139,7 +136,7 @@ def _model_of(serial: str, device_type: str) -> str:
     if device_type:
         return device_type
     s = serial.upper()
-    for prefix, model in SERIAL_MODELS:
+    for prefix, model in C.GT3X_MODEL_BY_SERIAL_PREFIX:
         if s.startswith(prefix):
             return model
     return ""

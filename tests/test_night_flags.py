@@ -107,3 +107,29 @@ def test_l5_on_imputed_epochs_finds_the_night_behind_night_nonwear():
     start = imp[d2]["l5_start_imputed"]
     assert "00:00" <= start <= "02:00", start
     assert imp[d2]["l5_mg_imputed"] < 3.1
+
+
+def _ggir_fixture():
+    import json
+    from pathlib import Path
+    return json.loads((Path(__file__).parent / "data" / "ggir_night_flags.json").read_text())
+
+
+@pytest.mark.parametrize("name", sorted(_ggir_fixture()["scenarios"]))
+def test_fraction_night_invalid_equals_ggirs(name):
+    """GGIR's g.sib.sum on the same series (tools/crosschecks/ggir_night_flags.py): every night
+    it reports has our fraction_night_invalid to 1e-12; the one night only we report is a
+    recording's partial first night (started after midnight), flagged and not kept."""
+    sc = _ggir_fixture()["scenarios"][name]
+    spec = dict(sc["spec"])
+    for k in ("awakening_min", "daysleeper_nights", "nonwear_nights"):
+        spec[k] = tuple(spec[k])
+    s = sleep_scenario(SleepSpec(**spec))
+    st, recs = _nights(s)
+    ours = {n.date.isoformat(): (n, r) for n, r in zip(st.nights, recs)}
+    theirs = sc["fraction_night_invalid"]
+    for date, frac in theirs.items():
+        assert ours[date][0].fraction_invalid == pytest.approx(frac, abs=1e-12), date
+    for date in set(ours) - set(theirs):
+        n, r = ours[date]
+        assert n.window[0] == 0 and r["window_cut"] == "start" and r["night_valid"] == 0

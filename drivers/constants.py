@@ -124,6 +124,10 @@ def gna_light_lux(raw, lux, volts):
 RTC_TOLERANCE_PPM_AX = 50.0  # [ALN] AX3/AX6 RTC: +-50 ppm typical (about +-4.3 s a day)
 RTC_CRYSTAL_TURNOVER_C = 25.0  # [ALN] crystal frequency error is parabolic around ~25 degC
 RTC_CRYSTAL_PARABOLA_PPM_PER_C2 = -0.035  # [ALN] about -0.035 ppm/degC^2 around the turnover
+# [ALN] spread of that coefficient between crystals: tuning-fork 32.768 kHz crystal datasheets
+# give -0.034 +-0.006 ppm/degC^2 (e.g. Abracon ABS07, "Parabolic coefficient"); 0.01 is wider,
+# for the thermistor sitting beside the crystal rather than on it (the alignment fit's prior SD)
+RTC_CRYSTAL_PARABOLA_SD_PPM_PER_C2 = 0.01
 
 # ---------------------------------------------------------------------------- plausibility limits
 # Values outside these ranges are damage, not data. Each range is generous on purpose: it only has

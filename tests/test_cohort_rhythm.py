@@ -85,3 +85,9 @@ def test_a_bad_cohort_sleep_log_is_refused_before_any_work(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "bad.csv" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "out" / "cohort_summary.csv").exists()
+
+
+def test_a_sleep_log_gone_after_planning_is_not_a_bug():
+    from stillpoint.engine.cohort.job import classify
+    from stillpoint.engine.sleep import SleepLogError
+    assert classify(SleepLogError("sleep log /x.csv: cannot be read")) == "corrupt_input"

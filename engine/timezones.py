@@ -181,11 +181,11 @@ def parse_zone(spec) -> Zone:
         zoneinfo.ZoneInfo(text)
     except ModuleNotFoundError:  # pragma: no cover - Python < 3.9
         raise ZoneError(f"time zone {text!r}: this Python has no zoneinfo") from None
-    except (zoneinfo.ZoneInfoNotFoundError, ValueError):
+    except (zoneinfo.ZoneInfoNotFoundError, ValueError, OSError):  # OSError: a name too long
         import zoneinfo as _zi
         hint = "" if _zi.available_timezones() else (
             "; this system has no time zone database: pip install tzdata")
-        raise ZoneError(f"--timezone {text!r} is neither an IANA name (e.g. Europe/London) nor an "
+        raise ZoneError(f"--timezone {text[:80]!r} is neither an IANA name (e.g. Europe/London) nor an "
                         f"offset like +01:00{hint}") from None
     return Zone(text)
 

@@ -609,3 +609,31 @@ def test_cohort_run_exits_2_when_every_file_failed(tmp_path):
                        "--scheduler", "serial", "-q")
     assert rc == 2 and "Traceback" not in err
     assert "every file failed (2)" in err, err
+
+
+def test_profile_integer_of_thousands_of_digits_is_one_line(tmp_path):
+    from stillpoint.engine.station.profile import ProfileError, load_profile
+    p = tmp_path / "p.toml"
+    p.write_text("[station]\nerase = " + "9" * 200_000 + "\n")
+    with pytest.raises(ProfileError, match="not a study profile"):
+        load_profile(p)
+
+
+@pytest.mark.parametrize("text, what", [
+    ("{" * 5000 + ",UTC\n", "no 'path' column"),  # a first row naming no file, too long to stat
+    ("path,timezone\na.cwa," + "Z" * 5000 + "\n", "neither an IANA name"),  # a zone too long to open
+])
+def test_manifest_names_too_long_for_the_system_are_one_line(tmp_path, text, what):
+    from stillpoint.engine.cohort import discover_inputs
+    from stillpoint.engine.cohort.plan import CohortInputError
+    m = tmp_path / "m.csv"
+    m.write_text(text)
+    with pytest.raises(CohortInputError, match=what):
+        discover_inputs([m], {})
+
+
+def test_manifest_path_of_an_unknown_user_is_kept_as_written(tmp_path):
+    from stillpoint.engine.cohort import discover_inputs
+    (tmp_path / "m.csv").write_text("path\n~no_such_user_here_x/a.cwa\n")
+    [p] = discover_inputs([tmp_path / "m.csv"], {})
+    assert p.name == "a.cwa" and "~no_such_user_here_x" in str(p)

@@ -1,5 +1,7 @@
 """Fuzz the readers: mutated .cwa, .bin, gzip, MCAP and ActiGraph .gt3x inputs, each read the way the commands read
-them, counted by outcome.
+them, counted by outcome; and the text a user hands over (sleep logs, cohort manifests, station
+profiles) and the requests a network peer sends the dashboard (``http``: an answer that is a 500,
+or an error page naming the output folder, counts as ``untyped``).
 
     python -m tools.fuzz                          # 100,000 inputs per format (cwa, bin, gz, mcap)
     python -m tools.fuzz --count 2000 --formats cwa,mcap --seed 7
@@ -16,7 +18,8 @@ tests/data/fuzz) with one to a few mutations: bit flips, interesting bytes and i
 deleted / duplicated / inserted spans, splices of two seeds; structure-aware variants fix the
 .cwa sector checksum after a change (so the decoder, not the checksum test, sees it), replace a
 GENEActiv ``key:value`` with a hostile value, or mutate one MCAP message / metadata value, put
-the raw messages out of order or give a settings value the wrong type, and rewrite the file with
+the raw messages out of order or give a settings value the wrong type or one at or beyond its
+bounds (engine.settings.BOUNDS), and rewrite the file with
 valid CRCs (so the decoders, not the CRC test, see it). Each .bin is also read one page per batch
 (the result must not change), each readable MCAP is also replayed. The in-process smoke test
 (tests/test_fuzz_smoke.py) runs a few thousand of these per format in CI.
@@ -40,7 +43,7 @@ from typing import Callable, Optional
 
 import numpy as np
 
-FORMATS = ("cwa", "bin", "gz", "mcap", "gt3x")
+FORMATS = ("cwa", "bin", "gz", "mcap", "gt3x", "sleeplog", "manifest", "profile", "http")
 FUZZ_DATA = Path(__file__).resolve().parent.parent / "tests" / "data" / "fuzz"
 T0 = 1_700_000_000_000_000_000
 
@@ -153,7 +156,7 @@ def build_seeds() -> dict:
             _mcap_seed(_cwa_seed("unpacked", 30, 25.0), "lz4")]
     gt3x = [_gt3x_seed("log"), _gt3x_seed("deflated"), _gt3x_seed("legacy"),
             _gt3x_seed("log", 130, 60)]
-    return {"cwa": cwa, "bin": bins, "gz": gz, "mcap": mcap, "gt3x": gt3x}
+    return {"cwa": cwa, "bin": bins, "gz": gz, "mcap": mcap, "gt3x": gt3x, **_text_seeds()}
 
 
 # ----------------------------------------------------------------------------- mutators
@@ -318,8 +321,15 @@ def _settings_value(md: dict, r) -> None:
         return
     if not isinstance(d, dict) or not d:
         return
-    k = list(d)[int(r.integers(0, len(d)))]
-    d[k] = HOSTILE_JSON[int(r.integers(0, len(HOSTILE_JSON)))]
+    if r.random() < 0.5:  # a bounded setting just inside, at or beyond a bound
+        from stillpoint.engine.settings import BOUNDS
+        k = sorted(BOUNDS)[int(r.integers(0, len(BOUNDS)))]
+        lo, hi, _ = BOUNDS[k]
+        v = [lo, hi, lo * 0.999, hi * 1.001, lo / 1e9, hi * 1e9, 0][int(r.integers(0, 7))]
+        d[k] = int(v) if k == "chunk_size" else v
+    else:
+        k = list(d)[int(r.integers(0, len(d)))]
+        d[k] = HOSTILE_JSON[int(r.integers(0, len(HOSTILE_JSON)))]
     md["json"] = json.dumps(d)
 
 
@@ -419,9 +429,74 @@ def mutate_gt3x(data: bytes, r, others=()) -> bytes:
     return out.getvalue()
 
 
+# ----------------------------------------------------------------------------- text inputs, requests
+# Seeds of the text a user hands over (sleep log, cohort manifest, station profile) and of the
+# requests a network peer sends the dashboard, and mutations that push: a cell over csv's field
+# limit, nesting thousands deep, a 5,000-character template, a path thousands of levels deep,
+# non-ASCII digits, a body over the form limit.
+def _text_seeds() -> dict:
+    from stillpoint.engine.station.profile import EXAMPLE_PROFILE
+    return {
+        "sleeplog": [b"ID,onset,wakeup,onset,wakeup\np01,23:00,07:00,22:30,06:45\n",
+                     b"ID;D1_date;D1_wakeup;D1_onset\np01;2026-03-28;07:00;23:00\n"],
+        "manifest": [b"path,timezone,participant\na.cwa,UTC,P1\nb.bin,Europe/London,\n",
+                     b"a.cwa\n# comment\nb.bin\n", b"file,timezone\na.cwa,UTC\n"],
+        "profile": [EXAMPLE_PROFILE.encode(), b"[station]\nfile_name = \"{study}_{device}_{session}\"\n"],
+        "http": [b"GET / HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n",
+                 b"GET /files/a.txt HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n",
+                 b"GET /device/AX3-1/sheet?session=2 HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n",
+                 b"POST /action/retry/AX3-1 HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Length: 23\r\n\r\n"
+                 b"token=x&confirm=yes&who"],
+    }
+
+
+HOSTILE_TEXT = (lambda r: b"1" * int(r.integers(131_000, 260_000)),  # over csv's field limit
+                lambda r: b"\x00\xff\xfe", lambda r: "\u00b2\u0663".encode(), lambda r: b'"',
+                lambda r: b"\r", lambda r: b"[" * 5000, lambda r: b"{" * 3000,
+                lambda r: b"a" * 5000 + b"{device}_{session}", lambda r: b"%00%2e%2e/",
+                lambda r: b"a/" * int(r.integers(100, 4000)), lambda r: b"AX3-\xc2\xb2")
+
+
+def mutate_text(data: bytes, r, others=()) -> bytes:
+    """Byte mutations, or a hostile piece put in place of a field (between separators)."""
+    if r.random() < 0.5:
+        return mutate_bytes(data, r, others)
+    import re
+    piece = HOSTILE_TEXT[int(r.integers(0, len(HOSTILE_TEXT)))](r)
+    fields = [m.span() for m in re.finditer(rb"[^,;\n\r= /?&]+", data)]
+    if not fields:
+        return data + piece
+    a, b = fields[int(r.integers(0, len(fields)))]
+    return data[:a] + piece + data[b:]
+
+
+def mutate_profile(data: bytes, r, others=()) -> bytes:
+    k = r.random()
+    if k < 0.15:  # tables or arrays nested deep
+        n = int(r.integers(100, 6000))
+        return b"x = " + b"[" * n + b"]" * n + b"\n" if r.random() < 0.5 else \
+            b"[" + b".".join([b"a"] * n) + b"]\n"
+    if k < 0.25:
+        return b'[station]\nfile_name = "' + b"a" * int(r.integers(100, 6000)) + b'{device}_{session}"\n'
+    return mutate_text(data, r, others)
+
+
+def mutate_http(data: bytes, r, others=()) -> bytes:
+    k = r.random()
+    if k < 0.1:  # a body over the form limit, with a request hidden in it
+        body = b"x" * int(r.integers(4000, 9000)) + b"GET / HTTP/1.1\r\n\r\n"
+        return (b"POST /action/retry/AX3-1 HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Length: "
+                + str(len(body)).encode() + b"\r\n\r\n" + body)
+    if k < 0.2:
+        return b"GET /files/" + b"a/" * int(r.integers(100, 3500)) + b"x HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n"
+    return mutate_text(data, r, others)
+
+
 MUTATORS = {"cwa": mutate_cwa, "bin": mutate_bin, "gz": mutate_gz, "mcap": mutate_mcap,
-            "gt3x": mutate_gt3x}
-SUFFIX = {"cwa": ".cwa", "bin": ".bin", "gz": ".gz", "mcap": ".mcap", "gt3x": ".gt3x"}
+            "gt3x": mutate_gt3x, "sleeplog": mutate_text, "manifest": mutate_text,
+            "profile": mutate_profile, "http": mutate_http}
+SUFFIX = {"cwa": ".cwa", "bin": ".bin", "gz": ".gz", "mcap": ".mcap", "gt3x": ".gt3x",
+          "sleeplog": ".csv", "manifest": ".csv", "profile": ".toml", "http": ".http"}
 
 
 # ----------------------------------------------------------------------------- reading
@@ -525,8 +600,63 @@ class _Discard:
         return len(text)
 
 
+def read_sleeplog(path: Path) -> None:
+    from stillpoint.engine.sleep.diary import read_sleep_log
+    read_sleep_log(path, "p01")
+
+
+def read_manifest(path: Path) -> None:
+    from stillpoint.engine.cohort import discover_inputs
+    discover_inputs([path], {})
+
+
+def read_profile(path: Path) -> None:
+    from stillpoint.engine.station.profile import load_profile
+    load_profile(path)
+
+
+class ServerBug(Exception):
+    """The dashboard answered 500, named its folder, or did not close a refused connection."""
+
+
+_DASH: dict = {}
+
+
+def send_request(path: Path) -> None:
+    """The input as one request to a dashboard on loopback (started once, serving a folder with
+    one file); the answer must not be a 500, and no error page may name the folder."""
+    import socket
+    if "dash" not in _DASH:
+        from stillpoint.engine.station.web import Dashboard
+        folder = Path(tempfile.mkdtemp(prefix="stillpoint-fuzz-dash-"))
+        (folder / "a.txt").write_text("hello")
+        d = Dashboard(folder)
+        d.start()
+        _DASH.update(dash=d, folder=str(folder).encode())
+    d = _DASH["dash"]
+    with socket.create_connection(("127.0.0.1", d.httpd.server_address[1]), timeout=15) as s:
+        try:
+            s.sendall(path.read_bytes())
+            s.shutdown(socket.SHUT_WR)
+            answer = b""
+            while len(answer) < 1 << 20:
+                part = s.recv(65536)
+                if not part:
+                    break
+                answer += part
+        except ConnectionResetError:  # refused before all of it was read
+            return
+        except socket.timeout:
+            raise ServerBug("no answer and no close in 15 s") from None
+    status = answer.split(b"\r\n", 1)[0]
+    refused = status[9:10] in (b"4", b"5")  # an error page (the dock itself shows its folder)
+    if b" 500 " in status or (refused and _DASH["folder"] in answer):
+        raise ServerBug(status.decode("latin-1")[:80])
+
+
 READERS = {"cwa": read_recording, "bin": read_bin_every_batch, "gz": read_recording,
-           "mcap": read_mcap, "gt3x": read_gt3x}
+           "mcap": read_mcap, "gt3x": read_gt3x, "sleeplog": read_sleeplog,
+           "manifest": read_manifest, "profile": read_profile, "http": send_request}
 
 
 def classify(fmt: str, path: Path, timeout_s: float) -> tuple[str, str]:
@@ -550,6 +680,8 @@ def classify(fmt: str, path: Path, timeout_s: float) -> tuple[str, str]:
         return "hang", f"over {timeout_s} s"
     except Mismatch as e:
         return "mismatch", str(e)
+    except ServerBug as e:
+        return "untyped", f"dashboard: {e}"
     except Exception as e:
         tb = traceback.extract_tb(e.__traceback__)
         where = next((f"{Path(fr.filename).name}:{fr.lineno}" for fr in reversed(tb)

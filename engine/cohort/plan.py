@@ -96,6 +96,15 @@ def is_recording_name(name: str) -> bool:
     return n.endswith(RECORDING_SUFFIXES)
 
 
+def _expand(text: str) -> Path:
+    """``~`` and ``~user`` expanded; a user the system does not know is left as written (the
+    file then fails as missing, with its name)."""
+    try:
+        return Path(text).expanduser()
+    except RuntimeError:
+        return Path(text)
+
+
 def _read_manifest_csv(path: Path, attributes: Optional[dict] = None) -> list[Path]:
     """A manifest CSV: a header row with a ``path`` column, or one path per line (first column;
     then the first row names a recording); a header row without ``path`` is refused;
@@ -113,9 +122,12 @@ def _read_manifest_csv(path: Path, attributes: Optional[dict] = None) -> list[Pa
     if not rows:
         raise CohortInputError(f"{path}: the manifest lists no files")
     header = [c.strip().lower() for c in rows[0]]
-    first = Path(rows[0][0].strip()).expanduser()
-    names_a_file = (any(is_recording_name(c.strip()) for c in rows[0])
-                    or (first if first.is_absolute() else path.parent / first).is_file())
+    first = _expand(rows[0][0].strip())
+    try:
+        names_a_file = (any(is_recording_name(c.strip()) for c in rows[0])
+                        or (first if first.is_absolute() else path.parent / first).is_file())
+    except (OSError, ValueError):  # a name too long for the system, a NUL byte
+        names_a_file = False
     if "path" not in header and not names_a_file:  # a header row without the paths' column
         found = ", ".join(c.strip() for c in rows[0])[:200]
         raise CohortInputError(f"{path}: no 'path' column (columns found: {found}); name the "
@@ -130,7 +142,7 @@ def _read_manifest_csv(path: Path, attributes: Optional[dict] = None) -> list[Pa
                 extra[name] = found[0]
     out = []
     for r in rows:
-        p = Path(r[col].strip()).expanduser()
+        p = _expand(r[col].strip())
         p = p if p.is_absolute() else path.parent / p
         out.append(p)
         if attributes is not None and extra:

@@ -117,6 +117,8 @@ def _toml_load(path: Path) -> dict:
         raise ProfileError(f"{path}: not valid TOML: {e}") from None
     except UnicodeDecodeError as e:
         raise ProfileError(f"{path}: not a TOML text file (byte {e.start} is not UTF-8)") from None
+    except ValueError as e:  # e.g. an integer of thousands of digits (Python's conversion limit)
+        raise ProfileError(f"{path}: not a study profile ({str(e)[:100]})") from None
 
 
 @dataclass

@@ -14,7 +14,9 @@ Modes (same operators, different schedules):
 * ``online``: one pass. Window features feed ``OnlineCalibrator`` (refit at each 12 h boundary);
   every published estimate is logged; accepted ones take effect from their boundary. The
   correction waits (a few seconds of data at most) until the estimate schedule is final for
-  the samples it corrects, so the output does not depend on block cuts.
+  the samples it corrects, so the output does not depend on block cuts. The epoch and day
+  tables (when asked for) come from a second pass over the input with the final estimate applied
+  from the first sample (``_online_tables``); the log is the online one.
 
 Both passes hold only bounded state: ring buffers of one window/epoch, the nonmovement windows
 (~60k rows a week) and the writer's current chunk.
@@ -34,7 +36,7 @@ from stillpoint.drivers.errors import StillpointError
 from .core.blocks import Block
 from .calibration import OnlineCalibrator, fit_batch_schedule
 from .calibration.trust import CountStep
-from .calibration.estimate import CalibrationEstimate
+from .calibration.estimate import CalibrationEstimate, calibration_source
 from .calibration.outcome import CalibrationOutcome
 from .calibration.quantisation import release_tables
 from .calibration.validate import validate_estimate
@@ -376,7 +378,8 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
             sink.write_qc(outcome.qc_event(), st1.first_ns or 0)
             estimates_log.append({"status": est.status, "applied": outcome.applied})
             outst = OutputStage(s, rate, sink, src, initial)
-            _add_tables(outst, tables, s, rate, band, src)
+            _add_tables(outst, tables, s, rate, band, src, corrected=outcome.applied,
+                        calibration_source=calibration_source(est, outcome.applied, st1.first_ns))
             st = Pipeline(src, [outst], rate_hz=rate, max_block_s=s.max_block_s).run(
                 _progress_wrapper(progress, "pass 2/2"))
         except BaseException as e:
@@ -423,7 +426,7 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
         initial = (prior if (prior is not None and s.calibrate)
                    else CalibrationEstimate.identity("online: no estimate accepted yet"))
         outst = OutputStage(s, rate, sink, src, initial, gate=gate)
-        _add_tables(outst, tables, s, rate, band, src)
+        # the tables are made after the pass, from the final estimate (``_online_tables``)
         stages = [feat, _FinishCalibrator(cal, publish, feat), outst]
         if prior is not None:  # logged at the first sample's time (no message before the data)
             stages.insert(0, _LogPrior(sink, prior, s.calibrate))
@@ -472,6 +475,14 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
             _abort(sink, e)
             tap.abort()
             raise
+    if s.mode == "online" and tables is not None:
+        try:
+            summary["tables"] = _online_tables(path, opts, s, tables, outcome.estimate, sink,
+                                               prefetch)
+        except BaseException as e:
+            _abort(sink, e)
+            raise
+    if "tables" in summary:
         summary["outputs"].update(epochs=summary["tables"]["epochs"], days=summary["tables"]["days"])
     try:
         if outst.clipping.flagged:  # logged on /qc too, so the log itself says so
@@ -587,11 +598,30 @@ class _LogPrior:
         pass
 
 
-def _add_tables(outst: OutputStage, tables, s: RunSettings, rate: float, band, src) -> None:
+def _add_tables(outst: OutputStage, tables, s: RunSettings, rate: float, band, src, *,
+                corrected: bool, calibration_source: str) -> None:
     if tables is not None:
         from .tables import TablesTap
         outst.taps.append(TablesTap(tables, rate, s.epoch_s, band, src, src.info, sink=outst.sink,
-                                    extras=outst.extras.keys))
+                                    extras=outst.extras.keys, corrected=corrected,
+                                    calibration_source=calibration_source))
+
+
+def _online_tables(path, opts: dict, s: RunSettings, tables, final: CalibrationEstimate, sink,
+                   prefetch: bool) -> dict:
+    """An online run's tables: a second pass over the input (read again, as a batch run's second
+    pass; a followed file is complete by now) corrected with the run's final estimate from the
+    first sample (``engine.tables.estimate_pass``), so they do not depend on when the refits
+    came. The log keeps what was applied live; sleep's topics go into it."""
+    from .tables.estimate_pass import tables_with_estimate
+    options = {k: v for k, v in opts.items() if not k.startswith("follow")}
+    src = open_recording(path, **_reader_options(path, options))
+    if prefetch:
+        src = Prefetched(src)
+    try:
+        return tables_with_estimate(src, final, s, tables, sink=sink)
+    finally:
+        src.close()
 
 
 def _abort_tables(outst) -> None:

@@ -302,8 +302,8 @@ def test_fold_sums_adds_each_epochs_parts_in_arrival_order(pushes):
 
 
 def test_epoch_row_text():
-    """Fixed decimals, empty cells for values that are not finite, flags as 0/1 (zone unknown:
-    no UTC time, the device clock as local time)."""
+    """Fixed decimals, empty cells for values that are not finite, flags as 0/1, ``corrected``
+    last (zone unknown: no UTC time, the device clock as local time)."""
     from stillpoint.engine.tables.epochs import EpochRows
     from stillpoint.engine.tables.writer import format_rows
     f = np.array([True, False])
@@ -311,8 +311,11 @@ def test_epoch_row_text():
                      np.array([-0.0, np.inf]), np.array([1e17, -np.inf]), np.array([-0.0004, 45.0]),
                      np.array([25.125, np.nan]), f, ~f, f, ~f, f)
     assert format_rows(rows, parse_zone(None), 5 * 10**9) == (
-        "1970-01-01T00:00:00,500,1.235,-0.000,100000000000000000.000,-0.000,25.12,1,0,1,0,1\n"
-        "1970-01-01T00:00:05,0,,,,45.000,,0,1,0,1,0\n")  # zone unknown: no UTC column
+        "1970-01-01T00:00:00,500,1.235,-0.000,100000000000000000.000,-0.000,25.12,1,0,1,0,1,1\n"
+        "1970-01-01T00:00:05,0,,,,45.000,,0,1,0,1,0,0\n")  # zone unknown: no UTC column
+    # ``corrected``: 1 on rows with samples when an estimate was applied, else 0
+    assert format_rows(rows, parse_zone(None), 5 * 10**9, corrected=False).split("\n")[0].endswith(
+        ",1,0,1,0,1,0")
 
 
 # ---------------------------------------------------------------------------- time zones

@@ -19,6 +19,27 @@ import numpy as np
 
 STATIC_METHOD = "static-6"  # the method of an estimate from a six-orientation session (static.py)
 
+# Which estimate a table's numbers were corrected with (the day table's ``calibration_source``):
+# the recording's own final fit, a prior fitted on an earlier recording of the device (``--prior``
+# or the calibration store, kept where the trust rules prefer it to the recording's fits), a
+# six-orientation static calibration, or none (identity: nothing could be applied).
+SOURCE_RECORDING = "recording_final"
+SOURCE_PRIOR = "prior"
+SOURCE_STATIC = "static"
+SOURCE_NONE = "none"
+
+
+def calibration_source(est: "CalibrationEstimate", applied: bool, first_ns=None) -> str:
+    """The ``SOURCE_*`` of an estimate applied to a recording whose first sample is at
+    ``first_ns``: a fit that ended before the recording began is a prior from an earlier one."""
+    if not applied:
+        return SOURCE_NONE
+    if est.method == STATIC_METHOD:
+        return SOURCE_STATIC
+    if first_ns is not None and est.fit_end_ns is not None and int(est.fit_end_ns) <= int(first_ns):
+        return SOURCE_PRIOR
+    return SOURCE_RECORDING
+
 
 class CalibrationStatus(str, Enum):
     """The outcome of a calibration fit (the ``status`` of an estimate, its logs and its tables).

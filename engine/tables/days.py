@@ -27,7 +27,9 @@ day's epochs.
 The summary row (``date`` = ``all``) sums the hours, counts valid days in ``valid_day``, gives the
 mean ENMO and MAD over every clean epoch of the file, and the minutes per band, MVPA and M10/L5 averaged
 over valid days (empty when there is none), as are the outcome columns.
-Every row also carries the time zone used and the calibration status.
+Every row also carries the time zone used, the calibration status and ``calibration_source``: the
+estimate the numbers were corrected with (``recording_final``, ``prior``, ``static`` or ``none``;
+``engine.calibration.estimate.calibration_source``).
 """
 
 from __future__ import annotations
@@ -62,7 +64,7 @@ def day_columns(bands=ENMO_BANDS_MG) -> list[str]:
              "clipping_hours", "qc_hours", "valid_day", "enmo_mean_mg", "mad_mean_mg"] +
             _band_names(bands) +
             ["mvpa_bout_min", "m10_mg", "m10_start", "l5_mg", "l5_start", "data_coverage",
-             "qc_coverage", "timezone", "calibration"])
+             "qc_coverage", "timezone", "calibration", "calibration_source"])
 
 
 def m_window(e, clean, local, hours, pick, epoch_s):

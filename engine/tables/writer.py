@@ -11,7 +11,9 @@ in force, or without offset when the zone is unknown: the device clock), ``n`` (
 then the flags ``nonwear``, ``clipping``, ``gap``, ``qc``, ``filter_warmup`` (0/1), for an
 ActiGraph ``.gt3x`` ``idle_sleep`` (share of the epoch's samples in idle sleep), then, when the
 run computes them, ActiLife counts ``axis1``, ``axis2``, ``axis3`` (integers) and ``vm`` (2
-decimals) and MIMS-units ``mims`` (3 decimals), empty without data. Times are epoch starts. With
+decimals) and MIMS-units ``mims`` (3 decimals), empty without data, and ``corrected`` (1: the
+epoch's samples were corrected with a calibration estimate; 0: no estimate was applied, or the
+epoch has no samples). Times are epoch starts. With
 activity outcomes (``TablesSettings.outcomes``: a cut-point set, steps) the
 epoch table ends with their columns (``engine.outcomes.daily``); rows then wait until the step
 counter has decided every step before their end (at most about twice its horizon). With sleep on
@@ -41,7 +43,7 @@ from .days import DAY_NS, ENMO_BANDS_MG, MVPA_BOUT_S, VALID_DAY_HOURS, DayAccumu
 from .epochs import COUNT_COLUMNS, FLAGS, EpochAssembler, EpochRows
 
 EPOCH_COLUMNS = ["time_utc", "time_local", "n", "enmo_mg", "bfen_mg", "mad_mg", "anglez_deg",
-                 "temperature_c"] + list(FLAGS)
+                 "temperature_c"] + list(FLAGS) + ["corrected"]
 _DECIMALS = {"enmo_mg": 3, "bfen_mg": 3, "mad_mg": 3, "anglez_deg": 3, "temperature_c": 2,
              "axis1": 0, "axis2": 0, "axis3": 0, "vm": 2, "mims": 3}
 
@@ -109,10 +111,11 @@ _BITS = ("0", "1")
 
 
 def format_rows(rows: EpochRows, zone: Zone, epoch_ns: int, extra=(), idle: bool = False,
-                metrics=()) -> str:
+                metrics=(), corrected: bool = True) -> str:
     """The rows as CSV text; ``extra``: more columns (lists of cell text), appended; ``idle``:
     the ``idle_sleep`` column after the flags (an ActiGraph source); ``metrics``: optional metric
-    columns (``metric_columns``) after it."""
+    columns (``metric_columns``) after it; ``corrected``: whether an estimate was applied (the
+    last column before ``extra``: 1 on rows with samples)."""
     if not len(rows):
         return ""
     unit = "s" if epoch_ns % 10**9 == 0 else "ms"
@@ -134,6 +137,7 @@ def format_rows(rows: EpochRows, zone: Zone, epoch_ns: int, extra=(), idle: bool
         cols.append(_num(v, 4))
     for name in metrics:
         cols.append(_num(getattr(rows, name), _DECIMALS[name]))
+    cols.append(_flag(rows.n > 0) if corrected else ["0"] * len(rows))
     cols.extend(extra)
     return "\n".join(map(",".join, zip(*cols))) + "\n"
 
@@ -142,10 +146,14 @@ class TablesTap:
     """Pushed by the output stage; writes both tables; ``close()`` returns the table summary."""
 
     def __init__(self, ts: TablesSettings, rate_hz: float, epoch_s: float, band, source, info,
-                 sink=None, extras=()):
+                 sink=None, extras=(), *, corrected: bool = True, calibration_source: str = ""):
         self.ts = ts
         # optional metrics the run computes ("counts", "mims") and their columns
         self.metrics = metric_columns("counts" in extras, "mims" in extras)
+        # the one estimate the rows were corrected with, applied from the first sample (the
+        # epoch table's ``corrected``, the day table's ``calibration_source``)
+        self.corrected = corrected
+        self.calibration_source = calibration_source
         self.epoch_ns = int(round(epoch_s * 1e9))
         check_output_path(ts.epochs_path, what="epoch table")
         check_output_path(ts.days_path, what="day table")
@@ -183,7 +191,8 @@ class TablesTap:
         self._gz = gzip.GzipFile(filename="", mode="wb", fileobj=self._out.file, mtime=0,
                                  compresslevel=GZIP_LEVEL)
         self.idle = getattr(info, "device_type", None) == "ActiGraph"  # idle_sleep column
-        head = epoch_columns(ts.zone) + (["idle_sleep"] if self.idle else []) + self.metrics \
+        head = epoch_columns(ts.zone)[:-1] + (["idle_sleep"] if self.idle else []) + self.metrics \
+            + ["corrected"] \
             + (self.outcomes.epoch_columns() if self.outcomes else []) \
             + (self.sleep.columns if self.sleep is not None else [])
         self._gz.write((",".join(head) + "\n").encode())
@@ -283,7 +292,7 @@ class TablesTap:
             items = self.sleep.feed(items, final)
         for r, x, c in items:
             self._gz.write(format_rows(r, self.ts.zone, self.epoch_ns, x, idle=self.idle,
-                                       metrics=self.metrics).encode())
+                                       metrics=self.metrics, corrected=self.corrected).encode())
             self.days.push(r, steps=c)
             if self.rhythm is not None:
                 if self.sleep is not None:  # the sleep tap's last two columns: spt, sib
@@ -322,6 +331,7 @@ class TablesTap:
         summary = self.days.summary()
         for d in days + [summary]:
             d["calibration"] = calibration_status
+            d["calibration_source"] = self.calibration_source
         cols = self.days.columns
         if self.sleep is not None:
             cols = self.sleep.close(days, self.sink, self.ts.zone, cols)

@@ -1,19 +1,16 @@
 """Epoch and day tables from a stillpoint MCAP: ``tables_from_mcap(mcap, epochs_path, ...)``.
 
-A batch run applied one estimate from the first sample (logged as the ``calibration`` record): the
-logged raw stream is corrected with it and the epoch metrics and tables are computed directly,
-the raw messages gathered into blocks of up to 10 min of one segment first (every operator's
-output is independent of block cuts), so the tables equal those ``process`` wrote. An online run
-(estimates switched in over time) is re-run with its logged settings through ``process_file``
-(replay is bit-identical), its MCAP written to a temporary file beside the output and removed.
-The zone is the one the run logged (its ``clock`` record, engine/timezones.py; a log from
+The logged raw stream is corrected with the run's estimate (the ``calibration`` record: a batch
+run's one estimate, an online run's final one) from the first sample, and the epoch metrics and
+tables are computed directly (``engine.tables.estimate_pass``), so the tables equal those
+``process`` wrote in either mode: an online log's tables are those of its best estimate, not of
+the identity or prior in force until its first accepted refit. With ``sleep`` (a
+``SleepOptions``) and ``nights_path``, and a known zone, the nights table too. The zone is the one the run logged (its ``clock`` record, engine/timezones.py; a log from
 before that record: its ``timezone`` setting, for GENEActiv the header's zone).
 """
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 from typing import Optional
 
@@ -34,12 +31,17 @@ def days_path_for(epochs_path) -> Path:
     return p.with_name(name + ".days.csv")
 
 
+def _beside(p: Path, suffix: str, new: str) -> Path:
+    name = p.name[: -len(suffix)] if p.name.endswith(suffix) else p.name
+    return p.with_name(name + new)
+
+
 def tables_from_mcap(mcap, epochs_path, days_path=None, *, timezone: Optional[str] = None,
                      nonwear_version: str = "2023", valid_day_hours: float = 16.0,
                      enmo_bands_mg=(40.0, 100.0, 400.0), mvpa_bout_s: float = 60.0,
-                     outcomes=None) -> dict:
+                     outcomes=None, sleep=None, nights_path=None) -> dict:
     from stillpoint.drivers.mcap_replay import McapRawSource
-    from ..run import RunSettings, process_file
+    from ..settings import RunSettings
     from ..timezones import parse_zone
     from ..tables.writer import TablesSettings
 
@@ -69,58 +71,23 @@ def tables_from_mcap(mcap, epochs_path, days_path=None, *, timezone: Optional[st
                         mvpa_bout_s=mvpa_bout_s)
     if outcomes is not None:  # engine.outcomes.daily.OutcomeSettings: --cutpoints, --steps, ...
         ts.outcomes = outcomes
-    if settings.mode == "batch":
-        return _batch_tables(mcap, settings, ts)
-    fd, tmp = tempfile.mkstemp(prefix=".tables-", suffix=".mcap", dir=str(epochs_path.parent))
-    os.close(fd)
-    try:
-        summary = process_file(mcap, tmp, settings, tables=ts)
-    finally:
-        for p in (tmp, tmp + ".part"):
-            try:
-                os.unlink(p)
-            except OSError:
-                pass
-    return summary["tables"]
+    if sleep is not None and zone.known:  # local nights need the zone
+        ts.sleep = sleep
+        ts.nights_path = check_output_path(nights_path or _beside(days_path, ".days.csv",
+                                                                  ".nights.csv"),
+                                           what="nights table")
+    return _logged_tables(mcap, settings, ts)
 
 
-def _batch_tables(mcap, settings, ts) -> dict:
-    """Correct the logged raw stream with the run's one estimate and write the tables."""
+def _logged_tables(mcap, settings, ts) -> dict:
+    """Correct the logged raw stream with the run's estimate (its ``calibration`` record: a batch
+    run's one estimate, an online run's final one) from the first sample and write the tables."""
     from stillpoint.drivers.mcap_replay import McapRawSource
-    from ..calibration.estimate import CalibrationEstimate
-    from ..calibration.outcome import CalibrationOutcome
-    from ..operators.correction import CorrectionOperator
-    from ..operators.filters import band_used
-    from ..operators.extras import ExtraMetrics
-    from ..operators.metrics import EpochMetrics, MetricsOperator
-    from ..core.blocks import coalesce_blocks
-    from ..tables.writer import TablesTap
+    from ..tables.estimate_pass import tables_with_estimate
 
     src = McapRawSource(mcap)
     try:
         est = src.logged_calibration()  # checked: a damaged record is one typed line
-        applied = est.applied and settings.calibrate
-        initial = est if applied else CalibrationEstimate.identity(est.reason)
-        initial.effective_from_ns = None
-        rate = float(src.info.sample_rate_nominal or 0) or 100.0
-        band = band_used(rate, settings.bfen_band_hz)
-        correction = CorrectionOperator(initial, rate_hz=rate)
-        metrics = MetricsOperator(rate, settings.epoch_s, settings.bfen_band_hz)
-        extras = ExtraMetrics(settings, rate, src.info.accel_range_g)
-        tap = TablesTap(ts, rate, settings.epoch_s, band, src, src.info, extras=extras.keys)
-        try:
-            def step(block, batches):
-                ms = [metrics.push(b) for b in batches]
-                m = EpochMetrics.concat(ms) if len(ms) != 1 else ms[0]
-                tap.push(block, batches, m, extras.push(batches))
-
-            for block in coalesce_blocks(src):
-                step(block, correction.push(block))
-            step(None, correction.flush())
-            tap.flush(metrics.flush(), extras.flush())
-            return tap.close(CalibrationOutcome(est, applied).table_status)
-        except BaseException:
-            tap.abort()
-            raise
+        return tables_with_estimate(src, est, settings, ts)
     finally:
         src.close()

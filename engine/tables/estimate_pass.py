@@ -1,0 +1,66 @@
+"""The tables of a recording corrected with one estimate from its first sample:
+``tables_with_estimate(source, est, settings, ts, sink=None) -> dict`` (the tables summary).
+
+One pass over a source's raw blocks (a recording read again, or a log's raw stream): correction
+with ``est`` from the first sample, the epoch metrics, and the table writer (``TablesTap``). The
+blocks are first joined into runs of up to 10 min of one segment (every operator's output is
+independent of block cuts, so the tables equal those written during a run that applied the same
+estimate from the first sample). Used for
+
+* a batch log's tables (``engine.workflows.tables_from_mcap``: the run's one estimate);
+* the products of an online run (``process --mode online`` after its pass, the station after a
+  verified download, ``export`` from an online log): the run's final estimate, applied from the
+  first sample instead of the identity (or prior) that was in force until the first accepted
+  refit, so the numbers do not depend on when the refits came. The log keeps what was applied
+  live.
+
+With ``sink`` (an open ``McapSink``) sleep's ``/sleep/night`` and ``/sleep/sib`` go into that log.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+from ..calibration.estimate import CalibrationEstimate, calibration_source
+from ..calibration.outcome import CalibrationOutcome
+from ..core.blocks import coalesce_blocks
+from ..operators.correction import CorrectionOperator
+from ..operators.extras import ExtraMetrics
+from ..operators.filters import band_used
+from ..operators.metrics import EpochMetrics, MetricsOperator
+from .writer import TablesTap
+
+
+def tables_with_estimate(source, est: CalibrationEstimate, settings, ts, *, sink=None) -> dict:
+    """Write the tables ``ts`` of ``source`` corrected with ``est`` from its first sample (module
+    docstring); return the tables summary (its day rows name the estimate:
+    ``calibration_source``)."""
+    applied = est.applied and bool(settings.calibrate)
+    initial = replace(est, effective_from_ns=None) if applied else CalibrationEstimate.identity(est.reason)
+    rate = float(source.info.sample_rate_nominal or 0) or 100.0
+    band = band_used(rate, settings.bfen_band_hz)
+    correction = CorrectionOperator(initial, rate_hz=rate)
+    metrics = MetricsOperator(rate, settings.epoch_s, settings.bfen_band_hz)
+    # counts, MIMS-units (when the run computes them)
+    extras = ExtraMetrics(settings, rate, source.info.accel_range_g)
+    tap = TablesTap(ts, rate, settings.epoch_s, band, source, source.info, sink=sink,
+                    extras=extras.keys, corrected=applied,
+                    calibration_source=calibration_source(est, applied))
+    try:
+        def step(block, batches):
+            ms = [metrics.push(b) for b in batches]
+            m = EpochMetrics.concat(ms) if len(ms) != 1 else ms[0]
+            tap.push(block, batches, m, extras.push(batches))
+
+        first = True
+        for block in coalesce_blocks(source):
+            if first:  # a fit that ended before the recording began is a prior
+                tap.calibration_source = calibration_source(est, applied, int(block.time_ns[0]))
+                first = False
+            step(block, correction.push(block))
+        step(None, correction.flush())
+        tap.flush(metrics.flush(), extras.flush())
+        return tap.close(CalibrationOutcome(est, applied).table_status)
+    except BaseException:
+        tap.abort()
+        raise

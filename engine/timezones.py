@@ -357,3 +357,34 @@ def check_header_zone(path, header_offset_s: int, zone: Zone, start_s, override:
             f"{path}: the header's time zone is {fixed_zone(int(header_offset_s)).name} but "
             f"--timezone {zone.name} puts this recording at {fixed_zone(offset).name}; leave "
             "--timezone out to keep the header's, or add --timezone-override to replace it")
+
+
+def host_zone() -> Zone:
+    """This computer's zone, the one whose wall-clock time a station sets the device clocks from
+    (the ledger's ``host_time_zone`` labels it): ``TZ`` when it names a zone, else the IANA name
+    ``/etc/localtime`` links to (or ``/etc/timezone`` holds), else the fixed offset in force now."""
+    import os
+    import time as _time
+    candidates = []
+    tz = os.environ.get("TZ", "").lstrip(":").strip()
+    if tz:
+        candidates.append(tz)
+    try:
+        target = os.path.realpath("/etc/localtime")
+        if "zoneinfo/" in target:
+            candidates.append(target.split("zoneinfo/", 1)[1])
+    except OSError:
+        pass
+    try:
+        with open("/etc/timezone") as f:
+            candidates.append(f.read().strip())
+    except OSError:
+        pass
+    for name in candidates:
+        try:
+            z = parse_zone(name)
+        except ZoneError:
+            continue
+        if z.known:
+            return z
+    return fixed_zone(_time.localtime().tm_gmtoff)

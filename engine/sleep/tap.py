@@ -114,6 +114,33 @@ def logged_settings(options) -> dict:
     return d
 
 
+def logged_options(summary_tables):
+    """The ``SleepOptions`` a run used, from its logged summary's ``tables`` (None when the run
+    computed no sleep): the inverse of ``logged_settings``; a sleep log is read again from its
+    path (a ``SleepLogError`` names it when it cannot be). A log from before the settings were
+    logged: the defaults."""
+    from .diary import read_sleep_log
+    from .hdcza import HdczaOptions
+    from .nights import SleepOptions
+    sl = (summary_tables or {}).get("sleep") if isinstance(summary_tables, dict) else None
+    if not isinstance(sl, dict):
+        return None
+    d = sl.get("settings") or {}
+    h0 = HdczaOptions()
+    t = d.get("HDCZA_threshold", h0.threshold)
+    h = HdczaOptions(threshold=tuple(t) if isinstance(t, list) else t,
+                     ignore_invalid=d.get("HASPT_ignore_invalid", h0.ignore_invalid),
+                     min_block_min=float(d.get("spt_min_block_dur", h0.min_block_min)),
+                     max_gap_min=float(d.get("spt_max_gap_dur", h0.max_gap_min)),
+                     max_gap_ratio=float(d.get("spt_max_gap_ratio", h0.max_gap_ratio)))
+    o0 = SleepOptions()
+    o = SleepOptions(hdcza=h, angle_deg=float(d.get("anglethreshold", o0.angle_deg)),
+                     time_min=float(d.get("timethreshold", o0.time_min)))
+    if d.get("sleep_log"):
+        o.sleep_log = read_sleep_log(d["sleep_log"], str(d.get("sleep_log_participant") or ""))
+    return o
+
+
 def check_sleep_outputs(ts) -> None:
     """Before any work: the nights table may be written, and a sleep log has local nights."""
     if ts.sleep is None:

@@ -34,8 +34,11 @@ still follow every 12 h), and the verified download's final estimate is added to
 ledger's download row and the log's ``station`` record say which prior was used.
 
 The analysis products (``products``): once a download is verified (or found verified without
-them), its epoch and day tables and its report are made in a worker process while the flow goes
-on to clear and configure; the flow finishes when they are done. Each product's result is a
+them), its epoch, day and nights tables and its report are made in a worker process while the
+flow goes on to clear and configure; the flow finishes when they are done. They are computed
+with the recording's final calibration estimate (or the store prior the online trust rule kept)
+applied from the first sample, not with what the live log applied (``products``). The log and
+the products are in the zone of ``station_timezone``. Each product's result is a
 ledger row; a product that fails never un-verifies the download or holds back its clear.
 
 After a COMMIT or an erase the drive is waited for (``wait_volume``) and, on a headless station
@@ -91,6 +94,16 @@ class StationOptions:
     remount_s: float = C.AX_COMMIT_REMOUNT_S
     volume_wait_s: float = C.AX_BOOTLOADER_S
     pipeline: bool = True
+
+
+def station_timezone(profile: Optional[StudyProfile]) -> str:
+    """The zone of a station's logs and products: the profile's ``[station] timezone``, else this
+    computer's zone, whose wall-clock time the station sets the device clocks from
+    (``engine.timezones.host_zone``; the ledger's ``host_time_zone`` labels it)."""
+    if profile is not None and profile.timezone:
+        return profile.timezone
+    from stillpoint.engine.timezones import host_zone
+    return host_zone().name
 
 
 class DeviceFlow:
@@ -483,6 +496,7 @@ class DeviceFlow:
         out = Path(opts.out_dir)
         stem = download_stem(opts.profile, self.ledger, att.device_type, att.device_id, session)
         settings = dict(opts.run_settings)
+        settings.setdefault("timezone", station_timezone(opts.profile))
         prior = self._calibration_prior(settings)
         dl_id = self.ledger.download_started(att.device_id, session, clock_offset_s=offset,
                                              battery_pct=battery,

@@ -4,10 +4,13 @@ tables and the one-page report, made by the code ``process``/``export``/``report
 ``make_products(job, progress=None, cancel=None) -> dict`` (a ``worker`` task: it runs in its own
 process, so a report's plotting or a failure never touches the station): from ``<stem>.mcap``
 
-* ``<stem>.epochs.csv.gz`` and ``<stem>.days.csv`` (``engine.workflows.tables_from_mcap``: an online
-  log is run again with its logged settings, replay being bit-identical, so the tables are those
-  of the log's own correction; the defaults of ``process``: GGIR nonwear 2023, 16 h valid day,
-  bands 40/100/400 mg, MVPA bouts of 60 s);
+* ``<stem>.epochs.csv.gz``, ``<stem>.days.csv`` and ``<stem>.nights.csv``
+  (``engine.workflows.tables_from_mcap``: a second pass over the log's raw stream, the verified
+  copy's samples, with the recording's final estimate applied from the first sample; the live
+  log applied the identity, or the store prior, until its first accepted 12 h refit, so its own
+  epochs are not the study's numbers. The day table names the estimate (``calibration_source``).
+  The defaults of ``process``: GGIR nonwear 2023, 16 h valid day, bands 40/100/400 mg, MVPA
+  bouts of 60 s, sleep (HDCZA) in the log's zone);
 * ``<stem>.report.png`` and ``<stem>.report.html`` (``engine.report.write_report``), only when
   matplotlib is installed; otherwise one line says so and nothing fails.
 
@@ -35,8 +38,9 @@ _PLOT_LOCK = threading.Lock()
 
 def _paths(mcap: Path) -> dict:
     from stillpoint.engine.report import report_paths
+    from stillpoint.engine.sleep import nights_path
     from stillpoint.engine.tables import table_paths
-    return {TABLES: table_paths(mcap), REPORT: report_paths(mcap)}
+    return {TABLES: table_paths(mcap) + (nights_path(mcap),), REPORT: report_paths(mcap)}
 
 
 def products_wanted(mcap) -> bool:
@@ -69,14 +73,15 @@ def make_products(job: dict, progress=None, cancel=None) -> dict:
         threading.Thread(target=heartbeat, daemon=True, name="products-heartbeat").start()
     out = []
     try:
-        ep, dp = paths[TABLES]
-        if os.path.lexists(ep) or os.path.lexists(dp):
+        ep, dp, nights = paths[TABLES]
+        if os.path.lexists(ep) or os.path.lexists(dp) or os.path.lexists(nights):
             out.append({"product": TABLES, "path": str(ep), "result": "kept",
                         "reason": "already there; not replaced"})
         else:
             try:
+                from stillpoint.engine.sleep import SleepOptions
                 from stillpoint.engine.workflows.tables_from_mcap import tables_from_mcap
-                tables_from_mcap(mcap, ep, dp)
+                tables_from_mcap(mcap, ep, dp, sleep=SleepOptions(), nights_path=nights)
                 out.append({"product": TABLES, "path": str(ep), "result": "written",
                             "reason": None})
             except Exception as e:  # noqa: BLE001 - recorded with its reason, never raised

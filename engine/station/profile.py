@@ -21,6 +21,8 @@ defaults. Read with ``tomllib`` (Python 3.11+; on 3.10 the ``tomli`` package if 
     configure_after = true
     erase = "quick"          # "quick" (FORMAT QC) or "wipe" (FORMAT WC)
     file_name = "{study}_{subject}_{device}_{session}"  # optional: download names (study.py)
+    timezone = "Europe/London"  # optional: the participants' zone (IANA name or +01:00); default:
+                                # the zone of this computer, which sets the device clocks
 
 Every value is checked when the profile loads, before any device is touched, against what the
 device types it may meet can record (``constants.AX_DEVICE_RULES``: one row per rule, each citing
@@ -83,7 +85,7 @@ def write_example_profile(path) -> Path:
 
 _DEVICE_KEYS = ("type", "rate_hz", "range_g", "gyro_dps", "start", "stop", "session",
                 "min_battery_pct", "led_flash")
-_STATION_KEYS = ("clear_after_verify", "configure_after", "erase", "file_name")
+_STATION_KEYS = ("clear_after_verify", "configure_after", "erase", "file_name", "timezone")
 _TABLES = ("device", "metadata", "station")
 _SESSION_RE = re.compile(r"^[0-9]+$")
 # the years every device type can hold (start/stop times are checked before the type is known)
@@ -136,6 +138,7 @@ class StudyProfile:
     configure_after: bool = False
     erase: str = "quick"
     file_name: Optional[str] = None  # the download's file-name template (study.file_stem)
+    timezone: Optional[str] = None  # the zone of the logs and products (None: the host's zone)
     device_type: Optional[str] = None  # "AX3" | "AX6" | None (both)
     path: Optional[str] = None
 
@@ -204,6 +207,12 @@ class StudyProfile:
                             f"not {self.erase!r}")
         self.annotation_slots()
         self.times(_dt.datetime.now())
+        if self.timezone is not None:
+            from stillpoint.engine.timezones import ZoneError, parse_zone
+            try:
+                parse_zone(self.timezone)
+            except ZoneError as e:
+                raise self._err(f"[station] timezone: {e}") from None
         if self.file_name is not None:
             from .study import StudyRecordError, check_template
             try:
@@ -329,6 +338,8 @@ def load_profile(path) -> StudyProfile:
         erase=_typed(st, "erase", "quick", text, '"quick" or "wipe"', p, "station"),
         file_name=_typed(st, "file_name", None, text + (type(None),), "a file-name template", p,
                          "station"),
+        timezone=_typed(st, "timezone", None, text + (type(None),),
+                        'a zone ("Europe/London" or "+01:00")', p, "station"),
         device_type=kind.upper() if kind else None, path=str(p))
     prof.check()
     return prof

@@ -4,8 +4,10 @@ The logged raw stream is corrected with the run's estimate (the ``calibration`` 
 run's one estimate, an online run's final one) from the first sample, and the epoch metrics and
 tables are computed directly (``engine.tables.estimate_pass``), so the tables equal those
 ``process`` wrote in either mode: an online log's tables are those of its best estimate, not of
-the identity or prior in force until its first accepted refit. With ``sleep`` (a
-``SleepOptions``) and ``nights_path``, and a known zone, the nights table too. The zone is the one the run logged (its ``clock`` record, engine/timezones.py; a log from
+the identity or prior in force until its first accepted refit. Sleep (the spt/sib columns, the
+day table's night columns and the nights table at ``nights_path``, default beside the day table)
+is computed as the run did, with the settings it logged (``sleep=None``), or with the
+``SleepOptions`` given, or not at all (``sleep=False``). The zone is the one the run logged (its ``clock`` record, engine/timezones.py; a log from
 before that record: its ``timezone`` setting, for GENEActiv the header's zone).
 """
 
@@ -71,11 +73,19 @@ def tables_from_mcap(mcap, epochs_path, days_path=None, *, timezone: Optional[st
                         mvpa_bout_s=mvpa_bout_s)
     if outcomes is not None:  # engine.outcomes.daily.OutcomeSettings: --cutpoints, --steps, ...
         ts.outcomes = outcomes
-    if sleep is not None and zone.known:  # local nights need the zone
+    if sleep is None:  # as the run did, with its logged settings
+        import json
+        from ..sleep.tap import logged_options
+        try:
+            logged_tables = json.loads((meta.get("summary") or {}).get("tables") or "null")
+        except (TypeError, ValueError, RecursionError):
+            logged_tables = None
+        sleep = logged_options(logged_tables)
+    if sleep:
+        from ..sleep.tap import check_sleep_outputs
         ts.sleep = sleep
-        ts.nights_path = check_output_path(nights_path or _beside(days_path, ".days.csv",
-                                                                  ".nights.csv"),
-                                           what="nights table")
+        ts.nights_path = Path(nights_path or _beside(days_path, ".days.csv", ".nights.csv"))
+        check_sleep_outputs(ts)
     return _logged_tables(mcap, settings, ts)
 
 

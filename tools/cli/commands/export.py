@@ -31,8 +31,10 @@ so memory stays flat however long the recording. The output appears under its na
 complete (written as ``OUT.part`` and renamed; see ``stillpoint.drivers.outputs``).
 
 An MCAP input (a run's log) takes ``--topic T`` (``stillpoint.engine.mcap.export.export_mcap``)
-or ``--table epochs|days`` (``stillpoint.engine.workflows.tables_from_mcap``); one of them is
-required: the output's name never decides what is written.
+or ``--table epochs|days|nights`` (``stillpoint.engine.workflows.tables_from_mcap``: the tables
+of the run's estimate applied from the first sample, sleep as the run computed it; ``nights``
+computes sleep with the run's settings, or the defaults when the run computed none); one of them
+is required: the output's name never decides what is written.
 
 API: ``export_recording(path, out, *, time_format="iso", timezone=None, compress=False) -> dict``.
 """
@@ -64,7 +66,7 @@ KEEPS_EXISTING_OUTPUTS = True  # --overwrite replaces an existing output
 HELP = "write per-sample time, accel (g), gyro (dps), temperature, light, battery to CSV or NPZ"
 
 TIME_FORMATS = ("iso", "epoch", "ns")
-TABLES = ("epochs", "days")  # --table of an MCAP input
+TABLES = ("epochs", "days", "nights")  # --table of an MCAP input
 
 
 def add_arguments(parser) -> None:
@@ -85,8 +87,9 @@ def add_arguments(parser) -> None:
                         help="MCAP input: topic(s) to export (repeatable); an MCAP export needs "
                              "--topic or --table")
     parser.add_argument("--table", choices=TABLES, default=None,
-                        help="MCAP input: write the epoch table (OUT.csv.gz) or the day table "
-                             "(OUT.csv) made from the log")
+                        help="MCAP input: write the epoch table (OUT.csv.gz), the day table "
+                             "(OUT.csv) or the nights table (OUT.csv) made from the log, with the "
+                             "run's final calibration from the first sample")
     from ._tableopts import add_table_arguments
     add_table_arguments(parser, with_switch=False)
     from ._outcomeopts import add_outcome_arguments
@@ -400,7 +403,7 @@ def export_recording(path, out, *, time_format: str = "iso", timezone=None, comp
             raise StillpointError(f"{path}: give either --table or --topic, not both")
         if not topics and not table:
             raise StillpointError(f"{path}: say what to export from the MCAP log: --table "
-                                  "epochs|days (a table) or --topic T (a topic's messages)")
+                                  "epochs|days|nights (a table) or --topic T (a topic's messages)")
     if table:
         if table not in TABLES:
             raise StillpointError(f"--table must be one of {', '.join(TABLES)}")
@@ -446,28 +449,47 @@ def export_recording(path, out, *, time_format: str = "iso", timezone=None, comp
 
 
 def _table_from_mcap(path, out: Path, table: str, timezone, options: dict) -> dict:
-    """One table (``epochs``: gzip CSV, ``days``: CSV) from a log into ``out``; the other table,
-    which the same pass makes, goes to a hidden name beside it and is removed."""
+    """One table (``epochs``: gzip CSV, ``days`` or ``nights``: CSV) from a log into ``out``; the
+    others, which the same pass makes, go to hidden names beside it and are removed. ``nights``
+    computes sleep with the run's logged settings, or the defaults when the run computed none."""
     import secrets
 
     from stillpoint.engine.workflows.tables_from_mcap import tables_from_mcap
     name = out.name.lower()
     if table == "epochs" and not name.endswith(".csv.gz"):
         raise StillpointError(f"{out}: the epoch table is gzip-compressed CSV: name it .csv.gz")
-    if table == "days" and not name.endswith(".csv"):
-        raise StillpointError(f"{out}: the day table is CSV: name it .csv")
-    check_output_path(out, what=f"{table[:-1]} table")
-    other = out.with_name(f".{out.name}.{secrets.token_hex(6)}." +
-                          ("days.csv" if table == "epochs" else "epochs.csv.gz"))
-    ep, dp = (out, other) if table == "epochs" else (other, out)
+    if table in ("days", "nights") and not name.endswith(".csv"):
+        raise StillpointError(f"{out}: the {table[:-1]} table is CSV: name it .csv")
+    what = {"epochs": "epoch table", "days": "day table", "nights": "nights table"}[table]
+    check_output_path(out, what=what)
+    hidden = f".{out.name}.{secrets.token_hex(6)}."
+    paths = {t: out if t == table else out.with_name(hidden + suffix)
+             for t, suffix in (("epochs", "epochs.csv.gz"), ("days", "days.csv"),
+                               ("nights", "nights.csv"))}
+    opts = dict(options)
+    if table == "nights":
+        from stillpoint.engine.sleep import SleepOptions
+        from stillpoint.engine.sleep.tap import logged_options
+        from stillpoint.engine.mcap.stream import read_metadata
+        with open(path, "rb") as f:
+            meta = read_metadata(f)
+        try:
+            logged = json.loads((meta.get("summary") or {}).get("tables") or "null")
+        except (TypeError, ValueError, RecursionError):
+            logged = None
+        opts["sleep"] = logged_options(logged) or SleepOptions()
     try:
-        return tables_from_mcap(path, ep, dp, timezone=timezone, **options)
+        return tables_from_mcap(path, paths["epochs"], paths["days"], timezone=timezone,
+                                nights_path=paths["nights"], **opts)
     finally:
-        for p in (other, other.with_name(other.name + ".part")):
-            try:
-                os.unlink(p)
-            except OSError:
-                pass
+        for t, p in paths.items():
+            if t == table:
+                continue
+            for q in (p, p.with_name(p.name + ".part")):
+                try:
+                    os.unlink(q)
+                except OSError:
+                    pass
 
 
 def run(args) -> int:
@@ -498,6 +520,7 @@ def run(args) -> int:
     if rep.get("tables"):
         t = rep["tables"]
         what = (f"{t['epoch_rows']:,} epochs" if rep["table"] == "epochs"
+                else f"{t['sleep']['night_rows']} night(s)" if rep["table"] == "nights"
                 else f"{t['day_rows']} day(s) and the file summary row")
         print(f"wrote {rep['output']} ({what}); times: {t['timezone']}")
     elif rep.get("format") == "mcap":

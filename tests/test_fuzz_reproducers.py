@@ -637,3 +637,8 @@ def test_manifest_path_of_an_unknown_user_is_kept_as_written(tmp_path):
     (tmp_path / "m.csv").write_text("path\n~no_such_user_here_x/a.cwa\n")
     [p] = discover_inputs([tmp_path / "m.csv"], {})
     assert p.name == "a.cwa" and "~no_such_user_here_x" in str(p)
+
+
+def test_refused_manifest_leaves_no_cohort_folder(fuzz4, tmp_path):
+    rc, out, err = cli("cohort", "run", fuzz4("manifest_no_path_column.csv"), "-o", tmp_path / "co")
+    assert rc == 2 and not (tmp_path / "co").exists()

@@ -180,6 +180,12 @@ def _run(args) -> int:
     from stillpoint.engine.cohort import discover_inputs, make_plan
     from stillpoint.engine.run import RunSettings
     shard = _parse_shard(args.shard)
+    attributes: dict = {}  # a manifest's per-file timezone / participant (inputs read before
+    # the output folder is made: unusable inputs leave nothing behind)
+    files = discover_inputs(args.inputs, attributes)
+    if not files:
+        raise OptionError("no recordings (.cwa, .cwa.gz, .bin, .bin.gz) found in "
+                          + ", ".join(str(x) for x in args.inputs))
     outdir = _prepare_outdir(args.output)
     over = settings_overrides(args)
     from ._tableopts import zone_settings
@@ -209,11 +215,6 @@ def _run(args) -> int:
             raise OptionError(str(e)) from None
         # the log's bytes are part of every file's key: an edited log reruns the files
         settings["tables"]["sleep_log"] = {"path": str(args.sleep_log.absolute()), "sha256": digest}
-    attributes: dict = {}  # a manifest's per-file timezone / participant
-    files = discover_inputs(args.inputs, attributes)
-    if not files:
-        raise OptionError("no recordings (.cwa, .cwa.gz, .bin, .bin.gz) found in "
-                          + ", ".join(str(x) for x in args.inputs))
     plan = make_plan(files, settings, attributes=attributes)
     plan.write(outdir)
     for dup, first in plan.duplicates:

@@ -47,6 +47,9 @@ def test_retry_never_reconfigures_and_a_new_session_is_asked_for_by_name(emu, tm
             return next(iter(st.flows.values()), None)
         wait(lambda: flow() and flow().finished.is_set(), timeout=60, what="the first flow")
         assert flow().state == "configured" and d.session_id == 2, flow().reason
+        # the start in ISO 8601 like every other time a user reads, not the firmware's form
+        import re
+        assert re.search(r"start \d{4}-\d\d-\d\dT\d\d:\d\d:\d\d", flow().reason), flow().reason
 
         # a retry runs the flow again: the device is left configured for session 2
         first = flow()

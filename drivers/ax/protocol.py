@@ -54,6 +54,22 @@ def format_time(t: _dt.datetime) -> str:
     return t.strftime("%Y/%m/%d,%H:%M:%S")
 
 
+def display_time(text: str) -> str:
+    """A device date/time as a person reads it beside the other times: ISO 8601
+    (``2026-11-29T07:23:36``, the device's local clock, no offset); ``0`` is ``at once`` and
+    ``-1`` ``never``; text that is not a device time is returned as it is."""
+    t = str(text).strip()
+    if t == C.AX_DATETIME_ALWAYS:
+        return "at once"
+    if t == C.AX_DATETIME_NEVER:
+        return "never"
+    try:
+        dt = parse_time(t)
+    except ValueError:
+        return t
+    return t if dt is None else dt.isoformat(timespec="seconds")
+
+
 def parse_time(text: str) -> Optional[_dt.datetime]:
     """A device date/time (``YYYY/MM/DD,hh:mm:ss[.mmm]``); ``None`` for ``0`` / ``-1``."""
     text = text.strip()

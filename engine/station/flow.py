@@ -488,7 +488,9 @@ class DeviceFlow:
             except (HostRecordError, OSError) as e:
                 warnings.append(f"the host-wide record was not written ({e})")
             self.configured_session = settings["session"]
-            self._set("configured", f"session {settings['session']}, start {settings['start']}"
+            from stillpoint.drivers.ax.protocol import display_time
+            self._set("configured", f"session {settings['session']}, start "
+                      f"{display_time(settings['start'])}"
                       + (f" (warning: {'; '.join(warnings)})" if warnings else ""))
 
     def _download(self, data_file: Path, session: int, offset: float, battery: int) -> None:

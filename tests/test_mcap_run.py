@@ -216,7 +216,7 @@ def test_no_output_overwrites_an_input_or_another_output(recording, tmp_path, ca
     m = tmp_path / "m.mcap"
     for argv, msg in ((["process", str(rec), "-o", str(m), "--summary", str(rec)],
                        "summary would overwrite the input"),
-                      (["process", str(rec), "-o", str(rec)], "MCAP output would overwrite the input"),
+                      (["process", str(rec), "-o", str(rec)], "the log is an MCAP file, name it NAME.mcap"),
                       (["process", str(rec), "-o", str(m), "--summary", str(m)],
                        "the summary and the MCAP output are the same file"),
                       (["process", str(rec), "-o", str(m), "--summary", str(tmp_path / "m.days.csv")],

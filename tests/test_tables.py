@@ -331,12 +331,14 @@ def test_zones():
         parse_zone("Mars/Olympus_Mons")
 
 
-def test_cli_bad_zone_is_one_line(tmp_path):
-    rec = tmp_path / "x.cwa"
-    rec.write_bytes(b"")
-    r = subprocess.run([sys.executable, "-m", "stillpoint.tools", "process", str(rec), "--timezone",
-                        "Nowhere/Land"], capture_output=True, text=True)
+def test_cli_bad_zone_is_one_line(small_run, tmp_path):
+    """A readable recording with an unknown zone: one line naming the zone, exit 2, nothing written
+    (an unreadable recording is reported first, as the input is checked before the options)."""
+    out = tmp_path / "z.mcap"
+    r = subprocess.run([sys.executable, "-m", "stillpoint.tools", "process", str(small_run.rec), "-o",
+                        str(out), "--timezone", "Nowhere/Land"], capture_output=True, text=True)
     assert r.returncode == 2 and "Nowhere/Land" in r.stderr and "Traceback" not in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and not out.exists()
 
 
 def test_export_from_the_mcap_gives_the_same_tables(small_run):

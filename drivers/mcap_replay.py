@@ -31,6 +31,9 @@ from .errors import CorruptRecordingError, UnsupportedFormatError
 from .sniff import MCAP_MAGIC, sniff_format
 
 NOT_A_STILLPOINT_LOG = "MCAP has no 'device' metadata record: not a stillpoint log"
+LEAN_LOG = ("is a lean log: it keeps the estimates, QC, epoch metrics, sleep and view stream, "
+            "not the raw samples this needs; `stillpoint replay LOG --raw RECORDING` re-runs it "
+            "from the recording (--log full brings the per-sample streams back)")
 TOPIC_RAW = "/raw/accel"
 TOPIC_GYRO = "/raw/gyro"
 TOPIC_QC = "/qc"
@@ -278,6 +281,12 @@ class McapRawSource:
         return min(1.0, getattr(self, "_handed", 0) / total) if total > 0 else None
 
     def __iter__(self) -> Iterator[Block]:
+        from stillpoint.engine.settings import is_lean
+        if is_lean(self.settings):
+            raise UnsupportedFormatError(self.path, LEAN_LOG)
+        yield from self._blocks()
+
+    def _blocks(self) -> Iterator[Block]:
         pending_raw: list[tuple] = []
         pending_gyro: list[tuple] = []
         has_gyro = self.info.gyro_range_dps is not None

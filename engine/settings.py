@@ -53,6 +53,18 @@ BOUNDS = {
 }
 
 
+# What a run's MCAP keeps: "full" (every stream) or "lean": settings, estimates, QC, epoch metrics
+# (with each epoch's mean temperature), sleep and the view stream, without the per-sample
+# topics (LEAN_DROPPED, engine/mcap/sink.py); the recording itself is the raw copy, and
+# `stillpoint replay LOG --raw RECORDING --log full` rebuilds the full log from it bit for bit.
+LOG_KINDS = ("full", "lean")
+
+
+def is_lean(settings) -> bool:
+    """Whether a settings record (``RunSettings.to_dict`` form) is a lean log's."""
+    return isinstance(settings, dict) and settings.get("log") == "lean"
+
+
 class SettingsError(StillpointError, ValueError):
     """A run setting outside its bounds (``BOUNDS``) or of the wrong kind."""
 
@@ -111,10 +123,16 @@ class RunSettings:
     # low-frequency extension); they need a whole-second epoch
     counts: Optional[str] = None
     mims: bool = False  # MIMS-units per epoch (engine/operators/mims.py)
+    # what the MCAP keeps (LOG_KINDS): "full", or "lean" without the per-sample streams (raw,
+    # gyro, the raw pages' temperature, corrected); a lean log's record says ``"log": "lean"``,
+    # a full log's has no ``log`` key (as every log written before lean logs existed)
+    log: str = "full"
 
     def __post_init__(self):
         if self.mode not in ("batch", "online"):
             raise ValueError(f"mode must be 'batch' or 'online', not {self.mode!r}")
+        if self.log not in LOG_KINDS:
+            raise ValueError(f"log must be one of {', '.join(LOG_KINDS)}, not {self.log!r}")
         if self.counts is not None and self.counts not in COUNT_MODES:
             raise ValueError(f"counts must be one of {', '.join(COUNT_MODES)}, not {self.counts!r}")
         if (self.counts or self.mims) and float(self.epoch_s) != int(self.epoch_s):
@@ -128,6 +146,8 @@ class RunSettings:
     def to_dict(self) -> dict:
         d = asdict(self)
         d["bfen_band_hz"] = list(self.bfen_band_hz)
+        if d["log"] == "full":  # the default: full logs' settings records stay as they were
+            del d["log"]
         return d
 
     @staticmethod
@@ -171,6 +191,7 @@ def settings_problem(d: dict) -> Optional[str]:
         "timezone_override": (lambda v: isinstance(v, bool), "true or false"),
         "counts": (lambda v: v is None or v in COUNT_MODES, "null, " + " or ".join(COUNT_MODES)),
         "mims": (lambda v: isinstance(v, bool), "true or false"),
+        "log": (lambda v: v in LOG_KINDS, " or ".join(repr(k) for k in LOG_KINDS)),
     })
     if not isinstance(d, dict):
         return f"not a JSON object ({type(d).__name__})"

@@ -223,9 +223,29 @@ def _check_stillpoint_log(path) -> None:
         try:
             meta = read_metadata(f)
         except Exception:  # noqa: BLE001 - unfinished or damaged: the export's own read reports it
-            return
+            return {}
     if "device" not in meta:
         raise UnsupportedFormatError(path, NOT_A_STILLPOINT_LOG)
+    return meta
+
+
+def _lean_topics(path, meta: dict, topics, named: bool):
+    """``topics`` of a lean log (settings ``"log": "lean"``): a per-sample topic it does not
+    keep is refused when asked for by name, left out of the defaults otherwise."""
+    import json
+    from ..settings import is_lean
+    from .sink import LEAN_DROPPED
+    try:
+        lean = is_lean(json.loads((meta.get("settings") or {}).get("json") or "null"))
+    except (TypeError, ValueError, RecursionError):
+        lean = False
+    if not lean:
+        return list(topics)
+    gone = [t for t in topics if t in LEAN_DROPPED]
+    if gone and named:
+        raise ExportError(f"{path}: a lean log keeps no {', '.join(gone)} (per-sample streams); "
+                          f"`stillpoint replay {path} --raw RECORDING --log full` brings them back")
+    return [t for t in topics if t not in LEAN_DROPPED]
 
 
 def export_mcap(path, out, topics=None) -> dict:
@@ -241,11 +261,12 @@ def export_mcap(path, out, topics=None) -> dict:
             raise ExportError("CSV export takes one --topic (use .npz for several)")
         topic = topics[0] if topics else DEFAULT_CSV_TOPIC
         check_output_path(out)
-        _check_stillpoint_log(path)
+        _lean_topics(path, _check_stillpoint_log(path), [topic], True)
         with atomic_output(out) as raw:
             n = _export_csv(path, raw, topic, name.endswith(".gz"), _zone_known(path))
         return {topic: n}
     if name.endswith(".npz"):
-        _check_stillpoint_log(path)  # the output is checked by _export_npz, before any work
-        return _export_npz(path, out, topics or DEFAULT_NPZ_TOPICS)
+        meta = _check_stillpoint_log(path)  # the output is checked by _export_npz, before any work
+        return _export_npz(path, out, _lean_topics(path, meta, topics or DEFAULT_NPZ_TOPICS,
+                                                   bool(topics)))
     raise ExportError(f"{out}: output must end with .csv, .csv.gz or .npz")

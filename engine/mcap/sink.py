@@ -18,6 +18,10 @@ topic                encoding / schema            one message per
 /qc                  json + jsonschema            QC event (reader and engine)
 ==================== ============================ =============================================
 
+A lean log (settings ``"log": "lean"``, engine/settings.py) has no per-sample topics
+(``LEAN_DROPPED``: raw, gyro, the raw pages' temperature, corrected); its chunks are cut by the
+epochs' cells. Everything else is as in a full log.
+
 No message is logged before the recording's first sample: an online prior is logged at the
 first sample's time, with ``fitted_at_ns`` saying when it was fitted.
 
@@ -80,6 +84,7 @@ TOPIC_COUNTS = "/metrics/counts"
 TOPIC_MIMS = "/metrics/mims"
 TOPIC_CALIBRATION = "/calibration"
 TOPIC_QC = "/qc"
+LEAN_DROPPED = (TOPIC_RAW, TOPIC_GYRO, TOPIC_TEMPERATURE, TOPIC_CORRECTED)  # not in a lean log
 
 from .jsonschemas import CALIBRATION, QC
 from .log import McapLog
@@ -360,6 +365,8 @@ class McapSink(McapLog):
         self._corr_cell: Optional[int] = None
         self.flushes = 0
         self.view = ViewDecimator(view_hz) if view_hz else None
+        from ..settings import is_lean
+        self.lean = is_lean(settings)  # no per-sample topics (LEAN_DROPPED)
         try:
             self.write_metadata("device", device_metadata(info))
             self.write_metadata("settings", {"json": dumps(settings)})
@@ -464,7 +471,10 @@ class McapSink(McapLog):
         reproduces it exactly). Arrays are converted to their CDR types once per call
         (``_RawCells``, ``_CorrectedRun``); a message is then a few slices of them. Normally
         every message of the call is framed at once (``_frame_block``); this cell-by-cell
-        loop handles the rest, with the same records in the same order."""
+        loop handles the rest, with the same records in the same order. A lean log writes
+        neither the block nor the corrected messages (the view stream still comes from them)."""
+        if self.lean:
+            block = None
         if self.block_framing and _frame_block(self, block, corrected, epochs):
             return
         w = self.cell_ns
@@ -557,6 +567,8 @@ class McapSink(McapLog):
 
     def _emit_corrected(self) -> None:
         parts, self._pending_corr = self._pending_corr, []
+        if self.lean:
+            return
         i = 0
         while i < len(parts):
             j = i + 1
@@ -684,7 +696,7 @@ def _frame_block(sink: "McapSink", block: Optional[Block], corrected: list,
             need.append(TOPIC_GYRO)
     if ne:
         need.append(TOPIC_METRICS)
-    if msgs:
+    if msgs and not sink.lean:
         need.append(TOPIC_CORRECTED)
     if sink.view is not None and runs:
         need.append(TOPIC_VIEW)
@@ -775,7 +787,7 @@ def _frame_block(sink: "McapSink", block: Optional[Block], corrected: list,
             tp["celsius"] = np.asarray(raw.temp, np.float64)[temp_cells]
             fixed(_TYPE_TEMP, tp, np.maximum(tt, 0), np.searchsorted(todo, raw.cell[temp_cells]),
                   2, 0, 2)
-    if msgs:
+    if msgs and not sink.lean:
         m = len(msgs)
         mj = np.array([j for j, _p in msgs], np.int64)
         n_ml = [sum(b - a for _r, a, b in p) for _j, p in msgs]

@@ -47,6 +47,10 @@ def add_setting_arguments(p, *, defaults_from_input: bool = False) -> None:
                    help="MCAP chunk compression (default zstd)")
     g.add_argument("--view-hz", type=setting("view_hz"), default=None,
                    help="samples per second on the plottable /view/accel topic (default 1; 0 = off)")
+    g.add_argument("--log", choices=("full", "lean"), default=None,
+                   help="what the MCAP keeps: full (default) or lean: settings, estimates, QC, epoch "
+                        "metrics, sleep and the view stream, without the per-sample raw and "
+                        "corrected streams (keep the recording: `replay LOG --raw RECORDING`)")
 
 
 def settings_overrides(args) -> dict:
@@ -57,6 +61,7 @@ def settings_overrides(args) -> dict:
         "flush_every_s": args.flush_every_s, "compression": args.compression,
         "view_hz": getattr(args, "view_hz", None),
         "counts": getattr(args, "counts", None), "mims": getattr(args, "mims", None),
+        "log": getattr(args, "log", None),
         "sd_threshold_g": None if args.sd_threshold_mg is None else args.sd_threshold_mg / 1000.0,
         "bfen_band_hz": {None: None, "ggir": (0.2, 15.0), "vanhees": (0.5, 15.0)}[args.bfen_band],
     }

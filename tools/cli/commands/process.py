@@ -173,6 +173,9 @@ def execute(args, settings: RunSettings, out: Path) -> int:
                 raise OptionError(f"--cutpoints {tables.outcomes.cutpoints} is on ActiLife counts: "
                                   "add --counts normal (or lfe)")
     if getattr(args, "report", False):
+        if settings.log == "lean":
+            raise OptionError("--report reads the raw samples, which a lean log (--log lean) does "
+                              "not keep: use --log full")
         from stillpoint.engine.report import require_matplotlib
         require_matplotlib()
     try:

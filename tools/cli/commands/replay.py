@@ -17,7 +17,9 @@ HELP = "re-process the raw stream logged in a stillpoint MCAP (same settings -> 
 DESCRIPTION = (HELP + ". Settings default to those logged in IN.mcap; any option given overrides "
                "them. A run that computed sleep (a time zone and the tables) is replayed with "
                "its tables and sleep, with the settings it logged, so the log's /sleep topics "
-               "come out again. --check compares every topic with IN.")
+               "come out again. --check compares every topic with IN. A lean log (--log lean) holds no "
+               "raw stream: give the recording it was made from with --raw (with --log full the "
+               "replay is the full log the recording gives, bit for bit).")
 
 
 def add_arguments(p) -> None:
@@ -26,6 +28,9 @@ def add_arguments(p) -> None:
     p.add_argument("--summary", type=Path, help="write the run summary as JSON here")
     p.add_argument("--json", action="store_true", help="print the summary JSON instead of text")
     p.add_argument("--prior", type=Path, help="online: JSON estimate in force at the start")
+    p.add_argument("--raw", type=Path, metavar="RECORDING",
+                   help="read the samples from the recording IN was made from (.cwa, .bin, .gt3x) "
+                        "instead of IN's raw stream (needed for a lean log)")
     p.add_argument("--check", action="store_true",
                    help="compare the output with IN topic by topic; exit 1 if they differ")
     p.add_argument("-q", "--quiet", action="store_true")
@@ -43,10 +48,15 @@ def run(args) -> int:
     out = args.output or default_output(args.file)
     settings = build_settings(args, logged)
     _logged_sleep(args, meta)
+    log = args.file
+    if getattr(args, "raw", None) is not None:
+        _check_raw(args.raw, meta, log)
+        args.file = args.raw  # the run reads the recording (its name, as process had it)
     rc = execute(args, settings, out)
+    args.file = log
     if args.check:
         from stillpoint.engine.mcap.compare import compare
-        res = compare(args.file, out)
+        res = compare(log, out)
         same = all(r["identical"] for r in res.values())
         for t, r in res.items():
             print(f"{t}: {'identical' if r['identical'] else 'DIFFERENT'} "
@@ -80,3 +90,30 @@ def _logged_sleep(args, meta: dict) -> None:
     args.hdcza_ignore_invalid = {False: "false", True: "true", None: "na"}.get(ign, "false")
     args.sleep_log = Path(sl["sleep_log"]) if sl.get("sleep_log") else None
     args.sleep_log_id = sl.get("sleep_log_participant")
+
+
+def _check_raw(raw: Path, meta: dict, log: Path) -> None:
+    """The recording given with ``--raw`` must be the one the log was made from: the same
+    device type, id and session as the log's ``device`` record (one line, exit 2, otherwise)."""
+    from stillpoint.drivers import open_recording
+    from stillpoint.drivers.byteio import check_recording_path
+    from stillpoint.drivers.errors import RecordingError
+    check_recording_path(raw)
+    src = open_recording(raw)
+    try:
+        info = src.info
+    finally:
+        src.close()
+    from dataclasses import asdict
+    from stillpoint.engine.core.jsonsafe import jsonable
+    keys = ("device_type", "device_id", "session_id")
+    try:
+        logged = json.loads((meta.get("device") or {}).get("json") or "{}")
+    except (TypeError, ValueError, RecursionError):
+        logged = {}
+    ours = jsonable(asdict(info))
+    have = tuple(str(ours.get(k)) for k in keys)
+    want = tuple(str(logged.get(k) if isinstance(logged, dict) else None) for k in keys)
+    if have != want:
+        raise RecordingError(raw, f"is not the recording {log} was made from (device "
+                                  f"{'/'.join(have)}, the log's {'/'.join(want)})")

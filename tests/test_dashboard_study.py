@@ -35,7 +35,7 @@ def test_file_stem_fills_the_template_with_safe_parts():
     assert "/" not in unsafe and " " not in unsafe and ".." not in unsafe
     assert unsafe.endswith("_AX6-7_1")
     assert file_stem(TEMPLATE, device_type="AX3", device_id=1, session=2, metadata={}) == \
-        "none_none_AX3-1_2"
+        "no-study_no-subject_AX3-1_2"
     assert file_stem(None, device_type="AX3", device_id=1, session=2) == "AX3-1_2"
     for bad in ("{study}_{subject}", "{device}", "../{device}_{session}", "{device}_{session}/x",
                 "{Device}_{session}", "{device}_{session}_{"):
@@ -56,13 +56,13 @@ def test_profile_file_name_checked_at_load(tmp_path):
 def test_download_stem_takes_the_subject_from_the_ledger(tmp_path):
     led = Ledger(tmp_path)
     prof = StudyProfile(metadata={"study": "ABC"}, file_name=TEMPLATE)
-    assert download_stem(prof, led, "AX3", 10001, 2) == "ABC_none_AX3-10001_2"
+    assert download_stem(prof, led, "AX3", 10001, 2) == "ABC_no-subject_AX3-10001_2"
     led.configured(10001, 2, {"metadata": {"study": "ABC", "subject": "P-017"}}, "ok",
                    device_type="AX3")
     led.configured(10001, 3, {"metadata": {"subject": "P-099"}}, "error", device_type="AX3")
     assert download_stem(prof, led, "AX3", 10001, 2) == "ABC_P-017_AX3-10001_2"
-    assert download_stem(prof, led, "AX3", 10001, 3) == "ABC_none_AX3-10001_3"  # failed config
-    assert download_stem(prof, led, "AX6", 10001, 2) == "ABC_none_AX6-10001_2"  # another device
+    assert download_stem(prof, led, "AX3", 10001, 3) == "ABC_no-subject_AX3-10001_3"  # failed config
+    assert download_stem(prof, led, "AX6", 10001, 2) == "ABC_no-subject_AX6-10001_2"  # another device
     assert download_stem(StudyProfile(), led, "AX3", 10001, 2) == "AX3-10001_2"  # no template
     led.close()
 
@@ -113,8 +113,8 @@ def test_configure_from_the_dashboard_with_subject_and_code(emu, tmp_path):
             return next(iter(st.flows.values()), None)
         wait(lambda: flow() and flow().finished.is_set(), what="the first flow")
         assert flow().state == "cleared"
-        assert (out / "ABC_none_AX3-10001_1.cwa").is_file()
-        assert (out / "ABC_none_AX3-10001_1.mcap").is_file()
+        assert (out / "ABC_no-subject_AX3-10001_1.cwa").is_file()
+        assert (out / "ABC_no-subject_AX3-10001_1.mcap").is_file()
         s, _, body = request(dash, "GET", f"/?token={dash.token}")
         assert "SP1_50_4_0_+2h_+7d_inc_0" in body and "/action/configure/AX3-10001" in body
 

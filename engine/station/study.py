@@ -9,7 +9,8 @@ profile's ``[metadata]``), as recorded in the ledger's configuration row of that
 session; the profile's own metadata when the ledger has none. ``{device}`` and ``{session}`` are
 required (two downloads never share a name). Every value goes through ``safe_name_part``
 (letters, digits, ``.``, ``_``, ``-``; anything else replaced and tagged with a digest); a field
-without a value is ``none``.
+without a value (a device this station did not configure has no ``{subject}``) is named for
+what is missing: ``no-subject``, ``no-study``.
 
 The short code of a whole device setting is ``setting_code.py``.
 """
@@ -62,7 +63,14 @@ def file_stem(template: Optional[str], *, device_type: str, device_id: int, sess
     check_template(template)
     values = {str(k): v for k, v in (metadata or {}).items()}
     values.update(device=f"{device_type}-{device_id}", session=str(session))
-    return _FIELD.sub(lambda m: safe_name_part(values.get(m.group(1)), fallback="none"), template)
+    return _FIELD.sub(lambda m: safe_name_part(values.get(m.group(1)),
+                                               fallback=missing_value(m.group(1))), template)
+
+
+def missing_value(field: str) -> str:
+    """The file-name part of a template field without a value, named for what is missing
+    (``no-subject``)."""
+    return f"no-{field}"
 
 
 def download_stem(profile, ledger, device_type: str, device_id: int, session: int) -> str:

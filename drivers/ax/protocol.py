@@ -70,6 +70,16 @@ def display_time(text: str) -> str:
     return t if dt is None else dt.isoformat(timespec="seconds")
 
 
+# a device date/time as the firmware writes it, inside other text (a recorded line)
+_FIRMWARE_TIME_IN_TEXT = re.compile(r"\b\d{4}/\d{2}/\d{2},\d{2}:\d{2}:\d{2}(?:\.\d+)?\b")
+
+
+def display_times(text: str) -> str:
+    """``text`` with every firmware-style date/time in it (``2026/11/29,07:23:36``) given as
+    ``display_time`` gives it (ISO 8601): lines a ledger recorded before the station spoke ISO."""
+    return _FIRMWARE_TIME_IN_TEXT.sub(lambda m: display_time(m.group(0)), str(text))
+
+
 def parse_time(text: str) -> Optional[_dt.datetime]:
     """A device date/time (``YYYY/MM/DD,hh:mm:ss[.mmm]``); ``None`` for ``0`` / ``-1``."""
     text = text.strip()

@@ -99,7 +99,7 @@ def configure_device(client, profile: StudyProfile, *, data_file, wait_volume: O
     now = _dt.datetime.now()
     start, stop, start_dt = profile.times(now)
     if start_dt is not None and start_dt < now:
-        warnings.append(f"start {start_dt} is in the past: recording starts when unplugged")
+        warnings.append(f"start {start_dt.isoformat(timespec='seconds')} is in the past: recording starts when unplugged")
     for cmd, want in ((client.hibernate, start), (client.stop, stop)):
         got = _retry(cmd, want)
         if got.strip() != want:

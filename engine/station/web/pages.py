@@ -13,6 +13,8 @@ import time
 from typing import Optional
 from urllib.parse import quote
 
+from stillpoint.drivers.ax.protocol import display_time, display_times
+
 from .charts import trend_svg
 from .records import device_key, local_utc, trends
 
@@ -141,6 +143,7 @@ def dock_fragment(rows: list[dict], disk: dict, *, token: Optional[str], live: b
             detail = f"{detail}; {cal}" if detail else cal
         if r.get("detached"):
             detail = (detail or "") + " (detached)"
+        detail = display_times(detail or "")  # ISO 8601, also in lines recorded by earlier versions
         batt = r.get("battery_pct")
         clk = r.get("clock_offset_s")
         out.append(
@@ -236,20 +239,20 @@ def device_page(records, hist: dict, *, message: str = "") -> str:
     sup = superseded(hist)
     for c in hist["configurations"]:
         s = c.get("settings") or {}
-        what = ", ".join(f"{k} {s[k]}" for k in ("rate_hz", "range_g", "gyro_dps", "start", "stop")
-                         if k in s)
+        what = ", ".join(f"{k} {display_time(s[k]) if k in ('start', 'stop') else s[k]}"
+                         for k in ("rate_hz", "range_g", "gyro_dps", "start", "stop") if k in s)
         cf_rows.append([_when(c.get("time")), str(c.get("session_id") if c.get("session_id") is not None else "-"),
                         E(subject_of(c) or "-"), E(what or "-"),
                         "-" if s.get("battery_pct") is None else f"{s['battery_pct']} %",
                         E(c.get("result") or "-")
                         + (f" <a href='/device/{key}/sheet?session={E(str(s.get('session')))}'>"
                            "(superseded)</a>" if c.get("id") in sup else ""),
-                        E(c.get("reason") or "")])
+                        E(display_times(c.get("reason") or ""))])
     ac_rows = [[_when(a.get("time")), E(a.get("action") or ""), E(a.get("who") or ""),
                 E(a.get("origin") or ""), E(a.get("result") or ""), E(a.get("reason") or "")]
                for a in hist["actions"]]
     verifications = [a for a in hist["actions"] if a.get("action") == "verify"]
-    ev_rows = [[_when(e.get("time")), E(e.get("state") or ""), E(e.get("reason") or "")]
+    ev_rows = [[_when(e.get("time")), E(e.get("state") or ""), E(display_times(e.get("reason") or ""))]
                for e in hist["events"][-200:]]
     charts = "".join([
         trend_svg(tr["battery"], "battery at return", "%"),
@@ -328,7 +331,8 @@ def sheet_page(hist: dict, *, file_name: Optional[str] = None,
             ("Rate", f"{s['rate_hz']:g} Hz" if s.get("rate_hz") is not None else "-"),
             ("Range", f"±{s['range_g']} g" if s.get("range_g") is not None else "-"),
             ("Gyroscope", f"{s['gyro_dps']} °/s" if s.get("gyro_dps") else "off"),
-            ("Recording starts", s.get("start", "-")), ("Recording stops", s.get("stop", "-")),
+            ("Recording starts", display_time(s["start"]) if s.get("start") is not None else "-"),
+            ("Recording stops", display_time(s["stop"]) if s.get("stop") is not None else "-"),
             ("Battery at configure", f"{s['battery_pct']} %" if s.get("battery_pct") is not None else "-"),
             ("Clock offset after setting", f"{s['clock_offset_s']:+.3f} s"
              if s.get("clock_offset_s") is not None else "-"),
@@ -347,7 +351,7 @@ def sheet_page(hist: dict, *, file_name: Optional[str] = None,
          if last_dl else "no verified download"),
         ("Cleared after verification", f"yes ({last_clear[-1].get('erase')})" if last_clear else "no"),
         ("Configured and read back", "yes" if c else "not configured"),
-        ("Configuration warnings", (c or {}).get("reason") or "none")]
+        ("Configuration warnings", display_times((c or {}).get("reason") or "none"))]
     body = "".join(f"<tr><th>{E(k)}</th><td>{E(str(v))}</td></tr>" for k, v in rows)
     chk = "".join(f"<tr><th>{E(k)}</th><td>{E(str(v))}</td></tr>" for k, v in checks)
     printed_loc, printed_utc = local_utc(time.time())

@@ -17,7 +17,8 @@ least wall and the least CPU separately (the machine is shared: read the CPU rat
 against baselines measured in the same run):
 
 * plain decode: one reader pass over the whole file (the drivers' decode baseline);
-* ``stillpoint process --mode batch`` (default flush cadence), with ``--flush-every-s 60``, and
+* ``stillpoint process --mode batch`` (default flush cadence), the same with ``--log lean``
+  (no per-sample streams; alternating with the full run and the plain decode), with ``--flush-every-s 60``, and
   without the epoch/day tables and the view topic (``--no-tables --view-hz 0``: the work the
   bound does);
 * the same command at an earlier commit (``--before REV``: ``git archive`` of engine/, drivers/,
@@ -115,12 +116,19 @@ def run_file(path: Path, wd: Path, args, peers_py, bt) -> dict:
     summ = wd / "bench_process.json"
     cmds = {"decode": [sys.executable, "-c", DECODE_PASS, path],
             "process": sp + ["process", path, "-o", out, "--mode", "batch", "-q", "--summary", summ,
-                             "--overwrite"]}
+                             "--overwrite"],
+            # the lean log (no per-sample streams), alternating with the full one
+            "process_lean": sp + ["process", path, "-o", wd / "bench_lean.mcap", "--mode", "batch",
+                                  "-q", "--log", "lean", "--overwrite"]}
+    if peers_py:  # the peers alternate with process too (least of the rounds)
+        cmds["skdh"] = [peers_py, "-c", SKDH_READ_AUTOCAL_ENMO, path]
     res = best_of(cmds, args.repeat)
     for name, r in res.items():
         if r["rc"] != 0:
             raise SystemExit(f"{name} failed on {path}:\n{r['err']}")
     mcap_mb = out.stat().st_size / 1e6
+    lean_mb = (wd / "bench_lean.mcap").stat().st_size / 1e6
+    (wd / "bench_lean.mcap").unlink()
     s = json.loads(summ.read_text())
     more = {"process60": sp + ["process", path, "-o", out, "--mode", "batch", "-q",
                                "--flush-every-s", "60", "--overwrite"],
@@ -132,8 +140,6 @@ def run_file(path: Path, wd: Path, args, peers_py, bt) -> dict:
     if bt:
         more["before"] = sp + ["process", path, "-o", wd / "bench_before.mcap", "--mode", "batch",
                                "-q", "--overwrite"]
-    if peers_py:
-        more["skdh"] = [peers_py, "-c", SKDH_READ_AUTOCAL_ENMO, path]
     for name, cmd in more.items():
         res[name] = best(cmd, args.repeat, env=bt["env"] if name == "before" else None)
     for r in res.values():
@@ -141,6 +147,7 @@ def run_file(path: Path, wd: Path, args, peers_py, bt) -> dict:
             raise SystemExit(f"a command failed on {path}:\n{r['err']}")
     res["_summary"] = s
     res["_mcap_mb"] = mcap_mb
+    res["_lean_mb"] = lean_mb
     res["_cwa_mb"] = path.stat().st_size / 1e6
     if bt:
         res["_before_mb"] = (wd / "bench_before.mcap").stat().st_size / 1e6
@@ -187,6 +194,7 @@ def main(argv=None) -> int:
     if bt:
         names.append(("before", f"before ({bt['sha']}): process --mode batch"))
     names += [("process", "process --mode batch"),
+              ("process_lean", "process --mode batch --log lean"),
               ("process60", "process --mode batch --flush-every-s 60"),
               ("process_same", "process --no-tables --view-hz 0 (bound's work)"),
               ("bound", "same-work bound (tools/benchmarks/bound_process.py)"),
@@ -215,6 +223,12 @@ def main(argv=None) -> int:
           lambda r: f"{r['process']['cpu'] / r['bound']['cpu']:.2f}x cpu {r['process']['wall'] / r['bound']['wall']:.2f}x wall")
     ratio("process, bound's work only / bound",
           lambda r: f"{r['process_same']['cpu'] / r['bound']['cpu']:.2f}x cpu {r['process_same']['wall'] / r['bound']['wall']:.2f}x wall")
+    ratio("process --log lean / full",
+          lambda r: f"{r['process_lean']['cpu'] / r['process']['cpu']:.2f}x cpu {r['process_lean']['wall'] / r['process']['wall']:.2f}x wall")
+    if peers_py:
+        ratio("skdh / process --log lean",
+              lambda r: f"{r['skdh']['cpu'] / r['process_lean']['cpu']:.2f}x cpu {r['skdh']['wall'] / r['process_lean']['wall']:.2f}x wall")
+    ratio("lean MCAP size / input .cwa", lambda r: f"{r['_lean_mb'] / r['_cwa_mb']:.3f}x ({r['_lean_mb']:.1f} MB)")
     ratio("MCAP size / input .cwa", lambda r: f"{r['_mcap_mb'] / r['_cwa_mb']:.2f}x ({r['_mcap_mb']:.0f} MB)")
     ratio("MCAP flushes", lambda r: str(r["_summary"].get("mcap_flushes", "n/a")))
 

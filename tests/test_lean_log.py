@@ -124,3 +124,16 @@ def test_replay_refuses_another_recording(runs, capsys, tmp_path):
                        labels_path=False)
     _one_line_exit_2(capsys, ["replay", str(lean), "--raw", str(other), "-o",
                               str(tmp_path / "x.mcap"), "-q"], "is not the recording")
+
+
+def test_cohort_run_writes_lean_logs(tmp_path):
+    src = tmp_path / "in"
+    src.mkdir()
+    simulate_recording(src / "a.cwa", days=0.3, hz=25.0, seed=2, truth_path=False,
+                       labels_path=False)
+    assert main(["cohort", "run", str(src), "-o", str(tmp_path / "out"), "--log", "lean", "-q"]) == 0
+    [log] = list((tmp_path / "out").rglob("*.mcap"))
+    assert json.loads(_meta(log)["settings"]["json"])["log"] == "lean"
+    from stillpoint.engine.mcap.compare import topic_digests
+    topics = set(topic_digests(log))
+    assert "/metrics/epoch" in topics and not topics & set(LEAN_DROPPED), topics

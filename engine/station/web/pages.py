@@ -150,10 +150,10 @@ def dock_fragment(rows: list[dict], disk: dict, *, token: Optional[str], live: b
             f"<tr class='s-{E(st)}' data-device='{key}' data-state='{E(st)}'>"
             f"<td>{E(r.get('slot') or '-')}</td><td><a href='/device/{key}'>{r['device_id']}</a></td>"
             f"<td>{E(r['device_type'])}</td><td><span class='state s-{E(st)}'>{E(st)}</span></td>"
-            f"<td>{prog}</td><td>{'' if not r.get('mbps') else format(r['mbps'], '.2f')}</td>"
+            f"<td class=progress>{prog}</td><td>{'' if not r.get('mbps') else format(r['mbps'], '.2f')}</td>"
             f"<td>{'-' if batt is None else f'{batt} %'}</td>"
             f"<td>{'-' if clk is None else f'{clk:+.1f} s'}</td><td class=detail>{E(detail or '')}</td>"
-            + (f"<td>{_actions(r, token)}</td>" if token else "") + "</tr>")
+            + (f"<td class=actions>{_actions(r, token)}</td>" if token else "") + "</tr>")
     out.append("</tbody></table>")
     return "".join(out)
 

@@ -380,7 +380,7 @@ def collate(outdir, *, verify: bool = False, write: bool = True) -> Collation:
         days.extend(rows)
         day_cols.extend(c for c in cols if c not in day_cols)
     out.rows = kept
-    night_cols = _night_rows(out)
+    night_cols, out.nights = _stacked(out, ".nights.csv", "nights table")
     bands = [c for c in day_cols if _is_band(c)]
     if not bands:
         bands = sorted({k for r in kept for k in r if _is_band(k)})
@@ -426,28 +426,6 @@ def _stacked(out: Collation, suffix: str, what: str) -> tuple:
             out.failures.append({"file": r["file"], "key": r["key"], "class": "unreadable_output",
                                  "error": f"{path}: unreadable {what} ({e})", "folder": r["folder"]})
     return cols, rows
-
-
-def _night_rows(out: Collation) -> list:
-    """Every finished file's nights table (engine/sleep) stacked into ``out.nights``, each row led
-    by the participant, file and key; returns the columns (none without sleep)."""
-    cols: list = []
-    for r in out.rows:
-        path = Path(r["folder"]) / (MCAP_NAME[:-len(".mcap")] + ".nights.csv")
-        if not path.exists():
-            continue
-        try:
-            with open(path, encoding="utf-8", newline="") as f:
-                rd = csv.DictReader(f)
-                cols.extend(c for c in (rd.fieldnames or []) if c not in cols)
-                for n in rd:
-                    n.update(participant=r["participant"], file=r["file"], key=r["key"])
-                    out.nights.append(n)
-        except (OSError, UnicodeError, csv.Error) as e:
-            out.failures.append({"file": r["file"], "key": r["key"], "class": "unreadable_output",
-                                 "error": f"{path}: unreadable nights table ({e})",
-                                 "folder": r["folder"]})
-    return cols
 
 
 def _marker(path: Path):

@@ -38,23 +38,25 @@ class RegistryError(StillpointError):
     """The registry folder cannot be trusted or a device name is taken."""
 
 
-def _private(d: Path) -> Path:
+def private_folder(d: Path, what: str = "the emulator registry folder",
+                   hint: str = "set STILLPOINT_RUNTIME_DIR to a folder of yours",
+                   error: type | None = None, parents: bool = False) -> Path:
     """``d`` made (mode 0700) or checked: it must be this user's folder, closed to others (a
-    shared temp folder: another user could have made it first to read or plant entries)."""
+    shared temp folder: another user could have made it first to read or plant entries).
+    ``what`` names the folder and ``hint`` the way out in the one-line ``error`` (RegistryError)."""
+    error = error or RegistryError
     try:
-        d.mkdir(mode=0o700, exist_ok=True)
+        d.mkdir(mode=0o700, parents=parents, exist_ok=True)
         st = os.lstat(d)
     except OSError as e:
-        raise RegistryError(f"{d}: cannot make the emulator registry folder: {e.strerror or e}") \
-            from None
+        raise error(f"{d}: cannot make {what}: {e.strerror or e}") from None
     if not stat.S_ISDIR(st.st_mode):
-        raise RegistryError(f"{d}: the emulator registry must be a folder, not a link or a file")
+        raise error(f"{d}: {what} must be a folder, not a link or a file")
     if hasattr(os, "getuid") and st.st_uid != os.getuid():
-        raise RegistryError(f"{d}: the emulator registry folder belongs to another user "
-                            f"(uid {st.st_uid}); set STILLPOINT_RUNTIME_DIR to a folder of yours")
+        raise error(f"{d}: {what} belongs to another user (uid {st.st_uid}); {hint}")
     if st.st_mode & 0o022:
-        raise RegistryError(f"{d}: the emulator registry folder may be written by other users "
-                            f"(mode {stat.S_IMODE(st.st_mode):o}); chmod 700 it")
+        raise error(f"{d}: {what} may be written by other users "
+                    f"(mode {stat.S_IMODE(st.st_mode):o}); chmod 700 it")
     return d
 
 
@@ -67,7 +69,7 @@ def runtime_dir() -> Path:
     if xdg and os.path.isdir(xdg):
         return Path(xdg) / "stillpoint"
     uid = os.getuid() if hasattr(os, "getuid") else 0
-    return _private(Path(tempfile.gettempdir()) / f"stillpoint-{uid}")
+    return private_folder(Path(tempfile.gettempdir()) / f"stillpoint-{uid}")
 
 
 def session_name() -> str:

@@ -32,12 +32,12 @@ from __future__ import annotations
 import json
 import os
 import socket
-import stat
 import time
 from pathlib import Path
 from typing import Optional
 
 from stillpoint.drivers.ax.errors import DeviceError
+from stillpoint.drivers.ax.registry import private_folder
 from stillpoint.drivers.errors import StillpointError
 
 from ..core.times import iso_utc
@@ -56,21 +56,8 @@ class DeviceBusy(DeviceError):
 
 def _private_dir(d: Path) -> Path:
     """``d`` made (mode 0700) or checked: this user's folder, closed to others."""
-    try:
-        d.mkdir(mode=0o700, parents=True, exist_ok=True)
-        st = os.lstat(d)
-    except OSError as e:
-        raise HostRecordError(f"{d}: cannot make the stations' host folder: {e.strerror or e}") \
-            from None
-    if not stat.S_ISDIR(st.st_mode):
-        raise HostRecordError(f"{d}: the stations' host folder must be a folder, not a link or a file")
-    if hasattr(os, "getuid") and st.st_uid != os.getuid():
-        raise HostRecordError(f"{d}: the stations' host folder belongs to another user (uid "
-                              f"{st.st_uid}); set {HOST_DIR_ENV} to a folder of yours")
-    if st.st_mode & 0o022:
-        raise HostRecordError(f"{d}: the stations' host folder may be written by other users "
-                              f"(mode {stat.S_IMODE(st.st_mode):o}); chmod 700 it")
-    return d
+    return private_folder(d, "the stations' host folder", f"set {HOST_DIR_ENV} to a folder of yours",
+                          HostRecordError, parents=True)
 
 
 def lock_dir() -> Path:

@@ -20,6 +20,7 @@ pattern                            meaning                                      
                                                                                         copy supersedes
 ``<stem>.epochs.csv.gz``            the epoch table of the verified download             keep
 ``<stem>.days.csv``                 the day table of the verified download               keep
+``<stem>.nights.csv``               its nights table (sleep, in the study's zone)        keep
 ``<stem>.report.png`` / ``.html``   the one-page report of the verified download         keep
 ``*.part.<UTC>[-n]`` (other)       a partial output of a killed writer, set aside       as above
 =================================  ===================================================  ==========================
@@ -75,6 +76,7 @@ KINDS = (
     ("corrected log", re.compile(r"^(?!.*\.part)(?P<stem>.+)\.mcap$")),
     ("epoch table", re.compile(r"^(?!.*\.part)(?P<stem>.+)\.epochs\.csv\.gz$")),
     ("day table", re.compile(r"^(?!.*\.part)(?P<stem>.+)\.days\.csv$")),
+    ("nights table", re.compile(r"^(?!.*\.part)(?P<stem>.+)\.nights\.csv$")),
     ("report", re.compile(r"^(?!.*\.part)(?P<stem>.+)\.report\.(png|html)$")),
 )
 

@@ -143,7 +143,7 @@ def test_sleep_log_refusals_name_the_row(tmp_path):
 
 
 def test_cohort_collates_nights_tables(tmp_path):
-    from stillpoint.engine.cohort.collate import Collation, _night_rows
+    from stillpoint.engine.cohort.collate import Collation, _stacked
     a, b = tmp_path / "a", tmp_path / "b"
     a.mkdir()
     b.mkdir()
@@ -151,9 +151,9 @@ def test_cohort_collates_nights_tables(tmp_path):
                                             "2026-05-05,sleeplog,8\n")
     out = Collation(rows=[{"participant": "p1", "file": "a.cwa", "key": "k1", "folder": str(a)},
                           {"participant": "p2", "file": "b.cwa", "key": "k2", "folder": str(b)}])
-    cols = _night_rows(out)
-    assert cols == ["night", "guider", "spt_hours"]
-    assert [(n["participant"], n["night"], n["guider"]) for n in out.nights] == [
+    cols, nights = _stacked(out, ".nights.csv", "nights table")
+    assert cols == ["night", "guider", "spt_hours"] and not out.failures
+    assert [(n["participant"], n["night"], n["guider"]) for n in nights] == [
         ("p1", "2026-05-04", "HDCZA"), ("p1", "2026-05-05", "sleeplog")]
 
 

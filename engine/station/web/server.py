@@ -180,7 +180,11 @@ class _Streams:
 
     def __init__(self, dash: Dashboard):
         self.dash = dash
-        self._lock = threading.Lock()
+        # held while a new stream's first fragment is rendered, sent and adopted, and while the
+        # push thread reads the dock's version with its list of streams: a change is either in the
+        # first fragment or pushed afterwards, never lost between the two
+        self.lock = threading.RLock()
+        self._lock = self.lock
         self._streams: list = []  # [socket, client host, with token, last fragment sent]
         self._thread = threading.Thread(target=self._loop, name="dashboard-streams", daemon=True)
 
@@ -230,7 +234,9 @@ class _Streams:
             wait = PUSH_MIN_S - (time.monotonic() - last)
             if wait > 0:
                 d.stopping.wait(wait)
-            version = d.live.version
+            with self._lock:
+                version = d.live.version
+                streams = list(self._streams)
             frags: dict = {}
             for st in streams:
                 if st[2] not in frags:
@@ -424,14 +430,15 @@ class _Handler(OneRequestHandler, BaseHTTPRequestHandler):
         self.close_connection = True
         if self.command == "HEAD":
             return
-        try:
-            sent = d.fragment(with_token)
-            self.wfile.write(pages.sse_payload(sent))
-        except BaseException:
-            d.httpd.unreserve_stream(host)  # the worker closes the connection
-            raise
-        self.detach()  # the stream thread pushes from now on (``_Streams``)
-        d.streams.adopt(self.connection, host, with_token, sent)
+        with d.streams.lock:  # a change after this first fragment is pushed (``_Streams``)
+            try:
+                sent = d.fragment(with_token)
+                self.wfile.write(pages.sse_payload(sent))
+            except BaseException:
+                d.httpd.unreserve_stream(host)  # the worker closes the connection
+                raise
+            self.detach()  # the stream thread pushes from now on (``_Streams``)
+            d.streams.adopt(self.connection, host, with_token, sent)
 
     # ------------------------------------------------------------------ POST
     def do_POST(self):

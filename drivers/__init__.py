@@ -1,6 +1,8 @@
-"""Sources and writers: .cwa (AX3/AX6), .bin (GENEActiv), .gt3x (ActiGraph), MCAP replay, USB devices.
+"""Sources and writers: .cwa (AX3/AX6), .bin (GENEActiv), .gt3x (ActiGraph), USB devices.
 
-``open_recording(path)`` sniffs the content (not the file name) and returns a Source.
+``open_recording(path)`` sniffs the content (not the file name) and returns a device recording's
+Source. A stillpoint MCAP log's raw stream is read by the engine (``engine/mcap/replay.py``);
+``stillpoint.engine.recordings.open_recording`` opens either.
 """
 
 from __future__ import annotations
@@ -14,8 +16,11 @@ __all__ = [
     "UnsupportedFormatError", "CorruptRecordingError", "TruncatedRecordingError",
 ]
 
+
 def open_recording(path, **options):
-    """Open a recording as a Source (options go to the format's reader)."""
+    """Open a device recording (.cwa, GENEActiv .bin, .gt3x; plain or gzipped) as a Source
+    (options go to the format's reader). An MCAP file is refused with a pointer to
+    ``stillpoint.engine.recordings.open_recording``, which also replays a stillpoint log."""
     fmt = sniff_format(path)
     if fmt == "cwa":
         from .cwa import CwaReader
@@ -26,5 +31,6 @@ def open_recording(path, **options):
     if fmt == "gt3x":
         from .gt3x import Gt3xReader
         return Gt3xReader(path, **options)
-    from .mcap_replay import McapRawSource
-    return McapRawSource(path, **options)
+    raise UnsupportedFormatError(
+        path, "is an MCAP file, not a device recording: a stillpoint log's raw stream is opened by "
+              "stillpoint.engine.recordings.open_recording")

@@ -56,7 +56,7 @@ def _estimate(path, fmt: str, calibrate, timezone, override: bool):
     if calibrate is not True:
         raise StillpointError("calibrate= takes True, False, a CalibrationEstimate or its dict")
     if fmt == "mcap":
-        from stillpoint.drivers.mcap_replay import McapRawSource
+        from stillpoint.engine.mcap.replay import McapRawSource
         with McapRawSource(path) as src:
             est = src.logged_calibration()
     else:
@@ -118,7 +118,8 @@ def read(path, *, calibrate=False, resample: Optional[float] = None,
     the samples. ``timezone``: the zone of a .cwa's clock (IANA name or offset), as
     ``process --timezone``; a GENEActiv header's zone stands unless ``timezone_override``."""
     pd = _pandas()
-    from stillpoint.drivers import open_recording, sniff_format
+    from stillpoint.drivers import sniff_format
+    from stillpoint.engine.recordings import open_recording
     from stillpoint.engine.timezones import reader_timezone
     path = Path(path)
     fmt = sniff_format(path)

@@ -56,7 +56,7 @@ def is_finished(path) -> bool:
 
 def recover(path, out, *, compression: str = "zstd") -> RecoveryReport:
     path, out = Path(path), Path(out)
-    from stillpoint.drivers.mcap_replay import check_is_log
+    from stillpoint.engine.mcap.replay import check_is_log
     check_is_log(path)  # a recording, or no MCAP at all: one line saying which
     rep = RecoveryReport(str(path), str(out), is_finished(path))
     schema_map: dict[int, str] = {}

@@ -134,7 +134,7 @@ def _read_days(path) -> list[dict]:
 
 def _sphere(mcap, est_json: Optional[dict], settings: dict, progress=None):
     """Nonmovement window means (raw g), temperatures, and the estimate to apply."""
-    from stillpoint.drivers.mcap_replay import McapRawSource
+    from stillpoint.engine.mcap.replay import McapRawSource
     from .calibration.estimate import CalibrationEstimate
     from .operators.nonmovement import NonmovementOperator
     from .operators.windows import WindowFeaturesOperator
@@ -161,7 +161,7 @@ def _sphere(mcap, est_json: Optional[dict], settings: dict, progress=None):
 
 
 def _mcap_records(mcap) -> dict:
-    from stillpoint.drivers.mcap_replay import McapRawSource
+    from stillpoint.engine.mcap.replay import McapRawSource
     src = McapRawSource(mcap)
     meta = dict(src.metadata)
     src.close()

@@ -30,7 +30,7 @@ from typing import Callable, Optional
 
 import numpy as np
 
-from stillpoint.drivers import open_recording
+from stillpoint.engine.recordings import open_recording
 from stillpoint.drivers.errors import StillpointError
 
 from .core.blocks import Block

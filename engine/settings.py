@@ -1,6 +1,6 @@
 """The settings of a run: ``RunSettings`` (everything that determines a run's output, logged as
 the MCAP ``settings`` record), ``settings_problem(d)`` (the first unusable value of such a record,
-checked when it is read). Plain data, read by the run and by the readers of its log (``drivers.mcap_replay``)
+checked when it is read). Plain data, read by the run and by the readers of its log (``engine/mcap/replay.py``)
 without importing the run itself.
 """
 

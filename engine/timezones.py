@@ -203,7 +203,7 @@ def reader_timezone(path, fmt: str, spec, override: bool = False) -> tuple[Optio
     if fmt == "mcap":
         if zone.known:
             return None, zone
-        from stillpoint.drivers import open_recording
+        from stillpoint.engine.recordings import open_recording
         src = open_recording(path)
         try:
             return None, zone_of_log(getattr(src, "metadata", {}), src.info.timezone_offset_s)

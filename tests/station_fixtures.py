@@ -10,6 +10,7 @@ import pytest
 
 from stillpoint.drivers.ax.emulator import EmulatedDevice
 from stillpoint.drivers.ax.errors import DeviceError
+from stillpoint.engine.sim.record import device_recording
 from stillpoint.tools.kill_station import PROFILE as STUDY_PROFILE  # noqa: F401 - for the tests
 
 DAYS = 0.01  # ~15 min at 100 Hz: 0.37 MB per AX3
@@ -44,6 +45,7 @@ def emu(tmp_path, runtime):
 
     def make(device_id=10001, kind="AX3", faults=(), plug=True, pty=False, **kw):
         kw.setdefault("days", DAYS)
+        kw.setdefault("make_recording", device_recording)
         kw.setdefault("remount_s", 0.05)
         kw.setdefault("replug_s", 0.3)
         d = EmulatedDevice(tmp_path / f"dev{device_id}", device_id, kind, faults=faults,

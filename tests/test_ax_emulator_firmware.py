@@ -17,6 +17,7 @@ import pytest
 
 from stillpoint.drivers import constants as C
 from stillpoint.drivers.ax.emulator import EmulatedDevice
+from stillpoint.engine.sim.record import device_recording
 from stillpoint.drivers.ax.protocol import AxClient
 from stillpoint.drivers.cwa_layout import SECTOR_DTYPE, parse_header
 from stillpoint.tools.cli import main
@@ -201,7 +202,7 @@ def test_settings_ini_datamode_20_makes_the_ax3_record_unpacked_until_format(tmp
     drive = tmp_path / "dev" / "media" / volume_label("AX3", 12345)
     drive.mkdir(parents=True)
     (drive / "SETTINGS.INI").write_text("DATAMODE=20\r\n")
-    d = EmulatedDevice(tmp_path / "dev", 12345, days=0.002, remount_s=0.05)
+    d = EmulatedDevice(tmp_path / "dev", 12345, make_recording=device_recording, days=0.002, remount_s=0.05)
     try:
         d.plug()
         sectors = np.frombuffer(d.data_file.read_bytes()[1024:1024 + 512 * 4], SECTOR_DTYPE)
@@ -220,7 +221,7 @@ def test_settings_ini_datamode_20_makes_the_ax3_record_unpacked_until_format(tmp
 def test_the_same_folder_serves_a_second_run(tmp_path, runtime, how):
     """A drive an earlier run left aside (unplugged at shutdown, or a process that died with the
     drive dropped mid-commit) is put back; the device keeps its data."""
-    d = EmulatedDevice(tmp_path / "dev", 12345, days=0.002, remount_s=30.0)
+    d = EmulatedDevice(tmp_path / "dev", 12345, make_recording=device_recording, days=0.002, remount_s=30.0)
     d.plug()
     before = d.data_file.read_bytes()
     if how == "killed":
@@ -229,7 +230,7 @@ def test_the_same_folder_serves_a_second_run(tmp_path, runtime, how):
         d._stop.set()
     else:
         d.shutdown()
-    again = EmulatedDevice(tmp_path / "dev", 12345, days=0.002, remount_s=0.05)
+    again = EmulatedDevice(tmp_path / "dev", 12345, make_recording=device_recording, days=0.002, remount_s=0.05)
     try:
         again.plug()
         assert again.data_file.read_bytes() == before

@@ -130,7 +130,7 @@ def test_process_writes_counts_to_tables_mcap_and_replay(tmp_path, real_file):
         want[t] = [x + y for x, y in zip(want.get(t, [0.0, 0.0, 0.0]), c)]
     assert len(want) > 100 and table == want
     k = len(want)
-    from stillpoint.drivers.mcap_replay import McapRawSource  # noqa: F401  (the log reads back)
+    from stillpoint.engine.mcap.replay import McapRawSource  # noqa: F401  (the log reads back)
     from mcap.reader import make_reader
     with open(out, "rb") as f:
         msgs = [m for _, _, m in make_reader(f).iter_messages(topics=["/metrics/counts"])]

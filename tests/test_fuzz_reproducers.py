@@ -338,7 +338,7 @@ def test_raw_messages_out_of_order_are_one_typed_line(fuzz3, tmp_path, name, cmd
 
 def test_raw_messages_in_order_still_replay(fuzz3, tmp_path):
     """The same log with its messages in their order replays (the check refuses only disorder)."""
-    from stillpoint.drivers.mcap_replay import McapRawSource
+    from stillpoint.engine.mcap.replay import McapRawSource
     fixed = _rewrite(fuzz3("raw_accel_two_messages_swapped.mcap"), tmp_path / "fixed.mcap",
                      swap_raw=(0, 1))
     with McapRawSource(fixed) as src:
@@ -407,7 +407,7 @@ def test_settings_value_of_the_wrong_type_is_one_typed_line(fuzz3, tmp_path):
     ("view_hz", float("inf")), ("timezone", 5),
 ])
 def test_every_settings_value_is_checked_when_read(fuzz3, tmp_path, key, value):
-    from stillpoint.drivers.mcap_replay import McapRawSource
+    from stillpoint.engine.mcap.replay import McapRawSource
     from stillpoint.engine.mcap.reading import McapReadError
     good = _rewrite(fuzz3("settings_first_hours_string.mcap"), tmp_path / "good.mcap",
                     settings={"first_hours": 72.0})
@@ -429,7 +429,7 @@ def test_settings_as_every_run_logs_them_are_accepted():
 def test_raw_order_rule_covers_times_and_segments(fuzz3, tmp_path):
     """Sample numbers in order but times (or segments) going back are refused too."""
     import dataclasses
-    from stillpoint.drivers.mcap_replay import McapRawSource, _check_order
+    from stillpoint.engine.mcap.replay import McapRawSource, _check_order
     from stillpoint.engine.mcap.reading import McapReadError
     fixed = _rewrite(fuzz3("raw_accel_two_messages_swapped.mcap"), tmp_path / "fixed.mcap",
                      swap_raw=(0, 1))
@@ -479,7 +479,7 @@ def test_raw_scale_and_unit_values_a_float32_run_cannot_hold_are_typed(fuzz3, tm
     """Found by the fuzz script as numpy warnings during replay; now refused where the message is
     read, with the message named."""
     import warnings
-    from stillpoint.drivers.mcap_replay import McapRawSource
+    from stillpoint.engine.mcap.replay import McapRawSource
     from stillpoint.engine.mcap.reading import McapReadError
     good = _rewrite(fuzz3("settings_first_hours_string.mcap"), tmp_path / "good.mcap",
                     settings={"first_hours": 72.0})

@@ -10,8 +10,7 @@ when that is a module, else of ``pkg``. The one allowed exception is the root pa
 Layers (docs/layout.md), each importing only itself and the layers below it:
 core (``stillpoint.engine.core``) <- drivers (``stillpoint.drivers``) <- engine (the rest of
 ``stillpoint.engine``) <- CLI (``stillpoint.tools``) <- the facade (``stillpoint``). An edge
-going up is a violation; ``KNOWN_UPWARD`` lists the ones not yet removed, each with what removes
-it, and fails when one of them is gone (so the list only shrinks).
+going up is a violation, with no exceptions.
 """
 
 from __future__ import annotations
@@ -116,18 +115,6 @@ def test_the_package_has_no_import_circles():
 LAYERS = (("core", "stillpoint.engine.core"), ("drivers", "stillpoint.drivers"),
           ("engine", "stillpoint.engine"), ("cli", "stillpoint.tools"), ("facade", "stillpoint"))
 
-# upward edges still in the code: (importer, imported) -> what removes it
-KNOWN_UPWARD = {
-    **{("stillpoint.drivers.mcap_replay", f"stillpoint.engine.{m}"):
-       "MCAP replay moves beside the MCAP code (engine/mcap/), open_recording's MCAP case with it"
-       for m in ("calibration.estimate", "calibration.validate", "mcap.reading", "mcap.schemas",
-                 "mcap.stream", "settings")},
-    ("stillpoint.drivers.ax.emulator", "stillpoint.engine.sim.record"):
-        "the emulator receives its recording generator from its caller instead of importing the "
-        "simulator",
-}
-
-
 def layer(module: str) -> int:
     """Index in ``LAYERS`` of a module's layer (the first prefix that matches)."""
     for i, (_, prefix) in enumerate(LAYERS):
@@ -142,13 +129,10 @@ def upward_edges(graph) -> set[tuple[str, str]]:
 
 
 def test_imports_go_down_the_layers():
-    up = upward_edges(_edges(_modules()))
-    new = sorted(up - set(KNOWN_UPWARD))
-    assert not new, ("imports against the layers core <- drivers <- engine <- CLI: "
-                     + "; ".join(f"{a} ({LAYERS[layer(a)][0]}) imports {b} ({LAYERS[layer(b)][0]})"
-                                 for a, b in new))
-    gone = sorted(set(KNOWN_UPWARD) - up)
-    assert not gone, f"no longer imported, remove from KNOWN_UPWARD: {gone}"
+    up = sorted(upward_edges(_edges(_modules())))
+    assert not up, ("imports against the layers core <- drivers <- engine <- CLI: "
+                    + "; ".join(f"{a} ({LAYERS[layer(a)][0]}) imports {b} ({LAYERS[layer(b)][0]})"
+                                for a, b in up))
 
 
 def test_the_layer_check_finds_an_upward_edge():

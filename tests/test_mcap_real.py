@@ -10,7 +10,7 @@ import pytest
 from mcap.reader import make_reader
 
 from stillpoint.drivers import open_recording
-from stillpoint.drivers.mcap_replay import McapRawSource
+from stillpoint.engine.mcap.replay import McapRawSource
 from stillpoint.engine.mcap.compare import compare
 from stillpoint.engine.run import RunSettings, process_file
 from stillpoint.tools.cli import main as cli

@@ -16,7 +16,7 @@ from mcap.reader import make_reader
 
 from stillpoint.drivers import open_recording
 from stillpoint.drivers.cwa import corrupt_sector
-from stillpoint.drivers.mcap_replay import McapRawSource
+from stillpoint.engine.mcap.replay import McapRawSource
 from stillpoint.engine.core.blocks import Block
 from stillpoint.engine.calibration.estimate import CalibrationEstimate
 from stillpoint.engine.mcap.compare import compare

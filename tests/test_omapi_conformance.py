@@ -36,6 +36,7 @@ from stillpoint.drivers import constants as C
 from stillpoint.drivers.ax import firmware_shell as FS
 from stillpoint.drivers.ax import firmware_text as FT
 from stillpoint.drivers.ax.emulator import EmulatedDevice
+from stillpoint.engine.sim.record import device_recording
 from stillpoint.drivers.cwa_layout import parse_header
 
 REPO = Path(__file__).resolve().parents[1]
@@ -200,7 +201,7 @@ def run(request, harness, tmp_path_factory) -> Run:
     root = tmp_path_factory.mktemp(f"omapi-{kind}")
     with pytest.MonkeyPatch.context() as mp:
         mp.setenv("STILLPOINT_RUNTIME_DIR", str(root / "runtime"))
-        emu = EmulatedDevice(root / "device", dev.device_id, kind, session_id=dev.session, days=0.005,
+        emu = EmulatedDevice(root / "device", dev.device_id, kind, session_id=dev.session, make_recording=device_recording, days=0.005,
                              seed=7, remount_s=0.2)
         r = Run(kind, dev, emu)
         try:

@@ -153,7 +153,7 @@ def test_report_tells_its_steps(tmp_path, capsys):
 
 
 def test_replay_of_a_log_counts_its_samples(tmp_path, capsys):
-    from stillpoint.drivers.mcap_replay import McapRawSource
+    from stillpoint.engine.mcap.replay import McapRawSource
     mcap = tmp_path / "a.mcap"
     assert main(["process", str(GOOD), "-o", str(mcap), "-q"]) == 0
     src = McapRawSource(mcap)

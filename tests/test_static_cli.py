@@ -187,11 +187,12 @@ def test_process_applies_static_calibration(capsys, files, tmp_path):
 
 def test_station_download_applies_the_stored_static_calibration(tmp_path, monkeypatch):
     from stillpoint.drivers.ax.emulator import EmulatedDevice
+    from stillpoint.engine.sim.record import device_recording
     from stillpoint.engine.calibration import CalibrationStore
     from stillpoint.engine.calibration.static import static_calibration, with_static_calibration
     from stillpoint.engine.station.download import DownloadJob, run_download
     monkeypatch.setenv("STILLPOINT_RUNTIME_DIR", str(tmp_path / "runtime"))
-    d = EmulatedDevice(tmp_path / "dev", 12346, "AX6", slot="emu-1", days=0.003, remount_s=0.05,
+    d = EmulatedDevice(tmp_path / "dev", 12346, "AX6", slot="emu-1", make_recording=device_recording, days=0.003, remount_s=0.05,
                        replug_s=0.3)
     d.plug()
     try:

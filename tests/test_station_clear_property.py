@@ -14,6 +14,7 @@ from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from stillpoint.drivers.ax.emulator import EmulatedDevice
+from stillpoint.engine.sim.record import device_recording
 from stillpoint.drivers.ax.protocol import AxClient
 from stillpoint.engine.station.clearing import ClearRefused, clear_verified
 from stillpoint.engine.station.ledger import Ledger
@@ -31,7 +32,7 @@ def _sha(path) -> str:
 def recording(tmp_path_factory):
     """One short simulated AX3 recording of device 4321, session 1, copied onto every drive."""
     root = tmp_path_factory.mktemp("rec")
-    d = EmulatedDevice(root / "sim", DEVICE, "AX3", days=0.003)
+    d = EmulatedDevice(root / "sim", DEVICE, "AX3", make_recording=device_recording, days=0.003)
     rec = root / "rec.cwa"
     shutil.copyfile(d.data_file, rec)
     d.shutdown()

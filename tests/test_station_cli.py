@@ -236,8 +236,9 @@ def test_clean_knows_the_raw_copy_of_an_inbox_log(tmp_path, capsys):
 def same_id_pair(emu, tmp_path):
     """An emulated AX3 and AX6 that share id 10001 and session 1, and an empty output folder."""
     from stillpoint.drivers.ax.emulator import EmulatedDevice
+    from stillpoint.engine.sim.record import device_recording
     a = emu(10001)
-    b = EmulatedDevice(tmp_path / "ax6", 10001, "AX6", days=0.01, remount_s=0.05, slot="emu-2")
+    b = EmulatedDevice(tmp_path / "ax6", 10001, "AX6", make_recording=device_recording, days=0.01, remount_s=0.05, slot="emu-2")
     try:
         b.plug()
         out = tmp_path / "out"

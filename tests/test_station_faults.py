@@ -199,11 +199,12 @@ _ORPHAN_SCRIPT = """
 import os, sys, time
 from pathlib import Path
 from stillpoint.drivers.ax.emulator import EmulatedDevice
+from stillpoint.engine.sim.record import device_recording
 from stillpoint.engine.station.download import DownloadJob
 from stillpoint.engine.station.download import DownloadWorker
 if __name__ == "__main__":
     w = Path(sys.argv[1])
-    d = EmulatedDevice(w / "dev", 12345, faults=("hang",), days=0.01)
+    d = EmulatedDevice(w / "dev", 12345, faults=("hang",), make_recording=device_recording, days=0.01)
     d.plug()
     (w / "out").mkdir()
     job = DownloadJob(12345, 1, str(d.data_file), str(w / "out"), faults=("hang",),

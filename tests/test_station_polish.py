@@ -18,6 +18,7 @@ import pytest
 
 from stillpoint.drivers.ax.discovery import EmulatedBackend, discover
 from stillpoint.drivers.ax.emulator import EmulatedDevice
+from stillpoint.engine.sim.record import device_recording
 from stillpoint.drivers.ax.protocol import AxClient
 from stillpoint.engine.station.flow import StationOptions
 from stillpoint.engine.station.profile import load_profile
@@ -187,7 +188,7 @@ def test_the_emulator_keeps_its_drives_when_asked(runtime):
 
 def test_emulated_devices_are_seen_in_their_own_session_only(tmp_path, runtime, monkeypatch):
     monkeypatch.setenv("STILLPOINT_EMULATOR_SESSION", "alice")
-    d = EmulatedDevice(tmp_path / "a", 10001, days=0.002)
+    d = EmulatedDevice(tmp_path / "a", 10001, make_recording=device_recording, days=0.002)
     try:
         d.plug()
         assert [a.device_id for a in discover(EmulatedBackend())] == [10001]

@@ -18,6 +18,7 @@ from hypothesis import strategies as st
 
 from stillpoint.drivers.ax.discovery import EmulatedBackend
 from stillpoint.drivers.ax.emulator import FAULTS, EmulatedDevice
+from stillpoint.engine.sim.record import device_recording
 from stillpoint.drivers.ax.registry import using_runtime_dir
 from stillpoint.engine.station.flow import StationOptions
 from stillpoint.engine.station.ledger import Ledger
@@ -50,7 +51,7 @@ def test_no_clear_without_matching_verified_record(steps):
         in_runtime.enter_context(using_runtime_dir(tmp / "runtime"))
         out = tmp / "out"
         out.mkdir()
-        devs = [EmulatedDevice(tmp / f"d{i}", 10001 + i, days=0.005, remount_s=0.05, replug_s=0.2,
+        devs = [EmulatedDevice(tmp / f"d{i}", 10001 + i, make_recording=device_recording, days=0.005, remount_s=0.05, replug_s=0.2,
                                slot=f"emu-{i + 1}") for i in range(2)]
         try:
             for d in devs:

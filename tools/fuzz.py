@@ -503,7 +503,7 @@ SUFFIX = {"cwa": ".cwa", "bin": ".bin", "gz": ".gz", "mcap": ".mcap", "gt3x": ".
 def read_recording(path: Path) -> None:
     """What ``inspect``/``export`` do with a recording: a full pass over every Block, each turned
     into export's per-sample columns (g, dps, degC, lux with the header's light calibration)."""
-    from stillpoint.drivers import open_recording
+    from stillpoint.engine.recordings import open_recording
     from stillpoint.tools.cli.commands.export import block_columns
     with open_recording(path) as src:
         for b in src:
@@ -515,7 +515,7 @@ def read_mcap(path: Path) -> None:
     """Every MCAP read path: replay source, export decoding of every topic, recover's walk, and
     (when the raw stream reads) the replay itself: the engine run on the logged stream with the
     logged settings, as ``stillpoint replay`` does."""
-    from stillpoint.drivers.mcap_replay import McapRawSource
+    from stillpoint.engine.mcap.replay import McapRawSource
     from stillpoint.engine.mcap.export import _rows
     from stillpoint.engine.mcap.reading import walk_records
     from stillpoint.engine.mcap.stream import iter_messages
@@ -548,7 +548,7 @@ def _whole_read(path: Path, **opts):
     """(digest of every sample's time, counts and segment, QC counts and events) of a read, or
     the typed error it raised."""
     import hashlib
-    from stillpoint.drivers import open_recording
+    from stillpoint.engine.recordings import open_recording
     from stillpoint.drivers.errors import StillpointError
     from stillpoint.tools.cli.commands.export import block_columns
     h = [hashlib.sha256() for _ in range(3)]  # one per field: block boundaries do not matter

@@ -97,6 +97,7 @@ def trial(work: Path, *, kill_at: str | None = None, delay_s: float | None = Non
     the station also configures each cleared device from a study profile, and a device not
     configured after the restart counts as stranded too."""
     from stillpoint.drivers.ax.emulator import EmulatedDevice
+    from stillpoint.engine.sim.record import device_recording
     from stillpoint.drivers.ax.registry import using_runtime_dir
     work.mkdir(parents=True, exist_ok=True)
     runtime, out = work / "runtime", work / "out"
@@ -113,7 +114,8 @@ def trial(work: Path, *, kill_at: str | None = None, delay_s: float | None = Non
     res = {"kill_at": kill_at, "delay_s": delay_s, "pid_only": pid_only}
     try:
         for k in range(devices):
-            d = EmulatedDevice(work / f"dev{k}", 10001 + k, "AX3", days=DAYS, seed=k + 1,
+            d = EmulatedDevice(work / f"dev{k}", 10001 + k, "AX3", make_recording=device_recording,
+                               days=DAYS, seed=k + 1,
                                slot=f"emu-{k + 1}", remount_s=0.2, read_bps=READ_BPS)
             d.plug(pty=True)
             devs.append(d)

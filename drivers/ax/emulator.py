@@ -3,9 +3,11 @@
 ``EmulatedDevice(root, device_id, kind="AX3", ...)`` has
 
 * a drive: the folder ``<root>/media/<label>`` (label ``AX317_<id>`` / ``AX664_<id>``, longer ids
-  ``AX3_<7 digits>``) holding a ``CWA-DATA.CWA`` written by the project's simulator (engine/sim)
-  with the device's id and session, its header laid out as the firmware writes it (an AX3 keeps
-  only the low 16 bits of the id); ``COMMIT``/``CLEAR DATA``/``FORMAT`` drop the drive (the folder
+  ``AX3_<7 digits>``) holding a ``CWA-DATA.CWA``: a copy of ``recording``, or written by the
+  caller's ``make_recording`` (the project's is ``stillpoint.engine.sim.record.device_recording``;
+  the emulator receives it, as pyserial receives its URL handlers, rather than importing the
+  engine) with the device's id and session, its header laid out as the firmware writes it (an AX3
+  keeps only the low 16 bits of the id); ``COMMIT``/``CLEAR DATA``/``FORMAT`` drop the drive (the folder
   moves aside), act on it and re-present it after ``remount_s`` per countdown second (delayed
   activation); ``FORMAT`` removes every file and rebuilds the label;
 * the firmware's command interpreter (``firmware_shell``): every reply as the AX3/AX6 firmware
@@ -39,7 +41,7 @@ import shutil
 import threading
 import time
 from pathlib import Path
-from typing import Optional
+from typing import Optional, Protocol
 
 import numpy as np
 
@@ -92,6 +94,14 @@ def volume_label(kind: str, device_id: int) -> str:
     return T.volume_label(kind, device_id)
 
 
+class RecordingMaker(Protocol):
+    """Writes a device's .cwa recording at ``path`` (the emulator patches the identity bytes)."""
+
+    def __call__(self, path: Path, *, device: str, days: float, hz: float, seed: int,
+                 device_id: int, session_id: int, gyro_range_dps: Optional[float],
+                 packed: Optional[bool]) -> object: ...
+
+
 class EmulatedDevice:
     """One emulated AX3/AX6 (see module docstring)."""
 
@@ -101,6 +111,7 @@ class EmulatedDevice:
                  battery_pct: Optional[float] = None,
                  remount_s: float = 0.4, replug_s: float = 1.5, slot: str = "emu-1",
                  stream_hz: float = C.AX_STREAM_HZ, recording: Optional[Path] = None,
+                 make_recording: Optional[RecordingMaker] = None,
                  read_bps: Optional[float] = None):
         self.kind = kind.upper()
         if self.kind not in ("AX3", "AX6"):
@@ -156,6 +167,7 @@ class EmulatedDevice:
         self.control.mkdir(parents=True, exist_ok=True)
         self.media.mkdir(parents=True, exist_ok=True)
         self._recording = recording
+        self._make_recording = make_recording
         self._clean_leftovers()
         self.shell = FirmwareShell(self)
         self._make_drive()
@@ -257,12 +269,15 @@ class EmulatedDevice:
         packed = None
         if self.kind == "AX3" and self.shell.s.data_mode & 0x0F == FORMAT_CWA_UNPACKED:
             packed = False
-        from stillpoint.engine.sim.record import simulate_recording
+        if self._make_recording is None:
+            raise ValueError(f"emulated {self.kind} {self.device_id} has no recording: give it "
+                             "recording= (a .cwa to copy) or make_recording= (a function that "
+                             "writes one, e.g. stillpoint.engine.sim.record.device_recording)")
         tmp = self.root / f".sim-{self.label}.cwa"
-        simulate_recording(tmp, device=self.kind.lower(), days=self.days, hz=self.hz, seed=self.seed,
-                           truth_path=False, device_id=self.device_id, session_id=self._initial_session,
-                           effects="default", gyro_range_dps=2000.0 if self.kind == "AX6" else None,
-                           packed=packed)
+        self._make_recording(tmp, device=self.kind.lower(), days=self.days, hz=self.hz,
+                             seed=self.seed, device_id=self.device_id,
+                             session_id=self._initial_session,
+                             gyro_range_dps=2000.0 if self.kind == "AX6" else None, packed=packed)
         with open(tmp, "r+b") as f:  # the identity bytes as this firmware writes them
             f.seek(4)
             f.write(bytes([self.shell.header()[4]]))

@@ -91,7 +91,7 @@ class CalibrationOutcome:
     @staticmethod
     def from_record(record: dict) -> "CalibrationOutcome":
         """The outcome of a log's ``calibration`` metadata record (unchecked; the log readers
-        check it, ``drivers.mcap_replay``); an identity estimate when the log has none."""
+        check it, ``engine/mcap/replay.py``); an identity estimate when the log has none."""
         if "json" not in (record or {}):
             return CalibrationOutcome(CalibrationEstimate.identity("no calibration record"))
         return CalibrationOutcome(CalibrationEstimate.from_dict(json.loads(record["json"])))

@@ -117,7 +117,8 @@ def calibrate_recording(path, *, open_options: Optional[dict] = None, progress=N
     at the same samples from the sector anchors, ``drivers.cwa_decode.SampleClock``) and into
     column-major counts (``column_major=True``). ``progress(fraction=...)`` is told the share
     of the file read after each block."""
-    from stillpoint.drivers import open_recording, sniff_format
+    from stillpoint.drivers import sniff_format
+    from stillpoint.engine.recordings import open_recording
 
     options = dict(open_options or {})
     if sniff_format(path) == "cwa":

@@ -374,7 +374,7 @@ def _missing_hint(acc: np.ndarray, fs: float) -> str:
 
 def read_calibration_recording(path):
     """A (short) calibration recording in memory: (time_ns, accel g (n, 3), DeviceInfo)."""
-    from stillpoint.drivers import open_recording
+    from stillpoint.engine.recordings import open_recording
     src = open_recording(path)
     info = src.info
     ts, acc = [], []

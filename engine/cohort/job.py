@@ -268,7 +268,7 @@ def _participant_id(entry: dict, path) -> str:
     if entry.get("participant"):
         return str(entry["participant"])
     try:
-        from stillpoint.drivers import open_recording
+        from stillpoint.engine.recordings import open_recording
         src = open_recording(path)
         try:
             code = str(((getattr(src.info, "metadata", None) or {}).get("Subject Code")) or "").strip()

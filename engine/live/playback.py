@@ -36,7 +36,7 @@ BACKLOG = 4096  # messages queued per client before the oldest data message is d
 
 def read_catalogue(path) -> tuple[list, Optional[tuple[int, int]]]:
     """(channels, (first, last) log time) of a finished log, or an ``McapReadError``."""
-    from stillpoint.drivers.mcap_replay import check_is_log
+    from stillpoint.engine.mcap.replay import check_is_log
     check_is_log(path)  # a recording, or no MCAP at all: one line saying which
     try:
         with open(path, "rb") as f:

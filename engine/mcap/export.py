@@ -215,8 +215,8 @@ def _check_stillpoint_log(path) -> None:
     inspect do. A log without a summary (not finished) is left to the streaming read, which
     names any damage and points at ``recover``."""
     from stillpoint.drivers.errors import UnsupportedFormatError
-    from stillpoint.drivers.mcap_replay import NOT_A_STILLPOINT_LOG
-    from stillpoint.drivers.mcap_replay import check_is_log
+    from stillpoint.engine.mcap.replay import NOT_A_STILLPOINT_LOG
+    from stillpoint.engine.mcap.replay import check_is_log
     from .stream import read_metadata
     check_is_log(path)
     with open(path, "rb") as f:

@@ -151,7 +151,7 @@ def count_leg(path, calibration=None, *, variant: str = "v2", filter: str = "non
     """Count movements in one leg's recording (module docstring). ``calibration``: a
     ``StaticCalibration`` (or None: raw readings, flagged). Returns LegResult (and the signals
     when ``keep_signals``)."""
-    from stillpoint.drivers import open_recording
+    from stillpoint.engine.recordings import open_recording
     path = Path(path)
     src = open_recording(path)
     info = src.info

@@ -78,7 +78,7 @@ def read_signals(path, correct: Callable[[np.ndarray], np.ndarray], *, resample_
     """Stream a recording into LegSignals. ``correct``: raw g (n, 3) -> calibrated g (n, 3).
     ``resample_hz``: linear interpolation of the calibrated axes and the gyro onto a uniform grid
     from the first sample (step rounded to 0.01 s, end excluded), as the HBCD release does."""
-    from stillpoint.drivers import open_recording
+    from stillpoint.engine.recordings import open_recording
     src = open_recording(path)
     info = src.info
     fs_nom = int(round(float(info.sample_rate_nominal or 0)))

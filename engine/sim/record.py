@@ -380,6 +380,15 @@ def simulate_recording(path, *, device: str = "ax3", site: str = "wrist", days: 
     return truth
 
 
+def device_recording(path, *, device: str, days: float, hz: float, seed: int, device_id: int,
+                     session_id: int, gyro_range_dps: Optional[float], packed: Optional[bool]) -> None:
+    """The recording an emulated AX3/AX6 holds (``drivers/ax/emulator.py``'s ``make_recording``):
+    the simulator's default wearer and device effects, no truth or label files."""
+    simulate_recording(path, device=device, days=days, hz=hz, seed=seed, truth_path=False,
+                       device_id=device_id, session_id=session_id, effects="default",
+                       gyro_range_dps=gyro_range_dps, packed=packed)
+
+
 def _reraise(e: BaseException, sinks) -> None:
     """An OS error while writing (full disk, folder removed) becomes an ``OutputError`` naming
     the output; every other exception propagates unchanged."""

@@ -100,7 +100,7 @@ class Inbox:
         print(f"{time.strftime('%H:%M:%S')} inbox {p.name}: {self.done[str(p)]}", flush=True)
 
     def ingest(self, p: Path) -> str:
-        from stillpoint.drivers import open_recording
+        from stillpoint.engine.recordings import open_recording
         from stillpoint.engine.run import RunSettings, process_file
         src = open_recording(p)
         info = src.info

@@ -2,7 +2,7 @@
 through the engine's window-features operator (bounded memory: only the ~60k-row/week feature
 table is kept, never the samples).
 
-The MCAP path replays the log's lossless raw stream (``drivers.mcap_replay``), so the features are
+The MCAP path replays the log's lossless raw stream (``engine/mcap/replay.py``), so the features are
 those of the original recording.
 
 The quantisation step of the stored values is measured on the way (greatest common divisor of
@@ -17,7 +17,7 @@ from typing import Optional
 
 import numpy as np
 
-from stillpoint.drivers import open_recording
+from stillpoint.engine.recordings import open_recording
 from stillpoint.drivers.errors import RecordingError
 
 from ..features import WindowFeatures

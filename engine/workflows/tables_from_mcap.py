@@ -42,7 +42,7 @@ def tables_from_mcap(mcap, epochs_path, days_path=None, *, timezone: Optional[st
                      nonwear_version: str = "2023", valid_day_hours: float = 16.0,
                      enmo_bands_mg=(40.0, 100.0, 400.0), mvpa_bout_s: float = 60.0,
                      outcomes=None, sleep=None, nights_path=None) -> dict:
-    from stillpoint.drivers.mcap_replay import McapRawSource
+    from stillpoint.engine.mcap.replay import McapRawSource
     from ..settings import RunSettings
     from ..timezones import parse_zone
     from ..tables.writer import TablesSettings
@@ -92,7 +92,7 @@ def tables_from_mcap(mcap, epochs_path, days_path=None, *, timezone: Optional[st
 def _logged_tables(mcap, settings, ts) -> dict:
     """Correct the logged raw stream with the run's estimate (its ``calibration`` record: a batch
     run's one estimate, an online run's final one) from the first sample and write the tables."""
-    from stillpoint.drivers.mcap_replay import McapRawSource
+    from stillpoint.engine.mcap.replay import McapRawSource
     from ..tables.estimate_pass import tables_with_estimate
 
     src = McapRawSource(mcap)

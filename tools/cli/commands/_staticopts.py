@@ -24,7 +24,7 @@ def resolve_static(args, settings) -> None:
     from ._runopts import OptionError
     if getattr(args, "static", None):
         raise OptionError("give --static or --static-from-store, not both")
-    from stillpoint.drivers import open_recording
+    from stillpoint.engine.recordings import open_recording
     from stillpoint.engine.calibration import CalibrationStore
     src = open_recording(args.file)
     key = src.info.device_key

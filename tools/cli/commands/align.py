@@ -94,7 +94,7 @@ def _summary(d: dict) -> str:
 
 
 def run(args) -> int:
-    from stillpoint.drivers import open_recording
+    from stillpoint.engine.recordings import open_recording
     from stillpoint.engine.alignment.operator import AlignConfig, run_alignment
 
     config = AlignConfig(method=args.method,

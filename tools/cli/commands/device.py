@@ -384,6 +384,7 @@ def _parse_faults(text: str, ids: list[int]) -> dict:
 def _emulate(args) -> int:
     from stillpoint.drivers.ax import registry
     from stillpoint.drivers.ax.emulator import FAULTS, EmulatedDevice
+    from stillpoint.engine.sim.record import device_recording
     if args.list_faults:
         for k, v in FAULTS.items():
             print(f"{k:<22} {v}")
@@ -414,7 +415,8 @@ def _emulate(args) -> int:
                 break
             kind = "AX6" if k >= args.count - args.ax6 else "AX3"
             print(f"simulating {kind} {dev_id}: {args.days:g} days ...", file=sys.stderr, flush=True)
-            d = EmulatedDevice(root / str(dev_id), dev_id, kind, days=args.days, seed=k + 1,
+            d = EmulatedDevice(root / str(dev_id), dev_id, kind, make_recording=device_recording,
+                               days=args.days, seed=k + 1,
                                faults=sorted(faults[dev_id]), slot=f"emu-{k + 1}", remount_s=1.0,
                                read_bps=args.read_mbps * 1e6 if args.read_mbps else None,
                                battery_pct=args.battery)

@@ -53,7 +53,9 @@ from typing import Optional
 
 import numpy as np
 
-from stillpoint.drivers import open_recording, sniff_format
+from stillpoint.drivers import sniff_format
+
+from stillpoint.engine.recordings import open_recording
 from stillpoint.drivers.constants import cwa_light_lux, gna_light_lux
 from stillpoint.drivers.errors import StillpointError, UnsupportedFormatError
 from stillpoint.drivers.outputs import atomic_output, check_output_path

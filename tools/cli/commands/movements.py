@@ -57,7 +57,7 @@ def add_arguments(p) -> None:
 
 
 def _calibrations(args, files):
-    from stillpoint.drivers import open_recording
+    from stillpoint.engine.recordings import open_recording
     from stillpoint.engine.calibration.static import (StaticCalibration, load_static_calibration)
 
     from ._runopts import OptionError

@@ -156,7 +156,7 @@ def execute(args, settings: RunSettings, out: Path) -> int:
                         label=getattr(args, "command", None) or "process")  # or replay
     resolve_static(args, settings)
     if getattr(args, "store", None) is not None and settings.mode == "online" and settings.prior is None:
-        from stillpoint.drivers import open_recording
+        from stillpoint.engine.recordings import open_recording
         src = open_recording(args.file)
         key = src.info.device_key
         src.close()

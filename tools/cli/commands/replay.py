@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from stillpoint.drivers.mcap_replay import McapRawSource
+from stillpoint.engine.mcap.replay import McapRawSource
 
 from ._runopts import add_setting_arguments
 from ._staticopts import add_static_arguments
@@ -95,7 +95,7 @@ def _logged_sleep(args, meta: dict) -> None:
 def _check_raw(raw: Path, meta: dict, log: Path) -> None:
     """The recording given with ``--raw`` must be the one the log was made from: the same
     device type, id and session as the log's ``device`` record (one line, exit 2, otherwise)."""
-    from stillpoint.drivers import open_recording
+    from stillpoint.engine.recordings import open_recording
     from stillpoint.drivers.byteio import check_recording_path
     from stillpoint.drivers.errors import RecordingError
     check_recording_path(raw)

@@ -19,16 +19,16 @@ from typing import Iterator, Optional
 
 import numpy as np
 
+from stillpoint.drivers import constants as C
+from stillpoint.drivers.byteio import check_recording_path
+from stillpoint.drivers.errors import CorruptRecordingError, StillpointError, UnsupportedFormatError
+from stillpoint.drivers.sniff import MCAP_MAGIC, sniff_format
 from stillpoint.engine.core.blocks import (Block, DeviceInfo, PER_SAMPLE_BUTTON, PER_SAMPLE_IDLE_SLEEP,
-                                      PER_SAMPLE_LIGHT_RAW, QCEvent, QCReport)
-from stillpoint.engine.mcap.reading import McapReadError, check_raw_message, decode, loads_json
-from stillpoint.engine.mcap.schemas import ACCEL_BATCH_RAW, GYRO_BATCH_RAW, times_from_deltas
-from stillpoint.engine.mcap.stream import iter_messages, read_metadata
+                                           PER_SAMPLE_LIGHT_RAW, QCEvent, QCReport)
 
-from . import constants as C
-from .byteio import check_recording_path
-from .errors import CorruptRecordingError, UnsupportedFormatError
-from .sniff import MCAP_MAGIC, sniff_format
+from .reading import McapReadError, check_raw_message, decode, loads_json
+from .schemas import ACCEL_BATCH_RAW, GYRO_BATCH_RAW, times_from_deltas
+from .stream import iter_messages, read_metadata
 
 NOT_A_STILLPOINT_LOG = "MCAP has no 'device' metadata record: not a stillpoint log"
 LEAN_LOG = ("is a lean log: it keeps the estimates, QC, epoch metrics, sleep and view stream, "
@@ -227,7 +227,7 @@ class McapRawSource:
         if "settings" in self.metadata:
             self.settings = loads_json(self.path, None, "settings",
                                        self.metadata["settings"].get("json", ""), what="metadata")
-            from stillpoint.engine.settings import settings_problem
+            from ..settings import settings_problem
             problem = settings_problem(self.settings)
             if problem:
                 self._f.close()
@@ -241,9 +241,8 @@ class McapRawSource:
         CalibrationEstimate, checked: an estimate the run applied must hold usable coefficients
         (engine/calibration/validate.py), any other only its status and reason. An identity
         estimate when the log has none. A damaged record is a typed error naming it."""
-        from stillpoint.engine.calibration.estimate import CalibrationEstimate, status_applied
-        from stillpoint.engine.calibration.validate import validate_estimate
-        from .errors import StillpointError
+        from ..calibration.estimate import CalibrationEstimate, status_applied
+        from ..calibration.validate import validate_estimate
         cal = self.metadata.get("calibration") or {}
         if "json" not in cal:
             return CalibrationEstimate.identity("no calibration record")
@@ -281,7 +280,7 @@ class McapRawSource:
         return min(1.0, getattr(self, "_handed", 0) / total) if total > 0 else None
 
     def __iter__(self) -> Iterator[Block]:
-        from stillpoint.engine.settings import is_lean
+        from ..settings import is_lean
         if is_lean(self.settings):
             raise UnsupportedFormatError(self.path, LEAN_LOG)
         yield from self._blocks()

@@ -219,3 +219,49 @@ def test_simulated_truth_json_records_the_nonwear(tmp_path):
     assert set(nw) == {"hours", "hours_in_episodes_ge_60_min", "episodes"}
     assert nw["hours"] == pytest.approx(truth["summary"]["activity_hours"]["nonwear_table"]
                                         + truth["summary"]["activity_hours"]["nonwear_drawer"], abs=0.02)
+
+
+def test_still_wearer_has_long_still_periods_long_nights_and_long_nonwear():
+    from stillpoint.engine.sim.wearer import WEARERS, nonwear_summary, wearer_params
+    assert set(WEARERS) == {"default", "still"} and wearer_params() == WearerParams()
+    with pytest.raises(ValueError, match="unknown wearer 'sofa'.*default, still"):
+        wearer_params("sofa")
+    days = 7
+
+    def profile(name):
+        sch = make_schedule(wearer_params(name), days * 86400.0, seed=3)
+        d = np.clip(sch.end, 0, days * 86400.0) - np.clip(sch.start, 0, days * 86400.0)
+        hours = {a: d[sch.activity == i].sum() / 3600 / days for i, a in enumerate(ACTIVITIES)}
+        still = sch.motion == MOTIONS.index("still")
+        longest = d[still].max()
+        return sch, hours, d[still].sum() / 3600 / days, longest, nonwear_summary(sch)
+
+    _, h0, still0, long0, nw0 = profile("default")
+    sch, h1, still1, long1, nw1 = profile("still")
+    # still segments (worn or not): ~21 h a day against ~12 h for the default wearer
+    assert still1 > 18 and still1 > still0 + 6, (still0, still1)
+    assert h1["sleep"] > h0["sleep"] + 0.5 and h1["sleep"] > 9
+    assert h1["running"] == 0 and h1["walking"] < 0.5 * h0["walking"]
+    # hours-long off-wrist periods: several a week, more nonwear than the default wearer
+    long_eps = [x for x in nw1["episodes"] if x["end_s"] - x["start_s"] >= 2 * 3600]
+    assert len(long_eps) >= 2 and nw1["hours"] > nw0["hours"]
+    assert long1 >= 2 * 3600 and long1 > long0 * 0.99
+    # the same seed draws the same plan
+    again = make_schedule(wearer_params("still"), days * 86400.0, seed=3)
+    assert np.array_equal(again.start, sch.start) and np.array_equal(again.activity, sch.activity)
+
+
+def test_simulate_cli_wearer_option_writes_the_still_wearer(tmp_path):
+    import json
+
+    from stillpoint.engine.sim.wearer import WEARERS
+    from stillpoint.tools.cli import main
+    out = tmp_path / "still.cwa"
+    assert main(["simulate", "-o", str(out), "--days", "0.05", "--hz", "12.5", "--wearer",
+                 "still", "-q"]) == 0
+    truth = json.loads(out.with_suffix(".truth.json").read_text())
+    assert truth["wearer"] == WearerParams(**WEARERS["still"]).to_dict()
+    assert truth["wearer"]["still_bout_s"] == 300.0
+    # a run that does not draw a wearer refuses the option in one line
+    assert main(["simulate", "-o", str(tmp_path / "six.cwa"), "--scenario", "sixface",
+                 "--wearer", "still"]) == 2

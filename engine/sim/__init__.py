@@ -17,10 +17,10 @@ from .record import (DeviceSim, SimChunk, Truth, build_model, iter_chunks, load_
                      truth_device_time)
 from .source import SimSource
 from .temperature import TemperatureParams
-from .wearer import SITES, WearerParams
+from .wearer import SITES, WEARERS, WearerParams, wearer_params
 
 __all__ = ["DeviceSim", "EFFECT_ORDER", "EFFECTS", "ModelError", "SITES", "SensorModel", "SimChunk", "SimSource",
-           "TemperatureParams", "Truth", "WearerParams", "apply_deterministic", "build_model",
+           "TemperatureParams", "Truth", "WEARERS", "WearerParams", "apply_deterministic", "build_model",
            "first_order_lag", "ggir_equivalent", "iter_chunks", "load_labels", "load_model",
            "load_truth", "make_devices", "parse_effect_option", "relative_clock_s", "resolve_model", "save_model",
-           "simulate_pair", "simulate_recording", "truth_device_time"]
+           "simulate_pair", "simulate_recording", "truth_device_time", "wearer_params"]

@@ -86,6 +86,7 @@ class WearerParams:
     long_walk_per_day: float = 1.5  # 15-45 min walks per day (on average)
     still_share_sitting: float = 0.15  # share of sitting time with the wrist truly still
     still_share_standing: float = 0.1
+    still_bout_s: float = 90.0  # median still piece while sitting or standing (s), lognormal
     walk_step_hz: float = 1.85  # walking step (heel-strike) frequency, mean; range 1.6-2.2 Hz
     walk_step_hz_sd: float = 0.12
     run_step_hz: float = 2.75  # running 2.5-3.0 Hz
@@ -112,6 +113,41 @@ class WearerParams:
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+
+# The simulator's named wearers (``stillpoint simulate --wearer NAME``): the parameters each
+# changes from ``WearerParams``'s defaults.
+# * "default": the typical adult above.
+# * "still": a sedentary older participant with long still periods, the hard case for a
+#   calibration that refits as data arrive (many still windows a day, in few orientations): long
+#   nights (21:30-07:30) with rare posture changes and twitches, most of the day sitting in long
+#   bouts with the wrist resting for minutes at a time, short slow walks and no runs, and the
+#   device off the wrist often and for long (on a table for 2-6 h about five times a week, in a
+#   drawer a few hours about twice a week). Older adults are the most sedentary group of
+#   accelerometer surveys (Matthews CE et al. 2008, "Amount of time spent in sedentary behaviors
+#   in the United States, 2003-2004", Am J Epidemiol 167(7):875-81, Table 2: ~9 h/day at ages
+#   60-85) and have the lowest mean ENMO (Doherty 2017, Table 1, ages 65-74: 25.6-26.6 mg); this
+#   wearer goes further on purpose, as a stress case rather than a population's average (a week,
+#   seeds 1-4: 20.5-21.1 h/day in still segments, worn or not, against 11.0-12.4 h for the
+#   default wearer; 9.6-10.1 h/day asleep; 12-22 h/week off the wrist; worn wrist ENMO ~6 mg
+#   over two days at seed 3, against ~40 mg).
+WEARERS = {
+    "default": {},
+    "still": dict(wake_h=7.5, sleep_h=21.5, sleep_posture_min=75.0, sleep_twitch_per_h=1.0,
+                  sit_share=0.6, stand_share=0.15, lying_share=0.07, sit_bout_min=45.0,
+                  stand_bout_min=3.0, walk_bout_min=2.0, lying_bout_min=45.0,
+                  long_walk_per_day=0.6, runs_per_week=0.0, still_share_sitting=0.4,
+                  still_share_standing=0.15, still_bout_s=300.0, drawer_per_day=0.3,
+                  stroll_share=0.8, offwrist_per_week=5.0, offwrist_min_h=2.0,
+                  offwrist_max_h=6.0),
+}
+
+
+def wearer_params(name: str = "default") -> WearerParams:
+    """The named wearer's parameters (``WEARERS``); ValueError naming the choices otherwise."""
+    if name not in WEARERS:
+        raise ValueError(f"unknown wearer {name!r}: one of {', '.join(WEARERS)}")
+    return WearerParams(**WEARERS[name])
 
 
 @dataclass
@@ -224,7 +260,7 @@ def make_schedule(params: WearerParams, duration_s: float, seed: int,
             first = True
             while t < e:
                 if rng.random() < still_share:
-                    dur = rng.lognormal(np.log(90.0), 0.9)
+                    dur = rng.lognormal(np.log(p.still_bout_s), 0.9)
                     mot = "still"
                 else:
                     dur = rng.lognormal(np.log(60.0), 0.9)

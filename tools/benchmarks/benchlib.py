@@ -119,20 +119,22 @@ def peers_python(option: Optional[str] = None) -> Optional[str]:
 
 
 def realistic_recording(workdir: Path, days: float, rate: float = 100.0,
-                        seed: int = REALISTIC_SEED) -> Path:
-    """``stillpoint simulate`` output with the default wearer and sensor (AX3 at the wrist),
-    written once into ``workdir`` (with its truth and labels, as the command writes them)."""
+                        seed: int = REALISTIC_SEED, wearer: str = "default") -> Path:
+    """``stillpoint simulate`` output with the named wearer (``--wearer``; the default wearer
+    unless told) and the default sensor (AX3 at the wrist), written once into ``workdir`` (with
+    its truth and labels, as the command writes them)."""
     import time
-    path = Path(workdir) / f"wear_{days:g}d_{rate:g}hz_s{seed}.cwa"
+    tag = "" if wearer == "default" else f"{wearer}_"
+    path = Path(workdir) / f"wear_{tag}{days:g}d_{rate:g}hz_s{seed}.cwa"
     if path.is_file():
         return path
-    from stillpoint.engine.sim import simulate_recording
+    from stillpoint.engine.sim import simulate_recording, wearer_params
     t = time.perf_counter()
     tmp = path.with_name(path.stem + ".part.cwa")
     simulate_recording(tmp, days=days, hz=rate, seed=seed, truth_path=path.with_suffix(".truth.json"),
-                       labels_path=path.with_suffix(".labels.csv"))
+                       labels_path=path.with_suffix(".labels.csv"), wearer=wearer_params(wearer))
     os.replace(tmp, path)
-    print(f"wrote {path.name} ({path.stat().st_size / 1e6:.0f} MB, simulated wearer) in "
+    print(f"wrote {path.name} ({path.stat().st_size / 1e6:.0f} MB, simulated {wearer} wearer) in "
           f"{time.perf_counter() - t:.0f} s", flush=True)
     return path
 

@@ -47,6 +47,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("-o", "--output", required=True, help="output file (.cwa for ax3/ax6, .bin for geneactiv, .gt3x for gt3x)")
     p.add_argument("--device", default="ax3", choices=("ax3", "ax6", "geneactiv", "gt3x"))
     p.add_argument("--site", default="wrist", choices=("wrist", "hip", "thigh", "ankle"))
+    from stillpoint.engine.sim.wearer import WEARERS
+    p.add_argument("--wearer", default="default", choices=tuple(WEARERS),
+                   help="the wearer's behaviour: 'default' a typical adult, 'still' a sedentary "
+                        "older participant with long still periods, long nights and long "
+                        "off-wrist periods (engine/sim/wearer.py WEARERS)")
     p.add_argument("--days", type=number(0, 366, lo_open=True, unit="days"), default=7.0, help="duration in days (fractions allowed)")
     p.add_argument("--hz", type=RATE_HZ, default=100.0, help="nominal sample rate")
     p.add_argument("--range", dest="range_g", type=number(1, 16, integer=True), default=None,
@@ -86,6 +91,7 @@ _ONLY_FOR = {
     "coupling": (0.0, ("sixface", "infant")), "table_tilt_deg": (0.0, ("sixface",)),
     "pair_output": (None, ("pair",)), "pair_device": (None, ("pair",)),
     "pair_hz": (None, ("pair",)), "pair_effect": ([], ("pair",)),
+    "wearer": ("default", ("free-living",)),
 }
 
 
@@ -103,6 +109,7 @@ def _check_ignored(args) -> None:
 def run(args) -> int:
     from stillpoint.engine.sim.model import ModelError, parse_effect_option
     from stillpoint.engine.sim.record import build_model, simulate_pair, simulate_recording
+    from stillpoint.engine.sim.wearer import wearer_params
 
     _check_ignored(args)
     if getattr(args, "scenario", "free-living") != "free-living":
@@ -122,7 +129,8 @@ def run(args) -> int:
         check_output_path(args.save_model, what="model")
     common = dict(days=args.days, hz=args.hz, seed=args.seed, start=args.start,
                   range_g=args.range_g, packed=False if args.unpacked else None,
-                  gyro_range_dps=args.gyro if args.device == "ax6" else None)
+                  gyro_range_dps=args.gyro if args.device == "ax6" else None,
+                  wearer=wearer_params(getattr(args, "wearer", "default")))
     t0 = time.perf_counter()
     from stillpoint.engine.progress import Progress
     bar = Progress("simulate", quiet=args.quiet)

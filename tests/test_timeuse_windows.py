@@ -68,9 +68,11 @@ def test_mm_windows_and_parts_add_up(week):
         assert r["sleep_h"] + r["wake_spt_h"] == pytest.approx(r["spt_h"])
         assert r["valid_h"] + r["invalid_h"] == pytest.approx(r["duration_h"])
         clean_day = r["day_h"] * 60 * (1 - (r["nonwear_perc_day"] or 0) / 100)
-        bands = sum(r[f"min_day_{b}"] for b in ("inactive", "light", "moderate", "vigorous"))
+        bands = sum(r[f"dur_day_total_{b}_min"] for b in ("IN", "LIG", "MOD", "VIG"))
         assert bands == pytest.approx(clean_day, abs=1e-6)
-        assert r["min_day_mvpa"] == pytest.approx(r["min_day_moderate"] + r["min_day_vigorous"])
+        classes = sum(r[c] for c in r if c.startswith("dur_day_") and c.endswith("_min")
+                      and ("_unbt_" in c or "_bts_" in c))
+        assert classes == pytest.approx(bands, abs=1e-6)  # every counted waking epoch in one class
     assert [r["window_valid"] for r in mm] == [0] + [1] * (len(mm) - 2) + [0]
 
 
@@ -81,15 +83,15 @@ def test_nonwear_night_counts_in_its_windows(week):
     assert ww[0]["nonwear_perc_spt"] > 0 and ww[0]["nonwear_perc_day"] == 0
 
 
-def test_bouts_are_ggirs_on_the_waking_epochs(week):
+def test_mvpa_bouts_are_ggirs_on_the_waking_epochs(week):
     s, st, spt, sib, rows = week
-    mark = ~spt & ~s.nonwear & (s.enmo >= 40) & (s.enmo < 100)
-    inb = ggir_bouts(mark, 12, 12)
+    mark = ~spt & ~s.nonwear & (s.enmo >= 100)
+    inb = ggir_bouts(mark, 120, 12)  # the longest MVPA class comes first: plain g.getbout
     r = [x for x in rows if x["window_type"] == "MM"][2]
     local = s.zone.local_ns(s.t_ns)
     day = local // (86400 * 10**9)
     sel = day == day[0] + 2
-    assert r["bout_min_day_light_1m"] == pytest.approx(inb[sel].sum() * 5 / 60)
+    assert r["dur_day_MVPA_bts_10_min"] == pytest.approx((inb[sel] & ~spt[sel]).sum() * 5 / 60)
 
 
 def test_windows_table_from_process(tmp_path):
@@ -98,9 +100,10 @@ def test_windows_table_from_process(tmp_path):
     simulate_recording(rec, days=2.6, hz=12.5, seed=8, truth_path=False)
     exe = Path(sys.executable).with_name("stillpoint")
     subprocess.run([str(exe), "process", str(rec), "-o", str(tmp_path / "w.mcap"), "--timezone",
-                    "Europe/London", "-q"], check=True)
+                    "Europe/London", "-q", "--impute"], check=True)
     rows = list(csv.DictReader(open(tmp_path / "w.windows.csv")))
     assert list(rows[0]) == WINDOW_COLUMNS
+    assert {r["imputed"] for r in rows} == {"1"}  # GGIR's part 5 series: more than a day recorded
     assert {r["window_type"] for r in rows} == {"WW", "MM", "OO"}
     assert all(r["guider"] in ("HDCZA", "HDCZA+invalid", "L512", "sleeplog") for r in rows
                if r["window_type"] != "MM")

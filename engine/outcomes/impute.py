@@ -70,6 +70,16 @@ class AverageDay:
         c = self.counts[metric]
         return np.where(c > 0, self.sums[metric] / np.maximum(c, 1), 0.0)
 
+    def fill(self, metric: str, values: np.ndarray, clean: np.ndarray) -> np.ndarray:
+        """The recording's ``metric`` from its first epoch row with every epoch that is not clean
+        replaced by its slot's mean (GGIR's imputed series); unchanged when GGIR would not
+        impute."""
+        v = np.asarray(values, np.float64)
+        if not self.imputes:
+            return v
+        slot = np.arange(v.shape[0]) % self.per_day
+        return np.where(np.asarray(clean, bool) & np.isfinite(v), v, self.profile(metric)[slot])
+
     def slices(self):
         """The spilled rows back, in order, a slice at a time."""
         self._spill.seek(0)

@@ -42,6 +42,13 @@ class SleepSpec:
     daysleeper_nights: tuple = ()  # night numbers (0 = the first evening) slept 05:00-14:00
     nonwear_nights: tuple = ()  # night numbers with 2 h of nonwear starting 2 h after onset
     quiet_evening_h: float = 1.5  # low-movement sitting before onset
+    # waking activity (off by default; drawn from a second stream seeded from ``seed`` so the
+    # rest of a scenario is the same numbers with it on or off): per day, Poisson-many stretches
+    # of sitting (ENMO ~ 12 mg), light activity (~ 70 mg), moderate to vigorous activity
+    # (~ 180 mg, a fifth of its epochs light: the bout rule's 80 %) and runs (~ 500 mg), 2-40 min
+    # each
+    active_per_day: float = 0.0
+    nonwear_days: tuple = ()  # day numbers (0 = the first) with 3 h of nonwear from 13:00 local
 
 
 @dataclass
@@ -121,4 +128,47 @@ def sleep_scenario(spec: SleepSpec) -> SleepSeries:
     a[state == 1] = (level + breath)[state == 1]
     a[state == 3] = level[state == 3]
     enmo = np.where(state == 0, np.abs(rng.normal(40, 20, n)), np.where(state == 2, 5.0, 0.5))
+    if spec.active_per_day or spec.nonwear_days:
+        enmo, worn_off = _waking_activity(spec, zone, t0, n, state, enmo, day0)
+        a[worn_off] = 10.0  # on a table: still
+        state = np.where(worn_off, 3, state)
     return SleepSeries(spec, zone, t, np.round(a, 2), np.round(enmo, 2), state == 3, truth)
+
+
+def _waking_activity(spec: SleepSpec, zone: Zone, t0: int, n: int, state, enmo, day0):
+    """Activity stretches and daytime nonwear in the awake epochs (``active_per_day``,
+    ``nonwear_days``): the new ENMO and the epochs taken off."""
+    rng = np.random.default_rng([int(spec.seed), 1])
+    ep = int(EPOCH_S * 1e9)
+    enmo = enmo.copy()
+    off = np.zeros(n, bool)
+    for k in range(int(np.ceil(spec.days)) + 1):
+        base = _dt.datetime.combine(day0 + _dt.timedelta(days=k), _dt.time())
+        for _ in range(int(rng.poisson(spec.active_per_day))):
+            kind = int(rng.integers(0, 4))  # light, MVPA, run, sitting
+            start = _local_to_utc_ns(zone, base + _dt.timedelta(hours=float(rng.uniform(8, 21))))
+            i0 = (start - t0) // ep
+            i1 = min(n, i0 + int(rng.uniform(2, 40) * 12))
+            if i0 < 0 or i0 >= n:
+                continue
+            sel = np.arange(i0, i1)
+            sel = sel[state[sel] == 0]
+            m = sel.shape[0]
+            if kind == 0:
+                enmo[sel] = np.abs(rng.normal(70, 15, m))
+            elif kind == 1:
+                enmo[sel] = np.where(rng.random(m) < 0.2, np.abs(rng.normal(60, 15, m)),
+                                     np.abs(rng.normal(180, 60, m)))
+            elif kind == 2:
+                enmo[sel] = np.abs(rng.normal(500, 120, m))
+            else:
+                enmo[sel] = np.abs(rng.normal(12, 6, m))
+        if k in spec.nonwear_days:
+            start = _local_to_utc_ns(zone, base + _dt.timedelta(hours=13.0))
+            i0 = max(0, (start - t0) // ep)
+            i1 = min(n, i0 + 3 * 720)
+            sel = np.arange(i0, i1)
+            sel = sel[state[sel] == 0]
+            off[sel] = True
+            enmo[sel] = 0.5
+    return enmo, off

@@ -322,7 +322,7 @@ class TablesTap:
         if self.average_day is not None:  # GGIR's imputation needs the whole average day
             from ..outcomes.impute import imputed_days
             imp = imputed_days(self.average_day, self.outcomes)
-            self.average_day.close()
+            self.average_day.close()  # its slot means stay for the windows table
             from ..outcomes.impute import M_COLUMNS, SUFFIX
             for d in days:
                 d.update(imp.get(d["date"], {}))
@@ -342,7 +342,8 @@ class TablesTap:
             if self.sleep is not None and self.ts.windows_path is not None:
                 from ..timeuse.table import write_windows
                 windows = write_windows(self.ts.windows_path, rec, self.sleep.stage.nights,
-                                        self.ts.zone, self.epoch_ns / 1e9, self.outcomes)
+                                        self.ts.zone, self.epoch_ns / 1e9, self.outcomes,
+                                        self.average_day)
         with atomic_output(self.ts.days_path, binary=False, what="day table") as f:
             w = csv.writer(f, lineterminator="\n")
             w.writerow(cols)

@@ -10,6 +10,7 @@ from pathlib import Path
 from stillpoint.drivers.names import cell_text, csv_cell
 from stillpoint.drivers.outputs import atomic_output
 
+from ..outcomes.impute import METRICS as IMPUTED_METRICS
 from .windows import WINDOW_COLUMNS, time_use
 
 
@@ -19,11 +20,17 @@ def windows_path(mcap_path) -> Path:
     return p.with_name(stem + ".windows.csv")
 
 
-def write_windows(path, rec, nights, zone, epoch_s: float, outcomes=None) -> list:
+def write_windows(path, rec, nights, zone, epoch_s: float, outcomes=None, average_day=None) -> list:
+    """``average_day``: the run's imputation (``--impute``): band minutes and bouts on GGIR's
+    imputed series (metrics the imputation keeps: ENMO, MAD), else on clean epochs only."""
     cut = outcomes.cut if outcomes is not None else None
-    value = rec[cut.column] if cut is not None else rec["enmo_mg"]
+    column = cut.column if cut is not None else "enmo_mg"
+    value = rec[column]
+    imputed = average_day is not None and average_day.imputes and column in IMPUTED_METRICS
+    if imputed:
+        value = average_day.fill(column, value, ~rec["invalid"])
     rows = time_use(rec["t_ns"], value, ~rec["invalid"], rec["nonwear"], rec["sib"].astype(bool),
-                    rec["spt"].astype(bool), nights, zone, epoch_s, cut)
+                    rec["spt"].astype(bool), nights, zone, epoch_s, cut, imputed=imputed)
     with atomic_output(path, binary=False, what="windows table") as f:
         w = csv.writer(f, lineterminator="\n")
         w.writerow(WINDOW_COLUMNS)

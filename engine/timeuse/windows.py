@@ -1,29 +1,37 @@
 """GGIR part 5's time use per window: wake-to-wake (WW), midnight-to-midnight (MM) and
 onset-to-onset (OO) windows of a recording, from its epochs and nights (rules.py cites each rule).
 
-``time_use(series, nights, zone, epoch_s, cut)`` -> one dict per window: the window's span, the
-night inside it and its guider, the sleep period (sleep and wake in it), the waking part, nonwear
-and invalid time, minutes per intensity band and GGIR bout minutes per band in the waking part
-(clean epochs only), and whether GGIR's part 5 report would keep the window.
+``time_use(t_ns, value, clean, nonwear, sib, spt, nights, zone, epoch_s, cut, imputed)`` -> one
+dict per window: the window's span, the night inside it and its guider, the sleep period (sleep
+and wake in it), the waking part, nonwear and invalid time, and GGIR's part 5 time use: minutes per
+behavioural class (levels.py: sleep-period classes, unbouted intensities, hierarchical bouts),
+waking totals per intensity, bouts per bout class and blocks per class, and whether GGIR's part 5
+report would keep the window. ``value`` is the metric with imputed values on the epochs that are
+not clean when ``imputed`` (GGIR's part 5 series), else with those epochs missing.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ..outcomes.bouts import ggir_bouts
 from . import rules
+from .levels import TOTAL_NAMES, class_names, levels
 
 DAY_NS = 86400 * 10**9
-BANDS = ("inactive", "light", "moderate", "vigorous", "mvpa")
+_CLASSES = class_names()
+_BOUT_CLASSES = [c for c in _CLASSES if "_bts_" in c]
+TIMEUSE_COLUMNS = (
+    [f"dur_{c}_min" for c in _CLASSES] + [f"dur_day_total_{c}_min" for c in TOTAL_NAMES]
+    + ["dur_day_min", "dur_spt_min", "dur_day_spt_min", "N_atleast5minwakenight",
+       "sleep_efficiency_after_onset"]
+    + [f"Nbouts_{c}" for c in _BOUT_CLASSES]
+    + [f"Nblocks_{c}" for c in _CLASSES] + [f"Nblocks_day_total_{c}" for c in TOTAL_NAMES])
 WINDOW_COLUMNS = (
     ["window_type", "window_number", "date", "start_local", "end_local", "window_cut", "night",
      "guider", "night_valid", "duration_h", "valid_h", "nonwear_h", "invalid_h", "spt_h",
-     "sleep_h", "wake_spt_h", "day_h", "nonwear_perc_day", "nonwear_perc_spt", "metric",
-     "thresholds_mg"]
-    + [f"min_day_{b}" for b in BANDS]
-    + [f"bout_min_day_{b}_{m}m" for b in BANDS[1:] for m in rules.BOUT_MINUTES]
-    + ["window_valid"])
+     "sleep_h", "wake_spt_h", "day_h", "nonwear_perc_day", "nonwear_perc_spt",
+     "nonwear_perc_day_spt", "metric", "thresholds_mg", "imputed"]
+    + TIMEUSE_COLUMNS + ["window_valid"])
 
 
 def thresholds(cut=None) -> tuple:
@@ -33,17 +41,46 @@ def thresholds(cut=None) -> tuple:
     return (cut.column, cut.light, cut.moderate, cut.vigorous)
 
 
-def band_masks(value, waking_clean, th) -> dict:
-    _, lig, mod, vig = th
-    v = np.where(waking_clean & np.isfinite(value), value, np.nan)
-    ok = np.isfinite(v)
-    lo = lig if lig is not None else mod
-    out = {"inactive": ok & (v < lo)}
-    out["light"] = ok & (v >= lig) & (v < mod) if lig is not None else np.zeros(v.shape, bool)
-    out["moderate"] = ok & (v >= mod) & ((v < vig) if vig is not None else True)
-    out["vigorous"] = ok & (v >= vig) if vig is not None else np.zeros(v.shape, bool)
-    out["mvpa"] = ok & (v >= mod)
-    return out
+def _runs(x: np.ndarray) -> int:
+    """Runs of True (R: length(which(rle(x)$values == 1)))."""
+    if not x.shape[0]:
+        return 0
+    return int(x[0]) + int(np.count_nonzero(x[1:] & ~x[:-1]))
+
+
+def _segment_time_use(lv, diur, sib, nonwear, a: int, b: int, epoch_s: float, mm_no_edges: bool) -> dict:
+    """GGIR's g.part5_analyseSegment figures of the epochs [a, b)."""
+    m = epoch_s / 60.0
+    k = len(_CLASSES)
+    lev = lv.level[a:b]
+    counts = np.bincount(lev[lev >= 0], minlength=k)
+    tot = np.bincount(lv.total[a:b], minlength=5)
+    d = diur[a:b].copy()
+    if mm_no_edges:  # GGIR sets diur to 0 over the window while analysing it
+        d[:] = False
+    r = {f"dur_{c}_min": counts[i] * m for i, c in enumerate(_CLASSES)}
+    r.update({f"dur_day_total_{c}_min": tot[i + 1] * m for i, c in enumerate(TOTAL_NAMES)})
+    nd, ns = int(np.count_nonzero(~d)), int(np.count_nonzero(d))
+    r["dur_day_min"], r["dur_spt_min"], r["dur_day_spt_min"] = nd * m, ns * m, (b - a) * m
+    nw = nonwear[a:b]
+    r["nonwear_perc_day"] = 100.0 * np.count_nonzero(~d & nw) / nd if nd else None
+    r["nonwear_perc_spt"] = 100.0 * np.count_nonzero(d & nw) / ns if ns else None
+    r["nonwear_perc_day_spt"] = 100.0 * np.count_nonzero(nw) / (b - a)
+    p = np.flatnonzero(lev == 0)
+    r["N_atleast5minwakenight"] = max(0, int(np.count_nonzero(np.diff(p) > rules.LONG_WAKE_S / epoch_s)) - 2)
+    r["sleep_efficiency_after_onset"] = np.count_nonzero(sib[a:b] & d) / ns if ns else None
+    for c in _BOUT_CLASSES:
+        r[f"Nbouts_{c}"] = _runs(lv.bouts[c][a:b])
+    starts = np.r_[True, lev[1:] != lev[:-1]] if lev.shape[0] else np.zeros(0, bool)
+    blocks = np.bincount(lev[starts & (lev >= 0)], minlength=k)
+    for i, c in enumerate(_CLASSES):
+        r[f"Nblocks_{c}"] = int(blocks[i])
+    t = lv.total[a:b]
+    tstarts = np.r_[True, t[1:] != t[:-1]] if t.shape[0] else np.zeros(0, bool)
+    tb = np.bincount(t[tstarts], minlength=5)
+    for i, c in enumerate(TOTAL_NAMES):
+        r[f"Nblocks_day_total_{c}"] = int(tb[i + 1])
+    return r
 
 
 def _windows(spt_spans, n, midnights):
@@ -67,7 +104,8 @@ def _windows(spt_spans, n, midnights):
     return out
 
 
-def time_use(t_ns, value, clean, nonwear, sib, spt, nights, zone, epoch_s: float, cut=None) -> list:
+def time_use(t_ns, value, clean, nonwear, sib, spt, nights, zone, epoch_s: float, cut=None,
+             imputed: bool = False) -> list:
     """``nights``: engine.sleep Night objects (their ``spt`` epochs index these arrays)."""
     from ..timezones import local_text
     n = t_ns.shape[0]
@@ -76,24 +114,23 @@ def time_use(t_ns, value, clean, nonwear, sib, spt, nights, zone, epoch_s: float
     h = epoch_s / 3600.0
     th = thresholds(cut)
     spt = np.asarray(spt, bool)
-    waking_clean = ~spt & np.asarray(clean, bool)
-    masks = band_masks(np.asarray(value, np.float64), waking_clean, th)
-    epm = max(1, int(round(60 / epoch_s)))
-    bouts = {(b, m): ggir_bouts(masks[b], m * epm, epm) for b in BANDS[1:] for m in rules.BOUT_MINUTES}
+    sib = np.asarray(sib, bool)
+    clean = np.asarray(clean, bool)
+    nonwear = np.asarray(nonwear, bool)
+    value = np.asarray(value, np.float64)
+    if not imputed:
+        value = np.where(clean, value, np.nan)
+    lv = levels(value, spt, sib, epoch_s, th[1:])
     local = zone.local_ns(t_ns) if zone.known else t_ns
     midnights = np.flatnonzero(local % DAY_NS == 0).tolist()
     with_spt = [x for x in nights if x.spt is not None]
     spans = [x.spt for x in with_spt]
     cs = {k: np.concatenate([[0], np.cumsum(v.astype(np.int64))]) for k, v in
-          [("clean", np.asarray(clean, bool)), ("nonwear", np.asarray(nonwear, bool)),
-           ("invalid", ~np.asarray(clean, bool)), ("spt", spt),
-           ("sleep", spt & np.asarray(sib, bool)), ("spt_nonwear", spt & np.asarray(nonwear, bool)),
-           ("day_nonwear", ~spt & np.asarray(nonwear, bool)), ("day_invalid", ~spt & ~np.asarray(clean, bool))]
-          + [(f"b_{b}", masks[b]) for b in BANDS]
-          + [(f"bt_{b}_{m}", v) for (b, m), v in bouts.items()]}
+          [("clean", clean), ("nonwear", nonwear), ("invalid", ~clean), ("spt", spt),
+           ("sleep", spt & sib), ("day_invalid", ~spt & ~clean)]}
     rows = []
     for kind, num, a, b, k in _windows(spans, n, midnights):
-        if b <= a:
+        if (b - a) * epoch_s <= rules.MINIMUM_WINDOW_S:
             continue
         def c(key):  # noqa: E306
             return int(cs[key][b] - cs[key][a])
@@ -122,13 +159,11 @@ def time_use(t_ns, value, clean, nonwear, sib, spt, nights, zone, epoch_s: float
              "duration_h": dur * h, "valid_h": c("clean") * h, "nonwear_h": c("nonwear") * h,
              "invalid_h": c("invalid") * h, "spt_h": spt_e * h, "sleep_h": c("sleep") * h,
              "wake_spt_h": (spt_e - c("sleep")) * h, "day_h": day_e * h,
-             "nonwear_perc_day": 100.0 * c("day_nonwear") / day_e if day_e else None,
-             "nonwear_perc_spt": 100.0 * c("spt_nonwear") / spt_e if spt_e else None,
-             "metric": th[0], "thresholds_mg": "/".join("" if x is None else f"{x:g}" for x in th[1:])}
-        for bnd in BANDS:
-            r[f"min_day_{bnd}"] = c(f"b_{bnd}") * epoch_s / 60.0
-        for (bnd, m) in bouts:
-            r[f"bout_min_day_{bnd}_{m}m"] = c(f"bt_{bnd}_{m}") * epoch_s / 60.0
+             "metric": th[0], "thresholds_mg": "/".join("" if x is None else f"{x:g}" for x in th[1:]),
+             "imputed": int(imputed)}
+        edges = np.diff(spt[a:b - 1].astype(np.int8))
+        r.update(_segment_time_use(lv, spt, sib, nonwear, a, b, epoch_s,
+                                   kind == "MM" and not np.any(edges)))
         wear_day = (day_e - c("day_invalid")) / day_e if day_e else 0.0
         ok = wear_day >= rules.INCLUDE_DAY_CRIT - 1e-12 and spt_e > 0 and day_e > 0
         if kind == "MM":

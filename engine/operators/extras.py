@@ -31,9 +31,15 @@ class ExtraMetrics:
 
     @property
     def near_range_epochs(self) -> int:
-        """MIMS epochs with samples the reference would have extrapolated (0 without MIMS)."""
+        """MIMS epochs holding near-range samples, extrapolated (0 without MIMS)."""
         op = self.ops.get("mims")
         return op.near_range_epochs if op is not None else 0
+
+    @property
+    def unextrapolated_epochs(self) -> int:
+        """MIMS epochs holding near-range samples left as recorded (0 without MIMS)."""
+        op = self.ops.get("mims")
+        return op.unextrapolated_epochs if op is not None else 0
 
     def flush(self) -> dict:
         return {k: op.flush() for k, op in self.ops.items()}

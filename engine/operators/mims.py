@@ -5,18 +5,16 @@ mHealthGroup/MIMSunit, MIT; its rules, re-written here):
 1. **interpolate to 100 Hz**: a natural cubic spline through the samples (times in seconds),
    evaluated at ``t0 + k * 0.01`` from the segment's first sample (R/extrapolate.R,
    ``extrapolate_single_col``; R/helper.R's grid arithmetic);
-2. **extrapolation of clipped samples**: samples within ``5 * 0.03`` g of the dynamic range are
-   marked by the reference's gamma rule (``.mark_gamma``) and replaced by a smoothing-spline
-   extrapolation. Not reproduced here: such samples are used as recorded, and the epochs that
-   hold them are counted (``MimsOperator.near_range_epochs``) and flagged by ``clipping`` in the
-   epoch table's windows;
+2. **extrapolation of near-range samples**: samples within about ``5 * 0.03`` g of the dynamic
+   range are replaced as the reference does (R/extrapolate.R; engine/operators/mims_extrapolation.py);
 3. **band-pass**: 4th-order Butterworth 0.2-5 Hz (R/filter.R ``iir``, ``signal::butter`` and
-   ``signal::filter``: zero initial state at the segment's first sample);
+   ``signal::filter``: zero initial state at the segment's first sample); samples the
+   extrapolation set to -200 skip the filter (R/mims_unit.R: rows with a value below -150);
 4. **area under the curve** per axis and epoch: the rectified signal integrated with the
    trapezoidal rule over consecutive 100 Hz samples inside the epoch (R/aggregate_over_epoch.R,
    ``aggregate_for_mims``); an epoch with fewer than 90 % of its samples, or an axis whose area
    reaches ``16 * 100 * epoch_s`` (the largest possible), has no value (the reference writes
-   -0.01);
+   -0.01), and so has an epoch holding a -200 sample;
 5. **truncation**: an axis area in ``(0, 1e-4 * 100 * epoch_s]`` is 0 (R/mims_unit.R);
 6. **sum** of the three axes (``combination = "sum"``).
 
@@ -40,6 +38,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from .correction import CorrectedBatch
+from .mims_extrapolation import ABNORMAL_BELOW, Extrapolator
 
 MIMS_HZ = 100  # resampled rate (R/extrapolate.R: "over sampling to 100Hz")
 MIMS_BAND = (0.2, 5.0)  # Hz (R/mims_unit.R mims_unit: cutoffs = c(0.2, 5))
@@ -47,7 +46,6 @@ MIMS_ORDER = 4  # R/mims_unit.R: iir(..., order = 4, type = "pass")
 MIN_FILL = 0.9  # R/aggregate_over_epoch.R: nrow(rows) >= 0.9 * n_threshold
 MAX_PER_SAMPLE = 16.0  # R/aggregate_over_epoch.R: max_values <- 16 * n_threshold (trapz)
 TRUNCATE_PER_SAMPLE = 1e-4  # R/mims_unit.R: <= 1e-04 * parse_epoch_string(epoch, sr)
-NOISE_LEVEL_G = 0.03  # R/mims_unit.R mims_unit: noise_level = 0.03 (extrapolation marker)
 TILE = 2048  # input samples per spline tile
 OVERLAP = 64  # knots of each neighbouring tile in a tile's spline
 
@@ -64,11 +62,22 @@ def _natural_spline(x: np.ndarray, y: np.ndarray, xo: np.ndarray) -> np.ndarray:
     return CubicSpline(x, y, bc_type="natural", axis=0)(xo)
 
 
+# The reference's filter as R's signal 1.8-1 computes it, ``signal::butter(4, c(0.2, 5)/50,
+# "pass")`` printed with 17 significant digits: numerator and denominator of an 8th-order IIR run
+# by ``signal::filter`` (R/filter.R ``iir``). scipy.signal.butter gives the same filter to within
+# an ulp per coefficient (tests/test_mims.py), but this form is so ill-conditioned that one ulp
+# moves the 1 s areas by up to 3e-5, enough to put an area that sits on the truncation step on
+# the other side of it; with R's own coefficients the areas agree to about 2e-6.
+REFERENCE_B = (0.00035884079585594785, 0.0, -0.0014353631834237914, 0.0, 0.0021530447751356872,
+               0.0, -0.0014353631834237914, 0.0, 0.00035884079585594785)
+REFERENCE_A = (1.0, -7.1989557602839946, 22.71024005695034, -41.012138781845756,
+               46.378603842751083, -33.634144664989293, 15.276672513261932, -3.9733824787545169,
+               0.45310527307854143)
+
+
 def _ba():
-    """The reference's filter in its own form: ``signal::butter(4, c(0.2, 5)/50, "pass")`` as
-    numerator/denominator polynomials (an 8th-order IIR run by ``signal::filter``)."""
-    from scipy import signal
-    return signal.butter(MIMS_ORDER, [f / (MIMS_HZ / 2.0) for f in MIMS_BAND], "bandpass")
+    """The reference's filter in its own form (``REFERENCE_B``, ``REFERENCE_A``)."""
+    return np.array(REFERENCE_B), np.array(REFERENCE_A)
 
 
 class _Spline100:
@@ -137,7 +146,8 @@ class EpochMims:
     axes: np.ndarray  # (k, 3) per-axis MIMS-units (NaN: undefined)
     mims: np.ndarray  # (k,) their sum (NaN when any axis is undefined)
     segment: np.ndarray  # (k,) int64
-    near_range: np.ndarray  # (k,) bool: samples within 0.15 g of the range (not extrapolated)
+    near_range: np.ndarray  # (k,) bool: samples within the near-range band (extrapolated)
+    unextrapolated: np.ndarray  # (k,) bool: near-range samples left as recorded (see mims_extrapolation)
 
     def __len__(self) -> int:
         return int(self.start_ns.shape[0])
@@ -149,7 +159,7 @@ class EpochMims:
     @staticmethod
     def empty() -> "EpochMims":
         return EpochMims(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)),
-                         np.zeros(0), np.zeros(0, np.int64), np.zeros(0, bool))
+                         np.zeros(0), np.zeros(0, np.int64), np.zeros(0, bool), np.zeros(0, bool))
 
     @staticmethod
     def concat(parts) -> "EpochMims":
@@ -167,22 +177,20 @@ class _SegmentMims:
         self.b, self.a = _ba()
         self.zi = np.zeros((max(len(self.a), len(self.b)) - 1, 3))
         self.spline = _Spline100()
+        self.extrapolator = None if range_g is None else Extrapolator(float(range_g))
         self.epoch_s = int(epoch_s)
-        self.near = None if range_g is None else float(range_g) - 5 * NOISE_LEVEL_G
-        self.open = None  # (x, |y|, near) of the epoch still open
+        self.open = None  # (x, |y|, flags) of the epoch still open
 
-    def _auc(self, x: np.ndarray, y: np.ndarray, raw: np.ndarray, final: bool) -> list:
+    def _auc(self, x: np.ndarray, y: np.ndarray, flags: np.ndarray, final: bool) -> list:
         """Rectified 100 Hz samples -> the areas of the epochs they complete, as (epoch, n,
-        area (3,), near range). The samples of the epoch still open wait in ``self.open``, so
-        each epoch's area is summed from its own samples in one pass (the same numbers,
-        bit for bit, whatever the block cuts)."""
+        area (3,), flags (near range, left as recorded, -200)). The samples of the epoch still
+        open wait in ``self.open``, so each epoch's area is summed from its own samples in one
+        pass (the same numbers, bit for bit, whatever the block cuts)."""
         r = np.abs(y)
-        near = (np.abs(raw) > self.near).any(axis=1) if self.near is not None else \
-            np.zeros(x.shape[0], bool)
         if self.open is not None:
             x = np.concatenate([self.open[0], x])
             r = np.concatenate([self.open[1], r])
-            near = np.concatenate([self.open[2], near])
+            flags = np.concatenate([self.open[2], flags])
             self.open = None
         if not x.shape[0]:
             return []
@@ -190,11 +198,11 @@ class _SegmentMims:
         starts = np.concatenate([[0], np.flatnonzero(np.diff(e)) + 1])
         stop = x.shape[0] if final else int(starts[-1])  # the last epoch may still grow
         if not final:
-            self.open = (x[stop:], r[stop:], near[stop:])
+            self.open = (x[stop:], r[stop:], flags[stop:])
             starts = starts[:-1]
         if not starts.shape[0]:
             return []
-        x, r, near, e = x[:stop], r[:stop], near[:stop], e[:stop]
+        x, r, flags, e = x[:stop], r[:stop], flags[:stop], e[:stop]
         # trapezoids between consecutive samples of the same epoch (a pair across an epoch
         # boundary belongs to neither), summed per epoch
         tr = np.diff(x)[:, None] * (r[1:] + r[:-1]) / 2.0
@@ -202,29 +210,52 @@ class _SegmentMims:
         tr = np.concatenate([tr, np.zeros((1, 3))])  # so that every epoch has a row
         area = np.add.reduceat(tr, starts, axis=0)
         n = np.diff(np.append(starts, stop))
-        nr = np.logical_or.reduceat(near, starts)
-        return [(int(e[s]), int(k), area[i], bool(nr[i]))
+        fl = np.logical_or.reduceat(flags, starts, axis=0)
+        return [(int(e[s]), int(k), area[i], fl[i])
                 for i, (s, k) in enumerate(zip(starts.tolist(), n.tolist()))]
 
-    def _filter(self, y: np.ndarray) -> np.ndarray:
+    def _filter(self, y: np.ndarray) -> tuple:
+        """Filtered samples, and which are the extrapolation's -200 (they skip the filter and
+        go on as they are)."""
+        abnormal = (y < ABNORMAL_BELOW).any(axis=1)
         if not y.shape[0]:
-            return y
+            return y, abnormal
+        if abnormal.any():
+            f = y.copy()
+            if (~abnormal).any():
+                f[~abnormal], self.zi = self._lfilter(self.b, self.a, y[~abnormal], axis=0,
+                                                      zi=self.zi)
+            return f, abnormal
         f, self.zi = self._lfilter(self.b, self.a, y, axis=0, zi=self.zi)
-        return f
+        return f, abnormal
+
+    def _stage(self, x: np.ndarray, y: np.ndarray, final: bool) -> list:
+        if self.extrapolator is not None:
+            if final:
+                x0, y0, f0 = self.extrapolator.push(x, y)
+                x1, y1, f1 = self.extrapolator.flush()
+                x, y, fl = np.concatenate([x0, x1]), np.concatenate([y0, y1]), np.concatenate([f0, f1])
+            else:
+                x, y, fl = self.extrapolator.push(x, y)
+        else:
+            fl = np.zeros((x.shape[0], 2), bool)
+        f, abnormal = self._filter(y)
+        return self._auc(x, f, np.concatenate([fl, abnormal[:, None]], axis=1), final)
 
     def push(self, t: np.ndarray, a: np.ndarray) -> list:
         x, y = self.spline.push(t, a)
-        return self._auc(x, self._filter(y), y, final=False)
+        return self._stage(x, y, final=False)
 
     def flush(self) -> list:
         x, y = self.spline.flush()
-        return self._auc(x, self._filter(y), y, final=True)
+        return self._stage(x, y, final=True)
 
 
 class MimsOperator:
     """push(CorrectedBatch) -> EpochMims of the epochs it completed; flush() -> the rest.
-    ``range_g``: the device's dynamic range (the epochs with samples within 0.15 g of it are
-    counted in ``near_range_epochs``: the reference would have extrapolated them)."""
+    ``range_g``: the device's dynamic range (None: unknown, and nothing is extrapolated). The
+    epochs holding samples of the near-range band are counted in ``near_range_epochs``, those
+    holding near-range samples left as recorded in ``unextrapolated_epochs``."""
 
     def __init__(self, rate_hz: float, epoch_s: float, range_g=None):
         if float(epoch_s) != int(epoch_s) or epoch_s < 1:
@@ -234,6 +265,7 @@ class MimsOperator:
         self._seg = None
         self._segment = None
         self.near_range_epochs = 0
+        self.unextrapolated_epochs = 0
 
     def _rows(self, done: list, segment: int) -> EpochMims:
         if not done:
@@ -241,14 +273,16 @@ class MimsOperator:
         e = np.array([d[0] for d in done], np.int64)
         n = np.array([d[1] for d in done], np.int64)
         auc = np.array([d[2] for d in done], np.float64).reshape(-1, 3)
-        near = np.array([d[3] for d in done], bool)
-        self.near_range_epochs += int(near.sum())
+        fl = np.array([d[3] for d in done], bool).reshape(-1, 3)
+        self.near_range_epochs += int(fl[:, 0].sum())
+        self.unextrapolated_epochs += int(fl[:, 1].sum())
         nominal = self.epoch_s * MIMS_HZ
         auc[auc >= MAX_PER_SAMPLE * nominal] = np.nan
         auc[n < MIN_FILL * nominal] = np.nan
+        auc[fl[:, 2]] = np.nan  # R: a -200 sample makes the epoch -0.01
         auc[(auc > 0) & (auc <= TRUNCATE_PER_SAMPLE * nominal)] = 0.0
         return EpochMims(e * self.epoch_s * 10**9, n, auc, auc.sum(axis=1),
-                         np.full(len(done), segment, np.int64), near)
+                         np.full(len(done), segment, np.int64), fl[:, 0], fl[:, 1])
 
     def push(self, batch: CorrectedBatch) -> EpochMims:
         if batch.n == 0:

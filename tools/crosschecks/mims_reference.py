@@ -6,9 +6,14 @@ r-cran-stringr, r-cran-tibble, r-cran-catools and the CRAN package ``signal`` (n
 Debian: built from github:cran/signal with ``R CMD INSTALL -l DIR``; ``STILLPOINT_R_LIBS=DIR``).
 
 For every real recording of ``STILLPOINT_REAL_DATA`` listed in ``FILES`` (and ActiLife's raw CSV
-export of the ActiGraph NEO, its samples timed from the header's start at 30 Hz), the raw g of
-each segment with the samples' own times go to R's ``mims_unit(epoch = "1 sec")`` and to our
-``MimsOperator`` in blocks of random length; 1 s epochs.
+export of the ActiGraph NEO, its samples timed from the header's start at 30 Hz), and for a
+synthetic recording that sits at its range (``clipped_signal``), the raw g of each segment with
+the samples' own times go to R's ``mims_unit(epoch = "1 sec")`` and to our ``MimsOperator`` in
+blocks of random length; 1 s epochs. Columns: epochs R gives a value for and the largest
+|ours - R| over them; the same over the epochs without near-range samples (``clean``) and over
+those 30 s or more from any (``>=30s``); epochs differing by more than 1e-3; epochs R leaves
+undefined and how many of them ours leaves undefined too; our near-range epochs (extrapolated)
+and those left as recorded (``asis``).
 
     --regenerate [FILE...]   run R (on FILEs only, if named) and write its MIMS-units to
                    tests/data/mims/<file>.csv
@@ -46,6 +51,7 @@ FILES = [
     "geneactiv_actfast_cmi_60hz_20pages_LF_fw0617.bin",
     "geneactiv_romeosajina_left_ankle_20hz_truncated.bin",
 ]
+SYNTHETIC = "synthetic_clipped_50hz"  # clipped_signal(): runs at both segment edges and mid-signal
 FAR_S = 30  # epochs this far from any near-range epoch: the extrapolation's effect has decayed
 ACTILIFE_RANGE_G = 6.0  # the NEO's dynamic range (+-6 g)
 
@@ -61,8 +67,31 @@ def actilife_csv(path: Path):
     return t, a
 
 
+def clipped_signal(rate: int = 50, seconds: int = 90, range_g: float = 8.0):
+    """(times ns, g, range) of a synthetic +-8 g recording that sits at its range: x stuck at +8 g
+    for its first 6 s (a start run longer than the reference's 5 s) and a 9.5 g, 1 Hz movement
+    clipped to +-8 g from 10 to 40 s (60 runs); y at -8 g for its last 7 s (an end run); z at
+    +8 g for its first 2 s (a start run shorter than 5 s) and three single near-range samples."""
+    n = int(rate * seconds)
+    t = np.arange(n) / rate
+    rng = np.random.default_rng(43)
+    x = 0.2 * np.sin(2 * np.pi * 0.9 * t) + 9.5 * np.sin(2 * np.pi * 1.0 * t) * ((t > 10) & (t < 40))
+    x[t < 6] = 8.0
+    y = 1 + 0.4 * np.sin(2 * np.pi * 1.7 * t) + 0.01 * rng.standard_normal(n)
+    y[t > seconds - 7] = -8.0
+    z = 0.3 * np.sin(2 * np.pi * 2.2 * t)
+    z[t < 2] = 8.0
+    z[[2000, 2001, 3000]] = [7.95, 7.99, -7.97]
+    a = np.clip(np.stack([x, y, z], axis=1), -range_g, range_g)
+    tn = (1_700_000_000 * 10**9 + 250_000_000 + np.round(t * 1e9)).astype(np.int64)
+    return tn, a, range_g
+
+
 def segments(path: Path):
     """(dynamic range g, [(times ns, raw g) of each segment])."""
+    if path.name == SYNTHETIC:
+        t, a, range_g = clipped_signal()
+        return range_g, [(t, a)]
     if path.name.endswith(".csv"):
         return ACTILIFE_RANGE_G, [actilife_csv(path)]
     from stillpoint.drivers import open_recording
@@ -91,7 +120,7 @@ def ours(t: np.ndarray, a: np.ndarray, range_g: float, seed: int = 0):
         out.append(op.push(CorrectedBatch(t[s:c], a[s:c], np.zeros(c - s), 0)))
         s = c
     out.append(op.flush())
-    return EpochMims.concat(out), op.near_range_epochs
+    return EpochMims.concat(out), op.near_range_epochs, op.unextrapolated_epochs
 
 
 def reference(t: np.ndarray, a: np.ndarray, range_g: float) -> np.ndarray:
@@ -131,11 +160,11 @@ def read_fixture(path: Path) -> list:
 
 def compare(ref: list, got: list) -> dict:
     """Per 1 s epoch of the reference: |ours - R| of the valid ones (``max_abs_diff``; without
-    the epochs holding samples near the range, which R extrapolates: ``max_abs_diff_clean``);
+    the epochs holding near-range samples, which are extrapolated: ``max_abs_diff_clean``);
     undefined ones must be undefined (NaN) in ours too."""
     valid = undefined = agree_undefined = clean = far = over = 0
     worst = worst_clean = worst_far = 0.0
-    for r, (g, _) in zip(ref, got):
+    for r, (g, *_) in zip(ref, got):
         idx = {int(t): i for i, t in enumerate((g.start_ns // 10**9).tolist())}
         near_t = (g.start_ns[g.near_range] // 10**9).astype(np.float64)
         for row in r:
@@ -169,17 +198,19 @@ def main(argv) -> int:
     regenerate = "--regenerate" in argv
     only = [a for a in argv if not a.startswith("--")]  # regenerate these files only
     print(f"{'file':55s} {'epochs':>6s} {'max|d|':>9s} {'clean':>6s} {'max|d|':>9s} "
-          f"{'>=30s':>6s} {'max|d|':>9s} {'>1e-3':>5s} {'undef':>5s} {'same':>4s} {'near':>4s}")
-    for name in FILES:
+          f"{'>=30s':>6s} {'max|d|':>9s} {'>1e-3':>5s} {'undef':>5s} {'same':>4s} {'near':>4s} "
+          f"{'asis':>4s}")
+    for name in FILES + [SYNTHETIC]:
         range_g, segs = segments(Path(real) / name)
         if regenerate and (not only or name in only):
             write_fixture(fixture_path(name), [reference(t, a, range_g) for t, a in segs], range_g)
         got = [ours(t, a, range_g) for t, a in segs]
         r = compare(read_fixture(fixture_path(name)), got)
-        near = sum(n for _, n in got)
+        near = sum(n for _, n, _ in got)
+        asis = sum(n for _, _, n in got)
         print(f"{name:55s} {r['valid']:6d} {r['max_abs_diff']:9.2e} {r['clean']:6d} "
               f"{r['max_abs_diff_clean']:9.2e} {r['far']:6d} {r['max_abs_diff_far']:9.2e} "
-              f"{r['over_1e-3']:5d} {r['undefined']:5d} {r['undefined_agree']:4d} {near:4d}")
+              f"{r['over_1e-3']:5d} {r['undefined']:5d} {r['undefined_agree']:4d} {near:4d} {asis:4d}")
     return 0
 
 

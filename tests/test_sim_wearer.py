@@ -223,8 +223,8 @@ def test_simulated_truth_json_records_the_nonwear(tmp_path):
 
 def test_still_wearer_has_long_still_periods_long_nights_and_long_nonwear():
     from stillpoint.engine.sim.wearer import WEARERS, nonwear_summary, wearer_params
-    assert set(WEARERS) == {"default", "still"} and wearer_params() == WearerParams()
-    with pytest.raises(ValueError, match="unknown wearer 'sofa'.*default, still"):
+    assert set(WEARERS) == {"default", "still", "shift"} and wearer_params() == WearerParams()
+    with pytest.raises(ValueError, match="unknown wearer 'sofa'.*default, still, shift"):
         wearer_params("sofa")
     days = 7
 
@@ -265,3 +265,18 @@ def test_simulate_cli_wearer_option_writes_the_still_wearer(tmp_path):
     # a run that does not draw a wearer refuses the option in one line
     assert main(["simulate", "-o", str(tmp_path / "six.cwa"), "--scenario", "sixface",
                  "--wearer", "still"]) == 2
+
+
+def test_shift_wearer_sleeps_by_day():
+    from stillpoint.engine.sim.wearer import wearer_params
+    days = 7
+    sch = make_schedule(wearer_params("shift"), days * 86400.0, seed=2)  # starts 10:00 local
+    asleep = np.zeros(days * 24 * 60, bool)  # per minute from the start
+    for s, e, a in zip(sch.start, sch.end, sch.activity):
+        if a == ACTIVITIES.index("sleep"):
+            asleep[int(max(s, 0) // 60):int(min(e, days * 86400.0) // 60)] = True
+    hour = (10 + np.arange(asleep.shape[0]) / 60.0) % 24
+    by_day = asleep[(hour >= 6) & (hour < 13)].mean()
+    by_night = asleep[(hour >= 16) | (hour < 3)].mean()
+    assert by_day > 0.9 and by_night < 0.02, (by_day, by_night)
+    assert 8 < asleep.sum() / 60 / days < 10

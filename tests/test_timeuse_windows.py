@@ -107,3 +107,22 @@ def test_windows_table_from_process(tmp_path):
     assert {r["window_type"] for r in rows} == {"WW", "MM", "OO"}
     assert all(r["guider"] in ("HDCZA", "HDCZA+invalid", "L512", "sleeplog") for r in rows
                if r["window_type"] != "MM")
+
+
+def test_shift_worker_windows_from_process(tmp_path):
+    """A night-shift wearer (asleep about 05:00-14:00): its nights are found by day and its
+    wake-to-wake windows start in the afternoon."""
+    from stillpoint.engine.sim import simulate_recording
+    from stillpoint.engine.sim.wearer import wearer_params
+    rec = tmp_path / "s.cwa"
+    simulate_recording(rec, days=3.2, hz=12.5, seed=5, truth_path=False, wearer=wearer_params("shift"))
+    exe = Path(sys.executable).with_name("stillpoint")
+    subprocess.run([str(exe), "process", str(rec), "-o", str(tmp_path / "s.mcap"), "--timezone", "UTC",
+                    "-q", "--impute"], check=True)
+    rows = list(csv.DictReader(open(tmp_path / "s.windows.csv")))
+    ww = [r for r in rows if r["window_type"] == "WW"]
+    assert len(ww) >= 2
+    for r in ww:
+        hour = int(r["start_local"][11:13])
+        assert 12 <= hour <= 16, r["start_local"]  # the wake-up after a day's sleep
+        assert 7.5 < float(r["spt_h"]) < 11

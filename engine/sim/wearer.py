@@ -131,6 +131,10 @@ class WearerParams:
 #   seeds 1-4: 20.5-21.1 h/day in still segments, worn or not, against 11.0-12.4 h for the
 #   default wearer; 9.6-10.1 h/day asleep; 12-22 h/week off the wrist; worn wrist ENMO ~6 mg
 #   over two days at seed 3, against ~40 mg).
+# * "shift": a night-shift worker who sleeps by day, from about 05:00 to 14:00 local time, and is
+#   awake (and otherwise the default wearer) from the afternoon through the night: the case for
+#   sleep detection and day segmentation that must not assume night-time sleep (GGIR's
+#   "daysleeper" nights, part 5's wake-to-wake windows starting in the afternoon).
 WEARERS = {
     "default": {},
     "still": dict(wake_h=7.5, sleep_h=21.5, sleep_posture_min=75.0, sleep_twitch_per_h=1.0,
@@ -140,6 +144,7 @@ WEARERS = {
                   still_share_standing=0.15, still_bout_s=300.0, drawer_per_day=0.3,
                   stroll_share=0.8, offwrist_per_week=5.0, offwrist_min_h=2.0,
                   offwrist_max_h=6.0),
+    "shift": dict(wake_h=14.0, sleep_h=29.0),
 }
 
 

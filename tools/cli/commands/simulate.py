@@ -49,8 +49,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--site", default="wrist", choices=("wrist", "hip", "thigh", "ankle"))
     from stillpoint.engine.sim.wearer import WEARERS
     p.add_argument("--wearer", default="default", choices=tuple(WEARERS),
-                   help="the wearer's behaviour: 'default' a typical adult, 'still' a sedentary "
-                        "older participant with long still periods, long nights and long "
+                   help="the wearer's behaviour: 'default' a typical adult, 'shift' a night-shift "
+                        "worker asleep 05:00-14:00, 'still' a sedentary older participant with long still periods, long nights and long "
                         "off-wrist periods (engine/sim/wearer.py WEARERS)")
     p.add_argument("--days", type=number(0, 366, lo_open=True, unit="days"), default=7.0, help="duration in days (fractions allowed)")
     p.add_argument("--hz", type=RATE_HZ, default=100.0, help="nominal sample rate")

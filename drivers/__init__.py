@@ -7,7 +7,7 @@ Source. A stillpoint MCAP log's raw stream is read by the engine (``engine/mcap/
 
 from __future__ import annotations
 
-from .errors import (CorruptRecordingError, RecordingError, StillpointError,
+from stillpoint.engine.core.errors import (CorruptRecordingError, RecordingError, StillpointError,
                      TruncatedRecordingError, UnsupportedFormatError)
 from .sniff import MCAP_MAGIC, ZIP_EMPTY_MAGIC, ZIP_MAGIC, sniff_format  # noqa: F401
 

@@ -12,6 +12,8 @@ import time
 import zlib
 from typing import BinaryIO, Callable, Optional
 
+from stillpoint.engine.core.paths import not_a_file
+
 GZIP_MAGIC = b"\x1f\x8b"
 
 
@@ -201,26 +203,12 @@ class FollowingReader(io.RawIOBase):
         super().close()
 
 
-_NOT_A_FILE = ((stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a pipe"),
-               (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
-               (stat.S_ISSOCK, "a socket"))
-
-
-def not_a_file(mode: int) -> Optional[str]:
-    """What a path of this ``st_mode`` is when it is not a regular file ("a pipe", "a
-    character device", ...), else None. Such a path is neither read as a recording (reads
-    seek; opening a named pipe waits for a writer) nor replaced by an output."""
-    if stat.S_ISREG(mode):
-        return None
-    return next((k for test, k in _NOT_A_FILE if test(mode)), "not a regular file")
-
-
 def check_recording_path(path, *, allow_empty: bool = False) -> None:
     """Raise the typed error for a path that cannot hold a recording: missing, a directory, a
     pipe, device or socket (recordings are read with seeks; opening a pipe would wait for a
     writer), or empty (an empty file is allowed when following a file that is about to be
     written)."""
-    from .errors import RecordingError, TruncatedRecordingError
+    from stillpoint.engine.core.errors import RecordingError, TruncatedRecordingError
 
     p = os.fspath(path)
     try:

@@ -65,7 +65,7 @@ from .byteio import (FollowingReader, check_recording_path, consumed_fraction, i
 from .cwa_decode import (EMPTY, ERASED, REASONS, SampleClock, classify, decode_samples,
                          interpolate_times, max_samples, sector_anchors)
 from .cwa_layout import FORMATS, SECTOR_DTYPE, parse_header, parse_timezone
-from .errors import (CorruptRecordingError, RecordingError, TruncatedRecordingError,
+from stillpoint.engine.core.errors import (CorruptRecordingError, RecordingError, TruncatedRecordingError,
                      UnsupportedFormatError)
 
 _NS = 1_000_000_000

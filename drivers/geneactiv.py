@@ -49,7 +49,7 @@ from .constants import (GNA_GAIN_MAX, GNA_HEX_PER_SAMPLE, GNA_LIGHT_CAL_RANGE, G
                         GNA_OFFSET_MAX, GNA_PAGE_MARKER, GNA_RATE_85_7, GNA_SAMPLES_PER_PAGE,
                         NS_TIME_RANGE_MS, PLAUSIBLE_BATTERY_V, PLAUSIBLE_RATE_HZ,
                         PLAUSIBLE_TEMPERATURE_C, PLAUSIBLE_TIME_NS, PLAUSIBLE_YEARS, gna_rate_hz)
-from .errors import (CorruptRecordingError, TruncatedRecordingError,
+from stillpoint.engine.core.errors import (CorruptRecordingError, TruncatedRecordingError,
                      UnsupportedFormatError)
 from .geneactiv_header import (CALIBRATION_KEYS, SUBJECT_KEYS, TRIAL_KEYS, GeneactivHeader,
                                header_range_g, header_rate_hz, parse_header_text, parse_number,

@@ -56,7 +56,7 @@ import numpy as np
 from stillpoint.engine.core.blocks import PER_SAMPLE_IDLE_SLEEP, Block, DeviceInfo, QCEvent, QCReport
 from . import constants as C
 from .byteio import check_recording_path, is_gzip
-from .errors import CorruptRecordingError, UnsupportedFormatError
+from stillpoint.engine.core.errors import CorruptRecordingError, UnsupportedFormatError
 
 __all__ = ["Gt3xReader", "read_header", "unpack12", "PER_SAMPLE_IDLE_SLEEP", "ticks_to_local_ns",
            "scale_round_half_away"]

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from .byteio import check_recording_path, open_bytes, read_exact, stream_damage
-from .errors import CorruptRecordingError, TruncatedRecordingError, UnsupportedFormatError
+from stillpoint.engine.core.errors import CorruptRecordingError, TruncatedRecordingError, UnsupportedFormatError
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 ZIP_MAGIC = b"PK\x03\x04"  # a zip: ActiGraph .gt3x (drivers/gt3x.py checks its members)

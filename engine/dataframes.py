@@ -22,7 +22,7 @@ from typing import Optional
 
 import numpy as np
 
-from stillpoint.drivers.errors import StillpointError
+from stillpoint.engine.core.errors import StillpointError
 from stillpoint.engine.core.blocks import PER_SAMPLE_IDLE_SLEEP
 
 PANDAS_HINT = "the DataFrame API needs pandas: pip install 'stillpoint[pandas]'"

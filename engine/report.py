@@ -34,8 +34,8 @@ from typing import Optional
 
 import numpy as np
 
-from stillpoint.drivers.errors import StillpointError
-from stillpoint.drivers.outputs import atomic_output, check_output_path
+from stillpoint.engine.core.errors import StillpointError
+from stillpoint.engine.core.outputs import atomic_output, check_output_path
 
 from .calibration.estimate import status_applied
 

@@ -31,7 +31,7 @@ from typing import Callable, Optional
 import numpy as np
 
 from stillpoint.engine.recordings import open_recording
-from stillpoint.drivers.errors import StillpointError
+from stillpoint.engine.core.errors import StillpointError
 
 from .core.blocks import Block
 from .calibration import OnlineCalibrator, fit_batch_schedule
@@ -303,7 +303,7 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
     if tz is not None and "timezone" not in opts:
         opts["timezone"] = tz
     if tables is not None:
-        from stillpoint.drivers.outputs import check_output_path
+        from stillpoint.engine.core.outputs import check_output_path
         check_output_path(tables.epochs_path, what="epoch table")
         check_output_path(tables.days_path, what="day table")
         if not tables.zone.known:

@@ -9,7 +9,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, fields
 from typing import Optional
 
-from stillpoint.drivers.errors import StillpointError
+from stillpoint.engine.core.errors import StillpointError
 
 from .calibration.schedule import CHUNK_HOURS, FIRST_HOURS
 from .calibration.select import MAX_ABS_MEAN_G, SD_THRESHOLD_G

@@ -42,7 +42,7 @@ from typing import Optional
 
 import numpy as np
 
-from stillpoint.drivers.errors import StillpointError
+from stillpoint.engine.core.errors import StillpointError
 from stillpoint.engine.core.times import iso_local, iso_text, iso_utc, offset_text, parse_offset
 
 UNKNOWN_LABEL = "device local time, zone unknown"

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from stillpoint.drivers import open_recording
-from stillpoint.drivers.errors import (CorruptRecordingError, RecordingError, StillpointError,
+from stillpoint.engine.core.errors import (CorruptRecordingError, RecordingError, StillpointError,
                                        TruncatedRecordingError, UnsupportedFormatError)
 from stillpoint.drivers.geneactiv import GeneactivReader, GeneactivWriter
 from stillpoint.tools.cli import main

@@ -9,7 +9,7 @@ import pytest
 
 from stillpoint.drivers import open_recording
 from stillpoint.drivers.cwa import CwaReader, CwaWriter
-from stillpoint.drivers.errors import (CorruptRecordingError, RecordingError, StillpointError,
+from stillpoint.engine.core.errors import (CorruptRecordingError, RecordingError, StillpointError,
                                        TruncatedRecordingError, UnsupportedFormatError)
 
 from cwa_helpers import read_all, synth

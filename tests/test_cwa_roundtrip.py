@@ -263,7 +263,7 @@ def test_time_jump_breaks_segment(tmp_path):
 
 def test_all_sectors_corrupt_raises_after_qc(tmp_path):
     from stillpoint.drivers.cwa import corrupt_sector
-    from stillpoint.drivers.errors import CorruptRecordingError
+    from stillpoint.engine.core.errors import CorruptRecordingError
     t, a = synth(120 * 4)
     p = tmp_path / "bad.cwa"
     _write(p, t, a)
@@ -448,7 +448,7 @@ if given is not None:
         try:
             ref = read_all(p, batch_sectors=4096)
         except Exception as e:  # every sector damaged: must be the typed error
-            from stillpoint.drivers.errors import CorruptRecordingError
+            from stillpoint.engine.core.errors import CorruptRecordingError
             assert isinstance(e, CorruptRecordingError)
             return
         got = read_all(p, batch_sectors=batch)

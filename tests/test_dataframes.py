@@ -92,7 +92,7 @@ def test_tables_of_an_mcap_and_of_the_recording_agree(tmp_path):
 
 
 def test_without_pandas_one_clear_error(monkeypatch):
-    from stillpoint.drivers.errors import StillpointError
+    from stillpoint.engine.core.errors import StillpointError
     monkeypatch.setitem(sys.modules, "pandas", None)
     with pytest.raises(StillpointError, match=r"pip install 'stillpoint\[pandas\]'"):
         stillpoint.read(GOOD)

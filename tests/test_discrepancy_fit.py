@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from stillpoint.drivers.errors import RecordingError
+from stillpoint.engine.core.errors import RecordingError
 from stillpoint.engine.features import WindowFeatures
 from stillpoint.engine.sim import model as sim
 from stillpoint.engine.workflows.inputs import prepare, read_feature_table, temperature_rate

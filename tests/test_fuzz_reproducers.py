@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from stillpoint.drivers import open_recording
-from stillpoint.drivers.errors import CorruptRecordingError, StillpointError
+from stillpoint.engine.core.errors import CorruptRecordingError, StillpointError
 
 FUZZ = Path(__file__).parent / "data" / "fuzz"
 

@@ -9,7 +9,7 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from stillpoint.drivers.errors import StillpointError
+from stillpoint.engine.core.errors import StillpointError
 from stillpoint.drivers.geneactiv import GeneactivReader, GeneactivWriter
 from stillpoint.drivers.geneactiv_header import parse_time_ms, parse_times_ms
 

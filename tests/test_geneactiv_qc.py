@@ -10,7 +10,7 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from stillpoint.drivers.errors import (CorruptRecordingError, RecordingError, StillpointError,
+from stillpoint.engine.core.errors import (CorruptRecordingError, RecordingError, StillpointError,
                                        TruncatedRecordingError, UnsupportedFormatError)
 from stillpoint.drivers.geneactiv import GeneactivReader, GeneactivWriter, read_header
 from stillpoint.engine.core.blocks import Block

@@ -236,7 +236,7 @@ def test_foxglove_layout_names_fields_the_log_has(rec, tmp_path):
 def test_public_log_api_writes_json_estimates_atomically(tmp_path):
     """McapLog: JSON estimates with their schema, the file appears only when finished, a second
     writer is refused, an aborted log stays as .part and recovers."""
-    from stillpoint.drivers.outputs import OutputError
+    from stillpoint.engine.core.outputs import OutputError
     from stillpoint.engine.mcap import STATIC_CALIBRATION, McapLog
     out = tmp_path / "s.mcap"
     t0 = 1_700_000_000 * 10**9

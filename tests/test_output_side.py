@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from stillpoint.drivers.outputs import OutputError
+from stillpoint.engine.core.outputs import OutputError
 
 FUZZ = Path(__file__).parent / "data" / "fuzz"
 GOOD = FUZZ / "ax3_unpacked_40_sectors.cwa"

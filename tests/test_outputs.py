@@ -4,7 +4,7 @@ import os
 
 import pytest
 
-from stillpoint.drivers.outputs import (AtomicOutput, OutputError, atomic_output,
+from stillpoint.engine.core.outputs import (AtomicOutput, OutputError, atomic_output,
                                         check_distinct_outputs, check_output_folder,
                                         check_output_path, partial_path, protect_inputs)
 

@@ -81,7 +81,7 @@ def test_inbox_ingests_the_same_bytes_once_and_is_not_the_output_folder(tmp_path
     for ever)."""
     import shutil
 
-    from stillpoint.drivers.outputs import OutputError
+    from stillpoint.engine.core.outputs import OutputError
     inbox, out, lg, ib = _inbox_with_one_file(tmp_path)
     shutil.copy(inbox / "p01.bin", inbox / "p01-again.bin")
     _settle(ib)

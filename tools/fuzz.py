@@ -549,7 +549,7 @@ def _whole_read(path: Path, **opts):
     the typed error it raised."""
     import hashlib
     from stillpoint.engine.recordings import open_recording
-    from stillpoint.drivers.errors import StillpointError
+    from stillpoint.engine.core.errors import StillpointError
     from stillpoint.tools.cli.commands.export import block_columns
     h = [hashlib.sha256() for _ in range(3)]  # one per field: block boundaries do not matter
     try:
@@ -661,7 +661,7 @@ READERS = {"cwa": read_recording, "bin": read_bin_every_batch, "gz": read_record
 
 def classify(fmt: str, path: Path, timeout_s: float) -> tuple[str, str]:
     """(outcome, detail) of reading one input."""
-    from stillpoint.drivers.errors import StillpointError
+    from stillpoint.engine.core.errors import StillpointError
     use_alarm = timeout_s > 0 and hasattr(signal, "SIGALRM")
     if use_alarm:
         signal.setitimer(signal.ITIMER_REAL, timeout_s)

@@ -40,7 +40,7 @@ from typing import Callable, Iterable, Optional
 
 from .. import constants as C
 from . import registry
-from ..errors import StillpointError
+from stillpoint.engine.core.errors import StillpointError
 from .errors import DeviceError
 
 _LABEL_RE = re.compile(r"^(AX[36])[0-9A-Fa-f]{0,2}_0*(\d+)$")

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from ..errors import StillpointError
+from stillpoint.engine.core.errors import StillpointError
 
 
 class DeviceError(StillpointError):

@@ -28,7 +28,7 @@ import stat
 import tempfile
 from pathlib import Path
 
-from stillpoint.drivers.errors import StillpointError
+from stillpoint.engine.core.errors import StillpointError
 
 SESSION_ENV = "STILLPOINT_EMULATOR_SESSION"
 _SESSION_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$")

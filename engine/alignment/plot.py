@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from stillpoint.drivers.errors import StillpointError
+from stillpoint.engine.core.errors import StillpointError
 
 from .operator import AlignmentResult
 
@@ -118,7 +118,7 @@ def plot_alignment(result: AlignmentResult, path, max_correlograms: int = 40) ->
     fig.tight_layout()
     from pathlib import Path
 
-    from stillpoint.drivers.outputs import atomic_output
+    from stillpoint.engine.core.outputs import atomic_output
     fmt = Path(str(path)).suffix.lstrip(".").lower() or "png"
     with atomic_output(path) as f:
         fig.savefig(f, dpi=110, format=fmt)

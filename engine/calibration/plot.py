@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stillpoint.drivers.errors import StillpointError
+from stillpoint.engine.core.errors import StillpointError
 
 from ..features import WindowFeatures
 from .estimate import CalibrationEstimate
@@ -49,7 +49,7 @@ def plot_calibration(windows: WindowFeatures, estimate: CalibrationEstimate, pat
     ``hist_range_mg`` (their number is in the legend: nothing is dropped)."""
     import textwrap
 
-    from stillpoint.drivers.outputs import atomic_output, check_output_path
+    from stillpoint.engine.core.outputs import atomic_output, check_output_path
     plt = _pyplot()
     path = check_output_path(path, what="plot")
     w = windows

@@ -36,7 +36,7 @@ from typing import Optional
 
 import numpy as np
 
-from stillpoint.drivers.errors import StillpointError
+from stillpoint.engine.core.errors import StillpointError
 
 from ..core.times import iso_utc
 from .estimate import STATIC_METHOD, CalibrationEstimate

@@ -23,7 +23,7 @@ import time
 from pathlib import Path
 from typing import Optional
 
-from stillpoint.drivers.errors import StillpointError
+from stillpoint.engine.core.errors import StillpointError
 
 from ..core.times import iso_utc
 from .estimate import STATIC_METHOD, CalibrationEstimate
@@ -146,7 +146,7 @@ class CalibrationStore:
         return validate_estimate(record["estimate"], f"{self._path(device_key)} record {i}")
 
     def _write(self, path: Path, doc: dict) -> None:
-        from stillpoint.drivers.outputs import OutputError, atomic_output
+        from stillpoint.engine.core.outputs import OutputError, atomic_output
         self._mkdir()
         text = json.dumps(doc, indent=1, sort_keys=True) + "\n"
         try:

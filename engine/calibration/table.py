@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from stillpoint.drivers.byteio import check_recording_path
-from stillpoint.drivers.errors import RecordingError
+from stillpoint.engine.core.errors import RecordingError
 
 from ..features import WindowFeatures
 from .fit import WINDOW_S

@@ -19,7 +19,7 @@ from typing import Any, Mapping, Union
 import numpy as np
 
 from stillpoint.drivers.constants import PLAUSIBLE_TEMPERATURE_C
-from stillpoint.drivers.errors import StillpointError
+from stillpoint.engine.core.errors import StillpointError
 
 from .estimate import CalibrationEstimate
 

@@ -33,7 +33,7 @@ from typing import Optional
 
 from stillpoint.drivers.byteio import sha256_file
 from stillpoint.drivers.names import cell_text, csv_cell, recording_stem
-from stillpoint.drivers.outputs import atomic_output
+from stillpoint.engine.core.outputs import atomic_output
 
 from .job import DONE, FAILED, MCAP_NAME, RUNNING, SUMMARY_NAME, paths
 from .plan import read_plan

@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Optional
 
-from stillpoint.drivers.errors import StillpointError
+from stillpoint.engine.core.errors import StillpointError
 
 from ..core.prefetch import cores_available
 from .job import (DONE, FAILED, MAX_ATTEMPTS, one_line, paths, read_marker, read_progress, run_job,

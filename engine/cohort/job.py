@@ -46,9 +46,9 @@ from pathlib import Path
 from typing import Optional
 
 from stillpoint.drivers.byteio import sha256_file
-from stillpoint.drivers.errors import StillpointError
+from stillpoint.engine.core.errors import StillpointError
 from stillpoint.drivers.names import recording_stem
-from stillpoint.drivers.outputs import atomic_output, fsync_folder
+from stillpoint.engine.core.outputs import atomic_output, fsync_folder
 
 from ..core.malloc import set_block_thresholds
 from ..core.times import iso_utc

@@ -33,9 +33,9 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Iterable, Optional
 
-from stillpoint.drivers.byteio import not_a_file
-from stillpoint.drivers.errors import StillpointError
-from stillpoint.drivers.outputs import OutputError, atomic_output
+from stillpoint.engine.core.paths import not_a_file
+from stillpoint.engine.core.errors import StillpointError
+from stillpoint.engine.core.outputs import OutputError, atomic_output
 
 HEADER_BYTES = 8192  # .cwa header (1 KiB) + first data sectors; GENEActiv's text header (~3 KiB)
 KEY_FORMAT = 1  # bump when what goes into a key changes
@@ -221,7 +221,7 @@ def folder_for(path: Path, key: str) -> str:
 
 
 def describe_input_error(e: OSError) -> str:
-    from stillpoint.drivers.outputs import describe_os_error
+    from stillpoint.engine.core.outputs import describe_os_error
     if isinstance(e, FileNotFoundError):
         return "no such file (deleted, moved, or a broken link)"
     return describe_os_error(e)

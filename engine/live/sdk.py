@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from typing import Callable, Optional
 
-from stillpoint.drivers.errors import StillpointError
+from stillpoint.engine.core.errors import StillpointError
 
 LAYOUT_URI = "package://stillpoint/layout.json"
 # Foxglove's default WebSocket connection, ws://localhost:8765 (docs.foxglove.dev/docs/sdk/websocket-server,

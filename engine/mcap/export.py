@@ -19,7 +19,7 @@ engine/timezones.py; NPZ arrays keep ``<topic>/time_ns``)
 Streaming: messages are decoded one at a time and written as they come (CSV text formatted with
 numpy per message; NPZ columns streamed into temporary files, then copied into the zip), so memory
 stays flat. The output is written as ``<name>.part`` and renamed when complete
-(``stillpoint.drivers.outputs``).
+(``stillpoint.engine.core.outputs``).
 """
 
 from __future__ import annotations
@@ -33,9 +33,9 @@ import zipfile
 from pathlib import Path
 
 import numpy as np
-from stillpoint.drivers.errors import StillpointError
+from stillpoint.engine.core.errors import StillpointError
 from stillpoint.drivers.names import csv_cell
-from stillpoint.drivers.outputs import atomic_output, check_output_path
+from stillpoint.engine.core.outputs import atomic_output, check_output_path
 
 from ..core.times import iso_texts
 from .reading import McapReadError, check_raw_message, decode, text
@@ -214,7 +214,7 @@ def _check_stillpoint_log(path) -> None:
     """Refuse an MCAP that another program wrote (no 'device' metadata record), as replay and
     inspect do. A log without a summary (not finished) is left to the streaming read, which
     names any damage and points at ``recover``."""
-    from stillpoint.drivers.errors import UnsupportedFormatError
+    from stillpoint.engine.core.errors import UnsupportedFormatError
     from stillpoint.engine.mcap.replay import NOT_A_STILLPOINT_LOG
     from stillpoint.engine.mcap.replay import check_is_log
     from .stream import read_metadata

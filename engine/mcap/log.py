@@ -3,7 +3,7 @@ caller that logs estimates, e.g. the station or static calibration).
 
 It pairs the chunk builder (engine/mcap/chunks.py: records, message indexes, statistics) with
 the file writer (engine/mcap/writer.py: compression, chunk and summary records) and writes
-through ``drivers.outputs.AtomicOutput``: the file is ``<name>.part`` (locked against a second
+through ``engine/core/outputs.AtomicOutput``: the file is ``<name>.part`` (locked against a second
 writer) until ``close()`` finishes it and renames it onto ``<name>``. An interrupted run leaves
 the ``.part`` file, every complete chunk of which ``stillpoint recover`` salvages.
 
@@ -26,7 +26,7 @@ import threading
 from pathlib import Path
 from typing import Optional
 
-from stillpoint.drivers.outputs import AtomicOutput, OutputError, describe_os_error
+from stillpoint.engine.core.outputs import AtomicOutput, OutputError, describe_os_error
 
 from ..core.jsonsafe import dumps
 

@@ -21,7 +21,7 @@ from typing import Iterator, Optional
 
 import numpy as np
 
-from stillpoint.drivers.errors import CorruptRecordingError
+from stillpoint.engine.core.errors import CorruptRecordingError
 
 RECOVER_HINT = "`stillpoint recover` salvages every readable chunk of it"
 # Scales a raw message may carry. Every reader's scale is far inside these: AX3/AX6 256..16384

@@ -21,7 +21,7 @@ import numpy as np
 
 from stillpoint.drivers import constants as C
 from stillpoint.drivers.byteio import check_recording_path
-from stillpoint.drivers.errors import CorruptRecordingError, StillpointError, UnsupportedFormatError
+from stillpoint.engine.core.errors import CorruptRecordingError, StillpointError, UnsupportedFormatError
 from stillpoint.drivers.sniff import MCAP_MAGIC, sniff_format
 from stillpoint.engine.core.blocks import (Block, DeviceInfo, PER_SAMPLE_BUTTON, PER_SAMPLE_IDLE_SLEEP,
                                            PER_SAMPLE_LIGHT_RAW, QCEvent, QCReport)

@@ -99,7 +99,7 @@ def iter_messages(path, topics: Optional[Iterable[str]] = None, *,
     try:
         f = open(path, "rb")
     except OSError as e:
-        from stillpoint.drivers.errors import CorruptRecordingError
+        from stillpoint.engine.core.errors import CorruptRecordingError
         raise CorruptRecordingError(path, f"cannot open: {e.strerror or e}") from None
     with f:
         try:

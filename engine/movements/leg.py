@@ -17,7 +17,7 @@ from typing import Optional
 
 import numpy as np
 
-from stillpoint.drivers.errors import StillpointError
+from stillpoint.engine.core.errors import StillpointError
 
 import stillpoint.engine.movements.detect as D  # noqa: N812
 from . import post as P

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 def plot_movements(legs, path, *, seconds: float = 60.0) -> None:
     """``legs``: [(label, LegResult, LegSignals, detector output dict)]; PNG to ``path``."""
-    from stillpoint.drivers.outputs import atomic_output
+    from stillpoint.engine.core.outputs import atomic_output
     from stillpoint.engine.calibration.plot import _pyplot
     plt = _pyplot()
     fig, axes = plt.subplots(len(legs), 1, figsize=(11, 3.6 * len(legs)), squeeze=False)

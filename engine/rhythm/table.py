@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from stillpoint.drivers.names import cell_text, csv_cell
-from stillpoint.drivers.outputs import atomic_output
+from stillpoint.engine.core.outputs import atomic_output
 
 from .series import RHYTHM_COLUMNS, rhythm_row
 

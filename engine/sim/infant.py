@@ -217,7 +217,7 @@ def write_infant(path, sim: InfantSim, *, device: str = "ax6", device_id: int = 
     from pathlib import Path
 
     from stillpoint.drivers.cwa import CwaWriter
-    from stillpoint.drivers.outputs import atomic_output
+    from stillpoint.engine.core.outputs import atomic_output
     kind = device.upper()
     with_gyro = kind == "AX6"
     step = max(1, int(chunk_s * sim.fs))

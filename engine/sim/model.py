@@ -58,7 +58,7 @@ from typing import Optional
 
 import numpy as np
 
-from stillpoint.drivers.errors import StillpointError
+from stillpoint.engine.core.errors import StillpointError
 
 MODEL_FORMAT = "stillpoint.sensor_model"
 MODEL_VERSION = 1
@@ -319,7 +319,7 @@ def load_model(path) -> SensorModel:
 
 
 def save_model(model: SensorModel, path) -> None:
-    from stillpoint.drivers.outputs import atomic_output
+    from stillpoint.engine.core.outputs import atomic_output
     with atomic_output(path, binary=False, what="model") as f:
         f.write(model.to_json() + "\n")
 

@@ -44,7 +44,7 @@ class _FileSink:
     """A device's writer plus the label accumulators.
 
     Every output (recording, labels CSV, truth JSON) is written as ``<name>.part``
-    (``stillpoint.drivers.outputs``) and renamed only by ``commit()``, once all of them are
+    (``stillpoint.engine.core.outputs``) and renamed only by ``commit()``, once all of them are
     complete, the recording last: a run that fails (full disk, kill) leaves no file that looks
     complete. ``abandon()`` stops and keeps the partial files aside."""
 
@@ -190,7 +190,7 @@ class _FileSink:
                               temperature_c=np.round(c.temperature_c[a:b], 1), battery_v=battery)
 
     def _open(self, path: Path, *, binary: bool, what: str):
-        from stillpoint.drivers.outputs import AtomicOutput
+        from stillpoint.engine.core.outputs import AtomicOutput
         out = AtomicOutput(path, binary=binary, what=what)
         self._outs.append(out)
         return out
@@ -392,8 +392,8 @@ def device_recording(path, *, device: str, days: float, hz: float, seed: int, de
 def _reraise(e: BaseException, sinks) -> None:
     """An OS error while writing (full disk, folder removed) becomes an ``OutputError`` naming
     the output; every other exception propagates unchanged."""
-    from stillpoint.drivers.errors import StillpointError
-    from stillpoint.drivers.outputs import OutputError, describe_os_error
+    from stillpoint.engine.core.errors import StillpointError
+    from stillpoint.engine.core.outputs import OutputError, describe_os_error
     if isinstance(e, OSError) and not isinstance(e, StillpointError):
         names = ", ".join(str(s.path) for s in sinks)
         raise OutputError(names, f"{describe_os_error(e)}; nothing was completed (partial files "

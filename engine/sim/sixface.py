@@ -187,7 +187,7 @@ def write_cwa(path, time_ns, accel_g, gyro_dps=None, *, device: str = "ax6", fs:
     """Write samples as a real ``.cwa`` (AX6 with gyro, or AX3 unpacked) through the project's
     writer, atomically. Returns {"path", "samples", "device_key"}."""
     from stillpoint.drivers.cwa import CwaWriter
-    from stillpoint.drivers.outputs import atomic_output
+    from stillpoint.engine.core.outputs import atomic_output
     kind = device.upper()
     with_gyro = kind == "AX6" and gyro_dps is not None
     with atomic_output(path, what="simulated recording") as f:
@@ -209,7 +209,7 @@ def write_sixface(path, session: SixFaceSession, *, device: str = "ax6", device_
     """Write a session as ``.cwa`` plus its truth JSON (default ``<stem>.truth.json``)."""
     from pathlib import Path
 
-    from stillpoint.drivers.outputs import atomic_output
+    from stillpoint.engine.core.outputs import atomic_output
     res = write_cwa(path, session.time_ns, session.accel_g, session.gyro_dps, device=device,
                     fs=session.fs, device_id=device_id, range_g=range_g,
                     metadata={"_sc": "sixface-calibration"})

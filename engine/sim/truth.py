@@ -61,7 +61,7 @@ class Truth:
 
     def save(self, path) -> None:
         """Write the truth JSON atomically (``<path>.part``, then renamed)."""
-        from stillpoint.drivers.outputs import atomic_output
+        from stillpoint.engine.core.outputs import atomic_output
         with atomic_output(path, binary=False, what="truth") as f:
             f.write(self.to_json_text())
 
@@ -120,7 +120,7 @@ def load_labels(path) -> dict:
 
 def write_labels(path, labels: dict) -> None:
     """Labels CSV: integer columns as integers, others with 6 decimals (nan for empty windows)."""
-    from stillpoint.drivers.outputs import atomic_output
+    from stillpoint.engine.core.outputs import atomic_output
     with atomic_output(path, binary=False, what="labels") as f:
         f.write(",".join(LABEL_COLUMNS) + "\n")
         _write_label_rows(f, labels)

@@ -23,7 +23,7 @@ import csv
 from pathlib import Path
 
 from stillpoint.drivers.names import cell_text, csv_cell
-from stillpoint.drivers.outputs import atomic_output
+from stillpoint.engine.core.outputs import atomic_output
 
 from ..timezones import Zone, local_text, utc_text
 

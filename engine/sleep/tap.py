@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from stillpoint.drivers.outputs import check_output_path
+from stillpoint.engine.core.outputs import check_output_path
 
 from ..mcap.jsonschemas import SLEEP_BOUT, SLEEP_NIGHT
 from .diary import SleepLogError

@@ -28,7 +28,7 @@ from typing import Callable, Optional
 
 from stillpoint.drivers import constants as C
 from stillpoint.drivers.byteio import sha256_file
-from stillpoint.drivers.outputs import fsync_folder
+from stillpoint.engine.core.outputs import fsync_folder
 
 from . import names
 from .ledger import kill_point

@@ -50,7 +50,7 @@ import numpy as np
 
 from stillpoint.drivers import constants as C
 from stillpoint.drivers.ax.volume import open_data_file
-from stillpoint.drivers.outputs import describe_os_error
+from stillpoint.engine.core.outputs import describe_os_error
 
 from . import names
 from .worker import Worker

@@ -59,7 +59,7 @@ from stillpoint.drivers import constants as C
 from stillpoint.drivers.ax.discovery import Attached, discover
 from stillpoint.drivers.ax.errors import DeviceError, IdentityMismatch
 from stillpoint.drivers.ax.protocol import AxClient
-from stillpoint.drivers.errors import StillpointError
+from stillpoint.engine.core.errors import StillpointError
 from stillpoint.engine.core.times import iso_utc
 
 from .clearing import clear_verified, session_before_clear

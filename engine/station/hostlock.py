@@ -38,7 +38,7 @@ from typing import Optional
 
 from stillpoint.drivers.ax.errors import DeviceError
 from stillpoint.drivers.ax.registry import private_folder
-from stillpoint.drivers.errors import StillpointError
+from stillpoint.engine.core.errors import StillpointError
 
 from ..core.times import iso_utc
 

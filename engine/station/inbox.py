@@ -29,7 +29,7 @@ from typing import Optional
 
 from stillpoint.drivers.byteio import sha256_file
 from stillpoint.drivers.names import safe_child, safe_name_part
-from stillpoint.drivers.outputs import AtomicOutput, describe_os_error, fsync_folder
+from stillpoint.engine.core.outputs import AtomicOutput, describe_os_error, fsync_folder
 
 from .completion import complete, part_of, place_log, place_raw, unverified_log_of
 
@@ -49,7 +49,7 @@ class Inbox:
         self.errors: list[str] = []
         self._busy: Optional[threading.Thread] = None
         self._queue: list[Path] = []
-        from stillpoint.drivers.outputs import OutputError
+        from stillpoint.engine.core.outputs import OutputError
         if not self.folder.is_dir():
             raise OutputError(self.folder, "inbox folder does not exist")
         if self.out.is_dir() and os.path.samefile(self.folder, self.out):

@@ -38,7 +38,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional
 
-from stillpoint.drivers.errors import StillpointError
+from stillpoint.engine.core.errors import StillpointError
 
 from ..core.times import offset_text
 LEDGER_NAME = "stillpoint-ledger.sqlite"
@@ -158,7 +158,7 @@ def check_station_folder(folder) -> Path:
     """The output folder of ``station`` and of ``device download/verify/clear``: it must exist
     and be writable. It is never created: a mistyped path, or the mount point of a disk that is
     not mounted, would otherwise receive a study's downloads unnoticed."""
-    from stillpoint.drivers.outputs import check_output_folder
+    from stillpoint.engine.core.outputs import check_output_folder
     p = Path(folder)
     if not os.path.lexists(p):
         raise LedgerError(f"{p}: the output folder does not exist; it is never created for you "

@@ -31,7 +31,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from stillpoint.drivers.outputs import set_aside_name  # noqa: F401  (the one rule for set-aside names)
+from stillpoint.engine.core.outputs import set_aside_name  # noqa: F401  (the one rule for set-aside names)
 
 RAW = ".cwa"
 LOG = ".mcap"

@@ -53,7 +53,7 @@ def products_wanted(mcap) -> bool:
 
 def _reason(e: BaseException) -> str:
     if isinstance(e, OSError) and not hasattr(e, "message"):
-        from stillpoint.drivers.outputs import describe_os_error
+        from stillpoint.engine.core.outputs import describe_os_error
         return f"{getattr(e, 'filename', None) or ''}: {describe_os_error(e)}".lstrip(": ")
     return str(e) or type(e).__name__
 

@@ -42,7 +42,7 @@ from pathlib import Path
 from typing import Optional
 
 from stillpoint.drivers import constants as C
-from stillpoint.drivers.errors import StillpointError
+from stillpoint.engine.core.errors import StillpointError
 
 
 class ProfileError(StillpointError):

@@ -20,7 +20,7 @@ from __future__ import annotations
 import re
 from typing import Optional
 
-from stillpoint.drivers.errors import StillpointError
+from stillpoint.engine.core.errors import StillpointError
 from stillpoint.drivers.names import safe_name_part
 
 from . import names

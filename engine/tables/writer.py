@@ -1,7 +1,7 @@
 """Write the epoch table (``<stem>.epochs.csv.gz``) and the day table (``<stem>.days.csv``) while the
 output pass runs: ``TablesTap`` is pushed the raw Block, corrected batches and epoch metrics of every
 pipeline step (see ``engine.run.OutputStage``), streams epoch rows into gzip text and keeps one
-local day of rows for the day table. Both files go through ``drivers.outputs`` (``.part``, fsync,
+local day of rows for the day table. Both files go through ``engine/core/outputs.py`` (``.part``, fsync,
 atomic rename); a failed run leaves no table under the final names.
 
 Epoch table columns: ``time_utc`` (ISO 8601, ``Z``; only when the zone is known: a table of
@@ -33,7 +33,7 @@ from typing import Optional
 import numpy as np
 
 from stillpoint.drivers.names import cell_text, csv_cell
-from stillpoint.drivers.outputs import AtomicOutput, atomic_output, check_output_path
+from stillpoint.engine.core.outputs import AtomicOutput, atomic_output, check_output_path
 
 from ..core.times import iso_texts, offset_texts
 from ..operators.nonwear import DEFAULT_VERSION, clip_threshold_g

@@ -8,7 +8,7 @@ import csv
 from pathlib import Path
 
 from stillpoint.drivers.names import cell_text, csv_cell
-from stillpoint.drivers.outputs import atomic_output
+from stillpoint.engine.core.outputs import atomic_output
 
 from ..outcomes.impute import METRICS as IMPUTED_METRICS
 from .windows import WINDOW_COLUMNS, time_use

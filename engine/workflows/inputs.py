@@ -16,7 +16,7 @@ from typing import Optional
 
 import numpy as np
 
-from stillpoint.drivers.errors import RecordingError
+from stillpoint.engine.core.errors import RecordingError
 from stillpoint.drivers.byteio import check_recording_path
 
 from ..features import WindowFeatures

@@ -12,7 +12,7 @@ from typing import List, Optional
 
 import numpy as np
 
-from stillpoint.drivers.outputs import OutputError, atomic_output, check_output_path, describe_os_error
+from stillpoint.engine.core.outputs import OutputError, atomic_output, check_output_path, describe_os_error
 from stillpoint.engine.sim import model as sim
 
 from .discrepancy import BIC_THRESHOLD, DiscrepancyResult

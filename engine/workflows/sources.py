@@ -18,7 +18,7 @@ from typing import Optional
 import numpy as np
 
 from stillpoint.engine.recordings import open_recording
-from stillpoint.drivers.errors import RecordingError
+from stillpoint.engine.core.errors import RecordingError
 
 from ..features import WindowFeatures
 from ..operators.windows import WindowFeaturesOperator

@@ -16,8 +16,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Optional
 
-from stillpoint.drivers.errors import StillpointError
-from stillpoint.drivers.outputs import check_output_path
+from stillpoint.engine.core.errors import StillpointError
+from stillpoint.engine.core.outputs import check_output_path
 
 
 class TablesError(StillpointError):

@@ -21,7 +21,7 @@ import os
 import pkgutil
 import sys
 
-from stillpoint.drivers.errors import StillpointError
+from stillpoint.engine.core.errors import StillpointError
 
 from . import commands as _commands
 
@@ -174,7 +174,7 @@ def main(argv=None) -> int:
     if not getattr(args, "_run", None):
         parser.print_help()
         return 2
-    from stillpoint.drivers.outputs import keep_existing_outputs, protect_inputs
+    from stillpoint.engine.core.outputs import keep_existing_outputs, protect_inputs
     protect_inputs(_input_files(args))
     keep_existing_outputs(getattr(args, "_keeps_outputs", False)
                           and not getattr(args, "overwrite", False))
@@ -190,7 +190,7 @@ def main(argv=None) -> int:
     except BrokenPipeError:
         return 0
     except OSError as e:  # a file system failure no command anticipated: still one line
-        from stillpoint.drivers.outputs import describe_os_error
+        from stillpoint.engine.core.outputs import describe_os_error
         where = f"{e.filename}: " if getattr(e, "filename", None) else ""
         print(f"stillpoint {args.command}: error: {where}{describe_os_error(e)}", file=sys.stderr)
         return 2

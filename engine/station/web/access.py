@@ -21,7 +21,7 @@ import ipaddress
 import secrets
 from typing import Optional
 
-from stillpoint.drivers.errors import StillpointError
+from stillpoint.engine.core.errors import StillpointError
 
 COOKIE = "stillpoint_token"
 

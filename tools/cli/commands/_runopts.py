@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 
-from stillpoint.drivers.errors import StillpointError
+from stillpoint.engine.core.errors import StillpointError
 
 from ._numbers import MG, setting
 
@@ -131,7 +131,7 @@ def human_summary(s: dict) -> str:
 
 def write_summary(summary: dict, path) -> None:
     """The run summary as JSON, written atomically (``<path>.part``, then renamed)."""
-    from stillpoint.drivers.outputs import atomic_output
+    from stillpoint.engine.core.outputs import atomic_output
     from stillpoint.engine.core.jsonsafe import dumps
     with atomic_output(path, binary=False, what="summary") as f:
         f.write(json.dumps(json.loads(dumps(summary)), indent=2, sort_keys=True) + "\n")

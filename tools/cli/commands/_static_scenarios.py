@@ -45,7 +45,7 @@ def add_arguments(p) -> None:
 def run(args) -> int:
     """The scenario; a value the writers refuse (an AX rate that is not 3200/2^k Hz, ...) is
     one line (``ModelError``), not a traceback."""
-    from stillpoint.drivers.errors import StillpointError
+    from stillpoint.engine.core.errors import StillpointError
     from stillpoint.engine.sim.model import ModelError
     try:
         return _run(args)

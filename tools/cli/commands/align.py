@@ -12,8 +12,8 @@ import json
 import sys
 
 from ._numbers import RATE_HZ, SECONDS_DAY, number, number_or
-from stillpoint.drivers.errors import StillpointError
-from stillpoint.drivers.outputs import atomic_output, check_distinct_outputs, check_output_path
+from stillpoint.engine.core.errors import StillpointError
+from stillpoint.engine.core.outputs import atomic_output, check_distinct_outputs, check_output_path
 from stillpoint.engine.core.jsonsafe import jsonable
 
 NAME = "align"

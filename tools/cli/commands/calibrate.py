@@ -180,7 +180,7 @@ def _calibrate_one(path: str, opts: dict, progress=None) -> tuple:
 
 def _calibrate_safe(path: str, opts: dict) -> tuple:
     """Pool worker: typed input errors come back as text (they do not pickle)."""
-    from stillpoint.drivers.errors import StillpointError
+    from stillpoint.engine.core.errors import StillpointError
 
     try:
         return _calibrate_one(path, opts), None
@@ -204,7 +204,7 @@ def _check_outputs(args, many: bool) -> None:
     """Plot destination and store are checked before any file is read."""
     from pathlib import Path
 
-    from stillpoint.drivers.outputs import OutputError, check_output_path, describe_os_error
+    from stillpoint.engine.core.outputs import OutputError, check_output_path, describe_os_error
     if args.plot and many:  # --plot names a folder: one PNG per file
         d = Path(args.plot)
         try:
@@ -217,7 +217,7 @@ def _check_outputs(args, many: bool) -> None:
 
 
 def run(args) -> int:
-    from stillpoint.drivers.errors import StillpointError
+    from stillpoint.engine.core.errors import StillpointError
 
     if args.first_hours <= 0 or args.chunk_hours <= 0:
         raise StillpointError("--first-hours and --chunk-hours must be positive")

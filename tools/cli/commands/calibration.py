@@ -12,7 +12,7 @@ import argparse
 import json
 import sys
 
-from stillpoint.drivers.errors import StillpointError
+from stillpoint.engine.core.errors import StillpointError
 from stillpoint.engine.calibration.estimate import FitDiagnostics
 
 NAME = "calibration"
@@ -95,7 +95,7 @@ def run(args) -> int:
     if action == "export":
         doc = json.dumps(store.export(), indent=1)
         if args.output:
-            from stillpoint.drivers.outputs import atomic_output
+            from stillpoint.engine.core.outputs import atomic_output
             with atomic_output(args.output, binary=False, what="store export") as f:
                 f.write(doc + "\n")
             print(f"exported {len(store.devices())} device(s) to {args.output}", file=sys.stderr)

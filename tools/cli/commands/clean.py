@@ -14,7 +14,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from stillpoint.drivers.errors import StillpointError
+from stillpoint.engine.core.errors import StillpointError
 
 NAME = "clean"
 HELP = "list (and with --delete remove) partial files a verified station output supersedes"
@@ -99,7 +99,7 @@ def survey(out: Path, ledger) -> list[tuple[str, str, str]]:
 
 
 def run(args) -> int:
-    from stillpoint.drivers.outputs import check_output_folder
+    from stillpoint.engine.core.outputs import check_output_folder
     from stillpoint.engine.station.ledger import LEDGER_NAME, Ledger, acquire_station_lock
     out = check_output_folder(args.outdir, what="station output folder")
     if not (out / LEDGER_NAME).is_file():

@@ -105,7 +105,7 @@ def _parse_shard(text):
 
 
 def _prepare_outdir(out: Path) -> Path:
-    from stillpoint.drivers.outputs import OutputError, check_output_path
+    from stillpoint.engine.core.outputs import OutputError, check_output_path
     out = out.absolute()
     if out.exists() and not out.is_dir():
         raise OutputError(out, "the cohort folder is a file")
@@ -116,7 +116,7 @@ def _prepare_outdir(out: Path) -> Path:
         try:
             out.mkdir()
         except OSError as e:
-            from stillpoint.drivers.outputs import describe_os_error
+            from stillpoint.engine.core.outputs import describe_os_error
             raise OutputError(out, f"cannot create the cohort folder: {describe_os_error(e)}") from None
     check_output_path(out / "manifest.csv", what="cohort")
     return out

@@ -19,7 +19,7 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
-    from stillpoint.drivers.outputs import OutputError
+    from stillpoint.engine.core.outputs import OutputError
     from stillpoint.engine.station.ledger import LEDGER_NAME
 
     from .station import start_dashboard

@@ -9,7 +9,7 @@ import time
 from pathlib import Path
 
 from stillpoint.drivers import constants as C
-from stillpoint.drivers.errors import StillpointError
+from stillpoint.engine.core.errors import StillpointError
 
 from ._numbers import DAYS, EMULATED_ID, MB_PER_S, PORT, SECONDS_DAY, SECONDS_YEAR, number
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 import json
 import sys
 
-from stillpoint.drivers.errors import RecordingError, StillpointError
+from stillpoint.engine.core.errors import RecordingError, StillpointError
 from ._numbers import MG, RATE_HZ, number
 
 NAME = "discrepancy"

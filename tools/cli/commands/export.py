@@ -28,7 +28,7 @@ string: device, header fields, QC log).
 Streaming: CSV text is formatted with numpy block by block (no per-sample Python) and written as it
 goes; NPZ columns are streamed to temporary files next to the output and then copied into the zip,
 so memory stays flat however long the recording. The output appears under its name only when
-complete (written as ``OUT.part`` and renamed; see ``stillpoint.drivers.outputs``).
+complete (written as ``OUT.part`` and renamed; see ``stillpoint.engine.core.outputs``).
 
 An MCAP input (a run's log) takes ``--topic T`` (``stillpoint.engine.mcap.export.export_mcap``)
 or ``--table epochs|days|nights`` (``stillpoint.engine.workflows.tables_from_mcap``: the tables
@@ -57,8 +57,8 @@ from stillpoint.drivers import sniff_format
 
 from stillpoint.engine.recordings import open_recording
 from stillpoint.drivers.constants import cwa_light_lux, gna_light_lux
-from stillpoint.drivers.errors import StillpointError, UnsupportedFormatError
-from stillpoint.drivers.outputs import atomic_output, check_output_path
+from stillpoint.engine.core.errors import StillpointError, UnsupportedFormatError
+from stillpoint.engine.core.outputs import atomic_output, check_output_path
 from stillpoint.engine.core.blocks import PER_SAMPLE_BUTTON, PER_SAMPLE_IDLE_SLEEP, PER_SAMPLE_LIGHT_RAW
 
 from ._tableopts import add_zone_arguments

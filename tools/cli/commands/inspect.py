@@ -25,7 +25,7 @@ import numpy as np
 from stillpoint.drivers import sniff_format
 
 from stillpoint.engine.recordings import open_recording
-from stillpoint.drivers.errors import StillpointError
+from stillpoint.engine.core.errors import StillpointError
 from stillpoint.engine.core.jsonsafe import jsonable
 from stillpoint.engine.core.times import iso_utc as _iso_utc, offset_text
 

@@ -102,7 +102,7 @@ def human(label: str, s: dict) -> str:
 
 def run(args) -> int:
     from stillpoint.drivers.names import csv_cell
-    from stillpoint.drivers.outputs import atomic_output, check_distinct_outputs, check_output_path
+    from stillpoint.engine.core.outputs import atomic_output, check_distinct_outputs, check_output_path
     from stillpoint.engine.core.jsonsafe import dumps
     from stillpoint.engine.movements import count_leg
 

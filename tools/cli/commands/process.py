@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from stillpoint.drivers.outputs import check_distinct_outputs, check_output_path
+from stillpoint.engine.core.outputs import check_distinct_outputs, check_output_path
 from stillpoint.engine.calibration.estimate import CalibrationEstimate
 from stillpoint.engine.calibration.outcome import store_refusal
 from stillpoint.engine.run import RunSettings, process_file
@@ -214,7 +214,7 @@ def execute(args, settings: RunSettings, out: Path) -> int:
 
 def run(args) -> int:
     from stillpoint.drivers.byteio import check_recording_path
-    from stillpoint.drivers.errors import RecordingError
+    from stillpoint.engine.core.errors import RecordingError
     try:
         check_recording_path(args.file)
     except RecordingError as e:

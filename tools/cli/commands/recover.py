@@ -30,7 +30,7 @@ def default_output(path: Path) -> Path:
 
 def run(args) -> int:
     out = args.output or default_output(args.file)
-    from stillpoint.drivers.outputs import check_output_path
+    from stillpoint.engine.core.outputs import check_output_path
     check_output_path(out, what="recovered MCAP")  # never the input (protected by the CLI)
     rep = recover(args.file, out)
     if args.json:

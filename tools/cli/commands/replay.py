@@ -97,7 +97,7 @@ def _check_raw(raw: Path, meta: dict, log: Path) -> None:
     device type, id and session as the log's ``device`` record (one line, exit 2, otherwise)."""
     from stillpoint.engine.recordings import open_recording
     from stillpoint.drivers.byteio import check_recording_path
-    from stillpoint.drivers.errors import RecordingError
+    from stillpoint.engine.core.errors import RecordingError
     check_recording_path(raw)
     src = open_recording(raw)
     try:

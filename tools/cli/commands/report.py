@@ -17,7 +17,7 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
-    from stillpoint.drivers.outputs import check_output_path
+    from stillpoint.engine.core.outputs import check_output_path
     from stillpoint.engine.report import report_paths, require_matplotlib, write_report
     from ._runopts import OptionError
     require_matplotlib()  # before any work

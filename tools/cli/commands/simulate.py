@@ -125,7 +125,7 @@ def run(args) -> int:
         effects = "default"
     model = build_model(effects, model=args.model, overrides=overrides)
     if args.save_model:
-        from stillpoint.drivers.outputs import check_output_path
+        from stillpoint.engine.core.outputs import check_output_path
         check_output_path(args.save_model, what="model")
     common = dict(days=args.days, hz=args.hz, seed=args.seed, start=args.start,
                   range_g=args.range_g, packed=False if args.unpacked else None,
@@ -161,7 +161,7 @@ def run(args) -> int:
     bar.close()
     elapsed = time.perf_counter() - t0
     if args.save_model:
-        from stillpoint.drivers.outputs import atomic_output
+        from stillpoint.engine.core.outputs import atomic_output
         with atomic_output(args.save_model, binary=False, what="model") as f:
             f.write(truths[0].sensor_model.to_json() + "\n")
     summary = [{"path": t.path, "truth": t.truth_path,

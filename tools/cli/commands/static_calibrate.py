@@ -78,7 +78,7 @@ def human(cal) -> str:
 
 
 def run(args) -> int:
-    from stillpoint.drivers.outputs import atomic_output, check_distinct_outputs, check_output_path
+    from stillpoint.engine.core.outputs import atomic_output, check_distinct_outputs, check_output_path
     from stillpoint.engine.calibration.static import (read_calibration_recording,
                                                       static_calibration_file)
     from stillpoint.engine.core.jsonsafe import dumps

@@ -34,7 +34,7 @@ def layout_path(mcap: Path) -> Path:
 
 
 def write_layout(mcap: Path) -> Path:
-    from stillpoint.drivers.outputs import atomic_output, check_output_path
+    from stillpoint.engine.core.outputs import atomic_output, check_output_path
     from stillpoint.engine.live.layouts import layout_json, recording_layout
     from stillpoint.engine.live.playback import read_catalogue
     out = check_output_path(layout_path(mcap), what="layout")

@@ -1,4 +1,4 @@
-"""Outputs are never written in place: drivers/outputs.py."""
+"""Outputs are never written in place: engine/core/outputs.py."""
 
 import os
 

@@ -38,12 +38,20 @@ _JOIN_S = 5.0  # how long close() waits for the thread before closing the source
 _BLOCK, _END, _ERROR = 0, 1, 2
 
 
+CORES_ENV = "STILLPOINT_CORES"  # at most this many cores (1: no extra threads; for debugging)
+
+
 def cores_available() -> int:
-    """CPUs this process may run on (the affinity mask where the platform has one)."""
+    """CPUs this process may run on (the affinity mask where the platform has one), at most
+    $STILLPOINT_CORES when that is set to a positive whole number."""
     try:
-        return len(os.sched_getaffinity(0))
+        n = len(os.sched_getaffinity(0))
     except (AttributeError, OSError):
-        return os.cpu_count() or 1
+        n = os.cpu_count() or 1
+    cap = os.environ.get(CORES_ENV, "").strip()
+    if cap.isdigit() and int(cap) > 0:
+        n = min(n, int(cap))
+    return n
 
 
 class Prefetched:

@@ -52,10 +52,23 @@ writes chunks and the summary. By default that happens inline (``writer="inline"
 picks a writer per mode, engine.run.WRITER_BY_MODE): each chunk is compressed and handed to the
 OS as its cell ends, so a killed run loses only the cell in progress. ``writer="process"`` runs the writer in a child process (compression on another core;
 pays off only on an otherwise idle machine: every chunk crosses a pipe; if the engine dies, the
-writer still writes what it received), ``"thread"`` on a thread (at most one chunk queued).
-Measured (tools/benchmarks/bench_process.py, 7-day 100 Hz AX3, 2 cores shared with other jobs): inline
-12.6 s wall / 11.1 s CPU, writer process 14.4 s wall / 14.1 s CPU (the pipe copies). Records are written in the order of the
-calls, so the file is deterministic.
+writer still writes what it received). Measured (tools/benchmarks/bench_process.py, 7-day 100 Hz
+AX3, 2 cores shared with other jobs): inline 12.6 s wall / 11.1 s CPU, writer process 14.4 s
+wall / 14.1 s CPU (the pipe copies).
+
+``writer="thread"`` (the batch mode's) uses two threads when the process may use a second core
+(``core.prefetch.cores_available``; ``STILLPOINT_CORES=1`` forces one): the engine's calls
+(``write_slices``, ``write_json``, ``write_metadata``, ...) run in the order made on a framing
+thread (engine/mcap/ordered.py: at most ``FRAMING_DEPTH`` steps waiting), which frames a step's
+records and builds its chunks while the engine corrects the next step; a writer thread
+compresses and writes the chunks (at most one waiting; zstd and most of the framing's numpy
+run outside the interpreter lock). One thread runs every call, in the order made, so the file
+is the same byte for byte as on one core (same records, chunk boundaries and indexes;
+tests/test_mcap_two_cores.py). A failure on either thread (a full disk, a bad record) is raised
+in the engine by its next call, as the exception the inline path raises (one line, exit 2), with
+everything written before kept; ``abort`` (an interrupt) drops the steps still waiting and
+stops both threads, leaving the ``.part`` file recoverable. With one core, "thread" writes
+inline. Records are written in the order of the calls, so the file is deterministic.
 """
 
 from __future__ import annotations
@@ -88,8 +101,14 @@ LEAN_DROPPED = (TOPIC_RAW, TOPIC_GYRO, TOPIC_TEMPERATURE, TOPIC_CORRECTED)  # no
 
 from .jsonschemas import CALIBRATION, QC
 from .log import McapLog
+from .ordered import OrderedWorker
+from ..core.prefetch import cores_available
 from .view import TOPIC_VIEW, ViewDecimator, view_records
 from .writer import CHUNK_SIZE, LIBRARY, ZSTD_LEVEL  # noqa: F401
+
+# Pipeline steps waiting for the framing thread (writer="thread"): one framed while up to this
+# many wait, each a step's block, corrected batches and epochs (~3 MB at 100 Hz).
+FRAMING_DEPTH = 2
 
 
 def device_metadata(info: DeviceInfo) -> dict[str, str]:
@@ -351,6 +370,9 @@ class McapSink(McapLog):
                  message_s: float = 60.0, writer: str = "inline", zstd_level: int = ZSTD_LEVEL,
                  view_hz: float = 0.0, chunk_s: Optional[float] = None,
                  step_chunks: bool = False):
+        framing = "inline"
+        if writer == "thread":  # framing and compression each on a thread, given a second core
+            framing, writer = ("thread", "thread") if cores_available() > 1 else ("inline", "inline")
         super().__init__(path, compression=compression, chunk_size=chunk_size,
                          fsync_every_wall_s=fsync_every_wall_s, writer=writer,
                          zstd_level=zstd_level)
@@ -367,9 +389,12 @@ class McapSink(McapLog):
         self.view = ViewDecimator(view_hz) if view_hz else None
         from ..settings import is_lean
         self.lean = is_lean(settings)  # no per-sample topics (LEAN_DROPPED)
+        self._framer: Optional[OrderedWorker] = None
         try:
             self.write_metadata("device", device_metadata(info))
             self.write_metadata("settings", {"json": dumps(settings)})
+            if framing == "thread":
+                self._framer = OrderedWorker("mcap-framing", FRAMING_DEPTH)
         except BaseException:
             self.abort()
             raise
@@ -382,6 +407,23 @@ class McapSink(McapLog):
         if self._scratch is None or self._scratch.shape[0] < n:
             self._scratch = np.empty(max(n, 1))
         return self._scratch[:n]
+
+    # ------------------------------------------------------------------ the framing thread
+    def _later(self) -> bool:
+        """True when calls are to be handed to the framing thread (made by the engine, not by
+        a call already running there)."""
+        f = getattr(self, "_framer", None)
+        return f is not None and not f.on_worker()
+
+    def _stop_framing(self, drain: bool) -> None:
+        f = getattr(self, "_framer", None)
+        if f is None or f.on_worker():
+            return
+        self._framer = None
+        if drain:
+            f.drain()  # raises what a framing call raised
+        else:
+            f.stop()
 
     def _msg(self, topic, encoding, schema, log_time, data):
         ch = self._chunk
@@ -445,6 +487,9 @@ class McapSink(McapLog):
     def write_extras(self, extras: dict) -> None:
         """Log the optional epoch metrics of one step (``{"counts": EpochCounts, "mims":
         EpochMims}``) on their topics."""
+        if self._later():
+            self._framer.submit(self.write_extras, extras)
+            return
         for key, topic, schema, records in (("counts", TOPIC_COUNTS, EPOCH_COUNTS, counts_records),
                                             ("mims", TOPIC_MIMS, EPOCH_MIMS, mims_records)):
             m = extras.get(key)
@@ -461,7 +506,36 @@ class McapSink(McapLog):
     def write_qc(self, event: dict, log_time_ns: int) -> None:
         self.write_json(TOPIC_QC, log_time_ns, event, schema=QC)
 
+    # the engine's other calls: on the framing thread too, in the order made (JSON and metadata
+    # values are encoded here, so a dict the caller changes later is logged as it was)
+    def write(self, topic: str, encoding: str, schema, log_time: int, data: bytes) -> None:
+        if self._later():
+            self._framer.submit(super().write, topic, encoding, schema, log_time, bytes(data))
+        else:
+            super().write(topic, encoding, schema, log_time, data)
+
+    def write_cdr(self, topic: str, cdr_type, log_time: int, values: dict) -> None:
+        self.write(topic, "cdr", cdr_type, log_time, cdr_type.encode(values))
+
+    def write_json(self, topic: str, log_time: int, obj, schema=None) -> None:
+        self.write(topic, "json", schema, log_time, dumps(obj).encode())
+
+    def write_metadata(self, name: str, values: dict) -> None:
+        values = {k: (v if isinstance(v, str) else dumps(v)) for k, v in values.items()}
+        if self._later():
+            self._framer.submit(super().write_metadata, name, values)
+        else:
+            super().write_metadata(name, values)
+
     def write_slices(self, block: Optional[Block], corrected: list, epochs: EpochMetrics) -> None:
+        """Write what one pipeline step produced (see ``_write_slices``; on the framing thread
+        when there is one: the engine hands over arrays it does not change afterwards)."""
+        if self._later():
+            self._framer.submit(self._write_slices, block, corrected, epochs)
+        else:
+            self._write_slices(block, corrected, epochs)
+
+    def _write_slices(self, block: Optional[Block], corrected: list, epochs: EpochMetrics) -> None:
         """Write what one pipeline step produced, by data time in cells of ``flush_every_s``
         (``message_s`` when flushing is off): the raw samples and epochs of a cell are written
         together and the MCAP is flushed each time a new cell begins, so a killed run loses at
@@ -586,12 +660,22 @@ class McapSink(McapLog):
             i = j
 
     def flush(self, fsync: bool = True) -> None:
-        self._flush_cell(fsync)
+        if self._later():
+            self._framer.submit(self._flush_cell, fsync)
+        else:
+            self._flush_cell(fsync)
 
     def close(self):
         """Finish the file (summary, index, footer), wait for the writer, rename it."""
+        self._stop_framing(drain=True)
         self._emit_corrected()
         return super().close()
+
+    def abort(self):
+        """Stop without finishing (see ``McapLog.abort``): the framing thread first, dropping
+        the steps still waiting for it (the one being framed ends first)."""
+        self._stop_framing(drain=False)
+        return super().abort()
 
 
 

@@ -35,6 +35,7 @@ from typing import Optional
 import numpy as np
 
 from stillpoint.engine.core.errors import StillpointError
+from stillpoint.engine.core.figures import save_figure
 from stillpoint.engine.core.outputs import atomic_output, check_output_path
 
 from .calibration.estimate import status_applied
@@ -479,8 +480,7 @@ def write_report(mcap, *, summary: Optional[dict] = None, out_png=None, out_html
     title = (f"{mcap.name}: {dev.get('type', '')} {dev.get('id', '')}, "
              f"{ep['dates'][0] if ep['dates'] else '?'} to {ep['dates'][-1] if ep['dates'] else '?'}")
     fig = _draw(plt, ep, days, windows, est, rec, title, float(settings.get("epoch_s", 5.0)))
-    with atomic_output(png) as f:
-        fig.savefig(f, format="png")
+    save_figure(fig, png, dpi="figure", fmt="png")
     plt.close(fig)
     data = base64.b64encode(png.read_bytes()).decode()
     cols = list(days[0].keys()) if days else []

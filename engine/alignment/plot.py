@@ -116,12 +116,8 @@ def plot_alignment(result: AlignmentResult, path, max_correlograms: int = 40) ->
     else:
         ax2.text(0.5, 0.5, "no correlograms", ha="center", va="center", transform=ax2.transAxes)
     fig.tight_layout()
-    from pathlib import Path
-
-    from stillpoint.engine.core.outputs import atomic_output
-    fmt = Path(str(path)).suffix.lstrip(".").lower() or "png"
-    with atomic_output(path) as f:
-        fig.savefig(f, dpi=110, format=fmt)
+    from stillpoint.engine.core.figures import save_figure
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
     return str(path)
 

@@ -49,7 +49,8 @@ def plot_calibration(windows: WindowFeatures, estimate: CalibrationEstimate, pat
     ``hist_range_mg`` (their number is in the legend: nothing is dropped)."""
     import textwrap
 
-    from stillpoint.engine.core.outputs import atomic_output, check_output_path
+    from stillpoint.engine.core.figures import save_figure
+    from stillpoint.engine.core.outputs import check_output_path
     plt = _pyplot()
     path = check_output_path(path, what="plot")
     w = windows
@@ -129,9 +130,7 @@ def plot_calibration(windows: WindowFeatures, estimate: CalibrationEstimate, pat
         lines.append("no temperature term")
     ax.text(0, 1, "\n".join(lines), va="top", family="monospace", fontsize=8.5)
     fig.tight_layout(rect=(0, 0, 1, 0.94))
-    fmt = path.suffix.lstrip(".").lower() or "png"
-    with atomic_output(path) as f:
-        fig.savefig(f, dpi=110, format=fmt)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
     return path
 

@@ -14,7 +14,7 @@ from .static import StaticCalibration
 
 def plot_static_calibration(time_ns: np.ndarray, acc_g: np.ndarray, cal: StaticCalibration, path) -> None:
     """Write the figure as PNG to ``path`` (atomically)."""
-    from stillpoint.engine.core.outputs import atomic_output
+    from stillpoint.engine.core.figures import save_figure
     plt = _pyplot()
     t = (np.asarray(time_ns, np.int64) - int(time_ns[0])) / 1e9 if len(time_ns) else np.zeros(0)
     fig, (ax, bx) = plt.subplots(2, 1, figsize=(11, 7), gridspec_kw={"height_ratios": [2, 1]})
@@ -49,6 +49,5 @@ def plot_static_calibration(time_ns: np.ndarray, acc_g: np.ndarray, cal: StaticC
     bx.set_ylabel("gravity-axis reading - (±1 g) (mg)")
     bx.legend(fontsize=8)
     fig.tight_layout()
-    with atomic_output(path, what="plot") as f:
-        fig.savefig(f, format="png", dpi=90)
+    save_figure(fig, path, dpi=90, fmt="png")
     plt.close(fig)

@@ -6,15 +6,17 @@ from __future__ import annotations
 
 import warnings
 from pathlib import Path
+from typing import Optional, Union
 
 from .outputs import atomic_output
 
 
-def save_figure(fig, path, *, dpi: int = 110) -> Path:
-    """Write ``fig`` to ``path`` (the format from its suffix, PNG without one) and return the
-    path; an unwritable destination is an ``OutputError`` naming it."""
+def save_figure(fig, path, *, dpi: Union[float, str] = 110, fmt: Optional[str] = None) -> Path:
+    """Write ``fig`` to ``path`` and return the path: ``fmt`` (default: from the name's suffix,
+    PNG without one) at ``dpi`` (``"figure"``: the figure's own). An unwritable destination is
+    an ``OutputError`` naming it."""
     path = Path(path)
-    fmt = path.suffix.lstrip(".").lower() or "png"
+    fmt = fmt or path.suffix.lstrip(".").lower() or "png"
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         with atomic_output(path, what="plot") as f:

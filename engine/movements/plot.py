@@ -8,7 +8,7 @@ from __future__ import annotations
 
 def plot_movements(legs, path, *, seconds: float = 60.0) -> None:
     """``legs``: [(label, LegResult, LegSignals, detector output dict)]; PNG to ``path``."""
-    from stillpoint.engine.core.outputs import atomic_output
+    from stillpoint.engine.core.figures import save_figure
     from stillpoint.engine.calibration.plot import _pyplot
     plt = _pyplot()
     fig, axes = plt.subplots(len(legs), 1, figsize=(11, 3.6 * len(legs)), squeeze=False)
@@ -33,6 +33,5 @@ def plot_movements(legs, path, *, seconds: float = 60.0) -> None:
         ax.set_xlabel("time from start (s)")
         ax.legend(loc="upper right", fontsize=7)
     fig.tight_layout()
-    with atomic_output(path, what="plot") as f:
-        fig.savefig(f, format="png", dpi=90)
+    save_figure(fig, path, dpi=90, fmt="png")
     plt.close(fig)

@@ -12,6 +12,7 @@ from typing import List, Optional
 
 import numpy as np
 
+from stillpoint.engine.core.figures import save_figure
 from stillpoint.engine.core.outputs import OutputError, atomic_output, check_output_path, describe_os_error
 from stillpoint.engine.sim import model as sim
 
@@ -248,8 +249,7 @@ def draw(res: DiscrepancyResult, out: Path) -> List[str]:
         fig.suptitle(f"step {i}: {c.effect}" + ("" if c.component == "all" else f" [{c.component}]"))
         fig.tight_layout()
         name = f"step{i}_{c.effect}_{c.component}.png"
-        with atomic_output(out / name) as f:
-            fig.savefig(f, dpi=90, format="png")
+        save_figure(fig, out / name, dpi=90, fmt="png")
         plt.close(fig)
         names.append(name)
     rows = [r for r in res.locate_initial if r["bins"]["y_mean"]][:9]
@@ -273,8 +273,7 @@ def draw(res: DiscrepancyResult, out: Path) -> List[str]:
                      "variance the bin means explain.\nu_x, u_y, u_z: components of the unit gravity vector.",
                      fontsize=9)
         fig.tight_layout(rect=(0, 0, 1, 0.91))
-        with atomic_output(out / "locate_initial.png") as f:
-            fig.savefig(f, dpi=80, format="png")
+        save_figure(fig, out / "locate_initial.png", dpi=80, fmt="png")
         plt.close(fig)
         names.append("locate_initial.png")
     return names

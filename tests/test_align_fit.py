@@ -171,3 +171,45 @@ def test_weak_peaks_and_the_crystal_curve_do_not_bias_the_initial_offset():
     d_lo, d_hi = fit.ci()["drift_day7_s"]
     true7 = float(truth[-1] - truth[0]) / RATE  # close to day 7 (t runs 0.5 h .. 7 d - 0.5 h)
     assert abs(fit.drift_day7_s - true7) < 0.1
+
+
+def _biased_pair(seed: int, days: float = 2.0, block_s: float = 600.0):
+    """A pair's 10-minute block lags with a known clock: the peak heights of wrist/hip wear
+    (0.4-0.97), lag noise growing with the peak's noise-to-signal ratio (1 - rho^2) / rho^2, and
+    a bias proportional to it whose size and sign are the pair's own (on simulated wrist/hip
+    weeks the weak blocks of one pair are 20-50 ms early, of another as late)."""
+    rng = np.random.default_rng(seed)
+    grid = np.arange(0, days * 86400.0 + 3600, 60.0)
+    reg = TemperatureRegressor.from_temperatures(
+        grid, 30 + 2 * np.sin(2 * np.pi * grid / 86400),
+        32 + 4 * np.sin(2 * np.pi * grid / 86400 + 0.5))
+    t = np.arange(0, days * 86400.0, block_s) + block_s / 2
+    t = t[((t % 86400) < 16 * 3600) & (rng.random(t.size) < 0.6)]  # awake, moving
+    b0, b1 = rng.uniform(-300, 300), rng.uniform(-50, 50) * 1e-6 * RATE
+    truth = b0 + b1 * t - 0.035e-6 * RATE * reg(t)
+    rho = np.clip(rng.beta(5, 2.2, t.size), 0.4, 0.97)
+    nsr = (1 - rho ** 2) / rho ** 2
+    y = truth + rng.normal(0, 0.4) * nsr + rng.normal(0, 0.45, t.size) * np.sqrt(nsr)
+    blocks = table(y, start_s=t - block_s / 2)
+    for b, r in zip(blocks, rho):
+        b.duration_s, b.corr = block_s, float(r)
+        b.centroid_s = b.centre_s
+    return blocks, reg, b0 / RATE
+
+
+def test_the_weak_peaks_bias_is_modelled_and_the_interval_covers_the_offset():
+    """The weak peaks' bias differs in sign between pairs, so no fixed correction and no
+    weighting removes it: the fit estimates it per pair as a term in the blocks' noise-to-signal
+    ratio and reports the clock's lag at a noise-free peak. Over 12 seeded pairs the initial
+    offset's 95 % interval covers the truth in at least 11 and the median error is below 3 ms
+    (12 and 2.1 ms; with the bias left in the lags 7 were covered, median error 7.5 ms)."""
+    errs, covered = [], 0
+    for seed in range(12):
+        blocks, reg, truth = _biased_pair(seed)
+        fit = fit_robust(blocks, RATE, temperature=reg, min_blocks=12)
+        lo, hi = fit.ci()["initial_offset_s"]
+        covered += lo <= truth <= hi
+        errs.append(abs(fit.initial_offset_s - truth))
+        assert fit.diagnostics["weak_peak_bias"]["sd"] > 0
+    assert covered >= 11, covered
+    assert np.median(errs) < 0.003, np.median(errs)

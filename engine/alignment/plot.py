@@ -123,14 +123,16 @@ def plot_alignment(result: AlignmentResult, path, max_correlograms: int = 40) ->
 
 
 def _band(fit, tt, level: float = 0.95):
-    """Half-width (s) of the confidence band of the linear part of the clock model."""
+    """Half-width (s) of the confidence band of the linear part of the clock model (the same
+    rule as the fit's intervals: ``ClockFit.halfwidth``)."""
     if fit.cov is None or fit.dof <= 0:
         return None
-    from scipy import stats
-    q = float(stats.t.ppf(0.5 + level / 2, fit.dof))
-    c = fit.cov
-    var = c[0, 0] + 2 * tt * c[0, 1] + tt * tt * c[1, 1]
-    return q * np.sqrt(np.maximum(var, 0.0)) / fit.rate
+    g = np.zeros(fit.cov.shape[0])
+    out = np.empty(len(tt))
+    for i, x in enumerate(tt):
+        g[0], g[1] = 1.0, float(x)
+        out[i] = fit.halfwidth(g, level)
+    return out / fit.rate
 
 
 def _t(b, result):

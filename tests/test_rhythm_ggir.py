@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from stillpoint.engine.rhythm import metrics
-from stillpoint.engine.rhythm.series import RHYTHM_COLUMNS, intensity_classes, local_midnights
+from stillpoint.engine.rhythm.series import RHYTHM_COLUMNS, local_midnights
 from stillpoint.engine.sim.sleep import SleepSpec
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -89,11 +89,23 @@ def test_sleep_regularity_equal_ggir(case):
     assert ours == theirs
 
 
-def test_transition_probabilities_equal_ggir(case):
+def test_fragmentation_equal_ggir(case):
+    """Every g.fragmentation figure (part 6's "day" and "spt" modes, frag.metrics "all": transition
+    probabilities, fragment counts, mean durations, SD, Gini, CoV, power law) on part 5's classes."""
     name, fx, s, sib, spt, got = case
-    fr = fx["frag"]
-    assert got["tp"] == (fr["TP_IN2PA"], fr["TP_PA2IN"], int(fr["Nfrag_IN2PA"]),
-                         int(fr["Nfrag_PA2IN"]))
+    pairs = gen.frag_pairs(got["row"], fx["frag"])
+    assert len(pairs) == 38
+    assert sum(b is not None for a, b in pairs.values()) >= 34  # the distribution metrics defined
+    for col, (a, b) in pairs.items():
+        if b is None:
+            assert a is None, (name, col)
+        else:
+            assert a == pytest.approx(b, rel=1e-9, abs=1e-12), (name, col)
+
+
+def test_gini_is_ineqs():
+    """ineq::Gini(c(1, 2, 3, 10), corr = TRUE) = (2 * 54 / 16 - 5) / 3 (R: 0.58333333333333337)."""
+    assert metrics.gini(np.array([10, 1, 3, 2.0])) == pytest.approx((2 * 54 / 16 - 5) / 3, rel=1e-15)
 
 
 def test_transition_probabilities_follow_rs_runs():

@@ -342,35 +342,149 @@ def sleep_regularity(state: np.ndarray, invalid: np.ndarray, t_utc_s: np.ndarray
 
 
 # ---------------------------------------------------------------------------- fragmentation
-def transition_probabilities(classes: np.ndarray, a=(1,), b=(2, 3)) -> tuple:
-    """GGIR's ``TransProb`` (g.fragmentation) from the runs of classes in ``a`` to those in ``b``
-    and back, on one series of class ids (NaN: left out, splitting it; part 6 codes inactivity
-    1, light 2, MVPA 3). Returns (TP a->b, TP b->a, N a->b, N b->a)."""
-    x = np.asarray(classes, np.float64)
-    if x.shape[0] == 0:
-        return None, None, 0, 0
-    # runs as R's rle: a comparison with NA breaks, so every NA is its own run
+def _runs(x: np.ndarray):
+    """R's ``rle`` of a float series: (values, lengths); a comparison with NA breaks, so every
+    NaN is its own run."""
     brk = np.ones(x.shape[0], bool)
     brk[1:] = ~((x[1:] == x[:-1]) & np.isfinite(x[1:]))
     starts = np.flatnonzero(brk)
-    vals = x[starts]
-    lens = np.diff(np.append(starts, x.shape[0]))
+    return x[starts], np.diff(np.append(starts, x.shape[0]))
+
+
+def trans_prob(classes: np.ndarray, a=(1,), b=(2, 3)) -> dict:
+    """GGIR's ``TransProb`` (R/g.fragmentation.R:21-92) from the runs of classes in ``a`` to those
+    in ``b`` and back, on one series of class ids (NaN: left out, splitting it). Keys as GGIR's:
+    TPab, TPba, Nab, Nba, totDur_ab and totDur_ba (with more than one run: the epochs of the
+    ``a`` runs followed by a ``b`` run, and back)."""
+    x = np.asarray(classes, np.float64)
+    out = {"TPab": None, "TPba": None, "Nab": 0, "Nba": 0, "totDur_ab": 0, "totDur_ba": 0}
+    if x.shape[0] == 0:
+        return out
+    vals, lens = _runs(x)
     ns = vals.shape[0]
-    ina, act = np.isin(vals, a), np.isin(vals, b)
+    ina, inb = np.isin(vals, a), np.isin(vals, b)
     if ns == 1:
-        return (0.0, 1.0, 1, 0) if ina[0] else (1.0, 0.0, 0, 1)
-    nab = int(np.sum(ina[:-1] & act[1:]))
-    nba = int(np.sum(act[:-1] & ina[1:]))
+        if ina[0]:
+            out.update(TPab=0.0, TPba=1.0, totDur_ab=int(lens[0]), Nab=1)
+        else:
+            out.update(TPab=1.0, TPba=0.0, totDur_ba=int(lens[0]), Nba=1)
+        return out
+    ab = ina[:-1] & inb[1:]
+    ba = inb[:-1] & ina[1:]
+    nab, nba = int(ab.sum()), int(ba.sum())
     last = set(np.flatnonzero(np.isfinite(vals[:-1]) & np.isnan(vals[1:])).tolist())
     if np.isfinite(vals[-1]):
         last.add(ns - 1)
     last = sorted(last)
     rest = np.delete(vals, last)
     if last and int(np.isfinite(rest).sum()) > 1:
-        ca, cb = int(ina[last].sum()), int(act[last].sum())
+        ca, cb = int(ina[last].sum()), int(inb[last].sum())
     else:
         ca = cb = 0
     da = int(lens[ina].sum()) - ca
-    db = int(lens[act].sum()) - cb
+    db = int(lens[inb].sum()) - cb
     eps = 1e-6
-    return (round((nab + eps) / (da + eps), 6), round((nba + eps) / (db + eps), 6), nab, nba)
+    out.update(TPab=round((nab + eps) / (da + eps), 6), TPba=round((nba + eps) / (db + eps), 6),
+               Nab=nab, Nba=nba, totDur_ab=int(lens[:-1][ab].sum()),
+               totDur_ba=int(lens[:-1][ba].sum()))
+    return out
+
+
+def transition_probabilities(classes: np.ndarray, a=(1,), b=(2, 3)) -> tuple:
+    """(TP a->b, TP b->a, N a->b, N b->a) of ``trans_prob``."""
+    t = trans_prob(classes, a, b)
+    return t["TPab"], t["TPba"], t["Nab"], t["Nba"]
+
+
+def _ratio(n, d):
+    """n / d; None where R gives NaN or Inf (d = 0)."""
+    if d is None or n is None or d == 0:
+        return None
+    return n / d
+
+
+def gini(x: np.ndarray):
+    """``ineq::Gini(x, corr = TRUE)`` (ineq 0.2-13, R/ineq.R) as GGIR calls it: sorted values,
+    (2 sum(i x_i) / sum(x) - (n + 1)) / (n - 1)."""
+    x = np.sort(np.asarray(x, np.float64))
+    n = x.shape[0]
+    if n < 2 or x.sum() == 0:
+        return None
+    g = 2.0 * float(np.sum(x * np.arange(1, n + 1))) / float(x.sum()) - (n + 1)
+    return g / (n - 1)
+
+
+def _sd(x: np.ndarray):
+    return float(np.std(x, ddof=1)) if x.shape[0] > 1 else None
+
+
+FRAG_DAY = ("TP_IN2PA", "TP_PA2IN", "Nfrag_IN2PA", "Nfrag_PA2IN", "TP_IN2LIPA", "Nfrag_IN2LIPA",
+            "TP_IN2MVPA", "Nfrag_IN2MVPA", "Nfrag_LIPA", "mean_dur_LIPA", "Nfrag_MVPA",
+            "mean_dur_MVPA", "Nfrag_PA", "Nfrag_IN", "mean_dur_PA", "mean_dur_IN", "Gini_dur_PA",
+            "Gini_dur_IN", "CoV_dur_PA", "CoV_dur_IN", "alpha_dur_PA", "alpha_dur_IN",
+            "x0.5_dur_PA", "x0.5_dur_IN", "W0.5_dur_PA", "W0.5_dur_IN", "SD_dur_PA", "SD_dur_IN",
+            "NFragPM_PA", "NFragPM_IN")
+FRAG_SPT = ("Nfrag_IN", "Nfrag_PA", "TP_IN2PA", "TP_PA2IN", "Nfrag_sleep", "Nfrag_wake",
+            "TP_sleep2wake", "TP_wake2sleep")
+
+
+def fragmentation_day(classes: np.ndarray, xmin: float) -> dict:
+    """GGIR's ``g.fragmentation`` in "day" mode with every metric (frag.metrics "all",
+    R/g.fragmentation.R:94-235) on the waking classes (1 inactivity, 2 light, 3 MVPA, NaN:
+    missing or in the sleep period): GGIR's names (``FRAG_DAY``) -> value. Durations are in
+    epochs; ``xmin``: epochs in a minute (the power law's shortest fragment)."""
+    y = np.asarray(classes, np.float64)
+    o: dict = {k: None for k in FRAG_DAY}
+    n = y.shape[0]
+    if n > 1:
+        t = trans_prob(y, (1,), (2, 3))
+        o.update(TP_IN2PA=t["TPab"], TP_PA2IN=t["TPba"], Nfrag_IN2PA=t["Nab"], Nfrag_PA2IN=t["Nba"])
+        t = trans_prob(y, (1,), (2,))
+        o.update(TP_IN2LIPA=t["TPab"], Nfrag_IN2LIPA=t["Nab"])
+        t = trans_prob(y, (1,), (3,))
+        o.update(TP_IN2MVPA=t["TPab"], Nfrag_IN2MVPA=t["Nab"])
+        t = trans_prob(y, (2,), (1, 3))
+        o.update(Nfrag_LIPA=t["Nab"], mean_dur_LIPA=_ratio(t["totDur_ab"], t["Nab"]))
+        t = trans_prob(y, (3,), (1, 2))
+        o.update(Nfrag_MVPA=t["Nab"], mean_dur_MVPA=_ratio(t["totDur_ab"], t["Nab"]))
+    # the binary series: inactivity (1) or not (0)
+    x = np.where(np.isnan(y), np.nan, np.where(y == 1, 1.0, 0.0))
+    vals, lens = _runs(x) if n else (np.zeros(0), np.zeros(0, np.int64))
+    nfrag = int(np.isfinite(vals).sum())
+    t = trans_prob(x, (1,), (0,))
+    o.update(Nfrag_PA=t["Nba"], Nfrag_IN=t["Nab"], mean_dur_PA=0.0, mean_dur_IN=0.0,
+             NFragPM_PA=0.0, NFragPM_IN=0.0)
+    if nfrag > 1:
+        o["mean_dur_PA"] = _ratio(t["totDur_ba"], t["Nba"])
+        o["mean_dur_IN"] = _ratio(t["totDur_ab"], t["Nab"])
+        o["NFragPM_PA"] = _ratio(o["Nfrag_PA"], t["totDur_ba"])
+        o["NFragPM_IN"] = _ratio(o["Nfrag_IN"], t["totDur_ab"])
+        if nfrag >= 10:  # R/g.fragmentation.R:199-234
+            for key, v in (("PA", 0.0), ("IN", 1.0)):
+                d = lens[vals == v].astype(np.float64)
+                sd = _sd(d)
+                o[f"SD_dur_{key}"] = sd
+                o[f"Gini_dur_{key}"] = gini(d)
+                lg = np.log(d)
+                o[f"CoV_dur_{key}"] = _ratio(_sd(lg), float(lg.mean()) if lg.shape[0] else None)
+                if sd is not None and sd != 0:
+                    alpha = 1.0 + d.shape[0] / float(np.sum(np.log(d / xmin)))
+                    x05 = 2.0 ** (1.0 / (alpha - 1.0) * xmin)
+                    o[f"alpha_dur_{key}"] = alpha
+                    o[f"x0.5_dur_{key}"] = x05
+                    o[f"W0.5_dur_{key}"] = float(d[d > x05].sum() / d.sum())
+    return o
+
+
+def fragmentation_spt(pa: np.ndarray, wake: np.ndarray, missing: np.ndarray) -> dict:
+    """GGIR's ``g.fragmentation`` in "spt" mode (R/g.fragmentation.R:236-267) on the sleep
+    period's epochs (``missing``: the waking part and invalid epochs): rest (0) against activity
+    (1: awake at light or more), and sleep (0) against wake (1). GGIR's names (``FRAG_SPT``)."""
+    o = {}
+    for (na, nb, ta, tb), flag in ((("Nfrag_IN", "Nfrag_PA", "TP_IN2PA", "TP_PA2IN"), pa),
+                                   (("Nfrag_sleep", "Nfrag_wake", "TP_sleep2wake", "TP_wake2sleep"),
+                                    wake)):
+        x = np.where(np.asarray(missing, bool), np.nan, np.asarray(flag, bool).astype(np.float64))
+        t = trans_prob(x, (0,), (1,))
+        o.update({na: t["Nab"], nb: t["Nba"], ta: t["TPab"], tb: t["TPba"]})
+    return o

@@ -57,12 +57,35 @@ SRI input (part 3)                   the SIBs, nonwear missing  R/g.part3.R:105-
 SRI day pairs kept                   frac_valid > 16 / 24       R/g.part4.R:1136
 transition probabilities             (N + 1e-6) / (duration -   R/g.fragmentation.R:21-92
                                      last runs + 1e-6), 6 dp
+fragmentation classes                part 5's classes (bouts    R/g.part6.R:356-362;
+                                     included): IN, LIG, MVPA   R/g.fragmentation.R:100-126
+                                     in the waking part; the
+                                     sleep period missing
+                                     ("day" mode), the waking
+                                     part missing ("spt" mode)
+mean fragment durations              epochs of the runs         R/g.fragmentation.R:64-67, 146,
+                                     followed by the other      150, 188-191
+                                     class / their number
+NFragPM                              fragments / those epochs   R/g.fragmentation.R:192-198
+SD, Gini, CoV, power law             on the binary series       R/g.fragmentation.R:199-234;
+                                     (inactivity or not), with  ineq 0.2-13 R/ineq.R (Gini,
+                                     at least 10 fragments:     corr = TRUE); Chastin et al.
+                                     Gini with n - 1; CoV: sd   2010 (alpha, x0.5, W0.5)
+                                     over mean of the log
+                                     durations; alpha: 1 + n /
+                                     sum(log(d / xmin)), xmin
+                                     1 min; x0.5: 2^(xmin /
+                                     (alpha - 1)); W0.5: share
+                                     of time in fragments
+                                     longer than x0.5
 ==================================== ========================== ====================================
 """
 
 from __future__ import annotations
 
 LIGHT_MG = 40.0
+MODERATE_MG = 100.0  # part 6's thresholds: GGIR's defaults (R/load_params.R:109-110)
+VIGOROUS_MG = 400.0
 MINUTES_PER_DAY = 1440
 EXT_LOWER = (0.0, 0.0, -1.0, 0.0, -3.0)
 EXT_UPPER = (float("inf"), float("inf"), 1.0, float("inf"), 27.0)

@@ -23,25 +23,22 @@ RHYTHM_COLUMNS = [
     "cosinor_r2", "ext_minimum", "ext_amplitude", "ext_alpha", "ext_beta", "ext_acrophase_h",
     "ext_up_mesor_h", "ext_down_mesor_h", "ext_mesor", "ext_f_pseudo", "ext_r2",
     "m10_avday_mg", "m10_avday_start_h", "l5_avday_mg", "l5_avday_start_h", "ra_avday",
-    "ra_day_mean", "ra_days", "sri", "sri_day_pairs", "tp_in2pa", "tp_pa2in", "nfrag_in2pa",
-    "nfrag_pa2in", "timezone"]
+    "ra_day_mean", "ra_days", "sri", "sri_day_pairs"]
+
+
+def frag_column(name: str, mode: str) -> str:
+    """The rhythm table's column of GGIR part 6's FRAG_<name>_<mode>: lower case, '.' -> '_'."""
+    return f"frag_{name.lower().replace('.', '_')}_{mode}"
+
+
+RHYTHM_COLUMNS += [frag_column(k, "day") for k in metrics.FRAG_DAY] \
+    + [frag_column(k, "spt") for k in metrics.FRAG_SPT] + ["timezone"]
 
 
 def local_midnights(t_ns: np.ndarray, zone) -> np.ndarray:
     """0-based indices of the epochs that start at a local midnight."""
     local = zone.local_ns(t_ns) if zone.known else t_ns
     return np.flatnonzero(local % DAY_NS == 0)
-
-
-def intensity_classes(enmo_mg: np.ndarray, invalid: np.ndarray, spt: Optional[np.ndarray],
-                      light: float = rules.LIGHT_MG, moderate: float = 100.0) -> np.ndarray:
-    """GGIR part 6's day classes per epoch: 1 inactive (< light), 2 light, 3 MVPA (>= moderate);
-    NaN inside the sleep period and for invalid epochs."""
-    c = np.where(enmo_mg < light, 1.0, np.where(enmo_mg < moderate, 2.0, 3.0))
-    drop = np.asarray(invalid, bool) | ~np.isfinite(enmo_mg)
-    if spt is not None:
-        drop |= np.asarray(spt, bool)
-    return np.where(drop, np.nan, c)
 
 
 def average_day(enmo_mg: np.ndarray, invalid: np.ndarray, epoch_s: float) -> np.ndarray:
@@ -97,6 +94,52 @@ def rhythm_row(t_ns: np.ndarray, enmo_mg: np.ndarray, invalid: np.ndarray, zone,
         kept = [s for _, s, f in pairs if f > rules.SRI_MIN_FRAC_VALID]
         row["sri_day_pairs"] = len(kept)
         row["sri"] = float(np.mean(kept)) if kept else None
-    tp = metrics.transition_probabilities(intensity_classes(enmo_mg, invalid, spt))
-    row.update(tp_in2pa=tp[0], tp_pa2in=tp[1], nfrag_in2pa=tp[2], nfrag_pa2in=tp[3])
+    row.update(fragmentation(enmo_mg, invalid, sib, spt, epoch_s))
     return row
+
+
+def part5_classes(enmo_mg, invalid, sib, spt, epoch_s: float):
+    """GGIR part 5's behavioural classes (engine/timeuse/levels.py) on the clean epochs, with
+    GGIR's default thresholds (part 6 takes the first threshold set: part6_threshold_combi)."""
+    from ..timeuse.levels import levels
+    n = enmo_mg.shape[0]
+    spt = np.zeros(n, bool) if spt is None else np.asarray(spt, bool)
+    sib = np.zeros(n, bool) if sib is None else np.asarray(sib, bool)
+    value = np.where(np.asarray(invalid, bool), np.nan, enmo_mg)
+    return levels(value, spt, sib, epoch_s, (rules.LIGHT_MG, rules.MODERATE_MG, rules.VIGOROUS_MG)), spt
+
+
+def day_classes(lv) -> np.ndarray:
+    """g.fragmentation's waking classes from part 5's (R/g.fragmentation.R:100-107, 122-126):
+    1 inactivity (unbouted or in inactivity bouts), 2 light (unbouted or in light bouts), 3 MVPA
+    (moderate or vigorous unbouted, or in MVPA bouts); NaN in the sleep period or missing."""
+    names = lv.names
+    lut = np.full(len(names) + 1, np.nan)  # index -1 (missing) -> the last entry, NaN
+    for i, c in enumerate(names):
+        if c == "day_IN_unbt" or c.startswith("day_IN_bts"):
+            lut[i] = 1.0
+        elif c == "day_LIG_unbt" or c.startswith("day_LIG_bts"):
+            lut[i] = 2.0
+        elif c in ("day_MOD_unbt", "day_VIG_unbt") or c.startswith("day_MVPA_bts"):
+            lut[i] = 3.0
+    return lut[lv.level]
+
+
+def fragmentation(enmo_mg, invalid, sib, spt, epoch_s: float) -> dict:
+    """GGIR part 6's fragmentation columns (g.fragmentation "day" on the waking part, "spt" on the
+    sleep periods when sleep is on), on part 5's classes of the clean epochs."""
+    lv, spt_b = part5_classes(np.asarray(enmo_mg, np.float64), invalid, sib, spt, epoch_s)
+    out = {}
+    d = metrics.fragmentation_day(day_classes(lv), 60.0 / epoch_s)
+    out.update({frag_column(k, "day"): v for k, v in d.items()})
+    if spt is not None:
+        names = list(lv.names)
+        lev = lv.level
+        wake = np.isin(lev, [names.index(c) for c in ("spt_wake_IN", "spt_wake_LIG", "spt_wake_MOD",
+                                                      "spt_wake_VIG")])
+        pa = np.isin(lev, [names.index(c) for c in ("spt_wake_LIG", "spt_wake_MOD", "spt_wake_VIG")])
+        missing = ~spt_b | (lev < 0)
+        if np.any(~missing):
+            sp = metrics.fragmentation_spt(pa, wake, missing)
+            out.update({frag_column(k, "spt"): v for k, v in sp.items()})
+    return out

@@ -89,21 +89,23 @@ def series_digest(enmo, invalid, sib) -> str:
 
 
 def write_series(path: Path, s, sib, spt) -> None:
-    from stillpoint.engine.rhythm.series import intensity_classes, local_midnights
+    from stillpoint.engine.rhythm.series import local_midnights, part5_classes
     off = s.zone.offsets_s(s.t_ns)
     local = np.datetime_as_string((s.t_ns + off * 10**9).astype("datetime64[ns]").astype("datetime64[s]"))
     mid = np.zeros(s.t_ns.shape[0], bool)
     mid[local_midnights(s.t_ns, s.zone)] = True
-    cls = intensity_classes(s.enmo, s.nonwear, spt)
+    lv, _ = part5_classes(s.enmo, s.nonwear, sib, spt, EPOCH_S)
     with open(path, "w") as f:
-        f.write("time_s,local,enmo_g,invalid,midnight,sib,class\n")
-        for t, lt, o, e, nw, m, sb, c in zip((s.t_ns // 10**9).tolist(), local.tolist(), off.tolist(),
-                                             (s.enmo / 1000.0).tolist(), s.nonwear.tolist(),
-                                             mid.tolist(), sib.tolist(), cls.tolist()):
+        f.write("time_s,local,enmo_g,invalid,midnight,sib,level,spt\n")
+        for t, lt, o, e, nw, m, sb, c, sp in zip((s.t_ns // 10**9).tolist(), local.tolist(), off.tolist(),
+                                                 (s.enmo / 1000.0).tolist(), s.nonwear.tolist(),
+                                                 mid.tolist(), sib.tolist(), lv.level.tolist(),
+                                                 np.asarray(spt, bool).tolist()):
             sign = "-" if o < 0 else "+"
             mm = abs(int(o)) // 60
-            cc = "NA" if c != c else str(int(c))
-            f.write(f"{t},{lt}{sign}{mm // 60:02d}{mm % 60:02d},{e!r},{int(nw)},{int(m)},{int(sb)},{cc}\n")
+            cc = "NA" if c < 0 else str(int(c))
+            f.write(f"{t},{lt}{sign}{mm // 60:02d}{mm % 60:02d},{e!r},{int(nw)},{int(m)},{int(sb)},{cc},"
+                    f"{int(sp)}\n")
 
 
 def run_ggir(ggir: Path, actcr: Path, series: Path, tz: str, prefix: Path) -> dict:
@@ -128,11 +130,33 @@ def run_ggir(ggir: Path, actcr: Path, series: Path, tz: str, prefix: Path) -> di
 
 def ours(s, sib, spt) -> dict:
     from stillpoint.engine.rhythm import metrics
-    from stillpoint.engine.rhythm.series import intensity_classes, rhythm_row
+    from stillpoint.engine.rhythm.series import rhythm_row
     row = rhythm_row(s.t_ns, s.enmo, s.nonwear, s.zone, EPOCH_S, sib=sib, spt=spt)
     pairs = metrics.sleep_regularity(sib, s.nonwear, s.t_ns // 10**9, s.zone.offsets_s(s.t_ns), EPOCH_S)
-    tp = metrics.transition_probabilities(intensity_classes(s.enmo, s.nonwear, spt))
-    return {"row": row, "sri": pairs, "tp": tp}
+    return {"row": row, "sri": pairs}
+
+
+def frag_pairs(row: dict, frag: dict) -> dict:
+    """our column -> (ours, GGIR's) of every g.fragmentation figure."""
+    from stillpoint.engine.rhythm import metrics
+    from stillpoint.engine.rhythm.series import frag_column
+    out = {}
+    for mode, names in (("day", metrics.FRAG_DAY), ("spt", metrics.FRAG_SPT)):
+        for k in names:
+            out[frag_column(k, mode)] = (row.get(frag_column(k, mode)), frag.get(f"{k}_{mode}"))
+    return out
+
+
+def frag_agreement(row: dict, frag: dict) -> str:
+    pairs = frag_pairs(row, frag)
+    same = [c for c, (a, b) in pairs.items()
+            if (a is None and b is None) or (a is not None and b is not None
+                                             and abs(a - b) <= 1e-9 * max(1.0, abs(b)))]
+    diff = [c for c in pairs if c not in same]
+    defined = sum(1 for a, b in pairs.values() if b is not None)
+    worst = max((abs(pairs[c][0] - pairs[c][1]) for c in same if pairs[c][1] is not None), default=0.0)
+    return (f"fragmentation {len(same)}/{len(pairs)} figures equal ({defined} defined by GGIR, "
+            f"max |diff| {worst:.2e})" + (f", differ: {diff}" if diff else ""))
 
 
 def report(name: str, fx: dict, got: dict) -> None:
@@ -151,9 +175,7 @@ def report(name: str, fx: dict, got: dict) -> None:
     sri = {d: (v, f) for d, v, f in got["sri"]}
     same = sum(sri.get(r["date"]) == (r["sri"], r["frac_valid"]) for r in fx["sri"])
     parts.append(f"SRI day pairs {same}/{len(fx['sri'])} equal")
-    fr = fx["frag"]
-    tp = got["tp"]
-    parts.append(f"TP IN2PA {tp[0]} vs {fr['TP_IN2PA']}, PA2IN {tp[1]} vs {fr['TP_PA2IN']}")
+    parts.append(frag_agreement(row, fx["frag"]))
     print(f"{name}: " + "; ".join(parts))
 
 

@@ -34,20 +34,21 @@ coefficients solve ``(X'WX + lambda * Sigma) c = X'Wy`` with
 ``lambda = r * 256^(3 * spar - 1)``, ``r = tr(X'WX) / tr(Sigma)`` over the diagonal elements 3 to
 ``nk - 3`` only (sbart.c).
 
-Streaming: runs are local, so the extrapolator holds back the samples from the first near-range
-sample of a cluster of runs until ``CONTEXT`` samples without a near-range sample follow it, and
-re-interpolates the cluster with the spline through ``CONTEXT`` kept samples on each side (an
-interpolating spline's dependence on a knot decays by about 0.27 per knot, so 40 knots leave
-differences from the spline through the whole segment below 1e-22 relative). Where a cluster
-starts or ends within ``CONTEXT`` samples of the segment's edge, the spline's end conditions are
-the reference's. Which samples are held and how they are cut depends on the samples only, so the
-result does not depend on how the stream was cut.
+Streaming: runs are local. Each axis's runs are resolved one by one, as soon as ``CONTEXT`` samples
+below the band (and the 5 samples the fits need) follow the run: the run's samples get the fmm
+spline through the ``CONTEXT`` kept samples before and after it and the middle points of the
+runs among them (an interpolating spline's dependence on a knot decays by about 0.27 per knot, so
+40 knots leave differences from the spline through the whole segment below 1e-22 relative). The
+samples from the first unresolved run on are held back; the fits of all the runs resolved
+together are computed at once. Within ``CONTEXT`` kept samples of the segment's edges the spline's
+end conditions are the reference's. Which samples form a run's spline depends on the samples
+only, so the result does not depend on how the stream was cut.
 
 Not reproduced (the reference decides these on the whole segment at once):
 
-- a cluster still open after ``MAX_HOLD`` samples (10 min at 100 Hz; an axis stuck at the range):
-  its samples go out as recorded, so memory stays bounded, and the epochs holding them are
-  counted (``MimsOperator.unextrapolated_epochs``);
+- a run that needs more than ``MAX_HOLD`` samples (10 min at 100 Hz) with the kept samples after
+  it (an axis stuck at the range): its samples go out as recorded, so memory stays bounded, and
+  the epochs holding them are counted (``MimsOperator.unextrapolated_epochs``);
 - a segment in which fewer than 30 % of an axis's samples are below the near-range band: the
   reference then extrapolates nothing on that axis; here it is extrapolated as usual;
 - a segment whose both ends are within near-range runs of the same axis and sign, in different
@@ -72,8 +73,8 @@ EDGE_VALUE = -200.0  # R/extrapolate.R .extrapolate_fit: rep(-200, n_rep) "extra
 ABNORMAL_BELOW = -150.0  # R/mims_unit.R: rows with a value < -150 skip the filter
 MIN_KEPT_FRACTION = 0.3  # R/extrapolate.R .extrapolate_interpolate: length_t_mark / length(t) < 0.3
 SGRAM_THIRD = 0.3330  # R stats sgram.f: yw2(ii)*yw2(jj)*0.3330d0 (the integral's 1/3)
-CONTEXT = 40  # kept samples each side of a cluster of runs (re-interpolation and fits)
-MAX_HOLD = 60_000  # 100 Hz samples a cluster may hold back (10 min)
+CONTEXT = 40  # kept samples each side of a run in its re-interpolating spline
+MAX_HOLD = 60_000  # 100 Hz samples a run and its context may hold back (10 min)
 
 
 @lru_cache(maxsize=8)
@@ -269,63 +270,65 @@ def _pairs(lefts: list, rights: list, n_segment: int | None) -> list:
     return list(zip(L, R))
 
 
-def extrapolate_block(x: np.ndarray, v: np.ndarray, m: np.ndarray, m_before: float,
-                      offset: int, n_segment: int | None, at_end: bool) -> np.ndarray:
-    """One axis of one block (a cluster of runs with its context): x the 100 Hz times, v the
-    values, m their markers, ``m_before`` the marker of the sample before the block (0 at the
-    segment's start), ``offset`` the block's first sample's index in the segment, ``n_segment``
-    the segment's length if the block reaches its end. -> the block's new values."""
-    n = x.shape[0]
-    dl = np.diff(np.concatenate([[m_before], m]))
-    if offset == 0:
-        dl[0] = 0.0  # R: c(0, diff(marker))
-    dr = np.concatenate([np.diff(m), [0.0]])
-    mid_t, mid_v, edge_idx = [], [], []
-    fits = []  # (window indices left, window indices right, middle time)
+def run_pairs(m: np.ndarray, k0: int, k1: int, offset: int, n_segment: int | None) -> list:
+    """The (left_end, right_start) pairs (segment indices; -1: a run reaching the segment's edge,
+    longer than 5 s) of one axis's runs among the samples [k0, k1) of ``m``, the markers of the
+    segment's samples ``offset`` onwards. ``n_segment``: the segment's length if ``m`` reaches
+    its end."""
+    dl = np.diff(m, prepend=m[:1])  # R: c(0, diff(marker)) at the segment's start
+    dr = np.diff(m, append=m[-1:])  # R: c(diff(marker), 0) at its end
+    inside = np.zeros(m.shape[0], bool)
+    inside[k0:k1] = True
+    pairs = []
     for sign in (1.0, -1.0):
-        lefts = np.flatnonzero((sign * dl > CONFIDENT) & (sign * m > 0)) + offset
-        rights = np.flatnonzero((sign * dr < -CONFIDENT) & (sign * m > 0)) + offset
-        for le, rs in _pairs(lefts.tolist(), rights.tolist(), n_segment if at_end else None):
-            if le == -1:  # a run from the segment's start: t[1:(right_start - 1)] -> -200
-                edge_idx.append(np.arange(0, rs - offset))
+        lefts = np.flatnonzero((sign * dl > CONFIDENT) & (sign * m > 0) & inside) + offset
+        rights = np.flatnonzero((sign * dr < -CONFIDENT) & (sign * m > 0) & inside) + offset
+        pairs += _pairs(lefts.tolist(), rights.tolist(), n_segment)
+    return pairs
+
+
+def middle_points(x: np.ndarray, v: np.ndarray, m: np.ndarray, pairs: list, offset: int) -> tuple:
+    """Each run's middle time and value: the average of the two weighted smoothing splines'
+    predictions there (``.extrapolate_fit``), for many runs at once; x, v, m: one axis's samples
+    from segment index ``offset`` (the runs' 5 samples each side included, or the segment's
+    edge). -> (times, values) aligned with ``pairs`` (NaN where a side has fewer than 2
+    samples)."""
+    n = x.shape[0]
+    wins = []
+    for le, rs in pairs:
+        a, b = le - offset, rs - offset
+        wins.append((np.arange(max(a - NEIGHBOURS + 1, 0), a + 1),
+                     np.arange(b, min(b + NEIGHBOURS - 1, n - 1) + 1), x[a] + (x[b] - x[a]) / 2.0))
+    t_mid = np.array([w[2] for w in wins], np.float64)
+    preds = []
+    for side in (0, 1):
+        out = np.full(len(wins), np.nan)
+        lens = np.array([w[side].shape[0] for w in wins], np.int64)
+        for k in np.unique(lens):
+            if k < 2:
                 continue
-            if rs == -1:  # a run to the segment's end: t[(left_end + 1):n] -> -200
-                edge_idx.append(np.arange(le - offset + 1, n))
-                continue
-            a, b = le - offset, rs - offset
-            wl = np.arange(max(a - NEIGHBOURS + 1, 0), a + 1)
-            wr = np.arange(b, min(b + NEIGHBOURS - 1, n - 1) + 1)
-            st = x[a]
-            fits.append((wl, wr, st + (x[b] - st) / 2.0))
-    if fits:
-        preds = []
-        for side in (0, 1):
-            out = np.full(len(fits), np.nan)
-            lens = np.array([f[side].shape[0] for f in fits])
-            for k in np.unique(lens):
-                sel = np.flatnonzero(lens == k)
-                if k < 2:
-                    continue
-                idx = np.stack([fits[i][side] for i in sel])
-                xa, ya = _approx5(x[idx], v[idx])
-                _, wa = _approx5(x[idx], 1.0 - m[idx])
-                xo = np.array([fits[i][2] for i in sel])
-                out[sel] = smooth_spline_predict(xa, ya, wa, xo)
-            preds.append(out)
-        val = (preds[0] + preds[1]) / 2.0
-        ok = np.isfinite(val)
-        mid_t = [f[2] for f, o in zip(fits, ok) if o]
-        mid_v = val[ok].tolist()
+            sel = np.flatnonzero(lens == k)
+            idx = np.stack([wins[i][side] for i in sel])
+            xa, ya = _approx5(x[idx], v[idx])
+            _, wa = _approx5(x[idx], 1.0 - m[idx])
+            out[sel] = smooth_spline_predict(xa, ya, wa, t_mid[sel])
+        preds.append(out)
+    return t_mid, (preds[0] + preds[1]) / 2.0
+
+
+def spline_fill(x: np.ndarray, v: np.ndarray, m: np.ndarray, mid_t: np.ndarray,
+                mid_v: np.ndarray, edge: np.ndarray) -> np.ndarray:
+    """``.extrapolate_interpolate`` on a stretch of one axis: the samples whose marker is below
+    0.5 in magnitude, the runs' middle points and the -200 samples at the indices ``edge`` as
+    knots (ties averaged, as ``regularize.values``), the fmm spline through them evaluated at
+    every sample's time."""
     keep = np.abs(m) < CONFIDENT
-    kx = np.concatenate([x[keep], np.asarray(mid_t, np.float64)])
-    ky = np.concatenate([v[keep], np.asarray(mid_v, np.float64)])
-    if edge_idx:
-        e = np.unique(np.concatenate(edge_idx))
-        kx = np.concatenate([kx, x[e]])
-        ky = np.concatenate([ky, np.full(e.shape[0], EDGE_VALUE)])
+    ok = np.isfinite(mid_v)
+    kx = np.concatenate([x[keep], mid_t[ok], x[edge]])
+    ky = np.concatenate([v[keep], mid_v[ok], np.full(edge.shape[0], EDGE_VALUE)])
     order = np.argsort(kx, kind="stable")
     kx, ky = kx[order], ky[order]
-    if kx.shape[0] and (np.diff(kx) == 0).any():  # ties: their mean (regularize.values)
+    if kx.shape[0] and (np.diff(kx) == 0).any():
         ux, inv = np.unique(kx, return_inverse=True)
         ky = np.bincount(inv, weights=ky) / np.bincount(inv)
         kx = ux
@@ -339,8 +342,8 @@ def extrapolate_block(x: np.ndarray, v: np.ndarray, m: np.ndarray, m_before: flo
 class Extrapolator:
     """The 100 Hz samples of one segment -> the same samples extrapolated, in order:
     ``push(x, v)`` and ``flush()`` return ``(x, v, flags)`` of the samples that are final, with
-    ``flags`` (n, 2) bool: [near range (any axis marked), left as recorded (a cluster longer than
-    ``MAX_HOLD``)]. See the module docstring."""
+    ``flags`` (n, 2) bool: [near range (marked on any axis), left as recorded (a run that needed
+    more than ``MAX_HOLD`` samples)]. See the module docstring."""
 
     def __init__(self, range_g: float):
         self.range_g = float(range_g)
@@ -348,12 +351,12 @@ class Extrapolator:
         self.raw = np.zeros((0, 3))  # the samples as they came (the fits' and the spline's data)
         self.val = np.zeros((0, 3))  # the samples as they go out
         self.m = np.zeros((0, 3))  # their markers
-        self.asis = np.zeros(0, bool)
+        self.asis = np.zeros((0, 3), bool)
         self.base = 0  # segment index of the buffers' first sample
         self.n = 0  # samples seen
         self.done = 0  # first sample not given out
-        self.open = None  # first marked sample of the cluster being held
-        self.abandoned = False  # that cluster outgrew MAX_HOLD: its samples go out as recorded
+        self.next = [0, 0, 0]  # per axis: first sample not resolved
+        self.abandoned = [False, False, False]  # per axis: in a run going out as recorded
 
     def push(self, x: np.ndarray, v: np.ndarray):
         if x.shape[0]:
@@ -361,69 +364,96 @@ class Extrapolator:
             self.raw = np.concatenate([self.raw, v])
             self.val = np.concatenate([self.val, v])
             self.m = np.concatenate([self.m, markers(v, self.range_g)])
-            self.asis = np.concatenate([self.asis, np.zeros(x.shape[0], bool)])
+            self.asis = np.concatenate([self.asis, np.zeros((x.shape[0], 3), bool)])
             self.n += x.shape[0]
         return self._advance(final=False)
 
     def flush(self):
         return self._advance(final=True)
 
-    def _marked(self, a: int, b: int) -> np.ndarray:
-        """Segment indices of the samples in [a, b) marked on any axis."""
-        return np.flatnonzero((np.abs(self.m[a - self.base:b - self.base]) >= CONFIDENT)
-                              .any(axis=1)) + a
+    def _kept(self, c: int, a: int, b: int) -> np.ndarray:
+        """Segment indices of the samples in [a, b) not marked on axis c."""
+        return np.flatnonzero(np.abs(self.m[a - self.base:b - self.base, c]) < CONFIDENT) + a
+
+    def _left(self, c: int, s: int) -> int:
+        """Where the spline for a run starting at s starts: its CONTEXT-th kept sample before s
+        (no further back than MAX_HOLD samples, nor than the segment's start)."""
+        lim = max(0, s - MAX_HOLD)
+        kept = self._kept(c, max(lim, self.base), s)  # the buffer holds it (see _advance)
+        return int(kept[-CONTEXT]) if kept.shape[0] >= CONTEXT else lim
+
+    def _axis(self, c: int, end: int, final: bool) -> None:
+        """Resolve axis c's runs as far as the samples allow: find them (and those to leave as
+        recorded), then fit all their neighbours' splines at once and fill each run."""
+        b = self.base
+        runs = []  # (first, stop, lo, hi, a0, a1, n_segment or None)
+        while True:
+            s0 = self.next[c]
+            if s0 >= end:
+                break
+            marked = np.abs(self.m[s0 - b:end - b, c]) >= CONFIDENT
+            if self.abandoned[c]:  # as recorded up to the run's first kept sample
+                k = np.flatnonzero(~marked)
+                stop = int(k[0]) + s0 if k.shape[0] else end
+                self.asis[s0 - b:stop - b, c] = True
+                self.next[c] = stop
+                if not k.shape[0]:
+                    break
+                self.abandoned[c] = False
+                continue
+            j = np.flatnonzero(marked)
+            if not j.shape[0]:
+                self.next[c] = end
+                break
+            s = int(j[0]) + s0
+            self.next[c] = s
+            kept = np.flatnonzero(~marked[s - s0:]) + s
+            e = int(kept[0]) - 1 if kept.shape[0] else None  # the run's last sample
+            right = int(kept[CONTEXT - 1]) if kept.shape[0] >= CONTEXT else None
+            if (right if right is not None else end) >= s + MAX_HOLD:
+                self.abandoned[c] = True
+                continue
+            if not final and (right is None or end < right + 1 + NEIGHBOURS):
+                break  # wait for the samples after it
+            hi = right + 1 if right is not None else end
+            lo = self._left(c, s)
+            a0, a1 = max(0, lo - NEIGHBOURS - 1), min(end, hi + NEIGHBOURS)
+            stop = e + 1 if e is not None else end
+            runs.append((s, stop, lo, hi, a0, a1, self.n if final and a1 == end else None))
+            self.next[c] = stop
+        if not runs:
+            return
+        x, v, m = self.x, self.raw[:, c], self.m[:, c]
+        blocks = [run_pairs(m[a0 - b:a1 - b], lo - a0, hi - a0, a0, ns)
+                  for _, _, lo, hi, a0, a1, ns in runs]
+        fit = sorted({p for ps in blocks for p in ps if p[0] >= 0 and p[1] >= 0})
+        mids = {}
+        if fit:
+            t_mid, v_mid = middle_points(x, v, m, [(le - b, rs - b) for le, rs in fit], 0)
+            mids = {p: (t, y) for p, t, y in zip(fit, t_mid.tolist(), v_mid.tolist())}
+        for (s, stop, lo, hi, _, _, ns), ps in zip(runs, blocks):
+            got = [mids[p] for p in ps if p in mids]
+            edge = [np.arange(0, rs) for le, rs in ps if le == -1]
+            edge += [np.arange(le + 1, ns) for le, rs in ps if rs == -1 and ns is not None]
+            e_idx = np.concatenate(edge) if edge else np.zeros(0, np.int64)
+            e_idx = e_idx[(e_idx >= lo) & (e_idx < hi)] - lo
+            new = spline_fill(x[lo - b:hi - b], v[lo - b:hi - b], m[lo - b:hi - b],
+                              np.array([g[0] for g in got], np.float64),
+                              np.array([g[1] for g in got], np.float64), np.unique(e_idx))
+            self.val[s - b:stop - b, c] = new[s - lo:stop - lo]
 
     def _advance(self, final: bool):
         end = self.n
-        out_to = self.done
-        while True:
-            if self.open is None:
-                mk = self._marked(self.done, end)
-                if not mk.shape[0]:
-                    self.done = end
-                    break
-                self.open = int(mk[0])
-                self.done = self.open
-            idx = self._marked(self.open, end)
-            gaps = np.flatnonzero(np.diff(idx) > CONTEXT)  # >= CONTEXT unmarked samples between
-            if gaps.shape[0]:
-                last = int(idx[gaps[0]])
-            elif end - 1 - idx[-1] >= CONTEXT or final:
-                last = int(idx[-1])
-            else:
-                last = None
-            fits = last is not None and last + CONTEXT < self.open + MAX_HOLD
-            if self.abandoned or (not fits and (last is not None or end >= self.open + MAX_HOLD)):
-                # as recorded; given out up to the last marked sample seen (the unmarked ones
-                # after it may still start the next cluster)
-                self.abandoned = True
-                upto = (last if last is not None else int(idx[-1])) + 1
-                self.asis[self.done - self.base:upto - self.base] = True
-                self.done = upto
-                if last is None:
-                    self.open = upto - 1  # gaps are measured from the last marked sample
-                    break
-                self.open, self.abandoned = None, False
-                continue
-            if last is None:
-                break
-            lo = max(0, self.open - CONTEXT)
-            hi = min(end, last + CONTEXT + 1)
-            at_end = final and hi == end
-            blk = slice(lo - self.base, hi - self.base)
-            for c in range(3):
-                m = self.m[blk, c]
-                if not (np.abs(m) >= CONFIDENT).any():
-                    continue
-                m_before = float(self.m[lo - 1 - self.base, c]) if lo > 0 else 0.0
-                self.val[blk, c] = extrapolate_block(self.x[blk], self.raw[blk, c], m, m_before,
-                                                     lo, self.n if at_end else None, at_end)
-            self.done = hi
-            self.open = None
-        out = slice(out_to - self.base, self.done - self.base)
-        flags = np.stack([(np.abs(self.m[out]) >= CONFIDENT).any(axis=1), self.asis[out]], axis=1)
+        for c in range(3):
+            self._axis(c, end, final)
+        upto = min(self.next)
+        out = slice(self.done - self.base, upto - self.base)
+        flags = np.stack([(np.abs(self.m[out]) >= CONFIDENT).any(axis=1),
+                          self.asis[out].any(axis=1)], axis=1)
         res = (self.x[out].copy(), self.val[out].copy(), flags)
-        keep_from = (self.open if self.open is not None else self.done) - CONTEXT - 1
+        self.done = upto
+        keep_from = min([self.done] + [self._left(c, min(self.next[c], end)) - NEIGHBOURS - 1
+                                       for c in range(3)])
         drop = keep_from - self.base
         if drop > 0:
             self.x, self.raw, self.val = self.x[drop:], self.raw[drop:], self.val[drop:]

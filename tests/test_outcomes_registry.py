@@ -67,13 +67,35 @@ QUOTED_COUNTS = {
 }
 
 
+# the articles' own abstracts (Results), which give the thresholds: Freedson et al. 1998, MSSE
+# 30(5):777, "count ranges corresponding to light, moderate, hard, and very hard intensity levels
+# were <= 1951, 1952-5724, 5725-9498, >= 9499 cnts.min-1"; Sasaki et al. 2011, J Sci Med Sport
+# 14(5):411, "VM3 cut-points for moderate, hard, and very hard PA intensities were 2690-6166,
+# 6167-9642, >9642 counts.min-1" (moderate and hard are the rows' moderate and vigorous)
+ARTICLE_ABSTRACTS = {
+    "freedson1998_adults_axis1": ((1952, 5724), (5725, 9498), "777"),
+    "sasaki2011_adults_vm": ((2690, 6166), (6167, 9642), "411"),
+}
+
+
+@pytest.mark.parametrize("key", sorted(ARTICLE_ABSTRACTS))
+def test_count_rows_agree_with_the_articles_abstracts(key):
+    moderate, hard, page = ARTICLE_ABSTRACTS[key]
+    row = lookup(key)
+    assert (row.moderate, row.vigorous) == (moderate[0], hard[0])
+    assert (row.table, row.page) == ("abstract (Results)", page)
+
+
 @pytest.mark.parametrize("key", sorted(QUOTED_COUNTS))
 def test_count_rows(key):
     (light, moderate, vigorous), epoch, column = QUOTED_COUNTS[key]
     row = lookup(key)
     assert (row.light, row.moderate, row.vigorous) == (light, moderate, vigorous)
     assert row.epoch_s == epoch and row.column == column and row.counts
-    assert row.doi and "not yet checked" in row.transcribed_from
+    assert row.doi
+    checked = key in ARTICLE_ABSTRACTS
+    assert ("not yet checked" in row.transcribed_from) != checked
+    assert (row.table == "abstract (Results)") == checked and bool(row.page) == checked
     # counts add up over time: thresholds scale with the epoch (mg thresholds do not)
     five = row.scaled(5.0)
     assert five.moderate == pytest.approx(moderate * 5.0 / epoch)

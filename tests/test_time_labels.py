@@ -16,7 +16,7 @@ from stillpoint.engine.mcap.stream import read_metadata
 from stillpoint.engine.sim.record import simulate_recording
 from stillpoint.engine.timezones import UNKNOWN_LABEL
 from stillpoint.tools.cli import main
-from stillpoint.tools.cli.commands.inspect import inspect_recording
+from stillpoint.engine.inspection import inspect_recording
 
 
 @pytest.fixture(scope="module")

@@ -504,7 +504,7 @@ def read_recording(path: Path) -> None:
     """What ``inspect``/``export`` do with a recording: a full pass over every Block, each turned
     into export's per-sample columns (g, dps, degC, lux with the header's light calibration)."""
     from stillpoint.engine.recordings import open_recording
-    from stillpoint.tools.cli.commands.export import block_columns
+    from stillpoint.engine.export import block_columns
     with open_recording(path) as src:
         for b in src:
             block_columns(b, src.info)
@@ -550,7 +550,7 @@ def _whole_read(path: Path, **opts):
     import hashlib
     from stillpoint.engine.recordings import open_recording
     from stillpoint.engine.core.errors import StillpointError
-    from stillpoint.tools.cli.commands.export import block_columns
+    from stillpoint.engine.export import block_columns
     h = [hashlib.sha256() for _ in range(3)]  # one per field: block boundaries do not matter
     try:
         with open_recording(path, **opts) as src:

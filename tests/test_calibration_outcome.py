@@ -46,9 +46,21 @@ def test_unknown_status_of_another_version_is_kept_and_not_applied():
 def test_fit_diagnostics_are_typed_from_extra():
     d = FitDiagnostics.from_extra({"converged": True, "flags": ["short"], "stop_rule": "parameters",
                                    "warnings": [{"code": "short", "message": "m"}], "other": 1})
-    assert d.converged is True and d.flags == ("short",) and d.stop_rule == "parameters"
-    assert d.warnings[0]["code"] == "short" and d.accepted is None
+    assert d.converged is True and d.flags == ["short"] and d.stop_rule == "parameters"
+    assert d.warnings[0]["code"] == "short" and d.accepted is None and d.other == {"other": 1}
     assert FitDiagnostics.from_extra(None) == FitDiagnostics()
+
+
+def test_fit_diagnostics_give_back_the_extra_they_were_read_from():
+    extra = {"variant": "auto", "flags": ["short"], "converged": False, "res_final": None,
+             "schedule": [{"hours": 24}], "first_hours": 72}
+    d = FitDiagnostics.from_extra(extra)
+    assert d.to_extra() == extra and d.other == {"first_hours": 72}
+    d.flag("not_converged")
+    d.windows_unusable = 3
+    assert d.to_extra() == dict(extra, flags=["short", "not_converged"], windows_unusable=3)
+    assert extra["flags"] == ["short"]  # the dict read is not changed
+    assert "res_final" not in FitDiagnostics(variant="c1").to_extra()  # not reported without converged
 
 
 def test_one_outcome_gives_every_report_the_same_status_and_reason():

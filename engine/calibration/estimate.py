@@ -127,8 +127,13 @@ class CalibrationEstimate:
 
     @property
     def diagnostics(self) -> "FitDiagnostics":
-        """The fit's diagnostics (``extra``) as typed fields."""
+        """The fit's diagnostics (``extra``) as typed fields (a copy: assign it back to keep a
+        change)."""
         return FitDiagnostics.from_extra(self.extra)
+
+    @diagnostics.setter
+    def diagnostics(self, d: "FitDiagnostics") -> None:
+        self.extra = d.to_extra()
 
     @property
     def uses_temperature(self) -> bool:
@@ -159,35 +164,68 @@ class CalibrationEstimate:
         return json.dumps(self.to_dict(), sort_keys=True)
 
 
-@dataclass(frozen=True)
+@dataclass
 class FitDiagnostics:
-    """What a fit reports beside its coefficients, typed (read from an estimate's ``extra``,
-    which is what the logs, the store and old logs hold; fields absent there are None/empty).
+    """What a fit reports beside its coefficients, typed. The fit (engine/calibration/fit.py)
+    fills one and the estimate keeps it as ``extra`` (``to_extra``), the form logs, the store
+    and old logs hold; ``from_extra`` reads it back. A field that is None was not reported (its
+    key is absent from ``extra``); keys this class does not name are kept in ``other``.
 
     ``warnings``: (code, message) dicts, most important first; ``flags``: their codes and other
     conditions (``short``, ``not_converged``, ...); ``accepted``: online, whether the refit took
-    effect (None in batch); ``schedule``: batch, every attempt (hours, windows, status, errors)."""
+    effect (None in batch); ``schedule``: batch, every attempt (hours, windows, status, errors).
+    ``res_final`` (the last residual, possibly None) is reported whenever ``converged`` is."""
 
-    converged: Optional[bool] = None
-    flags: tuple = ()
-    warnings: tuple = ()
+    variant: Optional[str] = None
+    ggir_compatible: Optional[bool] = None
+    windows_offered: Optional[int] = None
+    flags: Optional[list] = None
+    warnings: Optional[list] = None
+    repeats_collapsed: Optional[int] = None
+    windows_unusable: Optional[int] = None
+    means_dequantised: Optional[bool] = None
+    sphere_min_g: Optional[list] = None
+    sphere_max_g: Optional[list] = None
+    windows_without_temperature: Optional[int] = None
     temperature_used: Optional[bool] = None
     temperature_reason: Optional[str] = None
-    windows_offered: Optional[int] = None
+    warm_start: Optional[bool] = None
+    converged: Optional[bool] = None
     stop_rule: Optional[str] = None
+    res_final: Optional[float] = None
+    rejected_fit: Optional[dict] = None
+    error_before_g: Optional[float] = None
+    error_after_g: Optional[float] = None
+    uncertainty_blocks: Optional[int] = None
+    temperature_dropped: Optional[dict] = None
+    temperature_fallback_failed: Optional[str] = None
     accepted: Optional[bool] = None
     mode: Optional[str] = None
-    schedule: tuple = ()
+    schedule: Optional[list] = None
     quietest_window_sd_mg: Optional[float] = None
+    other: dict = field(default_factory=dict)
+
+    def flag(self, code: str) -> None:
+        """Add a flag."""
+        self.flags = [*(self.flags or ()), code]
+
+    def to_extra(self) -> dict:
+        """The ``extra`` dict of an estimate: every reported field, then ``other``."""
+        out = {}
+        for name in _DIAGNOSTIC_FIELDS:
+            v = getattr(self, name)
+            if v is not None or (name == "res_final" and self.converged is not None):
+                out[name] = list(v) if isinstance(v, (list, tuple)) else v
+        out.update(self.other)
+        return out
 
     @staticmethod
     def from_extra(extra: Optional[dict]) -> "FitDiagnostics":
-        """The typed view of an estimate's ``extra`` dict (unknown keys are ignored)."""
-        e = extra or {}
-        return FitDiagnostics(
-            converged=e.get("converged"), flags=tuple(e.get("flags") or ()),
-            warnings=tuple(e.get("warnings") or ()), temperature_used=e.get("temperature_used"),
-            temperature_reason=e.get("temperature_reason"),
-            windows_offered=e.get("windows_offered"), stop_rule=e.get("stop_rule"),
-            accepted=e.get("accepted"), mode=e.get("mode"), schedule=tuple(e.get("schedule") or ()),
-            quietest_window_sd_mg=e.get("quietest_window_sd_mg"))
+        """The typed view of an estimate's ``extra`` dict (lists are copied)."""
+        e = dict(extra or {})
+        known = {k: (list(e.pop(k)) if isinstance(e.get(k), (list, tuple)) else e.pop(k))
+                 for k in _DIAGNOSTIC_FIELDS if k in e}
+        return FitDiagnostics(**known, other=e)
+
+
+_DIAGNOSTIC_FIELDS = tuple(n for n in FitDiagnostics.__dataclass_fields__ if n != "other")

@@ -30,7 +30,7 @@ from typing import Optional
 import numpy as np
 
 from ..features import WindowFeatures
-from .estimate import CalibrationEstimate
+from .estimate import CalibrationEstimate, FitDiagnostics
 from .quantisation import dequantised
 from .select import MAX_ABS_MEAN_G, SD_THRESHOLD_G, select_calibration_windows
 
@@ -325,7 +325,8 @@ def fit_calibration(features: WindowFeatures, *, temperature: bool = True,
     Outcomes (``status``): ``ok``; ``high_error`` (improved but still above ``target_error_mg``;
     applied); ``reverted`` (the fit did not lower the error: identity); ``no_nonmovement``;
     ``too_few_windows``; ``sphere_not_covered``; ``failed`` (the iteration broke down). Every
-    non-applied outcome carries identity parameters; the rejected fit is kept in ``extra``.
+    non-applied outcome carries identity parameters; the rejected fit is kept in its diagnostics
+    (``FitDiagnostics``, kept as the estimate's ``extra``).
 
     ``start``: an estimate to start the iteration from (re-referenced to these windows' mean
     temperature) instead of identity; same stopping rule, so the result is the same fixed point
@@ -333,10 +334,10 @@ def fit_calibration(features: WindowFeatures, *, temperature: bool = True,
 
     An applied fit carries one standard error per coefficient (``uncertainty``, block-robust:
     engine/calibration/uncertainty.py) and the warnings of engine/calibration/trust.py in
-    ``extra["warnings"]``, ``extra["flags"]`` and the reason. With ``variant="auto"`` and
+    the diagnostics' ``warnings`` and ``flags`` and in the reason. With ``variant="auto"`` and
     ``temperature_fallback`` a temperature term whose standard error is above the limit and
     that cannot be told from zero (trust.py: ``temperature_undetermined``) is dropped and the
-    model refitted without it (C1); the dropped fit is kept in ``extra["temperature_dropped"]``.
+    model refitted without it (C1); the dropped fit is kept in ``temperature_dropped``.
     A term over the limit but clearly not zero is kept with ``temperature_imprecise``.
 
     ``quantisation_step_g``: the stored values' step (g). The window means are de-biased for it
@@ -354,22 +355,25 @@ def fit_calibration(features: WindowFeatures, *, temperature: bool = True,
         data_start_ns = int(features.start_ns.min())
     if data_end_ns is None and len(features):
         data_end_ns = int(features.start_ns.max()) + int(round(window_s * 1e9))
-    extra: dict = {"variant": variant, "ggir_compatible": bool(ggir_compatible),
-                   "windows_offered": n_in, "flags": []}
+    diag = FitDiagnostics(variant=variant, ggir_compatible=bool(ggir_compatible),
+                          windows_offered=n_in, flags=[])
     if select:
         sel = select_calibration_windows(features, sd_threshold=sd_threshold,
                                          max_abs_mean=max_abs_mean)
         feats = sel.features
-        extra["repeats_collapsed"] = sel.repeats_dropped
+        diag.repeats_collapsed = sel.repeats_dropped
     else:
         feats = features
-    base = dict(device_key=device_key, hours_used=_hours(data_start_ns, data_end_ns),
-                fit_start_ns=data_start_ns, fit_end_ns=data_end_ns, extra=extra)
+    span = dict(device_key=device_key, hours_used=_hours(data_start_ns, data_end_ns),
+                fit_start_ns=data_start_ns, fit_end_ns=data_end_ns)
+
+    def estimate(**fields) -> CalibrationEstimate:
+        return CalibrationEstimate(**fields, **span, extra=diag.to_extra())
 
     mean = feats.mean
     usable = np.all(np.isfinite(mean), axis=1) & np.any(mean != 0.0, axis=1)
     if not np.all(usable):
-        extra["windows_unusable"] = int((~usable).sum())
+        diag.windows_unusable = int((~usable).sum())
         feats = feats.select(usable)
         mean = feats.mean
     step = quantisation_step_g
@@ -377,28 +381,28 @@ def fit_calibration(features: WindowFeatures, *, temperature: bool = True,
         if not means_dequantised:
             feats = dequantised(feats, step)
             mean = feats.mean
-        extra["means_dequantised"] = True
+        diag.means_dequantised = True
     n = len(feats)
     if n == 0:
-        return CalibrationEstimate(
-            status="no_nonmovement", method="identity", windows=0, **base,
+        return estimate(
+            status="no_nonmovement", method="identity", windows=0,
             reason=(f"no nonmovement windows (SD < {sd_threshold * 1000:g} mg and |mean| < "
                     f"{max_abs_mean:g} g on all axes) among {n_in} windows: not calibrated"))
 
     error_before_g = calibration_error_g(mean)
     err_before_mg = _mg(error_before_g, ggir_compatible)
     if n < min_windows:
-        return CalibrationEstimate(
+        return estimate(
             status="too_few_windows", method="identity", windows=n, error_before_mg=err_before_mg,
-            reason=f"only {n} nonmovement windows (< {min_windows}): not calibrated", **base)
+            reason=f"only {n} nonmovement windows (< {min_windows}): not calibrated")
     cover = sphere_coverage(mean, sphere_crit)
-    extra["sphere_min_g"] = [float(v) for v in cover.minimum]
-    extra["sphere_max_g"] = [float(v) for v in cover.maximum]
+    diag.sphere_min_g = [float(v) for v in cover.minimum]
+    diag.sphere_max_g = [float(v) for v in cover.maximum]
     if not cover.covered:
-        return CalibrationEstimate(
+        return estimate(
             status="sphere_not_covered", method="identity", windows=n,
             error_before_mg=err_before_mg,
-            reason=f"{cover.describe()} in {n} windows: not calibrated (fit unconstrained)", **base)
+            reason=f"{cover.describe()} in {n} windows: not calibrated (fit unconstrained)")
 
     # temperature term
     want_t = temperature and variant in ("auto", "c2")
@@ -410,60 +414,59 @@ def fit_calibration(features: WindowFeatures, *, temperature: bool = True,
     if t_ok:
         finite_t = np.isfinite(temps)
         if not np.all(finite_t):
-            extra["windows_without_temperature"] = int((~finite_t).sum())
+            diag.windows_without_temperature = int((~finite_t).sum())
             feats = feats.select(finite_t)
             mean, temps, n = feats.mean, feats.temperature, len(feats)
             error_before_g = calibration_error_g(mean)
             err_before_mg = _mg(error_before_g, ggir_compatible)
         t_ref = float(np.mean(temps))
         temp_centered = temps - t_ref
-    extra["temperature_used"] = bool(t_ok)
-    extra["temperature_reason"] = t_reason
+    diag.temperature_used = bool(t_ok)
+    diag.temperature_reason = t_reason
     if variant == "c2" and not t_ok:
-        extra["flags"].append("temperature_unavailable")
+        diag.flag("temperature_unavailable")
 
     icp_start = None
     if start is not None:
         s0 = rereference(start, t_ref) if (t_ok and start.uses_temperature) else start
         icp_start = (s0.offset, s0.scale, s0.tempoffset)
-        extra["warm_start"] = True
+        diag.warm_start = True
     r = icp_sphere_fit(mean, temp_centered, fit_offset=variant != "scale",
                        fit_scale=variant != "offset", ggir_compatible=ggir_compatible,
                        max_iter=max_iter, param_tol=param_tol, start=icp_start)
     method = {"offset": "autocal-offset", "scale": "autocal-scale"}.get(
         variant, "autocal-c2" if t_ok else "autocal-c1")
-    extra.update(converged=r.converged, stop_rule=r.stop_rule,
-                 res_final=r.res[-1] if r.res else None)
+    diag.converged, diag.stop_rule = r.converged, r.stop_rule
+    diag.res_final = r.res[-1] if r.res else None
     if not r.converged:
-        extra["flags"].append("not_converged")
+        diag.flag("not_converged")
     if r.failed:
-        extra["rejected_fit"] = {"offset": r.offset.tolist(), "scale": r.scale.tolist(),
-                                 "tempoffset": r.tempoffset.tolist()}
-        return CalibrationEstimate(
+        diag.rejected_fit = {"offset": r.offset.tolist(), "scale": r.scale.tolist(),
+                             "tempoffset": r.tempoffset.tolist()}
+        return estimate(
             status="failed", method="identity", windows=n, iterations=r.iterations,
-            error_before_mg=err_before_mg, reason=f"fit failed ({r.failed}): not calibrated",
-            **base)
+            error_before_mg=err_before_mg, reason=f"fit failed ({r.failed}): not calibrated")
     cal = apply_model(mean, temp_centered, r.offset, r.scale, r.tempoffset,
                       ggir_arithmetic=ggir_compatible)
     error_after_g = calibration_error_g(cal)
     err_after_mg = _mg(error_after_g, ggir_compatible)
     if ggir_compatible:
-        extra["error_before_g"] = round_ggir_error(error_before_g)
-        extra["error_after_g"] = round_ggir_error(error_after_g)
-        worse = extra["error_after_g"] > extra["error_before_g"]
+        diag.error_before_g = round_ggir_error(error_before_g)
+        diag.error_after_g = round_ggir_error(error_after_g)
+        worse = diag.error_after_g > diag.error_before_g
     else:
         worse = not error_after_g < error_before_g
     conv = "" if r.converged else f", not converged after {r.iterations} iterations"
     t_note = "" if t_ok else f"; {t_reason}"
     if worse:
-        extra["rejected_fit"] = {"offset": r.offset.tolist(), "scale": r.scale.tolist(),
-                                 "tempoffset": r.tempoffset.tolist(),
-                                 "temperature_ref": t_ref, "error_after_mg": err_after_mg}
-        return CalibrationEstimate(
+        diag.rejected_fit = {"offset": r.offset.tolist(), "scale": r.scale.tolist(),
+                             "tempoffset": r.tempoffset.tolist(),
+                             "temperature_ref": t_ref, "error_after_mg": err_after_mg}
+        return estimate(
             status="reverted", method="identity", windows=n, iterations=r.iterations,
             error_before_mg=err_before_mg, error_after_mg=err_before_mg,
             reason=(f"fit did not lower the error ({err_before_mg:.2f} -> {err_after_mg:.2f} mg "
-                    f"on {n} windows{conv}): identity used"), **base)
+                    f"on {n} windows{conv}): identity used"))
     if err_after_mg < target_error_mg:
         status = "ok"
         reason = (f"calibrated: error {err_before_mg:.2f} -> {err_after_mg:.2f} mg on {n} "
@@ -472,10 +475,10 @@ def fit_calibration(features: WindowFeatures, *, temperature: bool = True,
         status = "high_error"
         reason = (f"error {err_before_mg:.2f} -> {err_after_mg:.2f} mg on {n} windows is still "
                   f"above the {target_error_mg:g} mg target (applied){conv}{t_note}")
-    est = CalibrationEstimate(
+    est = estimate(
         offset=r.offset, scale=r.scale, tempoffset=r.tempoffset, temperature_ref=t_ref,
         status=status, reason=reason, method=method, error_before_mg=err_before_mg,
-        error_after_mg=err_after_mg, windows=n, iterations=r.iterations, **base)
+        error_after_mg=err_after_mg, windows=n, iterations=r.iterations)
     return _judge(est, feats, t_ok, call)
 
 
@@ -491,7 +494,9 @@ def _judge(est: CalibrationEstimate, feats: WindowFeatures, t_used: bool,
                                 est.scale, est.tempoffset, est.temperature_ref, feats.start_ns,
                                 fit_offset=variant != "scale", fit_scale=variant != "offset")
     est.uncertainty = u.to_dict()
-    est.extra["uncertainty_blocks"] = u.blocks
+    diag = est.diagnostics
+    diag.uncertainty_blocks = u.blocks
+    est.diagnostics = diag
     warnings = []
     if u.blocks < MIN_BLOCKS:
         warnings.append(FitWarning("uncertainty_unknown", (
@@ -506,29 +511,32 @@ def _judge(est: CalibrationEstimate, feats: WindowFeatures, t_used: bool,
     elif tw is not None:
         if variant == "auto" and call["temperature_fallback"] and not call["ggir_compatible"]:
             c1 = fit_calibration(**dict(call, variant="c1", start=None))
-            c1.extra["variant"] = variant
-            c1.extra["temperature_used"] = False
-            c1.extra["temperature_reason"] = tw.message
-            c1.extra["temperature_dropped"] = {
+            d1 = c1.diagnostics
+            d1.variant = variant
+            d1.temperature_used = False
+            d1.temperature_reason = tw.message
+            d1.temperature_dropped = {
                 "offset": est.offset.tolist(), "scale": est.scale.tolist(),
                 "tempoffset": est.tempoffset.tolist(), "temperature_ref": est.temperature_ref,
                 "uncertainty": est.uncertainty, "error_after_mg": est.error_after_mg}
             if c1.applied:
                 # the fallback's own warnings are already in; the reason for it goes first
-                c1.extra["warnings"].insert(0, tw.to_dict())
-                c1.extra["flags"].append(tw.code)
+                d1.warnings = [tw.to_dict(), *(d1.warnings or ())]
+                d1.flag(tw.code)
+                c1.diagnostics = d1
                 base, sep, rest = c1.reason.replace(
                     "; temperature not part of variant c1", "").partition("; warning: ")
                 c1.reason = f"{base}; warning: {tw.message}{sep}{rest}"
                 return c1
-            est.extra["temperature_fallback_failed"] = c1.reason
+            diag.temperature_fallback_failed = c1.reason
+            est.diagnostics = diag
         why = ("GGIR-compatible mode" if call["ggir_compatible"] else
                f"variant {variant} requested" if variant != "auto" else "fallback switched off")
         tw.message = tw.message.split(": fitted without it")[0] + f": kept ({why})"
         warnings.append(tw)
     warnings += assess(est.uncertainty, feats.mean, feats.sd,
                        quantisation_step_g=call["quantisation_step_g"],
-                       dequantised=bool(est.extra.get("means_dequantised")))
+                       dequantised=bool(diag.means_dequantised))
     add_warnings(est, warnings)
     return est
 

@@ -81,7 +81,7 @@ class CalibrationOutcome:
                 "hours_used": est.hours_used, "status": est.status, "reason": est.reason,
                 "method": est.method, "windows": est.windows,
                 "fit_start_ns": est.fit_start_ns, "fit_end_ns": est.fit_end_ns,
-                "uncertainty": est.uncertainty, "warnings": list(est.diagnostics.warnings)}
+                "uncertainty": est.uncertainty, "warnings": list(est.diagnostics.warnings or ())}
 
     @property
     def table_status(self) -> str:

@@ -163,15 +163,16 @@ def assess(uncertainty: Optional[dict], mean: np.ndarray, sd: Optional[np.ndarra
 
 
 def add_warnings(estimate, warnings: list) -> None:
-    """Record warnings on an estimate: ``extra["warnings"]`` (code, message), ``extra["flags"]``
-    (codes) and the one-line reason ("; warning: ...")."""
-    extra = estimate.extra
-    extra.setdefault("warnings", [])
-    extra.setdefault("flags", [])
+    """Record warnings on an estimate: its diagnostics' ``warnings`` (code, message) and
+    ``flags`` (codes), and the one-line reason ("; warning: ...")."""
+    diag = estimate.diagnostics
+    diag.warnings = list(diag.warnings or ())
+    diag.flags = list(diag.flags or ())
     for w in warnings:
-        extra["warnings"].append(w.to_dict())
-        extra["flags"].append(w.code)
+        diag.warnings.append(w.to_dict())
+        diag.flags.append(w.code)
         estimate.reason += f"; warning: {w.message}"
+    estimate.diagnostics = diag
 
 
 STEP_ROWS = 512  # rows of a block whose counts' greatest common divisor gives the step

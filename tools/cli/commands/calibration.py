@@ -86,7 +86,7 @@ def run(args) -> int:
                 from stillpoint.engine.calibration import CalibrationEstimate
                 from .calibrate import uncertainty_lines
                 print(uncertainty_lines(CalibrationEstimate.from_dict(e), indent="    "), end="")
-            for wn in FitDiagnostics.from_extra(e.get("extra")).warnings:
+            for wn in FitDiagnostics.from_extra(e.get("extra")).warnings or ():
                 print(f"    warning: {wn['message']}")
             if r.get("source"):
                 print(f"    source {r['source']}")

@@ -7,9 +7,10 @@ import math
 
 import numpy as np
 import pytest
+from scipy.special import stdtrit
 
-from stillpoint.engine.alignment.fit import (CannotAlign, TemperatureRegressor, brond_fit,
-                                             fit_brond, fit_robust, heldout_rmse)
+from stillpoint.engine.alignment.fit import (CannotAlign, ClockFit, TemperatureRegressor,
+                                             brond_fit, fit_brond, fit_robust, heldout_rmse)
 from stillpoint.engine.alignment.lags import BlockLag
 
 RATE = 30.0
@@ -213,3 +214,18 @@ def test_the_weak_peaks_bias_is_modelled_and_the_interval_covers_the_offset():
         assert fit.diagnostics["weak_peak_bias"]["sd"] > 0
     assert covered >= 11, covered
     assert np.median(errs) < 0.003, np.median(errs)
+
+
+def test_each_interval_takes_the_wider_variance_for_its_own_quantity():
+    """The jackknife over time folds is wider than weighted least squares for the drift here but
+    not for the initial offset: the offset's interval keeps its least-squares width and t
+    quantile, day 7 takes the folds' variance with folds - 1 degrees of freedom (one factor
+    for both widened the offset by the drift's ratio)."""
+    fit = ClockFit(method="robust", model="linear", rate=RATE, b0=0.0, b1=0.0,
+                   cov=np.diag([4.0, 1e-12]), dof=200,
+                   cov_folds=np.diag([1.0, 9e-12]), dof_folds=6)
+    ci = fit.ci()
+    h0 = 0.5 * (ci["initial_offset_s"][1] - ci["initial_offset_s"][0]) * RATE
+    assert h0 == pytest.approx(float(stdtrit(200, 0.975)) * 2.0)
+    h7 = 0.5 * (ci["drift_day7_s"][1] - ci["drift_day7_s"][0]) * RATE
+    assert h7 == pytest.approx(float(stdtrit(6, 0.975)) * 3e-6 * 7 * 86400.0)

@@ -111,6 +111,12 @@ def main(argv=None) -> int:
                     help="comma-separated SITE-hip pairs (default wrist-hip,thigh-hip)")
     ap.add_argument("--json", help="also write every row to this JSON file")
     a = ap.parse_args(argv)
+    from stillpoint.drivers.constants import cwa_rate_code
+    try:  # the pairs are AX3 files: refuse a rate the device cannot record before simulating
+        cwa_rate_code(a.hz, 8)
+    except ValueError as e:
+        print(f"--hz {a.hz:g}: {e} (e.g. 25 or 50)", file=sys.stderr)
+        return 2
     sites = [p.split("-")[0] for p in a.placements.split(",")]
     jobs = [(s, a.days, a.hz, site) for site in sites
             for s in range(a.first_seed, a.first_seed + a.pairs)]

@@ -70,15 +70,19 @@ def test_first_night_of_a_recording_started_after_midnight_is_cut():
 
 
 def test_m10_l5_windows_start_as_ggirs():
-    """g.getM5L5: starts every 10 min, the last one winhr + 10 min before the day's end; a
-    window that could only start at 19:00 (L5) is never taken."""
+    """g.getM5L5 as g.analyse.perday calls it: starts every 10 min to 23:40, a window past the
+    day's end completed from the day's first hours, ties to the middle start. GGIR's figures on
+    this day (R: g.getM5L5(e / 1000, 60, 0, 24 + winhr - 1/6, 10, winhr)): L5 1 mg at 19:00,
+    M5 50 mg at 07:00, L10 25.5 mg at 16:30, M10 50 mg at 04:30."""
     per_day = 1440
     local = np.arange(per_day, dtype=np.int64) * 60 * 10**9
     e = np.full(per_day, 50.0)
     e[19 * 60:] = 1.0  # quiet only from 19:00
-    val, start = m_window(e, np.ones(per_day, bool), local, 5.0, np.argmin, 60.0)
-    assert start == "18:50"
-    assert val == pytest.approx((10 * 50 + 290 * 1.0) / 300)
+    every = np.ones(per_day, bool)
+    assert m_window(e, every, local, 5.0, np.argmin, 60.0) == (pytest.approx(1.0), "19:00")
+    assert m_window(e, every, local, 5.0, np.argmax, 60.0) == (pytest.approx(50.0), "07:00")
+    assert m_window(e, every, local, 10.0, np.argmin, 60.0) == (pytest.approx(25.5), "16:30")
+    assert m_window(e, every, local, 10.0, np.argmax, 60.0) == (pytest.approx(50.0), "04:30")
 
 
 def test_l5_on_imputed_epochs_finds_the_night_behind_night_nonwear():
@@ -133,3 +137,23 @@ def test_fraction_night_invalid_equals_ggirs(name):
     for date in set(ours) - set(theirs):
         n, r = ours[date]
         assert n.window[0] == 0 and r["window_cut"] == "start" and r["night_valid"] == 0
+
+
+def test_day_table_relative_amplitude_per_day():
+    """``ra`` per valid day from the day's own M10 and L5; the ``all`` row averages it."""
+    from stillpoint.engine.tables.days import DayAccumulator
+    from stillpoint.engine.tables.epochs import EpochRows
+    from stillpoint.engine.timezones import parse_zone
+    n = 3 * 1440
+    t = np.arange(n, dtype=np.int64) * 60 * 10**9 + 20000 * DAY_NS
+    tod = np.arange(n) % 1440
+    e = np.where((tod < 7 * 60) | (tod >= 23 * 60), 3.0, 40.0) + (np.arange(n) // 1440) * 5.0
+    z = np.zeros(n, bool)
+    acc = DayAccumulator(parse_zone("UTC"), 60.0)
+    acc.push(EpochRows(t, np.full(n, 100), e, z * 0.0, e, z * 0.0, z * 0.0, z, z, z, z, z))
+    days = acc.close()
+    assert len(days) == 3
+    for d in days:
+        assert d["ra"] == pytest.approx((d["m10_mg"] - d["l5_mg"]) / (d["m10_mg"] + d["l5_mg"]))
+    assert days[0]["ra"] == pytest.approx((40 - 3) / 43) and days[2]["ra"] == pytest.approx((50 - 13) / 63)
+    assert acc.summary()["ra"] == pytest.approx(np.mean([d["ra"] for d in days]))

@@ -2,6 +2,7 @@
 masked epochs replaced by their slot's mean, day means and band minutes on the imputed epochs."""
 
 import datetime as dt
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -70,3 +71,35 @@ def test_one_day_is_not_imputed(tmp_path):
             np.zeros(1440, np.int64))
     assert not av.imputes
     assert imputed_days(av) == {}
+
+
+_M5L5 = Path(__file__).resolve().parent / "data" / "ggir_m5l5"
+
+
+@pytest.mark.parametrize("name", sorted(p.stem for p in _M5L5.glob("*.json")))
+def test_imputed_m10_l5_equal_ggirs_part2(name):
+    """Per-day M10 / L5 on the imputed epochs against GGIR's part 2 on the same imputed days
+    (g.analyse.perday's lines that bring a day to 24 h, then g.getM5L5;
+    tools/crosschecks/ggir_m5l5.py): first and last partial days and the 23-h DST day included."""
+    import json
+    import sys
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools" / "crosschecks"))
+    import ggir_part5_windows as p5
+    from stillpoint.engine.sim.sleep import SleepSpec
+    fx = json.loads((_M5L5 / f"{name}.json").read_text())
+    spec = SleepSpec(**{k: tuple(v) if isinstance(v, list) else v for k, v in fx["spec"].items()})
+    s, sib, spt, nights, clean, imp = p5.scenario_inputs(spec)
+    local = s.zone.local_ns(s.t_ns)
+    day = local // (86400 * 10**9)
+    av = AverageDay(5.0)
+    av.push({"enmo_mg": s.enmo, "mad_mg": s.enmo}, clean, day, local)
+    ours = imputed_days(av)
+    av.close()
+    assert len(fx["days"]) == len(ours) >= 6
+    for g in fx["days"]:
+        o = ours[g["date"]]
+        for key, col in (("m10", "M10"), ("l5", "L5")):
+            assert o[f"{key}_mg_imputed"] == pytest.approx(g[col], rel=1e-9), (g["date"], key)
+            m = int(round(g[col + "hr"] * 60)) % 1440  # GGIR: decimal hours, +24 below 12
+            assert o[f"{key}_start_imputed"] == f"{m // 60:02d}:{m % 60:02d}", (g["date"], key)
+        assert o["ra_imputed"] == pytest.approx((g["M10"] - g["L5"]) / (g["M10"] + g["L5"]))

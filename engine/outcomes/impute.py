@@ -16,7 +16,9 @@ values computed on the imputed epochs, each column name ending ``_imputed``:
 ``enmo_mean_mg_imputed``, ``mad_mean_mg_imputed`` (mean over the day's epochs), GGIR's M10 and L5
 on the imputed epochs (``m10_mg_imputed``, ``m10_start_imputed``, ``l5_mg_imputed``,
 ``l5_start_imputed``: GGIR computes M5L5 on its imputed series, R/g.analyse.perday.R:518, so
-nonwear at night cannot push L5 into the evening; valid days only, as the day table's) and, with
+nonwear at night cannot push L5 into the evening; each day first brought to 24 h as GGIR does,
+``ggir_day``; valid days only, as the day table's), the relative amplitude of those
+(``ra_imputed``) and, with
 a cut-point set, the band minutes and bout minutes of ``engine.outcomes.daily``.
 """
 
@@ -32,7 +34,7 @@ METRICS = ("enmo_mg", "mad_mg")
 SLICE_ROWS = 1 << 15
 _RECORD = np.dtype([("day", "<i4"), ("tod_s", "<i4"), ("enmo_mg", "<f8"), ("mad_mg", "<f8"),
                     ("clean", "?")])
-M_COLUMNS = ("m10_mg", "m10_start", "l5_mg", "l5_start")
+M_COLUMNS = ("m10_mg", "m10_start", "l5_mg", "l5_start", "ra")
 
 
 class AverageDay:
@@ -107,16 +109,19 @@ def imputed_days(average: AverageDay, outcomes=None) -> dict:
     row = 0
     day, parts = None, []
 
+    first_day = None
+
     def finish(day, parts):
-        from ..tables.days import m_window
+        from ..tables.days import m_window, relative_amplitude
         e = np.concatenate([p[0] for p in parts])
         m = np.concatenate([p[1] for p in parts])
-        tod = np.concatenate([p[2] for p in parts]).astype(np.int64) * 10**9
         d = {"enmo_mean_mg" + SUFFIX: float(e.mean()), "mad_mean_mg" + SUFFIX: float(m.mean())}
-        every = np.ones(e.shape[0], bool)
+        day_e = ggir_day(e, prof["enmo_mg"], average.per_day, day == first_day)
+        every = np.ones(day_e.shape[0], bool)
         for key, hours, pick in (("m10", 10.0, np.argmax), ("l5", 5.0, np.argmin)):
-            val, start = m_window(e, every, tod, hours, pick, average.epoch_s)
+            val, start = m_window(day_e, every, None, hours, pick, average.epoch_s, start_of_day_ns=0)
             d[f"{key}_mg" + SUFFIX], d[f"{key}_start" + SUFFIX] = val, start
+        d["ra" + SUFFIX] = relative_amplitude(d["m10_mg" + SUFFIX], d["l5_mg" + SUFFIX])
         if outcomes is not None and outcomes.cut is not None:
             v = e if outcomes.cut.column == "enmo_mg" else m
             for name, val in outcomes.day(v, np.ones(v.shape[0], bool),
@@ -139,10 +144,31 @@ def imputed_days(average: AverageDay, outcomes=None) -> dict:
                 finish(day, parts)
                 parts = []
             day = int(days[a])
+            if first_day is None:
+                first_day = day
             parts.append((e[a:b], m[a:b], rec["tod_s"][a:b]))
     if day is not None:
         finish(day, parts)
     return out
+
+
+def ggir_day(e: np.ndarray, profile: np.ndarray, per_day: int, first: bool) -> np.ndarray:
+    """One local day's imputed epochs brought to 24 h as GGIR's part 2 does before its M5L5
+    (R/g.analyse.perday.R:356-392): a short first day is preceded by the average day's first
+    slots, a 23-h day gets the average day's slots of its third hour inserted after its second,
+    another short day is followed by the average day's last slots; a 25-h day is kept as it is
+    (GGIR's row removal there indexes columns, so it removes nothing). The average day's slots
+    count from the recording's first epoch, as GGIR's do."""
+    n = e.shape[0]
+    short = per_day - n
+    if short <= 0:
+        return e
+    if first:
+        return np.concatenate([profile[:short], e])
+    hour = per_day // 24
+    if n == 23 * hour:
+        return np.concatenate([e[:2 * hour], profile[2 * hour:3 * hour], e[2 * hour:]])
+    return np.concatenate([e, profile[per_day - short:]])
 
 
 def imputed_columns(outcomes=None) -> list:

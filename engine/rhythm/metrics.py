@@ -22,6 +22,7 @@ from typing import Optional
 
 import numpy as np
 
+from ..tables.days import relative_amplitude  # noqa: F401  (one definition, used here)
 from . import rules
 
 
@@ -253,12 +254,6 @@ def cosinor(minutes: np.ndarray, time_offset_h: float, threshold: Optional[float
 
 
 # ---------------------------------------------------------------------------- M10 / L5 / RA
-def relative_amplitude(m10: Optional[float], l5: Optional[float]) -> Optional[float]:
-    if m10 is None or l5 is None or (m10 + l5) == 0:
-        return None
-    return (m10 - l5) / (m10 + l5)
-
-
 def average_day_mx(profile: np.ndarray, first_midnight: int, epoch_s: float, hours: float,
                    pick) -> tuple:
     """GGIR's M10 / L5 of the average day (``g.analyse.avday``: the average day turned to start

@@ -15,9 +15,11 @@ intensity minutes, MVPA and M10/L5; ``wear_hours`` counts clean epochs. Per day:
   (the second band edge, 100 mg) lasting at least ``mvpa_bout_s`` (60 s); every epoch of the run
   must meet it (GGIR's bout rules tolerate 20 % below);
 * ``m10_mg`` / ``l5_mg``: GGIR's M10 and L5: the highest mean ENMO over 10 consecutive hours and
-  the lowest over 5, windows starting every 10 min inside the day; a window counts when at least
-  half of its epochs are clean (GGIR imputes the rest from the average day instead), on valid
-  days only; ``m10_start`` / ``l5_start``: local clock time of the window start;
+  the lowest over 5, windows starting every 10 min inside the day (one past the day's end
+  completed from its first hours, as GGIR); a window counts when at least half of its epochs are
+  clean (GGIR imputes the rest from the average day instead), on valid days only;
+  ``m10_start`` / ``l5_start``: local clock time of the window start; ``ra``: the day's relative
+  amplitude (M10 - L5) / (M10 + L5);
 * ``data_coverage`` / ``qc_coverage``: data hours and QC-flagged hours over ``day_hours``.
 
 With activity outcomes (``engine.outcomes.daily``: a cut-point set's minutes per band and GGIR
@@ -63,32 +65,64 @@ def day_columns(bands=ENMO_BANDS_MG) -> list[str]:
     return (["date", "day_hours", "recorded_hours", "data_hours", "wear_hours", "nonwear_hours",
              "clipping_hours", "qc_hours", "valid_day", "enmo_mean_mg", "mad_mean_mg"] +
             _band_names(bands) +
-            ["mvpa_bout_min", "m10_mg", "m10_start", "l5_mg", "l5_start", "data_coverage",
+            ["mvpa_bout_min", "m10_mg", "m10_start", "l5_mg", "l5_start", "ra", "data_coverage",
              "qc_coverage", "timezone", "calibration", "calibration_source"])
 
 
-def m_window(e, clean, local, hours, pick, epoch_s):
-    """GGIR's M10 / L5 of one day (``g.getM5L5``): the mean of ``hours`` consecutive hours
-    starting every 10 min from the day's first epoch, the last start ``hours`` + 10 min before
-    the day's end (GGIR's ``last_hri``, R/g.getM5L5.R:15-18); ``pick`` is ``np.argmax`` (M10) or
-    ``np.argmin`` (L5). A window counts when at least half its epochs are clean (the mean is over
-    those); on imputed epochs every epoch is clean. Returns (value, ``HH:MM`` local start)."""
-    w = int(round(hours * 3600 / epoch_s))
-    step = max(1, int(round(M_STEP_S / epoch_s)))
-    if len(e) < w:
+def m_window(e, clean, local, hours, pick, epoch_s, start_of_day_ns=None):
+    """GGIR's M10 / L5 of one day (``g.getM5L5`` as ``g.analyse.perday`` calls it,
+    R/g.analyse.perday.R:509-518, R/g.getM5L5.R:7-37): the mean of ``hours`` consecutive hours
+    starting every 10 min from the day's first epoch, the starts running to 20 min before the
+    day's end (``last_hri``) and a window past the day's end completed from the day's own first
+    epochs (``einclude``, line 22); ties: the middle start. ``pick`` is ``np.argmax`` (M10) or
+    ``np.argmin`` (L5). Needs a day of more than 1.2 ``hours`` and a positive mean (GGIR's
+    ``do.M5L5``). A window counts when at least half its epochs are clean (the mean is over
+    those); on imputed epochs every epoch is clean. Returns (value, ``HH:MM`` start): the local
+    clock of the start epoch, or with ``start_of_day_ns`` the time from it (an imputed day padded
+    to 24 h from midnight, as GGIR reports it)."""
+    n = len(e)
+    epm = 60.0 / epoch_s
+    if n <= epm * 60 * hours * 1.2:
         return None, None
     x = np.where(clean, e, 0.0)
-    cs = np.concatenate([[0.0], np.cumsum(x)])
-    cn = np.concatenate([[0], np.cumsum(clean.astype(np.int64))])
-    starts = np.arange(0, max(len(e) - w, 1), step)
-    cnt = cn[starts + w] - cn[starts]
+    if not np.any(clean) or x.sum() / max(int(clean.sum()), 1) <= 0:
+        return None, None
+    res = M_STEP_S / 60.0  # M5L5res, minutes
+    t1 = n / (60 * epm) + (hours - res / 60)
+    rows = int((t1 - hours) * (60 / res))  # R's matrix(NA, nwindow_f) truncates
+    last = min(rows, int(np.floor((t1 - hours) * (60 / res) - 1)))
+    if rows < 1 or last < 0:
+        return None, None
+    hri = np.arange(0, last + 1)
+    e1 = np.round(hri * res * epm).astype(np.int64)  # 0-based first epoch
+    e2 = np.round((hri + hours * (60 / res)) * res * epm).astype(np.int64)  # exclusive end
+    xx = np.concatenate([x, x])  # a window past the end wraps to the day's first epochs
+    cc = np.concatenate([clean, clean]).astype(np.int64)
+    cs = np.concatenate([[0.0], np.cumsum(xx)])
+    cn = np.concatenate([[0], np.cumsum(cc)])
+    w = e2 - e1
+    cnt = cn[e2] - cn[e1]
     ok = cnt >= MIN_WINDOW_CLEAN * w
     if not ok.any():
         return None, None
-    mean = np.where(ok, (cs[starts + w] - cs[starts]) / np.maximum(cnt, 1), np.nan)
-    i = int(pick(np.where(ok, mean, -np.inf if pick is np.argmax else np.inf)))
-    t = int(local[starts[i]] % DAY_NS) // 10**9
+    mean = np.where(ok, (cs[e2] - cs[e1]) / np.maximum(cnt, 1), np.nan)
+    best = np.nanmax(mean) if pick is np.argmax else np.nanmin(mean)
+    # windows of the same mean: R compares its means exactly, and equal stretches (imputed or
+    # still epochs) give exactly equal means there; running sums differ in the last bits
+    ties = np.flatnonzero(np.abs(mean - best) <= 1e-10 * abs(best) + 1e-12)
+    i = int(ties[int(np.ceil(ties.shape[0] / 2)) - 1])  # sort(...)[ceiling(n / 2)]
+    if start_of_day_ns is None:
+        t = int(local[e1[i]] % DAY_NS) // 10**9
+    else:
+        t = int(round(e1[i] * epoch_s))
     return float(mean[i]), f"{t // 3600:02d}:{(t // 60) % 60:02d}"
+
+
+def relative_amplitude(m10, l5):
+    """(M10 - L5) / (M10 + L5) (van Someren 1999); None without both or when both are 0."""
+    if m10 is None or l5 is None or (m10 + l5) == 0:
+        return None
+    return (m10 - l5) / (m10 + l5)
 
 
 def _runs(mask: np.ndarray):
@@ -189,6 +223,7 @@ class DayAccumulator:
             val, start = (self._window(e, clean, local, hours, pick) if row["valid_day"]
                           else (None, None))
             row[f"{key}_mg"], row[f"{key}_start"] = val, start
+        row["ra"] = relative_amplitude(row["m10_mg"], row["l5_mg"])
         dh = row["day_hours"]
         row["data_coverage"] = row["data_hours"] / dh
         row["qc_coverage"] = row["qc_hours"] / dh
@@ -213,7 +248,7 @@ class DayAccumulator:
         clean = self.totals["clean"]
         row["enmo_mean_mg"] = self.totals["enmo_clean_sum"] / clean if clean else None
         row["mad_mean_mg"] = self.totals["mad_clean_sum"] / clean if clean else None
-        for k in _band_names(self.bands) + ["mvpa_bout_min", "m10_mg", "l5_mg"]:
+        for k in _band_names(self.bands) + ["mvpa_bout_min", "m10_mg", "l5_mg", "ra"]:
             v = [d[k] for d in valid if d[k] is not None]
             row[k] = float(np.mean(v)) if v else None
         row["m10_start"] = row["l5_start"] = None

@@ -209,43 +209,58 @@ def reader_timezone(path, fmt: str, spec, override: bool = False) -> tuple[Optio
             return None, zone_of_log(getattr(src, "metadata", {}), src.info.timezone_offset_s)
         finally:
             src.close()
+    if zone.known:
+        return given_zone_offset(path, fmt, zone, override), zone
     if fmt == "geneactiv":
         from stillpoint.drivers.geneactiv import read_header
-        if not zone.known:
-            return None, fixed_zone(read_header(path).timezone_offset_s)
-        try:
-            header_offset = read_header(path).timezone_offset_s
-        except StillpointError:  # an unreadable header zone: the given one stands in for it
-            header_offset = None
-        start = _header_start_s(read_header(path, timezone=0))
-        if header_offset is not None:
-            check_header_zone(path, header_offset, zone, start, override)
-        if zone.fixed_s is not None:
-            return zone.fixed_s, zone
-        return (zone.device_offset_s(start) if start is not None else zone.offset_at_s(0)), zone
+        return None, fixed_zone(read_header(path).timezone_offset_s)
     if fmt == "gt3x":
         from stillpoint.drivers.gt3x import read_header as gt3x_header
-        info = gt3x_header(path, timezone=0)
-        stored = info.header.get("timezone_stored_s")
-        start = _header_start_s(info)
-        if not zone.known:
-            return (None, fixed_zone(stored)) if stored is not None else (0, zone)
-        if stored is not None:
-            check_header_zone(path, stored, zone, start, override)
-        if zone.fixed_s is not None:
-            return zone.fixed_s, zone
-        return (zone.device_offset_s(start) if start is not None else zone.offset_at_s(0)), zone
+        stored = gt3x_header(path, timezone=0).header.get("timezone_stored_s")
+        return (None, fixed_zone(stored)) if stored is not None else (0, zone)
     # .cwa (and anything else with a local clock and no stored zone)
-    if not zone.known:
-        return 0, zone
-    if zone.fixed_s is not None:
-        return zone.fixed_s, zone
-    from stillpoint.drivers.cwa import read_header
+    return 0, zone
+
+
+def given_zone_offset(path, fmt: str, zone: Zone, override: bool = False) -> Optional[int]:
+    """The reader's ``timezone=`` (seconds) for a zone the user gave, from at most one read of
+    the header: its start time places an IANA zone (the device's offset at the recording's
+    start); a GENEActiv or .gt3x header's own zone must agree with the given one unless
+    ``override`` (``check_header_zone``). A .cwa needs no read for a fixed offset."""
+    if fmt == "cwa" and zone.fixed_s is not None:
+        return zone.fixed_s
+    if fmt == "geneactiv":
+        from stillpoint.drivers.geneactiv import read_header
+    elif fmt == "gt3x":
+        from stillpoint.drivers.gt3x import read_header
+    else:  # .cwa (and anything else with a local clock and no stored zone)
+        from stillpoint.drivers.cwa import read_header
     info = read_header(path, timezone=0)
     start = _header_start_s(info)
-    if start is None:
+    if fmt == "geneactiv":
+        header_offset = _geneactiv_header_offset(info.header)
+        if header_offset is not None:
+            check_header_zone(path, header_offset, zone, start, override)
+    elif fmt == "gt3x":
+        stored = info.header.get("timezone_stored_s")
+        if stored is not None:
+            check_header_zone(path, stored, zone, start, override)
+    elif start is None:
         raise ZoneError(f"{path}: no readable sector time to place the recording in {zone.name}")
-    return zone.device_offset_s(start), zone
+    if zone.fixed_s is not None:
+        return zone.fixed_s
+    return zone.device_offset_s(start) if start is not None else zone.offset_at_s(0)
+
+
+def _geneactiv_header_offset(header: dict) -> Optional[int]:
+    """A GENEActiv header's own zone (Configuration Info ``Time Zone``), seconds, from the header
+    fields a read gives; None when it is unreadable (the given zone then stands in for it)."""
+    from stillpoint.drivers.geneactiv_header import parse_timezone
+    text = header.get("Configuration Info/Time Zone", header.get("Time Zone"))
+    try:
+        return parse_timezone(text)
+    except ValueError:
+        return None
 
 
 def _header_start_s(info) -> Optional[float]:

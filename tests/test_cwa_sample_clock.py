@@ -258,8 +258,9 @@ def test_process_reads_cwa_column_major_and_pass_one_without_sample_times(real_f
     seen.clear()
     # the reader's own defaults, but the output passes' batch size (it decides where blocks, and
     # so raw messages, are cut)
-    monkeypatch.setattr(run_mod, "_reader_options", lambda path, opts, features_only=False: (
-        opts if features_only else dict(opts, batch_sectors=run_mod.OUTPUT_BATCH_SECTORS)))
+    from stillpoint.engine.run import inputs, tuning
+    monkeypatch.setattr(inputs, "reader_options", lambda fmt, opts, features_only=False: (
+        opts if features_only else dict(opts, batch_sectors=tuning.OUTPUT_BATCH_SECTORS)))
     run_mod.process_file(real_file(name), out, run_mod.RunSettings(mode=mode), writer="inline")
     assert seen and not any(clock or cm for clock, cm in seen)
     assert out.read_bytes() == fast

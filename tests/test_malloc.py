@@ -41,14 +41,14 @@ print(ok, before - rss())
 
 
 def test_pass_two_trims_every_few_steps(tmp_path, monkeypatch):
-    import stillpoint.engine.run as run_mod
+    from stillpoint.engine.run import output, tuning
     from test_prefetch import _damaged_cwa
     calls = []
-    monkeypatch.setattr(run_mod, "trim", lambda: calls.append(1) or True)
-    monkeypatch.setattr(run_mod, "TRIM_EVERY_STEPS", 2)
+    monkeypatch.setattr(output, "trim", lambda: calls.append(1) or True)
+    monkeypatch.setattr(tuning, "TRIM_EVERY_STEPS", 2)
     steps = []
-    orig = run_mod.OutputStage.push
-    monkeypatch.setattr(run_mod.OutputStage, "push", lambda self, b: (steps.append(1), orig(self, b))[1])
+    orig = output.OutputStage.push
+    monkeypatch.setattr(output.OutputStage, "push", lambda self, b: (steps.append(1), orig(self, b))[1])
     src = _damaged_cwa(tmp_path / "damaged.cwa", 7)
     for mode in ("batch", "online"):
         calls.clear()

@@ -177,8 +177,8 @@ def test_one_arena_once_and_the_environment_wins():
 def test_the_thread_by_default_reads_for_batch_runs_on_more_than_one_core(
         tmp_path, monkeypatch, mode, cores, used):
     """process_file's default: a batch run reads ahead where it has a second core; an online run
-    (the station's, which compresses inline) does not (run.PREFETCH_BY_MODE)."""
-    import stillpoint.engine.run as run_mod
+    (the station's, which compresses inline) does not (run.tuning.PREFETCH_BY_MODE)."""
+    from stillpoint.engine.run import inputs, job
     made = []
 
     class Spy(Prefetched):
@@ -186,8 +186,8 @@ def test_the_thread_by_default_reads_for_batch_runs_on_more_than_one_core(
             made.append(source)
             super().__init__(source, *a, **k)
 
-    monkeypatch.setattr(run_mod, "Prefetched", Spy)
-    monkeypatch.setattr(run_mod, "cores_available", lambda: cores)
+    monkeypatch.setattr(inputs, "Prefetched", Spy)
+    monkeypatch.setattr(job, "cores_available", lambda: cores)
     src = _damaged_cwa(tmp_path / "damaged.cwa", 3)
     process_file(src, tmp_path / "out.mcap", RunSettings(mode=mode, chunk_hours=0.25, first_hours=0.25))
     assert bool(made) == used

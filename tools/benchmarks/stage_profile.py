@@ -34,7 +34,7 @@ MAIN_STAGES = [
     # (label, module, class or None, attribute)
     ("pass 1: window features + nonmovement", "stillpoint.engine.run", "FeatureStage", "push"),
     ("pass 1: window features + nonmovement", "stillpoint.engine.run", "FeatureStage", "flush"),
-    ("fit (batch schedule)", "stillpoint.engine.run", None, "fit_batch_schedule"),
+    ("fit (batch schedule)", "stillpoint.engine.run.batch", None, "fit_batch_schedule"),
     ("online calibrator: refits", "stillpoint.engine.calibration.online", "OnlineCalibrator",
      "_refit"),
     ("online calibrator: windows kept", "stillpoint.engine.calibration.online", "OnlineCalibrator",
@@ -116,11 +116,10 @@ def install(meter: Meter) -> dict:
 
 
 def one_run(path: Path, mode: str, block_s: float) -> dict:
-    import stillpoint.engine.run as run_mod
-    from stillpoint.engine.run import RunSettings, process_file
+    from stillpoint.engine.run import RunSettings, process_file, tuning
     from stillpoint.engine.tables import TablesSettings, table_paths
     if block_s != 600.0:  # the reader's read size follows the step (500 sectors = 600 s at 100 Hz)
-        run_mod.OUTPUT_BATCH_SECTORS = int(round(run_mod.OUTPUT_BATCH_SECTORS * block_s / 600.0))
+        tuning.OUTPUT_BATCH_SECTORS = int(round(tuning.OUTPUT_BATCH_SECTORS * block_s / 600.0))
     meter = Meter()
     threads = install(meter)
     with tempfile.TemporaryDirectory() as tmp:

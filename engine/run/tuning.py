@@ -1,0 +1,18 @@
+"""Tuning constants of a run, in one place: one line each, with why it has its value.
+
+The measurements behind them are on the performance page (docs/performance.md, "Run tuning").
+Code reads them as ``tuning.NAME`` so a benchmark or a test can change one here.
+"""
+
+# MCAP chunk span (s) when RunSettings.chunk_s is None: fewer bytes than one chunk per 10 s cell
+CHUNK_S = 60.0
+# MCAP writer when process_file is given none: batch compresses on a thread, online inline (a kill loses no queued step)
+WRITER_BY_MODE = {"batch": "thread", "online": "inline"}
+# free heap pages go back to the system every this many output steps (~2.7 h): RSS flat as files grow
+TRIM_EVERY_STEPS = 16
+# read ahead on a thread (with a second core): batch only; the station's online run reads in the engine's thread
+PREFETCH_BY_MODE = {"batch": True, "online": False}
+# .cwa sectors an output pass reads at a time: about one pipeline step (10 min at 100 Hz), so read-ahead stays small
+OUTPUT_BATCH_SECTORS = 500
+# QC events described in the run summary (all are counted, and logged on /qc)
+QC_DETAILS = 10

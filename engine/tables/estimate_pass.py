@@ -1,8 +1,9 @@
 """The tables of a recording corrected with one estimate from its first sample:
 ``tables_with_estimate(source, est, settings, ts, sink=None) -> dict`` (the tables summary).
 
-One pass over a source's raw blocks (a recording read again, or a log's raw stream): correction
-with ``est`` from the first sample, the epoch metrics, and the table writer (``TablesTap``). The
+One pass over a source's raw blocks (a recording read again, or a log's raw stream): the run's
+output pass (``engine.run.output.OutputPass``: correction with ``est`` from the first sample,
+the epoch metrics, counts and MIMS-units) with the table writer (``TablesTap``) as its tap. The
 blocks are first joined into runs of up to 10 min of one segment (every operator's output is
 independent of block cuts, so the tables equal those written during a run that applied the same
 estimate from the first sample). Used for
@@ -25,9 +26,8 @@ from ..calibration.estimate import CalibrationEstimate, calibration_source
 from ..calibration.outcome import CalibrationOutcome
 from ..core.blocks import coalesce_blocks
 from ..operators.correction import CorrectionOperator
-from ..operators.extras import ExtraMetrics
 from ..operators.filters import band_used
-from ..operators.metrics import EpochMetrics, MetricsOperator
+from ..run.output import OutputPass
 from .writer import TablesTap
 
 
@@ -39,27 +39,20 @@ def tables_with_estimate(source, est: CalibrationEstimate, settings, ts, *, sink
     initial = replace(est, effective_from_ns=None) if applied else CalibrationEstimate.identity(est.reason)
     rate = float(source.info.sample_rate_nominal or 0) or 100.0
     band = band_used(rate, settings.bfen_band_hz)
-    correction = CorrectionOperator(initial, rate_hz=rate)
-    metrics = MetricsOperator(rate, settings.epoch_s, settings.bfen_band_hz)
-    # counts, MIMS-units (when the run computes them)
-    extras = ExtraMetrics(settings, rate, source.info.accel_range_g)
+    output = OutputPass(CorrectionOperator(initial, rate_hz=rate), settings, rate,
+                        source.info.accel_range_g)
     tap = TablesTap(ts, rate, settings.epoch_s, band, source, source.info, sink=sink,
-                    extras=extras.keys, corrected=applied,
+                    extras=output.extras.keys, corrected=applied,
                     calibration_source=calibration_source(est, applied))
+    output.taps.append(tap)
     try:
-        def step(block, batches):
-            ms = [metrics.push(b) for b in batches]
-            m = EpochMetrics.concat(ms) if len(ms) != 1 else ms[0]
-            tap.push(block, batches, m, extras.push(batches))
-
         first = True
         for block in coalesce_blocks(source):
             if first:  # a fit that ended before the recording began is a prior
                 tap.calibration_source = calibration_source(est, applied, int(block.time_ns[0]))
                 first = False
-            step(block, correction.push(block))
-        step(None, correction.flush())
-        tap.flush(metrics.flush(), extras.flush())
+            output.push(block)
+        output.flush()
         return tap.close(CalibrationOutcome(est, applied).table_status)
     except BaseException:
         tap.abort()

@@ -33,7 +33,7 @@ class RunContext:
     writer: str
     tables: Any = None  # engine.tables.TablesSettings (with the run's zone), or None
     progress: Optional[Callable[[str, PipelineStats], None]] = None
-    summary: dict = field(default_factory=dict)  # filled by the schedule where it must be
+    summary: Any = None  # the RunSummary (a schedule fills static_calibration)
 
     @property
     def meta_settings(self) -> dict:

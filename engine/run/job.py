@@ -32,7 +32,7 @@ from .batch import run_batch
 from .context import RunContext, abort_log, rate_of, utf8_text
 from .inputs import open_input, with_zone
 from .online import online_tables, run_online
-from .summary import qc_summary
+from .summary import RunSummary, qc_summary
 
 
 class OutputError(StillpointError):
@@ -64,7 +64,8 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
                  writer: Optional[str] = None, source_options: Optional[dict] = None,
                  tables=None, metadata=None,
                  prefetch: Optional[bool] = None) -> dict:
-    """Process one recording into ``out`` (MCAP); return the run summary (see module docstring).
+    """Process one recording into ``out`` (MCAP); return the run summary (``RunSummary.as_dict``;
+    its fields are documented on the Columns page).
 
     ``writer``: where chunks are compressed and written (engine/mcap/log.py); default by mode,
     ``tuning.WRITER_BY_MODE``. ``progress(label, stats)`` is called as the passes advance
@@ -100,59 +101,58 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
         src.close()
         raise
     info = src.info
-    summary: dict = {"input": utf8_text(str(path)), "mode": s.mode,
-                     "device": {"type": info.device_type, "id": info.device_id,
-                                "session": info.session_id, "rate_hz": rate,
-                                "range_g": info.accel_range_g}}
+    summary = RunSummary(input=utf8_text(str(path)), mode=s.mode,
+                         device={"type": info.device_type, "id": info.device_id,
+                                 "session": info.session_id, "rate_hz": rate,
+                                 "range_g": info.accel_range_g})
     ctx = RunContext(s, opened.input, opened.clock, out, rate, band_used(rate, s.bfen_band_hz),
                      writer, tables, progress, summary)
     res = run_batch(ctx, src) if s.mode == "batch" else run_online(ctx, src)
     if s.mode == "online":
-        summary["estimates"] = res.estimates
+        summary.estimates = res.estimates
     st, outst, sink, outcome = res.stats, res.output, res.sink, res.outcome
     # ---------------------------------------------------------------- wrap up
     res.source.close()
-    summary.update({
-        "samples": st.samples,
-        "duration_s": st.data_s,
-        "segments": len(st.segments),
-        "windows": res.windows,
-        "nonmovement_windows": res.nonmovement_windows,
-        "epochs": outst.epochs,
-        **({"mims_near_range_epochs": outst.extras.near_range_epochs,
-            "mims_unextrapolated_epochs": outst.extras.unextrapolated_epochs} if s.mims else {}),
-        "calibration": outcome.summary(),
-        "enmo_mean_mg": outst.enmo_mean_mg,
-        "qc": qc_summary(res.source),
-        "clipping": outst.clipping.as_dict(),
-        "outputs": {"mcap": str(out)},
-        "estimates_logged": len(res.estimates),
-        "wall_s": round(time.perf_counter() - t_start, 3),
-    })
+    summary.samples = st.samples
+    summary.duration_s = st.data_s
+    summary.segments = len(st.segments)
+    summary.windows = res.windows
+    summary.nonmovement_windows = res.nonmovement_windows
+    summary.epochs = outst.epochs
+    if s.mims:
+        summary.mims_near_range_epochs = outst.extras.near_range_epochs
+        summary.mims_unextrapolated_epochs = outst.extras.unextrapolated_epochs
+    summary.calibration = outcome.summary()
+    summary.enmo_mean_mg = outst.enmo_mean_mg
+    summary.qc = qc_summary(res.source)
+    summary.clipping = outst.clipping.as_dict()
+    summary.outputs = {"mcap": str(out)}
+    summary.estimates_logged = len(res.estimates)
+    summary.wall_s = round(time.perf_counter() - t_start, 3)
     if st.first_ns is not None:
-        summary["start_ns"], summary["end_ns"] = st.first_ns, st.last_ns
-        sc = summary.get("static_calibration")
+        summary.start_ns, summary.end_ns = st.first_ns, st.last_ns
+        sc = summary.static_calibration
         if sc and sc.get("fit_end_ns") is not None:
             sc["gap_hours"] = (int(st.first_ns) - int(sc["fit_end_ns"])) / 3.6e12
     zone = opened.clock.zone
-    summary["timezone"] = zone.label
+    summary.timezone = zone.label
     if s.timezone_override and zone.known:  # a GENEActiv header's zone replaced on request
-        summary["timezone_override"] = True
+        summary.timezone_override = True
     for tap in outst.taps:  # the epoch and day tables
         try:
-            summary["tables"] = tap.close(outcome.table_status)
+            summary.tables = tap.close(outcome.table_status)
         except BaseException as e:
             abort_log(sink, e)
             tap.abort()
             raise
     if s.mode == "online" and tables is not None:
         try:
-            summary["tables"] = online_tables(ctx, outcome.estimate, sink)
+            summary.tables = online_tables(ctx, outcome.estimate, sink)
         except BaseException as e:
             abort_log(sink, e)
             raise
-    if "tables" in summary:
-        summary["outputs"].update(epochs=summary["tables"]["epochs"], days=summary["tables"]["days"])
+    if summary.tables is not None:
+        summary.outputs.update(epochs=summary.tables["epochs"], days=summary.tables["days"])
     try:
         if outst.clipping.flagged:  # logged on /qc too, so the log itself says so
             sink.write_qc({"source": "engine", "reason": "clipping",
@@ -161,15 +161,15 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
         for name, values in ((metadata() if callable(metadata) else metadata) or {}).items():
             sink.write_metadata(name, {str(k): str(v) for k, v in values.items()})
         sink.write_metadata("calibration", outcome.record())
-        sink.write_metadata("summary", {k: v for k, v in summary.items() if k != "wall_s"})
+        sink.write_metadata("summary", summary.as_dict(log=True))
         sink.close()
     except BaseException as e:
         abort_log(sink, e)
         raise
     if sink.set_aside is not None:  # a killed earlier run's partial log, kept under a new name
-        summary["outputs"]["earlier_partial_log"] = str(sink.set_aside)
-    summary["mcap_messages"] = sink.messages
-    summary["mcap_flushes"] = sink.flushes
+        summary.outputs["earlier_partial_log"] = str(sink.set_aside)
+    summary.mcap_messages = sink.messages
+    summary.mcap_flushes = sink.flushes
     from ..mcap.writer import peak_rss_mb
-    summary["peak_rss_mb"] = {"engine": peak_rss_mb(), "writer": sink.writer_maxrss_mb}
-    return summary
+    summary.peak_rss_mb = {"engine": peak_rss_mb(), "writer": sink.writer_maxrss_mb}
+    return summary.as_dict()

@@ -5,9 +5,9 @@ from __future__ import annotations
 from ..calibration.estimate import CalibrationEstimate
 
 
-def static_estimate(d: dict, info, first_ns, summary: dict) -> CalibrationEstimate:
+def static_estimate(d: dict, info, first_ns, summary) -> CalibrationEstimate:
     """The static calibration to apply: same device only; the gap to the recording is logged
-    (``summary["static_calibration"]``)."""
+    (the run summary's ``static_calibration``)."""
     from ..calibration.estimate import STATIC_METHOD
     from ..calibration.static import StaticCalibrationError
     est = CalibrationEstimate.from_dict(dict(d))
@@ -26,6 +26,6 @@ def static_estimate(d: dict, info, first_ns, summary: dict) -> CalibrationEstima
     full = bool((est.extra.get("static") or {}).get("matrix"))
     est.effective_from_ns = None
     est.extra = dict(est.extra, applied_as="static", gap_hours=gap_h)
-    summary["static_calibration"] = {"device_key": est.device_key, "fit_end_ns": est.fit_end_ns,
-                                     "gap_hours": gap_h, "full_matrix_not_applied": full}
+    summary.static_calibration = {"device_key": est.device_key, "fit_end_ns": est.fit_end_ns,
+                                  "gap_hours": gap_h, "full_matrix_not_applied": full}
     return est

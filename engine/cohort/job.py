@@ -1,7 +1,7 @@
 """The per-file job of a cohort: (input path, canonical settings) -> one output folder.
 
 ``run_job`` is a pure function of its arguments as far as outputs go: it calls the engine's
-``process_file`` (engine/run.py) into ``<folder>.tmp``, writes ``summary.json`` (the run summary
+``process_file`` (engine/run/) into ``<folder>.tmp``, writes ``summary.json`` (the run summary
 without timings, so two runs give byte-identical files), fsyncs everything, writes ``_DONE.json``
 last, and renames the folder into place: a folder without ``.tmp`` holding ``_DONE.json`` is
 complete. While it runs, ``<folder>.tmp/_RUNNING.json`` names the process (host, pid).

@@ -51,8 +51,8 @@ class RunSummary:
         optional=True)
     mims_unextrapolated_epochs: Optional[int] = _field(
         "count", "with `--mims` only: epochs holding near-range samples left as recorded, because "
-        "their run lasted more than 10 minutes (see [counts and "
-        "MIMS-units](counts.md#mims-units))", optional=True)
+        "their run lasted about 10 minutes or more (see [counts "
+        "and MIMS-units](counts.md#mims-units))", optional=True)
     calibration: Optional[dict] = _field(
         "object", "`status`, `reason`, `method`, `offset` (g), `scale`, `tempoffset` (g/°C), "
         "`temperature_ref` (°C), `error_before_mg`, `error_after_mg` (mg), `hours_used` (h), "

@@ -180,3 +180,83 @@ def test_extrapolated_start_is_near_the_fixed_point():
     step_prev = np.max(np.abs(prev.offset - cold.offset))
     assert np.max(np.abs(x.offset - cold.offset)) < step_prev / 100
     assert extrapolated_start(CalibrationEstimate.identity(), sel) is None  # nothing to start from
+
+
+def _corrected(est, pts, temps):
+    from stillpoint.engine.calibration.fit import apply_model
+    tc = temps - est.temperature_ref if est.uses_temperature else None
+    return apply_model(pts, tc, est.offset, est.scale, est.tempoffset)
+
+
+def test_fit_set_keeps_the_first_windows_of_each_cell_whatever_the_cuts(rec):
+    from stillpoint.engine.calibration.online import FIT_CELL_C, FIT_CELL_G
+    f = rec.features
+    sel = select_calibration_windows(f).features
+    cal = OnlineCalibrator(chunk_hours=6, per_cell=3)
+    cal.add(f)
+    fit = cal.fit_windows
+    assert 0 < len(fit) < len(sel) == len(cal.windows)
+    # the rule, checked window by window: a window joins when its cell holds fewer than 3
+    key = [tuple(np.floor(m / FIT_CELL_G).astype(int)) + (int(np.floor(t / FIT_CELL_C)),)
+           for m, t in zip(sel.mean, sel.temperature)]
+    seen: dict = {}
+    expect = []
+    for i, k in enumerate(key):
+        if seen.get(k, 0) < 3:
+            expect.append(i)
+        seen[k] = seen.get(k, 0) + 1
+    np.testing.assert_array_equal(fit.start_ns, sel.start_ns[expect])
+    # cut anywhere: the same fit set and the same estimates, bit for bit
+    for cuts in ([1, 2, 3, 5000], list(range(0, len(f), 977))):
+        other = OnlineCalibrator(chunk_hours=6, per_cell=3)
+        edges = [0, *cuts, len(f)]
+        got = []
+        for a, b in zip(edges[:-1], edges[1:]):
+            got += other.add(f.select(slice(a, b)))
+        np.testing.assert_array_equal(other.fit_windows.start_ns, fit.start_ns)
+        for a, b in zip(got, cal.estimates):
+            np.testing.assert_array_equal(a.offset, b.offset)
+            assert a.extra["accepted"] == b.extra["accepted"]
+
+
+def test_fit_set_refits_agree_with_every_window_and_the_final_fit_uses_every_window(rec):
+    f = rec.features
+    every = OnlineCalibrator(chunk_hours=6, per_cell=None)
+    capped = OnlineCalibrator(chunk_hours=6, per_cell=2)
+    a = every.add(f) + every.finish()
+    b = capped.add(f) + capped.finish()
+    assert [e.fit_end_ns for e in a] == [e.fit_end_ns for e in b]
+    assert len(capped.fit_windows) < len(capped.windows)
+    rng = np.random.default_rng(5)
+    u = rng.normal(size=(500, 3))
+    u /= np.linalg.norm(u, axis=1)[:, None]
+    temps = rng.uniform(20, 32, 500)
+    for x, y in zip(a[:-1], b[:-1]):  # boundary refits: on the fit set, within ~1 mg
+        assert y.windows <= len(capped.fit_windows)
+        assert y.extra["nonmovement_windows"] >= y.windows
+        assert np.abs(_corrected(x, u, temps) - _corrected(y, u, temps)).max() < 2e-3
+    # the end of stream fit: every window, the same fixed point within the fit's tolerance
+    assert b[-1].windows == a[-1].windows == len(capped.windows)
+    assert "nonmovement_windows" not in b[-1].extra
+    assert np.abs(_corrected(a[-1], u, temps) - _corrected(b[-1], u, temps)).max() < 1e-6
+    assert capped.finish() == []
+    with pytest.raises(ValueError):
+        OnlineCalibrator(per_cell=0)
+
+
+def test_fit_set_stops_growing_on_still_wear(rec):
+    """Days of the same few orientations (a device on a table, a resting wrist): the windows
+    pile up, the fit set does not."""
+    from dataclasses import replace
+
+    f = select_calibration_windows(rec.features).features
+    day = 24 * H
+    span = int(f.start_ns[-1] - f.start_ns[0]) + 10**10
+    cal = OnlineCalibrator(chunk_hours=12, per_cell=2)
+    sizes = []
+    for k in range(4):  # the same windows again, a span later each time (same cells)
+        cal.add(replace(f, start_ns=f.start_ns + k * span))
+        sizes.append((len(cal.windows), len(cal.fit_windows)))
+    assert sizes[-1][0] == 4 * sizes[0][0] and span > day
+    # after two passes every cell holds its 2: nothing more joins
+    assert sizes[3][1] == sizes[2][1] == sizes[1][1] < sizes[-1][0] / 2

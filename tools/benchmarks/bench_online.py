@@ -9,7 +9,8 @@ number of estimates the online run published. ``--cold`` adds an online run whos
 start from identity (the fit as it runs alone), for the before/after of the warm start.
 
 Recordings: first the realistic ``stillpoint simulate`` files with the default wearer
-(``benchlib.realistic_recording``: AX3 wrist, 100 Hz, seed 3), then (unless ``--no-pattern``) the
+(``benchlib.realistic_recording``: AX3 wrist, 100 Hz, seed 3; ``--wearers default,still`` adds
+the wearer with long still periods), then (unless ``--no-pattern``) the
 calibration generator's packed AX3 test pattern at 100 Hz (tools/benchmarks/bench_process.py writes and
 reuses the same names in the same --workdir). Each mode runs ``--repeat`` times (default 2) and
 the least CPU is kept: the machine is shared, and the ratio is taken within the same run.
@@ -18,6 +19,7 @@ the least CPU is kept: the machine is shared, and the ratio is taken within the 
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import os
 import sys
@@ -49,12 +51,17 @@ def main(argv=None) -> int:
     ap.add_argument("--cold", action="store_true", help="also run online with refits from identity")
     ap.add_argument("--repeat", type=int, default=2, help="runs of each mode (least CPU kept)")
     ap.add_argument("--no-pattern", action="store_true", help="realistic files only")
+    ap.add_argument("--wearers", default="default",
+                    help="simulated wearers of the realistic files (e.g. default,still)")
     a = ap.parse_args(argv)
     wd = Path(a.workdir)
     wd.mkdir(parents=True, exist_ok=True)
     sp = [sys.executable, "-m", "stillpoint.tools"]
     rows = []
-    kinds = [("realistic", realistic_recording)] + ([] if a.no_pattern else [("test pattern", recording)])
+    wearers = [w.strip() for w in a.wearers.split(",") if w.strip()]
+    kinds = [("realistic" if w == "default" else f"{w} wearer",
+              functools.partial(realistic_recording, wearer=w)) for w in wearers]
+    kinds += [] if a.no_pattern else [("test pattern", recording)]
     todo = [(kind, make, float(x)) for kind, make in kinds for x in a.days.split(",") if x.strip()]
     for kind, make, d in todo:
         path = make(wd, d, a.rate)
@@ -76,7 +83,7 @@ def main(argv=None) -> int:
         out.unlink(missing_ok=True)
         rows.append((d, path, res, s))
         b, o = res["batch"], res["online"]
-        line = (f"{kind:12s} {d:5g} days: batch {b['cpu']:7.2f} s CPU ({b['wall']:6.1f} s wall, "
+        line = (f"{kind:13s} {d:5g} days: batch {b['cpu']:7.2f} s CPU ({b['wall']:6.1f} s wall, "
                 f"{b['rss_mb']:4.0f} MB) | online {o['cpu']:7.2f} s CPU ({o['wall']:6.1f} s wall, "
                 f"{o['rss_mb']:4.0f} MB) | online/batch {o['cpu'] / b['cpu']:.3f}x CPU "
                 f"(target <= 1.1x), {len(s.get('estimates', []))} estimates")

@@ -23,6 +23,8 @@ from typing import Optional
 
 DEFAULT_PEERS_PYTHON = "/work/peers/bin/python"
 THROWAWAY_SKDH_PYTHON = "/tmp/skdh-venv/bin/python"
+# python3 -m venv /tmp/actipy-venv && /tmp/actipy-venv/bin/pip install actipy (needs a Java runtime)
+THROWAWAY_ACTIPY_PYTHON = "/tmp/actipy-venv/bin/python"
 REALISTIC_SEED = 3
 
 METER = r"""
@@ -77,6 +79,20 @@ enmo = np.maximum(np.linalg.norm(a, axis=1) - 1.0, 0.0)
 print(a.shape[0], float(enmo.mean()), "calibrated" if "accel" in r else "not-calibrated")
 """
 
+# actipy's read_device with its defaults (20 Hz low-pass, gravity calibration, nonwear
+# detection, uniform resampling; its Java reader decodes the .cwa) and ENMO in 5 s epochs (run
+# with actipy's own Python).
+ACTIPY_READ_ENMO = r"""
+import sys, warnings
+warnings.simplefilter("ignore")
+import numpy as np
+import actipy
+data, info = actipy.read_device(sys.argv[1], verbose=False)
+enmo = (np.sqrt(np.square(data[["x", "y", "z"]]).sum(axis=1)) - 1.0).clip(lower=0.0)
+epochs = enmo.resample("5s").mean()
+print(len(data), len(epochs), float(epochs.mean() * 1000.0), "calibrated" if info.get("CalibOK") else "not-calibrated")
+"""
+
 
 def measure(cmd: list, env: Optional[dict] = None) -> dict:
     """{"wall", "cpu", "rss_mb", "rc", "out", "err"} of one run of ``cmd`` in a fresh child.
@@ -105,6 +121,15 @@ def best_of(cmds: dict, repeat: int = 1) -> dict:
         best["rss_mb"] = max(r["rss_mb"] for r in rs)
         out[name] = best
     return out
+
+
+def actipy_python(option: Optional[str] = None) -> Optional[str]:
+    """The Python of the virtual environment holding actipy (option, else
+    $STILLPOINT_ACTIPY_PYTHON, else /tmp/actipy-venv), or None when it does not exist."""
+    p = option or os.environ.get("STILLPOINT_ACTIPY_PYTHON") or THROWAWAY_ACTIPY_PYTHON
+    if Path(p).is_dir():
+        p = str(Path(p) / "bin" / "python")
+    return p if Path(p).exists() else None
 
 
 def peers_python(option: Optional[str] = None) -> Optional[str]:

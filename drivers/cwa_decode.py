@@ -11,6 +11,8 @@ All work on whole batches of sectors with numpy; no per-sample Python loops.
 
 from __future__ import annotations
 
+from typing import Literal
+
 import numpy as np
 
 from . import constants as C
@@ -88,7 +90,8 @@ def decode_samples(sec: np.ndarray, fmt: int, counts: np.ndarray, order: str = "
         n = v.shape[0]
         sh = (v >> np.uint32(30)).view(np.int32)  # exponent 0..3, reinterpreted in place
         np.subtract(np.int32(22), sh, out=sh)
-        accel = np.empty((n, 3), np.int16, order=order)
+        layout: Literal["C", "F"] = "F" if order == "F" else "C"
+        accel = np.empty((n, 3), np.int16, order=layout)
         tmp = np.empty(n, np.uint32)
         top10 = np.uint32(0xFFC00000)
         for axis, left in enumerate((22, 12, 2)):
@@ -103,7 +106,8 @@ def decode_samples(sec: np.ndarray, fmt: int, counts: np.ndarray, order: str = "
     # The result must own its memory: ``sec`` may view the reader's reusable buffer, and a
     # one-sector batch makes ``s`` a plain view of it (which ascontiguousarray would not copy).
     if ch == 6:
-        return np.array(s[:, 3:6], order=order), np.array(s[:, 0:3], order=order)
+        layout6: Literal["C", "F"] = "F" if order == "F" else "C"
+        return np.array(s[:, 3:6], order=layout6), np.array(s[:, 0:3], order=layout6)
     if order == "F":
         return np.array(s, order="F"), None
     return (s if s.base is None else np.array(s, order="C")), None

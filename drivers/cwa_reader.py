@@ -115,7 +115,7 @@ def _check_header(path: Path, head: bytes) -> None:
 
 def _device_info(path: Path, h: dict, tz_s: int, first_fmt: Optional[tuple]) -> DeviceInfo:
     gyro = h["gyro_range_dps"] if h["device_type"] == "AX6" else None
-    channels = ("accel_x", "accel_y", "accel_z")
+    channels: tuple[str, ...] = ("accel_x", "accel_y", "accel_z")
     if first_fmt is not None:
         fmt, light_scale = first_fmt
         if FORMATS[fmt][0] == 6:
@@ -137,7 +137,7 @@ def _tail_sectors(path: Path) -> dict:
     """Data-sector count and the last valid sector among the final 16 (plain files only)."""
     size = path.stat().st_size
     n = max(0, (size - C.CWA_HEADER_BYTES) // C.CWA_SECTOR_BYTES)
-    out = {"data_sectors": n}
+    out: dict = {"data_sectors": n}
     k = min(n, 16)
     if k:
         with open(path, "rb") as f:
@@ -207,6 +207,9 @@ _UNIT_FIELDS = ("index", "seq", "temp", "light", "battery", "events")
 
 class CwaReader:
     """Read a ``.cwa`` (or ``.cwa.gz``) recording as Blocks; see the module docstring."""
+
+    _untimed: list  # positions in qc.events of events still without a time
+    _last_t: Optional[int]  # time of the last sample emitted
 
     def __init__(self, path, *, timezone=0, batch_sectors: int = 2048, follow: bool = False,
                  follow_idle_s: float = 5.0, decode: bool = True, follow_done=None,
@@ -366,8 +369,8 @@ class CwaReader:
 
     def _init_state(self) -> None:
         self._bounds: list = []  # per emitted Block: first sector, its time, last sector, last time
-        self._untimed: list = []  # positions in qc.events of events still without a time
-        self._last_t: Optional[int] = None  # time of the last sample emitted
+        self._untimed = []  # positions in qc.events of events still without a time
+        self._last_t = None  # time of the last sample emitted
         self._seg: Optional[_Segment] = None
         self._prev: Optional[_Prev] = None
         self._n_segments = 0
@@ -481,7 +484,7 @@ class CwaReader:
             raw = sec.view(np.uint8).reshape(-1, 512)
             dup = np.zeros(seq.shape[0], bool)
             for i in same:
-                before = raw[i - 1].tobytes() if i else self._prev.raw
+                before = raw[i - 1].tobytes() if i or self._prev is None else self._prev.raw
                 if raw[i].tobytes() == before:
                     dup[i] = True
                     self._event(index[i], "duplicate",
@@ -551,6 +554,7 @@ class CwaReader:
                 new_seg.id = self._n_segments
                 self._n_segments += 1
             seg = self._seg
+            assert seg is not None  # the plan opens a segment at its first sector
             chunk = {
                 "accel": None if accel is None else accel[offsets[a]:offsets[b]],
                 "gyro": None if gyro is None else gyro[offsets[a]:offsets[b]],
@@ -759,6 +763,8 @@ class CwaReader:
             seg.chunks = []
             seg.emitted = seg.n
             return
+        origin = seg.origin
+        assert origin is not None  # set with the segment's first anchor
         if closed:
             ready = seg.n
         else:
@@ -789,7 +795,7 @@ class CwaReader:
                 keep.append(_slice_chunk(c, cut, None))
         seg.chunks = keep
         g = np.asarray(seg.ag, np.int64)
-        t_rel = (np.asarray(seg.at, np.int64) - seg.origin).astype(np.float64)
+        t_rel = (np.asarray(seg.at, np.int64) - origin).astype(np.float64)
         slope_first = seg.slope_first if seg.slope_first is not None else seg.nominal_slope
         if seg.n_anchors >= 2:
             slope_last = (t_rel[-1] - t_rel[-2]) / (float(g[-1]) - float(g[-2]))
@@ -799,10 +805,10 @@ class CwaReader:
             rel = interpolate_times(j_begin, ready, g, t_rel, slope_first, slope_last, closed)
             np.rint(rel, out=rel)
             time_ns, clock = rel.astype(np.int64), None
-            time_ns += seg.origin
+            time_ns += origin
         else:
             time_ns, clock = None, SampleClock(j_begin, ready - j_begin, g, t_rel, slope_first,
-                                               slope_last, closed, seg.origin)
+                                               slope_last, closed, origin)
         seg.emitted = ready
         # retain the anchors still needed: the last one at or before `ready`, and everything after
         if not closed and len(seg.ag) > 2:
@@ -816,7 +822,11 @@ class CwaReader:
     def _block(self, seg: _Segment, chunks: list, time_ns: Optional[np.ndarray],
                clock: Optional[SampleClock] = None) -> Block:
         cat = (lambda xs: xs[0]) if len(chunks) == 1 else np.concatenate
-        n = time_ns.shape[0] if time_ns is not None else clock.n
+        if time_ns is not None:
+            n = time_ns.shape[0]
+        else:
+            assert clock is not None  # a Block has times or a clock
+            n = clock.n
         cpg = C.cwa_accel_counts_per_g(seg.light_scale_hi >> 3)
         six = FORMATS[seg.fmt][0] == 6
         if self.decode:

@@ -98,9 +98,10 @@ class CwaWriter:
         self.gyro_range_dps = None
         gyro_code = 0
         if gyro_range_dps is not None:
-            gyro_code = _GYRO_CODE.get(int(gyro_range_dps), None) if float(gyro_range_dps).is_integer() else None
-            if gyro_code is None:
+            code = _GYRO_CODE.get(int(gyro_range_dps), None) if float(gyro_range_dps).is_integer() else None
+            if code is None:
                 raise ValueError(f"gyro range must be one of {sorted(_GYRO_CODE)} dps, got {gyro_range_dps}")
+            gyro_code = code
             self.gyro_range_dps = float(gyro_range_dps)
         if device_type == "AX3":
             accel_code = 0
@@ -121,6 +122,7 @@ class CwaWriter:
         self._pending: Optional[dict] = None
         self._closed = False
 
+        self._f: BinaryIO
         if isinstance(path_or_fileobj, (str, os.PathLike)):
             self._f = open(path_or_fileobj, "wb")
             self._own = True

@@ -98,7 +98,7 @@ def _pair_table() -> np.ndarray:
 _HEX_PAIR = _pair_table()
 
 
-def decode_hex_samples(hex_bytes: bytes, n_samples: int):
+def decode_hex_samples(hex_bytes: Union[bytes, np.ndarray], n_samples: int):
     """Decode ``n_samples`` 12-character samples from the start of ``hex_bytes`` (vectorised).
 
     Returns (accel (n, 3) int16 two's-complement 12-bit, light (n,) uint16 10-bit, button (n,) uint8,
@@ -248,7 +248,8 @@ class GeneactivReader:
         self.qc = QCReport(unit="page")
         self._iterated = False
         self._samples = 0
-        self._desync_open = None  # (lines, bytes) of a desync stretch still being skipped
+        # (lines, bytes) of a desync stretch still being skipped
+        self._desync_open: Optional[tuple[int, int]] = None
         self._n_events = 0  # events listed or counted past the cap
         self._unlisted: list = []  # (event, always) logged but not yet listed (see _event)
         try:  # the header text was decoded as UTF-8, or as Latin-1 when it is not UTF-8
@@ -428,9 +429,9 @@ class GeneactivReader:
                                 f"header's {header_freq_text!r}; pages are timed with their own value")
             h = 1 if held is not None else 0
             cat = np.concatenate
-            seq = cat([held.seq, run.seq]) if h else run.seq
-            t = cat([held.t_ms, run.t_ms]) if h else run.t_ms
-            freq = cat([held.freq, run.freq]) if h else run.freq
+            seq = cat([held.seq, run.seq]) if held is not None else run.seq
+            t = cat([held.t_ms, run.t_ms]) if held is not None else run.t_ms
+            freq = cat([held.freq, run.freq]) if held is not None else run.freq
             q = seq.shape[0]
             expect = self._nominal_steps(freq[:-1])
             step = (t[1:] - t[:-1]) * 1_000_000
@@ -463,7 +464,7 @@ class GeneactivReader:
                                 f"{(freq[k + 1] if np.isfinite(freq[k + 1]) else nominal_rate):g} Hz "
                                 f"take {expect[k] / 1e9:.3f} s; new segment", time_ns=when)
             # everything but the last page is timed now
-            if h:
+            if held is not None:
                 self._queue(held, 0, 1, steps[:1], segs[:1])
             if run.pages > 1:
                 self._queue(run, 0, run.pages - 1, steps[h:], segs[h:-1])
@@ -616,7 +617,7 @@ class GeneactivReader:
 
         Stops before an incomplete page unless at end of file.
         """
-        out: list[Union[_Run, _Skip]] = []
+        out: list[Union[_Run, _Skip, None]] = []  # None: a page decoded later, in a batch
         cand: list[tuple] = []  # (index, fields, hex, partial, position in out)
         L = len(lines)
         i = 0
@@ -834,7 +835,8 @@ class GeneactivReader:
             index, fields, hexline, partial, pos = c
             acc, light, button, bad = decoded[index]
             n = acc.shape[0]
-            reason = detail = None
+            reason: Optional[str] = None
+            detail = ""
             if bad:
                 reason, detail = "bad_hex", "data line holds characters that are not hex digits"
             elif t is None:
@@ -1043,7 +1045,7 @@ def _device_info(hdr: GeneactivHeader, path: Path, timezone, rest: bytes = b"") 
         except ValueError:
             warnings.append(f"Memory Status: Number of Pages {npv!r} is not an integer")
     drift = re.search(r"clock drift\s*([-+]?\d+(?:[.,]\d+)?)\s*s", hdr.get("Extract Notes", "Trial Info") or "")
-    header = hdr.flat()
+    header: dict = hdr.flat()
     header.update({
         # the vendor software notes the device clock's drift at extraction, e.g. "(device clock drift
         # -1.459s)"; reported here, not applied

@@ -22,7 +22,7 @@ import gzip
 import os
 import shutil
 from pathlib import Path
-from typing import Optional
+from typing import BinaryIO, Optional
 
 import numpy as np
 
@@ -123,7 +123,7 @@ class GeneactivWriter:
         self.samples_written = 0
         self._gz = self.path.suffix == ".gz"
         self._plain = self.path.with_name(self.path.name + ".part") if self._gz else self.path
-        self._f = None
+        self._f: Optional[BinaryIO] = None
         self._npages_pos: Optional[int] = None
         self._pending: list[tuple] = []  # (time_ns, accel, light, button, temp, batt) arrays
         self._pending_n = 0
@@ -172,11 +172,11 @@ class GeneactivWriter:
             return
         try:
             self._flush(final=True)
-            if self._f is None:
-                self._open(None)
-            self._f.seek(self._npages_pos)
-            self._f.write(str(self.pages_written).ljust(_NPAGES_WIDTH).encode())
-            self._f.close()
+            f = self._f if self._f is not None else self._open(None)
+            assert self._npages_pos is not None  # the header layout always has Number of Pages
+            f.seek(self._npages_pos)
+            f.write(str(self.pages_written).ljust(_NPAGES_WIDTH).encode())
+            f.close()
             if self._gz:
                 with open(self._plain, "rb") as src, gzip.open(self.path, "wb", compresslevel=6) as dst:
                     shutil.copyfileobj(src, dst, 1 << 20)
@@ -189,7 +189,7 @@ class GeneactivWriter:
         local = np.asarray(t_ns, np.int64) + self.timezone_offset_s * 10**9
         return (local + 500_000) // 1_000_000  # nearest ms
 
-    def _open(self, first_time_ns: Optional[int]) -> None:
+    def _open(self, first_time_ns: Optional[int]) -> BinaryIO:
         t = self.start_time if self.start_time is not None else first_time_ns
         start_text = format_time_ms(int(self._local_ms(np.array([t]))[0])) if t is not None \
             else "0000-00-00 00:00:00:000"
@@ -206,9 +206,10 @@ class GeneactivWriter:
                     value = value.ljust(_NPAGES_WIDTH)
                 out += f"{key}:{value}".encode("latin-1") + eol
             out += eol
-        self._f = open(self._plain, "wb")
-        self._f.write(bytes(out))
+        f = self._f = open(self._plain, "wb")
+        f.write(bytes(out))
         self._npages_pos = npages_pos
+        return f
 
     def _flush(self, final: bool) -> None:
         if not self._pending:
@@ -246,5 +247,6 @@ class GeneactivWriter:
             parts.append(head.replace("\n", eol.decode()).encode())
             parts.append(hexm[s:e].tobytes() + eol)
             self.pages_written += 1
+        assert self._f is not None  # opened by _flush before the first page
         self._f.write(b"".join(parts))
         self.samples_written += n

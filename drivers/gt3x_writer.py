@@ -21,7 +21,7 @@ from __future__ import annotations
 import json
 import struct
 import zipfile
-from typing import Optional
+from typing import BinaryIO, Optional
 
 import numpy as np
 
@@ -95,7 +95,7 @@ class Gt3xWriter:
         self.tz = int(timezone_s)
         self.idle_sleep = bool(idle_sleep)
         self.idle_after_s, self.idle_counts = int(idle_after_s), int(idle_counts)
-        self._f = open(path, "wb")
+        self._f: Optional[BinaryIO] = open(path, "wb")
         self._zip = zipfile.ZipFile(self._f, "w", zipfile.ZIP_STORED, allowZip64=True)
         self._log = self._zip.open(C.GT3X_LOG_MEMBER, "w", force_zip64=True)
         self._pending = np.zeros((0, 3), np.int32)  # samples of the last second seen, not written

@@ -132,7 +132,7 @@ def is_ax_port(p: PortInfo) -> bool:
             and device_id_of_serial(p.serial_number or "") is not None)
 
 
-def label_device(label: str) -> Optional[tuple[str, int]]:
+def label_device(label: Optional[str]) -> Optional[tuple[str, int]]:
     """``AX317_12345`` -> ("AX3", 12345); None if not an AX volume label."""
     m = _LABEL_RE.match(label or "")
     return (m.group(1).upper(), int(m.group(2))) if m else None
@@ -210,7 +210,7 @@ class LinuxBackend:
     """Linux: ports and drives from sysfs, paired through the USB device folder (``usb_linux``).
     ``mount`` mounts a present, unmounted drive (``mount.mount_block_device``)."""
 
-    def __init__(self, usb=None, mounter: Optional[Callable[[str], None]] = None):
+    def __init__(self, usb=None, mounter: Optional[Callable[[Optional[str]], None]] = None):
         from .usb_linux import LinuxUsb
         self.usb = usb or LinuxUsb()
         self.mounter = mounter
@@ -270,7 +270,7 @@ class MacBackend:
 
     def __init__(self, list_ports: Callable[[], list] = _pyserial_ports,
                  run: Callable[[list], str] = _run_text, volumes_dir: str = "/Volumes",
-                 root_of: Callable[[str], str] = str, mounter: Optional[Callable[[str], None]] = None):
+                 root_of: Callable[[str], str] = str, mounter: Optional[Callable[[Optional[str]], None]] = None):
         self.list_ports, self.run, self.volumes_dir, self.root_of = list_ports, run, volumes_dir, root_of
         self.mounter = mounter
         self.drive_error: Optional[str] = None
@@ -405,7 +405,7 @@ class CombinedBackend:
 
 # ----------------------------------------------------------------------------- pairing
 def _has_data(d: DriveInfo) -> bool:
-    return bool(d.files) and os.path.isfile(os.path.join(d.files, C.AX_DATA_FILE))
+    return d.files is not None and d.files != "" and os.path.isfile(os.path.join(d.files, C.AX_DATA_FILE))
 
 
 class OverrideError(StillpointError):

@@ -409,8 +409,8 @@ class EmulatedDevice:
             self._cancel_pending()
             for t in self._timers:
                 t.cancel()
-        for t in self._threads:
-            t.join(timeout=2)
+        for th in self._threads:
+            th.join(timeout=2)
         with self._lock:
             for p in (self._ejected(), self._unmounted()):
                 if p.is_dir() and not self.volume.exists():

@@ -135,7 +135,7 @@ class LinuxUsb:
             return []
         for e in entries:
             vid, pid = _hex(_read(e / "idVendor")), _hex(_read(e / "idProduct"))
-            if (vid, pid) != (C.AX_USB_VID, C.AX_USB_PID):
+            if vid is None or pid is None or (vid, pid) != (C.AX_USB_VID, C.AX_USB_PID):
                 continue
             real = self._real(e)
             if real is None:
@@ -177,7 +177,7 @@ class LinuxUsb:
         for disk in disks:
             real = self._real(disk)
             d = self._owner(real, devs)
-            if d is None:
+            if d is None or real is None:  # no owner without a real path
                 continue
             if labels is None:
                 labels = self._labels()

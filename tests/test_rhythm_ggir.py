@@ -134,3 +134,16 @@ def test_rhythm_table_from_process(tmp_path):
     assert 0 < float(r["is"]) <= 1 and float(r["iv"]) > 0
     assert 0 <= float(r["cosinor_acrophase_h"]) < 24 and float(r["ra_avday"]) > 0
     assert r["sri"] != "" and r["timezone"] == "+00:00", r
+
+
+def test_fragmentation_without_a_sleep_period_is_ggirs_empty_one():
+    """g.fragmentation "spt" on a series that is all missing (no sleep period): every NA its own
+    run, no fragments, TP (0 + 1e-6) / (0 + 1e-6) = 1 (R, GGIR 388064b7)."""
+    from stillpoint.engine.rhythm.series import fragmentation
+    n = 500
+    e = np.where(np.arange(n) % 40 < 20, 10.0, 150.0)
+    z = np.zeros(n, bool)
+    f = fragmentation(e, z, z, z, 5.0)
+    assert f["frag_nfrag_sleep_spt"] == 0 and f["frag_nfrag_in_spt"] == 0
+    assert f["frag_tp_in2pa_spt"] == 1.0 and f["frag_tp_sleep2wake_spt"] == 1.0
+    assert f["frag_nfrag_in2pa_day"] > 0

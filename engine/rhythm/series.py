@@ -139,7 +139,8 @@ def fragmentation(enmo_mg, invalid, sib, spt, epoch_s: float) -> dict:
                                                       "spt_wake_VIG")])
         pa = np.isin(lev, [names.index(c) for c in ("spt_wake_LIG", "spt_wake_MOD", "spt_wake_VIG")])
         missing = ~spt_b | (lev < 0)
-        if np.any(~missing):
-            sp = metrics.fragmentation_spt(pa, wake, missing)
-            out.update({frag_column(k, "spt"): v for k, v in sp.items()})
+        # as GGIR, also without any sleep period: no fragments, and GGIR's TP of (0 + 1e-6) /
+        # (0 + 1e-6) = 1
+        sp = metrics.fragmentation_spt(pa, wake, missing)
+        out.update({frag_column(k, "spt"): v for k, v in sp.items()})
     return out

@@ -14,7 +14,9 @@ are not clean left out) are then compared with GGIR's to show what imputation ch
 Each scenario is given waking activity (light, MVPA and running stretches: ``active_per_day``)
 and an afternoon of nonwear (``nonwear_days``) so every bout class and the imputation are used.
 ``--write``: also keep GGIR's figures as tests/data/ggir_part5/<scenario>.json (the fixtures of
-tests/test_timeuse_ggir.py).
+tests/test_timeuse_ggir.py). ``--real DIR``: also each real recording there through ``process``
+(UTC, sleep on; the rhythm crosscheck's ``real_series``): GGIR's part 5 on its epoch table's
+series against its windows table.
 """
 
 from __future__ import annotations
@@ -89,10 +91,12 @@ def compare(rows: list, theirs: list, t_ns, zone) -> tuple:
     windows paired by type, first epoch and length."""
     from stillpoint.engine.timeuse.windows import TIMEUSE_COLUMNS
     from stillpoint.engine.timezones import local_text
+    def val(v):
+        return None if v in (None, "") else float(v)
     lines, cols = [], {c: [0, 0, 0.0] for c in TIMEUSE_COLUMNS + ["nonwear_perc_day", "nonwear_perc_spt",
                                                                   "nonwear_perc_day_spt"]}
     for kind in ("WW", "MM", "OO"):
-        mine = {(x["start_local"], round(x["duration_h"] * 3600 / EPOCH_S)): x
+        mine = {(x["start_local"], round(float(x["duration_h"]) * 3600 / EPOCH_S)): x
                 for x in rows if x["window_type"] == kind}
         g = [x for x in theirs if x["type"] == kind]
         same = 0
@@ -103,7 +107,7 @@ def compare(rows: list, theirs: list, t_ns, zone) -> tuple:
                 continue
             same += 1
             for c, acc in cols.items():
-                a, b = m.get(c), _num(x.get(c))
+                a, b = val(m.get(c)), _num(x.get(c))
                 if a is None and b is None:
                     acc[0] += 1
                     acc[1] += 1
@@ -156,13 +160,35 @@ def _commit(ggir: Path) -> str:
     return r.stdout.strip()
 
 
+def real_check(ggir: Path, td: Path, real: Path) -> None:
+    """process on each real recording; GGIR's part 5 on its epoch table's series."""
+    import ggir_rhythm_fixtures as rf
+    for p in sorted(real.iterdir()):
+        if p.suffix not in (".cwa", ".bin", ".gz", ".gt3x"):
+            continue
+        got = rf.real_series(p, td)
+        if got is None:
+            print(f"{p.name}: not processed")
+            continue
+        s, sib, spt = got
+        ours = list(csv.DictReader(open(td / (p.name + ".windows.csv"))))
+        theirs = ggir_windows(ggir, td / "real.csv", "UTC", s.t_ns // 10**9, spt, s.enmo, sib, s.nonwear)
+        lines, cols = compare(ours, theirs, s.t_ns, s.zone)
+        print(f"{p.name} ({s.t_ns.shape[0]} epochs, {int(np.sum(spt))} in sleep periods): {len(theirs)} "
+              f"GGIR windows, {len(ours)} ours; " + "; ".join(lines) + f"; {summary(cols)}")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--ggir", type=Path, required=True)
     ap.add_argument("--only", default=None, help="one scenario by name")
     ap.add_argument("--write", action="store_true", help="keep GGIR's figures as the test fixtures")
+    ap.add_argument("--real", type=Path, help="folder of real recordings (printed, not stored)")
     a = ap.parse_args(argv)
+    sys.path.insert(0, str(HERE))
     with tempfile.TemporaryDirectory() as td:
+        if a.real:
+            real_check(a.ggir, Path(td), a.real)
         for name, spec in scenarios().items():
             if a.only and name != a.only:
                 continue

@@ -1,8 +1,10 @@
 """The rhythm table (``<stem>.rhythm.csv``): one row per recording, written at the end of the
 output pass. ``RhythmTap.push`` is given the epoch rows in order (with their ``spt`` / ``sib``
-flags when sleep is on) and keeps each epoch's start, ENMO, validity and sleep flags in a
-temporary file (19 bytes an epoch); ``close`` reads them back once (about 3.4 MB for a week of 5 s
-epochs, 15 MB for 30 days; the windows table is computed from the same read), computes ``series.rhythm_row`` and writes the table."""
+flags when sleep is on) and keeps each epoch's start, ENMO, MAD, counts, validity and sleep flags
+in a temporary file (44 bytes an epoch: about 5.3 MB for a week of 5 s epochs, 23 MB for 30
+days); ``close`` reads them back once (the windows table is computed from the same read),
+computes ``series.rhythm_row`` and writes the table. Memory against length:
+tools/benchmarks/bench_rhythm_memory.py."""
 
 from __future__ import annotations
 

@@ -9,7 +9,8 @@ from pathlib import Path
 from stillpoint.engine.run import RunSettings, process_file
 from stillpoint.engine.run.summary import RunSummary, docs_table
 
-ROOT = Path(__file__).resolve().parents[1]
+# the repository's root: the folder above this test that holds pyproject.toml
+ROOT = next(p for p in Path(__file__).resolve().parents if (p / "pyproject.toml").is_file())
 sys.path.insert(0, str(ROOT / "tools"))
 
 import summary_docs  # noqa: E402  (tools/summary_docs.py: the page's table between its markers)

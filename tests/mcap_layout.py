@@ -157,7 +157,7 @@ def check_layout(path) -> dict:
             if ucrc:
                 assert zlib.crc32(raw) == ucrc, f"Chunk at {at}: CRC mismatch"
             per_channel: dict[int, list] = {}
-            for iop, ia, ib, iat in _records(raw, 0, len(raw)):
+            for iop, ia, _ib, iat in _records(raw, 0, len(raw)):
                 assert iop in (0x03, 0x04, 0x05), f"Chunk at {at}: record {iop:#x} inside a chunk"
                 r2 = _R(raw, ia)
                 if iop == 0x05:
@@ -220,7 +220,7 @@ def check_layout(path) -> dict:
         groups.setdefault(op, []).append((a, b, at))
     # summary offsets: one per group, covering it exactly
     offs = {}
-    for op, a, b, at in _records(buf, summary_offset_start, foot):
+    for op, a, _b, _at in _records(buf, summary_offset_start, foot):
         assert op == 0x0E, "a non-Summary-Offset record after the summary offset start"
         gop, gstart, glen = struct.unpack_from("<BQQ", buf, a)
         offs[gop] = (gstart, glen)
@@ -257,7 +257,7 @@ def check_layout(path) -> dict:
     st = groups.get(0x0B)
     assert st and len(st) == 1, "no (or several) Statistics record"
     r = _R(buf, st[0][0])
-    mc, sc, cc, ac, mdc, chc, s0, s1 = (r.u64(), r.u16(), r.u32(), r.u32(), r.u32(), r.u32(),
+    mc, sc, cc, _ac, mdc, chc, s0, s1 = (r.u64(), r.u16(), r.u32(), r.u32(), r.u32(), r.u32(),
                                         r.u64(), r.u64())
     n = r.u32()
     per = {}
@@ -272,18 +272,18 @@ def check_layout(path) -> dict:
     if counts:
         assert (s0, s1) == (t_min, t_max), "Statistics time range"
     # schema / channel copies
-    for a, b, at in groups.get(0x03, []):
+    for a, _b, _at in groups.get(0x03, []):
         r = _R(buf, a)
         sid = r.u16()
         assert schemas.get(sid) == (r.str(), r.str(), r.bytes32()), f"summary Schema {sid}"
-    for a, b, at in groups.get(0x04, []):
+    for a, _b, _at in groups.get(0x04, []):
         r = _R(buf, a)
         cid, sid = r.u16(), r.u16()
         assert channels.get(cid) == (sid, r.str(), r.str()), f"summary Channel {cid}"
     assert len(groups.get(0x04, [])) == len(channels), "summary lacks Channel records"
     # metadata indexes
     mis = []
-    for a, b, at in groups.get(0x0D, []):
+    for a, _b, _at in groups.get(0x0D, []):
         r = _R(buf, a)
         mis.append((r.u64(), r.u64(), r.str()))
     assert sorted(mis) == sorted(metadata), "Metadata Index records do not match the Metadata"

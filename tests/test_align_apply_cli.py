@@ -134,7 +134,7 @@ def test_cli_aligns_cwa_files_and_writes_json_mcap_and_plot(cwa_pair, tmp_path, 
     t, a = read_aligned(out)
     assert t.size > 0.9 * 0.75 * 86400 * 25
     # the aligned other stream lines up with the reference: same movement at the same time
-    ref_t, ref_m, oth_m = [], [], []
+    ref_t, ref_m = [], []
     from stillpoint.drivers import open_recording
     for b in open_recording(ref):
         ref_t.append(b.time_ns)

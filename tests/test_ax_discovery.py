@@ -215,7 +215,7 @@ def test_usbstor_instance_ids():
 
 
 def test_windows_pairs_drive_letters_by_usb_serial(tmp_path):
-    for letter, name in (("E", "E"), ("F", "F"), ("G", "G"), ("H", "H")):
+    for _letter, name in (("E", "E"), ("F", "F"), ("G", "G"), ("H", "H")):
         _drive(tmp_path, name)
     ran = []
 

@@ -24,7 +24,7 @@ def reference_icp(mean, temp, max_iter=1000, tol=1e-10):
     o, s, to = np.zeros(3), np.ones(3), np.zeros(3)
     w = np.ones(n)
     prev = np.inf
-    for it in range(1, max_iter + 1):
+    for it in range(1, max_iter + 1):  # noqa: B007 - the last iteration count is returned
         curr = (mean + o) * s + (0 if tc is None else tc[:, None] * to)
         closest = curr / np.linalg.norm(curr, axis=1, keepdims=True)
         new = np.empty_like(curr)

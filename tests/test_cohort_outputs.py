@@ -42,7 +42,7 @@ def test_summary_has_wear_valid_days_and_clean_epoch_means(cohort):
     d, out = cohort
     rows = {r["file"].rsplit("/", 1)[-1]: r for r in _rows(out / "cohort_summary.csv")}
     assert set(rows) == {"sat.cwa", "mon.cwa", "ldn.cwa"}
-    for name, r in rows.items():
+    for r in rows.values():
         day_all = [x for x in _rows(r["days"]) if x["date"] == "all"][0]
         assert r["wear_time_h"] != "" and float(r["wear_time_h"]) == pytest.approx(
             float(day_all["wear_hours"]), abs=1e-3)

@@ -15,7 +15,7 @@ import struct
 import numpy as np
 import pytest
 
-from stillpoint.drivers.cwa import CwaReader, read_header
+from stillpoint.drivers.cwa import read_header
 
 from cwa_helpers import qc_reasons, read_all
 

@@ -13,7 +13,7 @@ from stillpoint.drivers import open_recording
 from stillpoint.drivers.cwa import CwaReader, CwaWriter, read_header, read_sector
 from stillpoint.engine.core.source import Source
 
-from cwa_helpers import T0_NS, qc_reasons, read_all, synth
+from cwa_helpers import qc_reasons, read_all, synth
 
 RES_NS = 1e9 / 32768  # anchor resolution
 

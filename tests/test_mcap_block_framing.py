@@ -5,7 +5,6 @@ same chunk cuts (also when the chunk size, not the chunk span, ends chunks)."""
 from __future__ import annotations
 
 import gzip
-import os
 import shutil
 from pathlib import Path
 

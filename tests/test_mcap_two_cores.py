@@ -14,8 +14,7 @@ import pytest
 from mcap.reader import make_reader
 
 import stillpoint.engine.mcap.sink as sink_mod
-from stillpoint.drivers.errors import StillpointError
-from stillpoint.drivers.outputs import OutputError
+from stillpoint.engine.core.errors import StillpointError
 from stillpoint.engine.core.prefetch import CORES_ENV, cores_available
 from stillpoint.engine.recover import recover
 from stillpoint.engine.run import RunSettings, process_file
@@ -209,7 +208,7 @@ def test_worker_runs_calls_in_order_and_hands_back_the_first_error():
     def fail():
         raise boom
     w.submit(fail)
-    for i in range(5):  # dropped, and the caller never blocks on a full queue
+    for _ in range(5):  # dropped, and the caller never blocks on a full queue
         try:
             w.submit(done.append, -1)
         except ValueError as e:

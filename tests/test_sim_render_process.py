@@ -121,7 +121,7 @@ def test_leaving_early_stops_the_child(shared_files):
     sim = _sim()
     gen = render_process.rendered(sim, parent_starts=False)
     procs = []
-    for k, r in gen:
+    for k, _r in gen:
         if k == 12:
             break
     frame = gen.gi_frame

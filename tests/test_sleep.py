@@ -20,8 +20,8 @@ def _rows(s, a, b):
                      z * 0.0, s.nonwear[a:b], z.copy(), z.copy(), z.copy(), z.copy())
 
 
-def _run(s, options=SleepOptions(), chunk=1000, watch=None):
-    st = SleepStage(s.zone, 5.0, options)
+def _run(s, options=None, chunk=1000, watch=None):
+    st = SleepStage(s.zone, 5.0, options or SleepOptions())
     out = []
     for a in range(0, s.t_ns.shape[0], chunk):
         out += st.push(_rows(s, a, min(a + chunk, s.t_ns.shape[0])))

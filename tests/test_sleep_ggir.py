@@ -78,8 +78,8 @@ def test_every_hdcza_window_identical(name):
         assert est.threshold == pytest.approx(c["threshold"], rel=1e-12, abs=0)
 
 
-def _stage(s, options=SleepOptions(), chunk=997):
-    st = SleepStage(s.zone, 5.0, options)
+def _stage(s, options=None, chunk=997):
+    st = SleepStage(s.zone, 5.0, options or SleepOptions())
     n = s.t_ns.shape[0]
     out = []
     for a in range(0, n, chunk):

@@ -242,7 +242,7 @@ def _signal():
 def test_anglez_is_ggirs_definition():
     t, a = _signal()
     s, n, v = _anglez_run(t, a, [])
-    step, k, h = 5, 51, 25  # 50 Hz -> every 5th sample (10 Hz), 5 s median = 51 subsamples
+    step, _k, h = 5, 51, 25  # 50 Hz -> every 5th sample (10 Hz), 5 s median = 51 subsamples
     sub = a[::step]
     med = np.array([np.median(sub[q - h:q + h + 1], axis=0) if h <= q < len(sub) - h else [np.nan] * 3
                     for q in range(len(sub))])

@@ -1,6 +1,9 @@
-"""Helpers shared by the .cwa tests: read a whole (small) file into arrays, make synthetic data."""
+"""Helpers shared by the .cwa tests: read a whole (small) file into arrays, make synthetic data,
+write a damaged file."""
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import numpy as np
 
@@ -44,3 +47,23 @@ def synth(n, *, rate=100.0, drift=0.991, start_ns=T0_NS, seed=0, multiple=4, lim
 
 def qc_reasons(reader):
     return [(e.index, e.reason) for e in reader.qc.events]
+
+
+def damaged_cwa(path, seed: int):
+    """A packed 100 Hz .cwa of 400 sectors with 25 single-bit flips in sector checksums and
+    headers (a seeded choice): readers log each as QC and go on."""
+    from stillpoint.drivers.cwa_writer import CwaWriter
+    rng = np.random.default_rng(seed)
+    n = 120 * 400
+    t = 1_700_000_000_000_000_000 + np.rint(np.arange(n) * 1e7).astype(np.int64)
+    a = (np.sin(np.arange(n)[:, None] / 50.0 + np.arange(3)) * 400).astype(np.int64) + rng.integers(-8, 9, (n, 3))
+    w = CwaWriter(path, rate_hz=100, packed=True)
+    w.write(t, a)
+    w.close()
+    path = Path(path)
+    data = bytearray(path.read_bytes())
+    for s in rng.choice(np.arange(2, 390), 25, replace=False):  # checksum / header damage
+        i = 1024 + int(s) * 512 + int(rng.integers(0, 512))
+        data[i] ^= 1 << int(rng.integers(0, 8))
+    path.write_bytes(bytes(data))
+    return path

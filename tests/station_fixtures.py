@@ -1,10 +1,13 @@
 """Fixtures for the station tests: emulated devices in this process (axemu:// ports), each test
 with its own runtime registry and calibration store, short simulated recordings; the study profile the station tests
-configure with (the kill trials' own); waiting for an emulated drive to come back."""
+configure with (the kill trials' own); waiting for an emulated drive to come back, or for a
+condition; one HTTP request to a running dashboard."""
 
 from __future__ import annotations
 
+import http.client
 import time
+import urllib.parse
 
 import pytest
 
@@ -58,3 +61,29 @@ def emu(tmp_path, runtime):
     yield make
     for d in made:
         d.shutdown()
+
+
+def request(dash, method, path, body=None, headers=None):
+    """One HTTP request to a running dashboard: (status, headers, body text); ``body`` a form."""
+    host, port = dash.httpd.server_address[:2]
+    c = http.client.HTTPConnection("127.0.0.1" if host == "0.0.0.0" else host, port, timeout=10)
+    h = dict(headers or {})
+    if body is not None:
+        body = urllib.parse.urlencode(body)
+        h["Content-Type"] = "application/x-www-form-urlencoded"
+    c.request(method, path, body=body, headers=h)
+    r = c.getresponse()
+    data = r.read()
+    c.close()
+    return r.status, dict(r.getheaders()), data.decode("utf-8", "replace")
+
+
+def wait(cond, timeout=20.0, what="condition"):
+    """``cond()``'s first true value, polled every 50 ms; fails after ``timeout`` seconds."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        v = cond()
+        if v:
+            return v
+        time.sleep(0.05)
+    raise AssertionError(f"timed out waiting for {what}")

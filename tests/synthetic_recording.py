@@ -18,6 +18,12 @@ BIAS_G = np.array([0.035, -0.025, 0.060])
 TEMP_COEF_G_PER_C = np.array([0.0008, -0.0005, 0.0010])
 T_REF_C = 25.0
 NOISE_G = 0.004
+
+# the simulator's ``effects`` of a device with sensor errors of tens of mg (offsets) and percent
+# (gains): uncorrected, a day's ENMO is off by far more than 3 %
+SENSOR_ERRORS = {"offset": {"x_mg": 60.0, "y_mg": -45.0, "z_mg": 70.0},
+                 "gain": {"x_pct": 1.5, "y_pct": -1.2, "z_pct": 2.0}, "noise": {}}
+
 RATE_HZ = 50.0
 HOURS = 30.0
 

@@ -101,3 +101,24 @@ def test_store_rule():
     static = _fit("ok")
     static.method = STATIC_METHOD
     assert "six-orientation" in store_refusal(static)
+
+
+def test_explanation_names_the_rate_and_only_explains_a_missing_still_window():
+    est = _fit("no_nonmovement")
+    CalibrationOutcome(est).explain(0.030, 0.013, rate_hz=12.5)
+    assert "SD of 30.0 mg" in est.reason and "13 mg threshold" in est.reason
+    assert "noise at 12.5 Hz" in est.reason and est.extra["quietest_window_sd_mg"] == 30.0
+    for status, sd in (("no_nonmovement", float("nan")), ("ok", 0.030), ("failed", 0.030)):
+        other = _fit(status)
+        CalibrationOutcome(other).explain(sd, 0.013, rate_hz=12.5)
+        assert other.reason == f"{status}: a reason" and "quietest_window_sd_mg" not in other.extra
+
+
+def test_a_log_without_a_record_reports_the_identity_not_applied():
+    o = CalibrationOutcome.from_record({})
+    assert o.status == "identity" and o.table_status == "identity" and not o.applied
+    assert o.estimate.reason == "no calibration record"
+    assert o.qc_event() == {"source": "engine", "reason": "calibration", "status": "identity",
+                            "applied": False, "method": o.estimate.method,
+                            "detail": "no calibration record"}
+    np.testing.assert_array_equal(o.summary()["scale"], [1.0, 1.0, 1.0])

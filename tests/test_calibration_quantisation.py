@@ -210,8 +210,8 @@ def test_a_batch_run_lets_the_tables_go_after_its_fit(tmp_path):
     """Pass 2 fits nothing: the tables (~1 MB) are not held through it."""
     from stillpoint.engine.calibration.quantisation import _tables
     from stillpoint.engine.run import RunSettings, process_file
-    from test_prefetch import _damaged_cwa
-    src = _damaged_cwa(tmp_path / "d.cwa", 3)
+    from cwa_helpers import damaged_cwa
+    src = damaged_cwa(tmp_path / "d.cwa", 3)
     _tables()
     assert _tables.cache_info().currsize == 1
     process_file(src, tmp_path / "out.mcap", RunSettings(mode="batch", chunk_hours=0.25, first_hours=0.25))

@@ -20,21 +20,7 @@ from stillpoint.engine.station.station import Station
 from stillpoint.engine.station.web import Dashboard
 from stillpoint.tools.cli import main
 
-from station_fixtures import emu, runtime  # noqa: F401
-
-
-def request(dash, method, path, body=None, headers=None):
-    host, port = dash.httpd.server_address[:2]
-    c = http.client.HTTPConnection("127.0.0.1" if host == "0.0.0.0" else host, port, timeout=10)
-    h = dict(headers or {})
-    if body is not None:
-        body = urllib.parse.urlencode(body)
-        h["Content-Type"] = "application/x-www-form-urlencoded"
-    c.request(method, path, body=body, headers=h)
-    r = c.getresponse()
-    data = r.read()
-    c.close()
-    return r.status, dict(r.getheaders()), data.decode("utf-8", "replace")
+from station_fixtures import emu, request, runtime, wait  # noqa: F401
 
 
 def actions(out):
@@ -44,16 +30,6 @@ def actions(out):
                           "actions ORDER BY id").fetchall()
     finally:
         db.close()
-
-
-def wait(cond, timeout=20.0, what="condition"):
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        v = cond()
-        if v:
-            return v
-        time.sleep(0.05)
-    raise AssertionError(f"timed out waiting for {what}")
 
 
 @pytest.fixture

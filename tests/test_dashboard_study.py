@@ -19,8 +19,7 @@ from stillpoint.engine.station.study import StudyRecordError, check_template, do
 from stillpoint.engine.station.web import Dashboard
 from stillpoint.engine.station.web.records import Records
 
-from station_fixtures import emu, runtime  # noqa: F401
-from test_dashboard_http import request, wait
+from station_fixtures import emu, request, runtime, wait  # noqa: F401
 
 TEMPLATE = "{study}_{subject}_{device}_{session}"
 

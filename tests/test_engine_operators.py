@@ -11,7 +11,7 @@ from stillpoint.engine.operators.correction import CorrectedBatch, CorrectionOpe
 from stillpoint.engine.operators.filters import SosStream, band_used, bandpass_sos
 from stillpoint.engine.operators.metrics import EpochMetrics, MetricsOperator
 
-from test_engine_core import RATE, recut, run_op, synth_segments
+from synthetic_blocks import RATE, recut, run_op, synth_segments
 
 EST = CalibrationEstimate(offset=[-0.02, 0.03, -0.05], scale=[0.99, 1.01, 1.0],
                           tempoffset=[0.001, -0.0005, 0.002], temperature_ref=26.0, status="ok")

@@ -11,7 +11,7 @@ from stillpoint.engine.operators.correction import CorrectedBatch, TemperatureIn
 from stillpoint.engine.operators.windows import WindowFeaturesOperator
 from stillpoint.engine.core.pipeline import Pipeline, split_block
 
-from test_engine_core import RATE, assert_features_equal, run_op, synth_segments
+from synthetic_blocks import RATE, assert_features_equal, run_op, synth_segments
 
 
 class ListSource:

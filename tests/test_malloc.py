@@ -42,14 +42,14 @@ print(ok, before - rss())
 
 def test_pass_two_trims_every_few_steps(tmp_path, monkeypatch):
     from stillpoint.engine.run import output, tuning
-    from test_prefetch import _damaged_cwa
+    from cwa_helpers import damaged_cwa
     calls = []
     monkeypatch.setattr(output, "trim", lambda: calls.append(1) or True)
     monkeypatch.setattr(tuning, "TRIM_EVERY_STEPS", 2)
     steps = []
     orig = output.OutputStage.push
     monkeypatch.setattr(output.OutputStage, "push", lambda self, b: (steps.append(1), orig(self, b))[1])
-    src = _damaged_cwa(tmp_path / "damaged.cwa", 7)
+    src = damaged_cwa(tmp_path / "damaged.cwa", 7)
     for mode in ("batch", "online"):
         calls.clear()
         steps.clear()

@@ -9,12 +9,13 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from stillpoint.engine.core.blocks import QCEvent, QCReport
 from stillpoint.engine.core.prefetch import Prefetched
 from stillpoint.engine.run import RunSettings, process_file
+
+from cwa_helpers import damaged_cwa
 
 
 class _Source:
@@ -109,23 +110,6 @@ def test_single_pass():
         list(pre)
 
 
-def _damaged_cwa(path: Path, seed: int) -> Path:
-    from stillpoint.drivers.cwa_writer import CwaWriter
-    rng = np.random.default_rng(seed)
-    n = 120 * 400
-    t = 1_700_000_000_000_000_000 + np.rint(np.arange(n) * 1e7).astype(np.int64)
-    a = (np.sin(np.arange(n)[:, None] / 50.0 + np.arange(3)) * 400).astype(np.int64) + rng.integers(-8, 9, (n, 3))
-    w = CwaWriter(path, rate_hz=100, packed=True)
-    w.write(t, a)
-    w.close()
-    data = bytearray(path.read_bytes())
-    for s in rng.choice(np.arange(2, 390), 25, replace=False):  # checksum / header damage
-        i = 1024 + int(s) * 512 + int(rng.integers(0, 512))
-        data[i] ^= 1 << int(rng.integers(0, 8))
-    path.write_bytes(bytes(data))
-    return path
-
-
 def _run(src: Path, where: Path, mode: str, prefetch: bool, monkeypatch, **kw) -> bytes:
     """The MCAP of one run, written under a relative name (the summary records the name)."""
     from stillpoint.engine.tables import TablesSettings
@@ -140,7 +124,7 @@ def _run(src: Path, where: Path, mode: str, prefetch: bool, monkeypatch, **kw) -
 
 @pytest.mark.parametrize("mode", ["batch", "online"])
 def test_logs_are_the_same_with_and_without_the_thread(tmp_path, monkeypatch, mode):
-    src = _damaged_cwa(tmp_path / "damaged.cwa", 7)
+    src = damaged_cwa(tmp_path / "damaged.cwa", 7)
     opts = {"source_options": {"batch_sectors": 3}}  # many blocks, QC events between them
     a = _run(src, tmp_path / "off", mode, False, monkeypatch, **opts)
     b = _run(src, tmp_path / "on", mode, True, monkeypatch, **opts)
@@ -188,6 +172,6 @@ def test_the_thread_by_default_reads_for_batch_runs_on_more_than_one_core(
 
     monkeypatch.setattr(inputs, "Prefetched", Spy)
     monkeypatch.setattr(job, "cores_available", lambda: cores)
-    src = _damaged_cwa(tmp_path / "damaged.cwa", 3)
+    src = damaged_cwa(tmp_path / "damaged.cwa", 3)
     process_file(src, tmp_path / "out.mcap", RunSettings(mode=mode, chunk_hours=0.25, first_hours=0.25))
     assert bool(made) == used

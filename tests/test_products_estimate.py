@@ -19,10 +19,8 @@ from stillpoint.engine.calibration.estimate import (CalibrationEstimate, SOURCE_
 from stillpoint.engine.sim.record import simulate_recording
 from stillpoint.tools.cli import main
 
-# sensor errors of tens of mg (offsets) and percent (gains): uncorrected, a day's ENMO is off by far
-# more than 3 %
-SENSOR_ERRORS = {"offset": {"x_mg": 60.0, "y_mg": -45.0, "z_mg": 70.0},
-                 "gain": {"x_pct": 1.5, "y_pct": -1.2, "z_pct": 2.0}, "noise": {}}
+from synthetic_recording import SENSOR_ERRORS
+
 
 
 def day_enmo(path) -> dict:

@@ -24,7 +24,7 @@ from stillpoint.engine.timezones import host_zone
 from stillpoint.tools.cli import main
 
 from station_fixtures import emu, runtime  # noqa: F401
-from test_products_estimate import SENSOR_ERRORS
+from synthetic_recording import SENSOR_ERRORS
 
 ZONE = "Europe/London"
 

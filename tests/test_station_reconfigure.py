@@ -15,8 +15,7 @@ from stillpoint.engine.station.web import Dashboard
 from stillpoint.engine.station.web.records import Records
 from stillpoint.tools.cli import main
 
-from station_fixtures import STUDY_PROFILE, emu, runtime  # noqa: F401
-from test_dashboard_http import request, wait
+from station_fixtures import STUDY_PROFILE, emu, request, runtime, wait  # noqa: F401
 
 
 def _post(dash, action, key, **form):

@@ -781,9 +781,10 @@ class Gt3xReader:
 
         def add_seconds(secs, kind, payload, idx0):
             """Append whole seconds (secs (k,); payload rows (k, S), None for idle sleep),
-            splitting segments where the seconds are not consecutive."""
+            splitting segments where the seconds are not consecutive; yields each block as soon
+            as it holds ``batch_seconds`` seconds (a long run is cut to that size, so a block
+            never holds more, however long the run)."""
             nonlocal segment
-            out = []
             secs = np.asarray(secs, np.int64)
             k = secs.shape[0]
             # breaks inside this run: non-consecutive seconds
@@ -815,25 +816,27 @@ class Gt3xReader:
                                 "a new segment starts", time_s=s0)
                     fb = flush()
                     if fb is not None:
-                        out.append(fb)
+                        yield fb
                     segment += 1
-                acc["runs"].append((secs[a:b], kind, None if payload is None else payload[a:b],
-                                    -1 if idx0 < 0 else idx0 + a, st.lux, st.battery))
-                acc["n"] += b - a
-                st.last_sec = int(secs[b - 1])
-                if self.first_local_s is None:
-                    self.first_local_s = int(secs[a])
-                self.last_local_s = st.last_sec
-                if acc["n"] >= self.batch_seconds:
-                    fb = flush()
-                    if fb is not None:
-                        out.append(fb)
-            return out
+                while a < b:
+                    c = min(b, a + max(1, self.batch_seconds - acc["n"]))
+                    acc["runs"].append((secs[a:c], kind, None if payload is None else payload[a:c],
+                                        -1 if idx0 < 0 else idx0 + a, st.lux, st.battery))
+                    acc["n"] += c - a
+                    st.last_sec = int(secs[c - 1])
+                    if self.first_local_s is None:
+                        self.first_local_s = int(secs[a])
+                    self.last_local_s = st.last_sec
+                    if acc["n"] >= self.batch_seconds:
+                        fb = flush()
+                        if fb is not None:
+                            yield fb
+                    a = c
 
         def fill_idle(until_s: int):
             """Idle-sleep seconds from the last returned one up to ``until_s`` (exclusive)."""
             if st.last_sec is None or until_s <= st.last_sec + 1:
-                return []
+                return
             secs = np.arange(st.last_sec + 1, until_s, dtype=np.int64)
             self.idle_sleep_s += secs.shape[0]
             self.idle_periods.append((int(secs[0]), int(secs.shape[0])))
@@ -846,8 +849,8 @@ class Gt3xReader:
                                 ("the device's last sample is repeated" if self.fill_idle_sleep
                                  else "left out")))
             if not self.fill_idle_sleep:
-                return []
-            return add_seconds(secs, "fill", None, -1)
+                return
+            yield from add_seconds(secs, "fill", None, -1)
 
         def activity(secs, payloads, typ, idx0):
             """k activity records (payloads (k, S)), decoded when their block is made."""
@@ -862,16 +865,14 @@ class Gt3xReader:
                                 "(logged once); samples beyond the rate are dropped, missing ones "
                                 "repeat the record's last", time_s=int(secs[0]))
                 if n == 0:
-                    return []
-            out = []
+                    return
             if st.idle_since is not None or st.idle_until is not None:
                 # an idle-sleep period ended (or is still marked): fill up to the exit event, or
                 # up to this record when the exit event is missing
                 end = int(secs[0]) if st.idle_until is None else min(st.idle_until, int(secs[0]))
-                out += fill_idle(end)
+                yield from fill_idle(end)
                 st.idle_since = st.idle_until = None
-            out += add_seconds(secs, kind, payloads, idx0)
-            return out
+            yield from add_seconds(secs, kind, payloads, idx0)
 
         def more() -> bool:
             nonlocal buf, pos, eof

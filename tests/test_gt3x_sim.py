@@ -72,6 +72,22 @@ def test_writer_round_trip_with_idle_sleep(tmp_path):
     assert src.qc.segments == 1
 
 
+def test_blocks_never_exceed_batch_seconds_however_long_the_idle_sleep(tmp_path):
+    """An idle-sleep period is filled in blocks of at most ``batch_seconds`` (a period of 97 days
+    after one corrupt record time once asked for 2.8 GiB in one block); the same samples as one
+    read in large blocks."""
+    counts = _signal(3000, [(0, 100), (2900, 2950)])
+    _write(tmp_path / "w.gt3x", counts)
+    with Gt3xReader(tmp_path / "w.gt3x", batch_seconds=60) as src:
+        blocks = list(src)
+    assert max(b.n for b in blocks) <= 60 * RATE and len(blocks) >= 3000 // 60
+    _, whole = _read(tmp_path / "w.gt3x")
+    small = Block.concat(blocks)
+    assert np.array_equal(small.time_ns, whole.time_ns) and np.array_equal(small.accel, whole.accel)
+    assert np.array_equal(small.per_sample[PER_SAMPLE_IDLE_SLEEP], whole.per_sample[PER_SAMPLE_IDLE_SLEEP])
+    assert small.per_sample[PER_SAMPLE_IDLE_SLEEP].sum() > 2700 * RATE
+
+
 def test_idle_sleep_never_enters_the_calibration_windows(tmp_path):
     counts = _signal(400, [(0, 100), (200, 250)])
     _write(tmp_path / "w.gt3x", counts)

@@ -201,3 +201,17 @@ def test_column_helpers_are_bit_identical_to_the_broadcast_forms():
     temp[7] = np.nan  # no temperature term: NaN temperatures do not reach the output
     est0 = CalibrationEstimate(offset=[0.01, 0, 0], scale=[1, 1, 1], tempoffset=[0, 0, 0])
     assert np.isfinite(apply_columns(est0, g, temp)).all()
+
+
+def test_every_operator_is_a_pipeline_operator():
+    import importlib
+    import pkgutil
+
+    import stillpoint.engine.operators as ops
+    from stillpoint.engine.core.pipeline import Operator
+    found = [cls for m in pkgutil.iter_modules(ops.__path__)
+             for name, cls in vars(importlib.import_module(f"{ops.__name__}.{m.name}")).items()
+             if name.endswith("Operator") and isinstance(cls, type)
+             and cls.__module__.startswith(ops.__name__)]
+    assert len(found) >= 8
+    assert [c.__name__ for c in found if not issubclass(c, Operator)] == []

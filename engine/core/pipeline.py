@@ -13,11 +13,28 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Callable, Iterable, Optional
+from typing import Any, Callable, Iterable, Optional, Protocol, runtime_checkable
 
 import numpy as np
 
 from .blocks import Block
+
+
+@runtime_checkable
+class Operator(Protocol):
+    """An incremental, stateful stage of the pipeline (every class in engine/operators/ is one).
+
+    ``push(item) -> outputs`` consumes one input item (a Block, a corrected batch, a feature
+    table) and returns whatever became final because of it; ``flush() -> outputs`` returns what
+    is still pending at the end of the stream. The invariant every operator keeps (and is
+    property-tested for): the concatenated outputs do not depend on how the input stream was cut
+    into items."""
+
+    def push(self, item: Any) -> Any:
+        """Consume one item; return the outputs it made final."""
+
+    def flush(self) -> Any:
+        """Return what is still pending at the end of the stream."""
 
 
 @dataclass
@@ -63,7 +80,7 @@ def split_block(block: Block, max_samples: Optional[int]) -> list[Block]:
 
 class Pipeline:
     """A source pushed through a chain of stages, block by block (see the module docstring)."""
-    def __init__(self, source, stages: Iterable, *, rate_hz: float,
+    def __init__(self, source, stages: Iterable[Operator], *, rate_hz: float,
                  max_block_s: Optional[float] = 10.0):
         """``max_block_s``: blocks longer than this (data time) are cut into pieces; None: the
         source's blocks as they come (blocks timed by a sample clock cannot be cut)."""

@@ -1,24 +1,14 @@
-"""The Operator protocol: an incremental, stateful stage of the pipeline.
-
-``push(item) -> outputs`` consumes one input item (a Block, a corrected batch, a feature table)
-and returns whatever became final because of it; ``flush() -> outputs`` returns what is still
-pending at the end of the stream. The invariant every operator keeps (and is property-tested
-for): the concatenated outputs do not depend on how the input stream was cut into items.
+"""What the pipeline's operators share: ring sizes (``ring_capacity``) and the column-wise
+(n, 3) maths. The protocol every operator follows (``push``/``flush``, outputs independent of
+how the input was cut) is ``Operator`` in engine/core/pipeline.py.
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
+from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     import numpy as np
-
-
-@runtime_checkable
-class Operator(Protocol):
-    def push(self, item: Any) -> Any: ...
-
-    def flush(self) -> Any: ...
 
 
 def ring_capacity(width_s: float, rate_hz: float, minimum: int = 4096) -> int:
@@ -27,8 +17,8 @@ def ring_capacity(width_s: float, rate_hz: float, minimum: int = 4096) -> int:
 
 
 # ---------------------------------------------------------------------------- (n, 3) maths
-# numpy broadcasts an (n, 3) array against a (3,) vector with an inner loop of length 3, ~8x
-# slower than three strided column loops; these helpers do the same element-wise operations, in
+# numpy broadcasts an (n, 3) array against a (3,) vector with an inner loop of length 3, much
+# slower than three strided column loops (docs/performance.md#code-figures); these helpers do the same element-wise operations, in
 # the same order, column by column (results are bit-identical to the broadcast forms) into a
 # (3, n) array whose transpose, an (n, 3) view, is returned.
 

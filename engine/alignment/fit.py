@@ -722,9 +722,8 @@ def fit_robust(blocks: Sequence[BlockLag], rate: float,
     # the final model: the clock (line, steps, temperature) plus the weak peaks' bias, a term
     # in each block's noise-to-signal ratio (1 - rho^2) / rho^2 (the inverse of its weight).
     # On simulated wrist/hip wear the lags of weak peaks are biased, and the bias grows as the
-    # peak weakens (20 pairs, 3 days: -30 to +50 ms in the 0.4-0.7 bands, 2-10 ms at >= 0.9,
-    # one sign for a pair, the other sign in the next; movement only one site makes can pull a
-    # weak peak either way). The sign and size are the pair's own, so no weighting or
+    # peak weakens, one sign for a pair, the other sign in the next (docs/performance.md#code-figures;
+    # movement only one site makes can pull a weak peak either way). The sign and size are the pair's own, so no weighting or
     # fixed correction removes it; its coefficient is estimated with the clock, and the clock
     # is the lag at a noise-free peak (ratio 0). Its uncertainty is in the clock's intervals.
     nsr = 1.0 / w

@@ -38,7 +38,8 @@ def normalized_xcorr(ref: np.ndarray, other_ext: np.ndarray, max_lag: int,
         raise ValueError("other_ext must be len(ref) + 2*max_lag long")
     r = ref - ref.mean() if centred else ref
     if L <= 64:  # few lags (the fine stage): direct dot products beat an FFT of 2n
-        # (not np.dot: a multithreaded BLAS dot is ~100x slower on a loaded machine)
+        # (not np.dot: a multithreaded BLAS dot is far slower on a loaded machine;
+        # docs/performance.md#code-figures)
         num = np.array([(other_ext[j:j + n] * r).sum() for j in range(L)])
     else:
         num = correlate_valid(other_ext, r)  # scipy.signal.correlate(..., "valid", method="fft")

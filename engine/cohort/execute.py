@@ -260,9 +260,9 @@ class _Dask:
             import logging
             # No MALLOC_TRIM_THRESHOLD_ for the workers (Dask's nanny sets 64 KiB by default):
             # it switches off glibc's dynamic mmap threshold, so every block-sized numpy array
-            # is mmap'ed and faulted in afresh; measured on a 1-day 100 Hz file: 1.2 M page
-            # faults and 1.9 s system CPU against 0.08 M and 0.2 s (job.py guards the same for
-            # clusters we did not start).
+            # is mmap'ed and faulted in afresh, at a cost in page faults and system CPU
+            # (docs/performance.md#code-figures; job.py guards the same for clusters we did
+            # not start).
             environ = {k: v for k, v in dask.config.get("distributed.nanny.pre-spawn-environ").items()
                        if k != "MALLOC_TRIM_THRESHOLD_"}
             with dask.config.set({"distributed.scheduler.allowed-failures": 0,

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import struct
 
-try:  # ISA-L's CRC-32 (same polynomial and values as zlib's, ~7x faster: SIMD carry-less multiply)
+try:  # ISA-L's CRC-32: zlib's polynomial and values, faster (docs/performance.md#code-figures)
     from isal.isal_zlib import crc32  # noqa: F401 - the module's crc32 (imported from here)
 except ImportError:  # pragma: no cover - the standard library's
     from zlib import crc32  # noqa: F401

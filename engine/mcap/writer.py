@@ -26,7 +26,7 @@ LIBRARY = "stillpoint"
 CHUNK_SIZE = 4 << 20  # 4 MiB uncompressed chunks at most (specs/mcap-python.md §7.1)
 COMPRESSIONS = ("zstd", "lz4", "none")
 _IOV = 960  # parts per writev (Linux takes at most 1024, IOV_MAX)
-ZSTD_LEVEL = 1  # measured on 10 s chunks of a 100 Hz AX3 log: level 3 costs ~40 % more CPU for ~5 % fewer bytes
+ZSTD_LEVEL = 1  # higher levels cost much more CPU for a few percent fewer bytes (docs/performance.md#code-figures)
 
 
 def peak_rss_mb() -> Optional[float]:

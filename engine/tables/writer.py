@@ -52,8 +52,7 @@ def metric_columns(counts: bool, mims: bool) -> list:
     """The optional metric columns of a run's epoch table (after the flags)."""
     return (list(COUNT_COLUMNS) if counts else []) + (["mims"] if mims else [])
 
-# gzip level of the epoch table: on a week of 5 s epochs (8.5 MB of CSV) level 1 takes 0.06 s
-# for 2.37 MB, level 6 0.30 s for 2.06 MB (zlib, measured on tools/benchmarks/bench_process.py's file)
+# gzip level of the epoch table: the fastest, for slightly larger files (docs/performance.md#code-figures)
 GZIP_LEVEL = 1
 
 

@@ -350,8 +350,8 @@ def export_recording(path, out, *, time_format: str = "iso", timezone=None, comp
     ``progress(fraction=...)``: told the share of a recording read after each block.
 
     An MCAP input exports what is asked for, never what the output's name suggests: ``table``
-    (``epochs`` or ``days``: that table, made from the log) or ``topics``; one of them is
-    required."""
+    (``epochs``, ``days`` or ``nights``: that table, made from the log) or ``topics``; one of
+    them is required. ``time_format``: ``iso``, ``epoch`` or ``ns`` (``TIME_FORMATS``)."""
     out = Path(out)
     fmt = sniff_format(path)
     if topics and fmt != "mcap":

@@ -104,7 +104,7 @@ class CalibrationEstimate:
     fit_end_ns: Optional[int] = None
     effective_from_ns: Optional[int] = None  # data time from which it is applied (None: from start)
     device_key: Optional[str] = None
-    extra: dict = field(default_factory=dict)
+    extra: dict = field(default_factory=dict)  # the fit's diagnostics: FitDiagnostics.to_extra()
     # one standard error per coefficient, same units: {"offset": [3], "scale": [3],
     # "tempoffset": [3], "temperature_ref": x} (None for a coefficient not fitted; the whole
     # field None when nothing was fitted). See engine/calibration/uncertainty.py.

@@ -180,6 +180,8 @@ def format_iso(t_ns: np.ndarray, utc: bool = True) -> np.ndarray:
 
 
 def format_time(t_ns: np.ndarray, mode: str, utc: bool = True) -> np.ndarray:
+    """The CSV time column's text of int64 ns times (``mode``: one of ``TIME_FORMATS``; ISO
+    text ends in ``Z`` when ``utc``)."""
     t_ns = np.asarray(t_ns, np.int64)
     if mode == "iso":
         return format_iso(t_ns, utc)
@@ -207,6 +209,7 @@ class CsvSink:
         self.rows = 0
 
     def write(self, cols: dict) -> None:
+        """Append the rows of one block's columns (``block_columns``)."""
         n = cols["time_ns"].shape[0]
         if not self._header_written:
             names = ["time" if self.utc else "time_local", "x", "y", "z"]
@@ -246,6 +249,7 @@ class CsvSink:
         self.rows += n
 
     def close(self, info_dict: Optional[dict] = None) -> None:
+        """Finish the file (the header of an empty export; ``info_dict`` is not written)."""
         if not self._header_written:
             self.write({"time_ns": np.zeros(0, np.int64), "accel": np.zeros((0, 3))})
         if isinstance(self._f, io.BufferedWriter):
@@ -270,6 +274,7 @@ class NpzSink:
         self.rows = 0
 
     def write(self, cols: dict) -> None:
+        """Append one block's columns to their temporary files."""
         for name, arr in cols.items():
             arr = np.ascontiguousarray(arr)
             if name not in self._files:
@@ -282,6 +287,7 @@ class NpzSink:
         self.rows += cols["time_ns"].shape[0]
 
     def close(self, info_dict: Optional[dict] = None) -> None:
+        """Pack the columns and ``info_dict`` (as ``info``) into the zip."""
         comp = zipfile.ZIP_DEFLATED if self.compress else zipfile.ZIP_STORED
         try:
             with zipfile.ZipFile(self._raw, "w", compression=comp, allowZip64=True) as zf:

@@ -94,6 +94,7 @@ def idle_mask(t: np.ndarray, periods: list) -> np.ndarray:
 
 
 def block_from_message(raw: dict, gyro: Optional[dict] = None) -> Block:
+    """The Block of one decoded ``/raw/accel`` message (and its ``/raw/gyro`` twin)."""
     t = times_from_deltas(raw["t0_ns"], raw["dt_ns"])
     accel = np.stack([raw["x"], raw["y"], raw["z"]], axis=1).astype(np.int16)
     per = {}
@@ -267,6 +268,7 @@ class McapRawSource:
         self.close()
 
     def close(self) -> None:
+        """Close the log."""
         self._f.close()
 
     def progress(self) -> Optional[float]:

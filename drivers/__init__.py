@@ -12,7 +12,7 @@ from stillpoint.engine.core.errors import (CorruptRecordingError, RecordingError
 from .sniff import MCAP_MAGIC, ZIP_EMPTY_MAGIC, ZIP_MAGIC, sniff_format  # noqa: F401
 
 __all__ = [
-    "open_recording", "sniff_format", "RecordingError", "StillpointError",
+    "open_recording", "open_format", "sniff_format", "RecordingError", "StillpointError",
     "UnsupportedFormatError", "CorruptRecordingError", "TruncatedRecordingError",
 ]
 
@@ -21,7 +21,12 @@ def open_recording(path, **options):
     """Open a device recording (.cwa, GENEActiv .bin, .gt3x; plain or gzipped) as a Source
     (options go to the format's reader). An MCAP file is refused with a pointer to
     ``stillpoint.engine.recordings.open_recording``, which also replays a stillpoint log."""
-    fmt = sniff_format(path)
+    return open_format(path, sniff_format(path), **options)
+
+
+def open_format(path, fmt: str, **options):
+    """``open_recording`` for a format already sniffed (``sniff_format(path)``): the format's
+    reader over ``path``, without reading the file's first bytes again."""
     if fmt == "cwa":
         from .cwa import CwaReader
         return CwaReader(path, **options)

@@ -11,7 +11,12 @@ from stillpoint.drivers.sniff import sniff_format
 def open_recording(path, **options):
     """Open a recording or a stillpoint log as a Source (options go to the format's reader;
     a log's replay ignores them). A file that is neither is a typed error naming it."""
-    if sniff_format(path) == "mcap":
+    return open_format(path, sniff_format(path), **options)
+
+
+def open_format(path, fmt: str, **options):
+    """``open_recording`` for a format already sniffed (``sniff_format(path)``)."""
+    if fmt == "mcap":
         from .mcap.replay import McapRawSource
         return McapRawSource(path, **options)
-    return drivers.open_recording(path, **options)
+    return drivers.open_format(path, fmt, **options)

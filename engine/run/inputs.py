@@ -13,7 +13,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Optional
 
-from stillpoint.engine.recordings import open_recording
+from stillpoint.engine.recordings import open_format
 
 from ..core.prefetch import Prefetched
 from ..timezones import Zone, clock_record, fixed_zone, given_zone_offset, parse_zone, zone_of_log
@@ -49,8 +49,8 @@ class RunInput:
         that follow a growing file (a pass after the file is complete)."""
         opts = self.options if follow else {k: v for k, v in self.options.items()
                                             if not k.startswith("follow")}
-        src = _open_format(self.path, self.format,
-                           reader_options(self.format, opts, features_only=features_only))
+        src = open_format(self.path, self.format,
+                          **reader_options(self.format, opts, features_only=features_only))
         return Prefetched(src) if self.prefetch else src
 
 
@@ -61,20 +61,6 @@ class OpenedInput:
     input: RunInput
     clock: ClockZone
     source: object
-
-
-def _open_format(path: Path, fmt: str, options: dict):
-    """The format's reader over ``path`` (the format already sniffed)."""
-    if fmt == "cwa":
-        from stillpoint.drivers.cwa import CwaReader
-        return CwaReader(path, **options)
-    if fmt == "geneactiv":
-        from stillpoint.drivers.geneactiv import GeneactivReader
-        return GeneactivReader(path, **options)
-    if fmt == "gt3x":
-        from stillpoint.drivers.gt3x import Gt3xReader
-        return Gt3xReader(path, **options)
-    return open_recording(path, **options)  # a stillpoint log's raw stream
 
 
 def reader_options(fmt: str, opts: dict, *, features_only: bool = False) -> dict:

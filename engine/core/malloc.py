@@ -13,7 +13,7 @@ arena, so the arrays a reader thread frees are reused by the engine's thread (a 
 with a reader thread: ~10 MB less peak RSS). ``MALLOC_ARENA_MAX`` in the environment wins.
 
 Freed arrays around longer-lived ones stay resident: :func:`trim` gives the heap's free pages
-back (a run calls it every few pipeline steps, engine.run.TRIM_EVERY_STEPS).
+back (a run calls it every few pipeline steps, engine.run.tuning.TRIM_EVERY_STEPS).
 """
 
 from __future__ import annotations

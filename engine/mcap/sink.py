@@ -49,7 +49,7 @@ when finished) and builds each chunk's records itself: all the messages of a pip
 handed to engine/mcap/chunks.py as one slice per run of records; the cell-by-cell path, one
 ``struct.pack`` per message, handles the rare rest with the same bytes); the writer (engine/mcap/writer.py) compresses and
 writes chunks and the summary. By default that happens inline (``writer="inline"``; the engine
-picks a writer per mode, engine.run.WRITER_BY_MODE): each chunk is compressed and handed to the
+picks a writer per mode, engine.run.tuning.WRITER_BY_MODE): each chunk is compressed and handed to the
 OS as its cell ends, so a killed run loses only the cell in progress. ``writer="process"`` runs the writer in a child process (compression on another core;
 pays off only on an otherwise idle machine: every chunk crosses a pipe; if the engine dies, the
 writer still writes what it received). Measured (tools/benchmarks/bench_process.py, 7-day 100 Hz

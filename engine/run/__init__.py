@@ -7,7 +7,8 @@
   run's output stage, which logs it to MCAP;
 * ``batch``, ``online``: each mode's schedule (when the calibration is fitted and applied);
 * ``taps``, ``static``: the tables hung on the output pass; a static calibration's use;
-* ``summary``: the run summary; ``tuning``: the run's tuning constants, one line each;
+* ``summary``: the run summary; ``tuning``: the run's tuning constants, one line each (read and
+  set as ``tuning.NAME``: a copy of one made here would not change a run);
 * ``job``: ``process_file`` itself (checks, the schedule, the end of the log).
 
 Modes (same operators, different schedules): ``batch`` (two passes: fit, then correct) and
@@ -23,12 +24,8 @@ from .features import FeatureStage
 from .inputs import ClockZone, OpenedInput, RunInput, open_input
 from .job import OutputError, check_output, process_file
 from .output import OutputPass, OutputStage
-from .tuning import (CHUNK_S, OUTPUT_BATCH_SECTORS, PREFETCH_BY_MODE, QC_DETAILS,
-                     TRIM_EVERY_STEPS, WRITER_BY_MODE)
 
 __all__ = [
     "process_file", "RunSettings", "OutputError", "check_output", "open_input", "RunInput",
     "OpenedInput", "ClockZone", "FeatureStage", "OutputPass", "OutputStage", "chunk_span",
-    "CHUNK_S", "OUTPUT_BATCH_SECTORS", "PREFETCH_BY_MODE", "QC_DETAILS", "TRIM_EVERY_STEPS",
-    "WRITER_BY_MODE",
 ]

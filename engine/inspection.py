@@ -62,11 +62,6 @@ def zone_of(path, fmt: str, timezone, override: bool = False):
     return reader_timezone(path, fmt, timezone, override)[1]
 
 
-def zone_label(path, fmt: str, timezone, override: bool = False) -> str:
-    """Which zone the times are in, as the outputs state it."""
-    return zone_of(path, fmt, timezone, override).label
-
-
 def _header_info(path, fmt: str, timezone, override: bool = False):
     if fmt == "geneactiv":
         from stillpoint.drivers.geneactiv import read_header

@@ -165,12 +165,14 @@ class TablesTap:
                                         nonwear_version=ts.nonwear_version,
                                         clip_g=clip_threshold_g(getattr(info, "accel_range_g", None)),
                                         extras=tuple(extras))
+        self.outcomes = DailyOutcomes(ts.outcomes, epoch_s) if ts.outcomes.active else None
         self.rhythm = None
         if ts.rhythm_path is not None:
             from ..rhythm.table import RhythmTap
             check_output_path(ts.rhythm_path, what="rhythm table")
-            self.rhythm = RhythmTap(ts.rhythm_path, ts.zone, epoch_s, sleep=self.sleep is not None)
-        self.outcomes = DailyOutcomes(ts.outcomes, epoch_s) if ts.outcomes.active else None
+            cut = self.outcomes.cut if self.outcomes is not None else None
+            self.rhythm = RhythmTap(ts.rhythm_path, ts.zone, epoch_s, sleep=self.sleep is not None,
+                                    metrics=(cut.column,) if cut is not None else ())
         self.steps = None
         if self.outcomes is not None and ts.outcomes.steps:
             from ..outcomes.steps import StepOperator

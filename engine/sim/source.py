@@ -1,4 +1,4 @@
-"""``SimSource``: the simulator as a Source (engine.source), yielding Blocks without a file.
+"""``SimSource``: the simulator as a Source (engine.core.source), yielding Blocks without a file.
 
 Same samples (counts) as the file ``simulate_recording`` would write with the same arguments;
 sample times are the exact device-clock times (a file reproduces them to its resolution).

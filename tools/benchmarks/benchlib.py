@@ -1,4 +1,4 @@
-"""Shared pieces of the benchmark scripts (tools/bench_*.py).
+"""Shared pieces of the benchmark scripts (tools/benchmarks/bench_*.py).
 
 * ``measure(cmd)``: run a command in a fresh child under a one-shot meter process and return its
   wall time, CPU time (user + system) and peak RSS (``getrusage(RUSAGE_CHILDREN)`` of the meter,
@@ -9,7 +9,8 @@
   (cwa-reader-rs, scikit-digital-health, actipy), from ``STILLPOINT_PEERS_PYTHON`` or the
   ``--peers`` option; peers are only ever run as child processes, never imported.
 
-The scripts import this as a sibling module (``python tools/bench_x.py`` puts tools/ on sys.path).
+The scripts import this as a sibling module (``python tools/benchmarks/bench_x.py`` puts
+tools/benchmarks/ on sys.path).
 """
 
 from __future__ import annotations

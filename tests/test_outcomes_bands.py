@@ -82,3 +82,22 @@ def test_day_values_of_a_cut_point_set():
     x = np.r_[np.full(20, 150.0), np.full(5, 10.0)]  # 100 s of moderate, then sedentary
     labels = o.epoch_bouts(x, np.ones(x.size, bool))
     assert labels[0] == "moderate_1m;mvpa_1m" and labels[-1] == ""
+
+
+def test_bouts_piece_by_piece_equal_the_whole_series():
+    """ggir_bouts cuts the series inside long unmarked runs; every cut series gives the bouts of
+    the same rule applied to the whole series at once."""
+    from stillpoint.engine.outcomes.bouts import _bouts, quiet_pieces
+    rng = np.random.default_rng(3)
+    cut = 0
+    for _ in range(300):
+        n = int(rng.integers(50, 5000))
+        x = rng.random(n) < rng.uniform(0.3, 0.99)
+        for _ in range(int(rng.integers(0, 6))):  # unmarked runs around the cut length
+            a = int(rng.integers(0, n))
+            x[a:a + int(rng.integers(1, 800))] = False
+        epm, L = int(rng.choice([1, 4, 6, 12, 20])), int(rng.integers(1, 400))
+        crit = float(rng.choice([0.5, 0.8, 0.9, 1.0]))
+        assert np.array_equal(ggir_bouts(x, L, epm, crit), _bouts(x, L, epm, crit))
+        cut += len(quiet_pieces(x, 2 * (L + epm + 2))) > 1
+    assert cut > 100  # most series were cut

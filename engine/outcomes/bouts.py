@@ -38,14 +38,44 @@ def _centred_sums(v: np.ndarray, k: int) -> np.ndarray:
     return out
 
 
+def quiet_pieces(x: np.ndarray, quiet: int) -> list:
+    """[a, b) pieces covering ``x``, cut in the middle of every run of at least ``quiet``
+    unmarked epochs."""
+    m = np.flatnonzero(x)
+    if not m.shape[0]:
+        return [(0, x.shape[0])]
+    g = np.flatnonzero(np.diff(m) - 1 >= quiet)
+    edges = [0] + ((m[g] + m[g + 1] + 1) // 2).tolist() + [x.shape[0]]
+    return list(zip(edges[:-1], edges[1:]))
+
+
 def ggir_bouts(x: np.ndarray, bout_epochs: int, epochs_per_minute: int,
                criterion: float = BOUT_CRITERION) -> np.ndarray:
-    """Epochs inside bouts (bool), GGIR's rule on the marked epochs ``x``."""
+    """Epochs inside bouts (bool), GGIR's rule on the marked epochs ``x``.
+
+    Computed piece by piece, cut inside the runs of unmarked epochs longer than twice a bout and
+    a minute's break window (a sleep period, a night off): every epoch within a bout and a minute
+    of such a cut is a break (GGIR's -L), as the pieces' padding is, and a bout's centre, start
+    and end lie within a bout of a marked epoch, so each piece's bouts are the whole series'.
+    Memory follows the longest piece, not the recording."""
     x = np.asarray(x, bool)
     n = x.shape[0]
     L = int(bout_epochs)
     if n == 0 or L < 1:
         return np.zeros(n, bool)
+    pieces = quiet_pieces(x, 2 * (L + epochs_per_minute + 2))
+    if len(pieces) == 1:
+        return _bouts(x, L, epochs_per_minute, criterion)
+    out = np.zeros(n, bool)
+    for a, b in pieces:
+        if x[a:b].any():
+            out[a:b] = _bouts(x[a:b], L, epochs_per_minute, criterion)
+    return out
+
+
+def _bouts(x: np.ndarray, L: int, epochs_per_minute: int, criterion: float) -> np.ndarray:
+    """ggir_bouts on one piece (``x`` bool, ``L`` >= 1)."""
+    n = x.shape[0]
     xi = x.astype(np.int64)
     pad = -(-epochs_per_minute // 2)
     xp = np.concatenate([np.zeros(pad, np.int64), xi, np.zeros(pad, np.int64)])

@@ -58,8 +58,11 @@ def levels(value, spt, sib, epoch_s: float, th) -> Levels:
     vig = np.inf if vig is None else vig
     ok = np.isfinite(v)
     n = v.shape[0]
+    band = np.full(n, 3, np.int8)  # the first edge the value is under, as nested np.where
     with np.errstate(invalid="ignore"):
-        band = np.where(v < lig, 0, np.where(v < mod, 1, np.where(v < vig, 2, 3)))
+        band[v < vig] = 2
+        band[v < mod] = 1
+        band[v < lig] = 0
     level = np.full(n, -1, np.int16)
     day = ~spt
     level[spt & ~sib & ok] = 1 + band[spt & ~sib & ok]   # spt_wake_IN .. VIG

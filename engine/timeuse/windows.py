@@ -125,15 +125,18 @@ def time_use(t_ns, value, clean, nonwear, sib, spt, nights, zone, epoch_s: float
     midnights = np.flatnonzero(local % DAY_NS == 0).tolist()
     with_spt = [x for x in nights if x.spt is not None]
     spans = [x.spt for x in with_spt]
-    cs = {k: np.concatenate([[0], np.cumsum(v.astype(np.int64))]) for k, v in
-          [("clean", clean), ("nonwear", nonwear), ("invalid", ~clean), ("spt", spt),
-           ("sleep", spt & sib), ("day_invalid", ~spt & ~clean)]}
+    counts = {"clean": lambda a, b: np.count_nonzero(clean[a:b]),
+              "nonwear": lambda a, b: np.count_nonzero(nonwear[a:b]),
+              "invalid": lambda a, b: (b - a) - np.count_nonzero(clean[a:b]),
+              "spt": lambda a, b: np.count_nonzero(spt[a:b]),
+              "sleep": lambda a, b: np.count_nonzero(spt[a:b] & sib[a:b]),
+              "day_invalid": lambda a, b: (b - a) - np.count_nonzero(spt[a:b] | clean[a:b])}
     rows = []
     for kind, num, a, b, k in _windows(spans, n, midnights):
         if (b - a) * epoch_s <= rules.MINIMUM_WINDOW_S:
             continue
         def c(key):  # noqa: E306
-            return int(cs[key][b] - cs[key][a])
+            return int(counts[key](a, b))
         dur, spt_e = b - a, c("spt")
         day_e = dur - spt_e
         night = with_spt[k] if k is not None else None

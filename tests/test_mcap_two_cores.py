@@ -1,6 +1,6 @@
-"""Batch `process` on two cores (a pipeline step's records framed on one thread, chunks
-compressed on another, engine/mcap/ordered.py and engine/mcap/sink.py) writes the same bytes as
-on one core; a failure on either thread surfaces in the caller as the one-line error and exit
+"""Batch `process` on two cores (a pipeline step's records framed on one thread when
+$STILLPOINT_FRAMING_THREAD is 1, chunks compressed on another, engine/mcap/ordered.py and
+engine/mcap/sink.py) writes the same bytes as on one core; a failure on either thread surfaces in the caller as the one-line error and exit
 code 2 that one core gives, with everything written before kept and recoverable; an interrupt
 leaves no thread running and the partial log recoverable."""
 
@@ -48,6 +48,7 @@ def cores(monkeypatch):
     def use(n):
         monkeypatch.setattr(sink_mod, "cores_available", lambda: n)
         return started
+    monkeypatch.setenv(sink_mod.FRAMING_THREAD_ENV, "1")  # off by default
     return use
 
 
@@ -224,3 +225,38 @@ def test_worker_runs_calls_in_order_and_hands_back_the_first_error():
     threading.Timer(0.05, gate.set).start()
     w.stop()  # drops the waiting call once the running one returns
     assert -2 not in done and not w.running
+
+
+def test_interrupt_while_closing_stops_the_thread_before_the_file(tmp_path, cores, monkeypatch):
+    from stillpoint.engine.core.blocks import DeviceInfo
+    started = cores(2)
+    sink = sink_mod.McapSink(tmp_path / "s.mcap", DeviceInfo(
+        path="x", device_type="AX3", device_id="1", session_id=0, firmware=0,
+        sample_rate_nominal=100.0, accel_range_g=8.0), {}, writer="thread")
+    assert len(started) == 1
+    gate = threading.Event()
+    ran = []
+    sink._framer.submit(lambda: (gate.wait(10), ran.append(1)))  # a step still being framed
+
+    def drain(self):  # Ctrl-C while close() waits for the framing thread
+        raise KeyboardInterrupt
+    monkeypatch.setattr(type(started[0]), "drain", drain)
+    with pytest.raises(KeyboardInterrupt):
+        sink.close()
+    threading.Timer(0.05, gate.set).start()
+    kept = sink.abort()
+    assert ran == [1]  # the call running finished before the file was abandoned
+    assert _alive() == []
+    assert kept is not None and kept.exists() and not (tmp_path / "s.mcap").exists()
+
+
+def test_framing_thread_is_off_by_default(recording, tmp_path, cores, monkeypatch):
+    started = cores(2)
+    monkeypatch.delenv(sink_mod.FRAMING_THREAD_ENV)
+    out = tmp_path / "r.mcap"
+    process_file(recording, out, RunSettings(mode="batch"))
+    assert started == []  # the writer thread only, as measured best (docs/performance.md)
+    b = out.read_bytes()
+    out.unlink()
+    process_file(recording, out, RunSettings(mode="batch"), writer="inline", prefetch=False)
+    assert out.read_bytes() == b

@@ -56,8 +56,11 @@ writer still writes what it received). Measured (tools/benchmarks/bench_process.
 AX3, 2 cores shared with other jobs): inline 12.6 s wall / 11.1 s CPU, writer process 14.4 s
 wall / 14.1 s CPU (the pipe copies).
 
-``writer="thread"`` (the batch mode's) uses two threads when the process may use a second core
-(``core.prefetch.cores_available``; ``STILLPOINT_CORES=1`` forces one): the engine's calls
+``writer="thread"`` (the batch mode's) compresses and writes on a writer thread (at most one
+chunk waiting) when the process may use a second core (``core.prefetch.cores_available``;
+``STILLPOINT_CORES=1`` forces one: then it writes inline). With ``STILLPOINT_FRAMING_THREAD=1``
+it also frames on a thread of its own (off by default: measured slower, see
+``FRAMING_THREAD_ENV``): the engine's calls
 (``write_slices``, ``write_json``, ``write_metadata``, ...) run in the order made on a framing
 thread (engine/mcap/ordered.py: at most ``FRAMING_DEPTH`` steps waiting), which frames a step's
 records and builds its chunks while the engine corrects the next step; a writer thread
@@ -106,9 +109,22 @@ from ..core.prefetch import cores_available
 from .view import TOPIC_VIEW, ViewDecimator, view_records
 from .writer import CHUNK_SIZE, LIBRARY, ZSTD_LEVEL  # noqa: F401
 
-# Pipeline steps waiting for the framing thread (writer="thread"): one framed while up to this
-# many wait, each a step's block, corrected batches and epochs (~3 MB at 100 Hz).
+# Pipeline steps waiting for the framing thread: one framed while up to this many wait, each a
+# step's block, corrected batches and epochs (~3 MB at 100 Hz).
 FRAMING_DEPTH = 2
+
+# The framing thread is off unless this is "1": on this shared 2-core machine under load
+# (load average 18-22), tools/benchmarks/bench_cores.py measured a week's batch run with it
+# at 1.18x the CPU and 1.16x the wall time of the run without it (least of 3 alternating
+# rounds), and an earlier design that also moved the tables to that thread was slower on an
+# idle machine; docs/performance.md, "Two cores for one file".
+FRAMING_THREAD_ENV = "STILLPOINT_FRAMING_THREAD"
+
+
+def framing_thread_on() -> bool:
+    """Whether writer="thread" also frames on a thread of its own ($STILLPOINT_FRAMING_THREAD)."""
+    import os
+    return os.environ.get(FRAMING_THREAD_ENV, "").strip() == "1"
 
 
 def device_metadata(info: DeviceInfo) -> dict[str, str]:
@@ -371,8 +387,11 @@ class McapSink(McapLog):
                  view_hz: float = 0.0, chunk_s: Optional[float] = None,
                  step_chunks: bool = False):
         framing = "inline"
-        if writer == "thread":  # framing and compression each on a thread, given a second core
-            framing, writer = ("thread", "thread") if cores_available() > 1 else ("inline", "inline")
+        if writer == "thread":  # compression on a thread, given a second core (and the framing,
+            if cores_available() < 2:  # when asked: framing_thread_on)
+                writer = "inline"
+            elif framing_thread_on():
+                framing = "thread"
         super().__init__(path, compression=compression, chunk_size=chunk_size,
                          fsync_every_wall_s=fsync_every_wall_s, writer=writer,
                          zstd_level=zstd_level)
@@ -419,11 +438,11 @@ class McapSink(McapLog):
         f = getattr(self, "_framer", None)
         if f is None or f.on_worker():
             return
-        self._framer = None
-        if drain:
-            f.drain()  # raises what a framing call raised
+        if drain:  # raises what a framing call raised (or an interrupt while waiting: then
+            f.drain()  # abort() stops the thread before the file is abandoned)
         else:
             f.stop()
+        self._framer = None
 
     def _msg(self, topic, encoding, schema, log_time, data):
         ch = self._chunk

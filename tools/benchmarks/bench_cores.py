@@ -9,18 +9,19 @@ commands run in rounds, alternating (A B C .., A B C ..), each in a fresh child;
 least wall time and the least CPU time (user + system of the child) over the rounds are kept
 separately, and the largest peak RSS:
 
-* ``process`` (full log) and ``process --log lean`` as installed: on two cores a pipeline
-  step's records are framed on one thread and its chunks compressed on another, while the
-  engine works on the next step (engine/mcap/sink.py);
+* ``process`` (full log) and ``process --log lean`` as installed: on two cores the next block
+  is decoded on a reader thread and the chunks compressed on a writer thread;
+* the same with ``STILLPOINT_FRAMING_THREAD=1``: also a pipeline step's records framed on a
+  thread of their own while the engine works on the next step (engine/mcap/sink.py);
 * the same with ``STILLPOINT_CORES=1``: no extra thread at all (one core);
 * with ``--before REV``: the same two commands at that revision (``git archive`` of engine/,
   drivers/, tools/ into the workdir, first on PYTHONPATH, as bench_process.py --before).
 
 The load average is printed before and after the rounds (the machine is shared: read CPU
 first, and ratios measured in the same run). Then, once each, in-process: the CPU time of every
-thread of a two-core full run (the engine's main thread, the reader, the framing thread and
-the compression thread: the compressor's share of the work), and a check that the two-core and
-one-core logs of the same output path are the same bytes.
+thread of a full run with the framing thread (the engine's main thread, the reader, the framing
+thread and the compression thread: the compressor's share of the work), and a check that its
+log and the one-core log of the same output path are the same bytes.
 """
 
 from __future__ import annotations
@@ -75,12 +76,15 @@ def sha256(path: Path) -> str:
 def run_file(path: Path, wd: Path, repeat: int, before) -> dict:
     sp = [sys.executable, "-m", "stillpoint.tools", "process"]
     one = dict(os.environ, STILLPOINT_CORES="1")
+    framing = dict(os.environ, STILLPOINT_FRAMING_THREAD="1")
 
     def cmd(log, name):
         return sp + [path, "-o", wd / f"{name}.mcap", "--mode", "batch", "-q", "--log", log,
                      "--overwrite"]
-    cmds = {"full2": (cmd("full", "full2"), None), "full1": (cmd("full", "full1"), one),
-            "lean2": (cmd("lean", "lean2"), None), "lean1": (cmd("lean", "lean1"), one)}
+    cmds = {"full2": (cmd("full", "full2"), None), "fullf": (cmd("full", "fullf"), framing),
+            "full1": (cmd("full", "full1"), one),
+            "lean2": (cmd("lean", "lean2"), None), "leanf": (cmd("lean", "leanf"), framing),
+            "lean1": (cmd("lean", "lean1"), one)}
     if before:
         cmds["fullb"] = (cmd("full", "fullb"), before[0])
         cmds["leanb"] = (cmd("lean", "leanb"), before[0])
@@ -101,12 +105,12 @@ def run_file(path: Path, wd: Path, repeat: int, before) -> dict:
     # the thread CPU of a two-core full run, in-process
     out = wd / "threads.mcap"
     t = subprocess.run([sys.executable, "-c", THREAD_CPU, str(path), str(out), "full"],
-                       check=True, stdout=subprocess.PIPE, text=True).stdout
+                       check=True, stdout=subprocess.PIPE, text=True, env=framing).stdout
     res["_threads"] = json.loads(t.strip().splitlines()[-1])
     # the same bytes on one core and on two (the same output path: the log names it)
     same = wd / "same.mcap"
     hashes = []
-    for env in (None, one):
+    for env in (framing, one):
         subprocess.run(cmd("full", "same"), check=True, env=env)
         hashes.append(sha256(same))
     res["_identical"] = hashes[0] == hashes[1]
@@ -134,9 +138,11 @@ def main(argv=None) -> int:
         (l0, l1) = r["_load"]
         print(f"\n{path.name} ({path.stat().st_size / 1e6:.0f} MB), load average "
               f"{l0[0]:.2f} before the rounds, {l1[0]:.2f} after")
-        rows = [("full2", "process (full log), two cores"),
+        rows = [("full2", "process (full log), default"),
+                ("fullf", "process (full log), STILLPOINT_FRAMING_THREAD=1"),
                 ("full1", "process (full log), STILLPOINT_CORES=1"),
-                ("lean2", "process --log lean, two cores"),
+                ("lean2", "process --log lean, default"),
+                ("leanf", "process --log lean, STILLPOINT_FRAMING_THREAD=1"),
                 ("lean1", "process --log lean, STILLPOINT_CORES=1")]
         if before:
             rows += [("fullb", f"process (full log) at {before[1]}"),
@@ -149,8 +155,10 @@ def main(argv=None) -> int:
         def ratio(label, a, b):
             print(f"  {label:44s} {r[a]['wall'] / r[b]['wall']:6.2f}x wall "
                   f"{r[a]['cpu'] / r[b]['cpu']:5.2f}x CPU")
-        ratio("full: two cores / one core", "full2", "full1")
-        ratio("lean: two cores / one core", "lean2", "lean1")
+        ratio("full: default / one core", "full2", "full1")
+        ratio("full: framing thread / default", "fullf", "full2")
+        ratio("lean: default / one core", "lean2", "lean1")
+        ratio("lean: framing thread / default", "leanf", "lean2")
         if before:
             ratio(f"full: now / {before[1]}", "full2", "fullb")
             ratio(f"lean: now / {before[1]}", "lean2", "leanb")
@@ -158,9 +166,9 @@ def main(argv=None) -> int:
         tot = th["cpu"]
         parts = ", ".join(f"{k} {v:.2f} s ({v / tot:.0%})" for k, v in
                           sorted(th["threads"].items(), key=lambda kv: -kv[1]))
-        print(f"  thread CPU, one two-core full run in-process ({th['wall']:.2f} s wall, "
+        print(f"  thread CPU, one full run with the framing thread, in-process ({th['wall']:.2f} s wall, "
               f"{tot:.2f} s CPU): {parts}")
-        print(f"  one-core and two-core logs the same bytes: {'yes' if r['_identical'] else 'NO'}")
+        print(f"  framing-thread and one-core logs the same bytes: {'yes' if r['_identical'] else 'NO'}")
     return 0
 
 

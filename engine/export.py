@@ -58,7 +58,7 @@ from stillpoint.engine.core.blocks import PER_SAMPLE_BUTTON, PER_SAMPLE_IDLE_SLE
 from stillpoint.engine.core.errors import StillpointError
 from stillpoint.engine.core.outputs import atomic_output, check_output_path
 
-from .inspection import timezone_option, zone_of
+from .inspection import reader_zone
 from .recordings import open_recording
 
 TIME_FORMATS = ("iso", "epoch", "ns")
@@ -385,10 +385,7 @@ def export_recording(path, out, *, time_format: str = "iso", timezone=None, comp
     kind = _output_kind(out)
     if time_format not in TIME_FORMATS:
         raise StillpointError(f"--time must be one of {', '.join(TIME_FORMATS)}")
-    zone = zone_of(path, fmt, timezone, timezone_override)
-    opts = {}
-    if timezone is not None:
-        opts["timezone"] = timezone_option(timezone, fmt, path, timezone_override)
+    opts, zone = reader_zone(path, fmt, timezone, timezone_override)
     check_output_path(out)
     src = open_recording(path, **opts)
     if progress is not None:

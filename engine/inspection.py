@@ -31,10 +31,8 @@ def iso_utc(t_ns: Optional[int]) -> Optional[str]:
     return None if t_ns is None else _iso_utc(t_ns, "ns")
 
 
-def _open(path, fmt: str, timezone, follow_idle_s=None, override: bool = False):
-    opts = {}
-    if timezone is not None:
-        opts["timezone"] = timezone_option(timezone, fmt, path, override)
+def _open(path, fmt: str, opts: dict, follow_idle_s=None):
+    opts = dict(opts)
     if follow_idle_s is not None:
         if fmt == "mcap":
             raise StillpointError(f"{path}: --follow reads a .cwa/.bin that is still being written, "
@@ -43,39 +41,28 @@ def _open(path, fmt: str, timezone, follow_idle_s=None, override: bool = False):
     return open_recording(path, **opts)
 
 
-def timezone_option(timezone, fmt: str, path=None, override: bool = False):
-    """The CLI's time zone (an IANA name or an offset) as the reader wants it: seconds of the
-    device clock's offset from UTC (engine.timezones.reader_timezone: one rule for every command)."""
-    from stillpoint.engine.timezones import parse_zone, reader_timezone
-    zone = parse_zone(timezone)  # a bad zone: one line, exit 2
-    if path is not None:
-        tz, _ = reader_timezone(path, fmt, timezone, override)
-        return tz
-    if zone.iana:
-        raise StillpointError(f"--timezone {timezone}: an IANA zone needs the recording's start time")
-    return zone.fixed_s
-
-
-def zone_of(path, fmt: str, timezone, override: bool = False):
-    """The Zone the times are in (engine.timezones: unknown for a .cwa without one)."""
+def reader_zone(path, fmt: str, timezone, override: bool = False):
+    """``(reader options, Zone)`` for the CLI's time zone ``timezone`` (an IANA name or an offset;
+    None: not given): the reader's ``timezone=`` (seconds of the device clock's offset from UTC)
+    when one is given, and the Zone the times are in (unknown for a .cwa without one), from one
+    ``engine.timezones.reader_timezone`` (one rule for every command; a header read at most
+    once). A bad zone is one line, exit 2."""
     from stillpoint.engine.timezones import reader_timezone
-    return reader_timezone(path, fmt, timezone, override)[1]
+    tz, zone = reader_timezone(path, fmt, timezone, override)
+    return ({"timezone": tz} if timezone is not None else {}), zone
 
 
-def _header_info(path, fmt: str, timezone, override: bool = False):
+def _header_info(path, fmt: str, opts: dict):
     if fmt == "geneactiv":
         from stillpoint.drivers.geneactiv import read_header
-        return read_header(path, **({"timezone": timezone_option(timezone, fmt, path, override)}
-                                    if timezone is not None else {}))
+        return read_header(path, **opts)
     if fmt == "cwa":
         from stillpoint.drivers.cwa import read_header
-        return read_header(path, **({"timezone": timezone_option(timezone, fmt, path)}
-                                    if timezone is not None else {}))
+        return read_header(path, **opts)
     if fmt == "gt3x":
         from stillpoint.drivers.gt3x import read_header as gt3x_header
-        return gt3x_header(path, **({"timezone": timezone_option(timezone, fmt, path, override)}
-                                    if timezone is not None else {}))
-    src = _open(path, fmt, timezone)
+        return gt3x_header(path, **opts)
+    src = _open(path, fmt, opts)
     try:
         return src.info
     finally:
@@ -158,10 +145,9 @@ def inspect_recording(path, *, header_only: bool = False, timezone=None,
     read a file that is still being written until it has not grown for that many seconds."""
     from stillpoint.engine.timezones import local_text
     fmt = follow_format(path) if follow_idle_s is not None else sniff_format(path)
-    zone = (zone_of(path, fmt, timezone, timezone_override)
-            if fmt in ("cwa", "geneactiv", "gt3x", "mcap") else None)
+    opts, zone = reader_zone(path, fmt, timezone, timezone_override)
     if header_only:
-        info = _header_info(path, fmt, timezone, timezone_override)
+        info = _header_info(path, fmt, opts)
         out = _info_dict(info, fmt, zone)
         out["header"] = dict(info.header)
         if zone is not None:
@@ -169,7 +155,7 @@ def inspect_recording(path, *, header_only: bool = False, timezone=None,
         if fmt == "gt3x":
             out["actigraph"] = _actigraph(info, None)
         return out
-    src = _open(path, fmt, timezone, follow_idle_s, timezone_override)
+    src = _open(path, fmt, opts, follow_idle_s)
     acc = _Summary()
     try:
         for block in src:

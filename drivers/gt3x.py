@@ -837,20 +837,23 @@ class Gt3xReader:
             """Idle-sleep seconds from the last returned one up to ``until_s`` (exclusive)."""
             if st.last_sec is None or until_s <= st.last_sec + 1:
                 return
-            secs = np.arange(st.last_sec + 1, until_s, dtype=np.int64)
-            self.idle_sleep_s += secs.shape[0]
-            self.idle_periods.append((int(secs[0]), int(secs.shape[0])))
+            start = st.last_sec + 1
+            n = until_s - start
+            self.idle_sleep_s += n
+            self.idle_periods.append((start, n))
             # one QC event per period, never capped: the MCAP log keeps the periods (a replay
             # marks its samples again from them); logged before the samples it covers
-            t0 = int(secs[0]) * 10**9 - self._tz_ns
-            self.qc.add(QCEvent(index=-1, reason="idle_sleep", time_ns=t0,
-                                end_ns=t0 + int(secs.shape[0]) * 10**9,
-                                detail=f"{secs.shape[0]} s of idle sleep: " +
+            t0 = start * 10**9 - self._tz_ns
+            self.qc.add(QCEvent(index=-1, reason="idle_sleep", time_ns=t0, end_ns=t0 + n * 10**9,
+                                detail=f"{n} s of idle sleep: " +
                                 ("the device's last sample is repeated" if self.fill_idle_sleep
                                  else "left out")))
             if not self.fill_idle_sleep:
                 return
-            yield from add_seconds(secs, "fill", None, -1)
+            step = max(1, self.batch_seconds)  # the period's seconds a block at a time
+            for a in range(start, until_s, step):
+                yield from add_seconds(np.arange(a, min(a + step, until_s), dtype=np.int64),
+                                       "fill", None, -1)
 
         def activity(secs, payloads, typ, idx0):
             """k activity records (payloads (k, S)), decoded when their block is made."""

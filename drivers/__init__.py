@@ -12,7 +12,7 @@ from stillpoint.engine.core.errors import (CorruptRecordingError, RecordingError
 from .sniff import MCAP_MAGIC, ZIP_EMPTY_MAGIC, ZIP_MAGIC, sniff_format  # noqa: F401
 
 __all__ = [
-    "open_recording", "open_format", "sniff_format", "RecordingError", "StillpointError",
+    "open_recording", "open_format", "read_header", "sniff_format", "RecordingError", "StillpointError",
     "UnsupportedFormatError", "CorruptRecordingError", "TruncatedRecordingError",
 ]
 
@@ -39,3 +39,18 @@ def open_format(path, fmt: str, **options):
     raise UnsupportedFormatError(
         path, "is an MCAP file, not a device recording: a stillpoint log's raw stream is opened by "
               "stillpoint.engine.recordings.open_recording")
+
+
+def read_header(path, fmt: str, **options):
+    """The header of a device recording of a format already sniffed (``"cwa"``, ``"geneactiv"``,
+    ``"gt3x"``) as its reader gives it (``DeviceInfo``), without decoding the samples (options go
+    to the format's ``read_header``)."""
+    if fmt == "cwa":
+        from .cwa import read_header as header
+    elif fmt == "geneactiv":
+        from .geneactiv import read_header as header
+    elif fmt == "gt3x":
+        from .gt3x import read_header as header
+    else:
+        raise UnsupportedFormatError(path, f"is not a device recording ({fmt}): it has no header")
+    return header(path, **options)

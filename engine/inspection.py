@@ -19,7 +19,7 @@ from typing import Optional
 
 import numpy as np
 
-from stillpoint.drivers import sniff_format
+from stillpoint.drivers import read_header, sniff_format
 from stillpoint.engine.core.errors import StillpointError
 from stillpoint.engine.core.times import iso_utc as _iso_utc, offset_text
 
@@ -53,15 +53,8 @@ def reader_zone(path, fmt: str, timezone, override: bool = False):
 
 
 def _header_info(path, fmt: str, opts: dict):
-    if fmt == "geneactiv":
-        from stillpoint.drivers.geneactiv import read_header
-        return read_header(path, **opts)
-    if fmt == "cwa":
-        from stillpoint.drivers.cwa import read_header
-        return read_header(path, **opts)
-    if fmt == "gt3x":
-        from stillpoint.drivers.gt3x import read_header as gt3x_header
-        return gt3x_header(path, **opts)
+    if fmt != "mcap":
+        return read_header(path, fmt, **opts)
     src = _open(path, fmt, opts)
     try:
         return src.info

@@ -211,12 +211,11 @@ def reader_timezone(path, fmt: str, spec, override: bool = False) -> tuple[Optio
             src.close()
     if zone.known:
         return given_zone_offset(path, fmt, zone, override), zone
+    from stillpoint.drivers import read_header
     if fmt == "geneactiv":
-        from stillpoint.drivers.geneactiv import read_header
-        return None, fixed_zone(read_header(path).timezone_offset_s)
+        return None, fixed_zone(read_header(path, fmt).timezone_offset_s)
     if fmt == "gt3x":
-        from stillpoint.drivers.gt3x import read_header as gt3x_header
-        stored = gt3x_header(path, timezone=0).header.get("timezone_stored_s")
+        stored = read_header(path, fmt, timezone=0).header.get("timezone_stored_s")
         return (None, fixed_zone(stored)) if stored is not None else (0, zone)
     # .cwa (and anything else with a local clock and no stored zone)
     return 0, zone
@@ -229,13 +228,9 @@ def given_zone_offset(path, fmt: str, zone: Zone, override: bool = False) -> Opt
     ``override`` (``check_header_zone``). A .cwa needs no read for a fixed offset."""
     if fmt == "cwa" and zone.fixed_s is not None:
         return zone.fixed_s
-    if fmt == "geneactiv":
-        from stillpoint.drivers.geneactiv import read_header
-    elif fmt == "gt3x":
-        from stillpoint.drivers.gt3x import read_header
-    else:  # .cwa (and anything else with a local clock and no stored zone)
-        from stillpoint.drivers.cwa import read_header
-    info = read_header(path, timezone=0)
+    from stillpoint.drivers import read_header
+    # a .cwa (and anything else with a local clock and no stored zone) is read as a .cwa
+    info = read_header(path, fmt if fmt in ("geneactiv", "gt3x") else "cwa", timezone=0)
     start = _header_start_s(info)
     if fmt == "geneactiv":
         header_offset = _geneactiv_header_offset(info.header)

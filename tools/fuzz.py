@@ -22,7 +22,7 @@ the raw messages out of order or give a settings value the wrong type or one at 
 bounds (engine.settings.BOUNDS), and rewrite the file with
 valid CRCs (so the decoders, not the CRC test, see it). Each .bin is also read one page per batch
 (the result must not change), each readable MCAP is also replayed. The in-process smoke test
-(tests/test_fuzz_smoke.py) runs a few thousand of these per format in CI.
+(tests/tools/test_fuzz_smoke.py) runs a few thousand of these per format in CI.
 """
 
 from __future__ import annotations

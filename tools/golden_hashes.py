@@ -4,7 +4,7 @@ tests/data/golden_hashes.json; print which outputs changed.
     STILLPOINT_REAL_DATA=../shared/data/real python tools/golden_hashes.py [--check] [CASE ...]
 
 Run it only for a deliberate change of output, and name that change in the commit that carries
-the new JSON file (tests/test_golden_hashes.py says when regenerating is legitimate). ``--check``
+the new JSON file (tests/project/test_golden_hashes.py says when regenerating is legitimate). ``--check``
 compares without writing (exit 1 when anything differs). Real-file cases need STILLPOINT_REAL_DATA;
 without it they keep their committed hashes.
 """

@@ -4,7 +4,7 @@
     python tools/summary_docs.py [--check]
 
 The table sits between the ``<!-- run-summary: start -->`` and ``<!-- run-summary: end -->``
-markers; tests/test_run_summary.py fails while it differs from the fields. ``--check`` compares
+markers; tests/engine/run/test_run_summary.py fails while it differs from the fields. ``--check`` compares
 without writing (exit 1 when it differs).
 """
 

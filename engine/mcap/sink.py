@@ -67,7 +67,7 @@ records and builds its chunks while the engine corrects the next step; a writer 
 compresses and writes the chunks (at most one waiting; zstd and most of the framing's numpy
 run outside the interpreter lock). One thread runs every call, in the order made, so the file
 is the same byte for byte as on one core (same records, chunk boundaries and indexes;
-tests/test_mcap_two_cores.py). A failure on either thread (a full disk, a bad record) is raised
+tests/engine/mcap/test_mcap_two_cores.py). A failure on either thread (a full disk, a bad record) is raised
 in the engine by its next call, as the exception the inline path raises (one line, exit 2), with
 everything written before kept; ``abort`` (an interrupt) drops the steps still waiting and
 stops both threads, leaving the ``.part`` file recoverable. With one core, "thread" writes

@@ -65,7 +65,7 @@ def _natural_spline(x: np.ndarray, y: np.ndarray, xo: np.ndarray) -> np.ndarray:
 # The reference's filter as R's signal 1.8-1 computes it, ``signal::butter(4, c(0.2, 5)/50,
 # "pass")`` printed with 17 significant digits: numerator and denominator of an 8th-order IIR run
 # by ``signal::filter`` (R/filter.R ``iir``). scipy.signal.butter gives the same filter to within
-# an ulp per coefficient (tests/test_mims.py), but this form is so ill-conditioned that one ulp
+# an ulp per coefficient (tests/engine/operators/test_mims.py), but this form is so ill-conditioned that one ulp
 # moves the 1 s areas by up to 3e-5, enough to put an area that sits on the truncation step on
 # the other side of it; with R's own coefficients the areas agree to about 2e-6.
 REFERENCE_B = (0.00035884079585594785, 0.0, -0.0014353631834237914, 0.0, 0.0021530447751356872,

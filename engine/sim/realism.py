@@ -1,6 +1,6 @@
 """Realism statistics of a simulated recording, in one streaming pass over its chunks.
 
-Used by the realism tests (tests/test_sim_realism.py) and the benchmark's ``--realism`` table
+Used by the realism tests (tests/engine/sim/test_sim_realism.py) and the benchmark's ``--realism`` table
 (tools/benchmarks/bench_simulate.py): 10 s window means and SDs of what the device stored, the same windows
 after the true GGIR-form correction, 5 s epoch ENMO before and after it, and the spectral peak of
 every walking bout of at least 60 s against its true step frequency.

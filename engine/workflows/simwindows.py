@@ -21,7 +21,7 @@ RMS (``DeviceSim.still_windows``). For each still window:
     and variance v(x) are computed exactly from the normal probabilities of the quantisation
     levels within +-7 s. The window mean of n iid samples is then m + sqrt(v / n) z (central limit
     theorem; n = 1000) and the sample SD sqrt(v * chi2(n-1) / (n-1)).
-    ``tests/test_discrepancy_simwindows.py`` checks both agree.
+    ``tests/engine/workflows/test_discrepancy_simwindows.py`` checks both agree.
 
 The window temperature is what the AX3 file holds: the MCP9700 reading quantised to 75/256 degC
 (drivers.constants.cwa_temperature_c; the simulator's .cwa writer rounds the same way), one value

@@ -12,7 +12,7 @@ Targets: <= 20 s, peak RSS < 300 MB.
     /work/venv/bin/python tools/benchmarks/bench_simulate.py --realism [--days 1] [--hz 25] [--seed 11]
 
 ``--realism`` prints the realism figures of docs/simulate.md instead (the same statistics the tests in
-tests/test_sim_realism.py check, for any duration/seed): low-SD window share and where it falls,
+tests/engine/sim/test_sim_realism.py check, for any duration/seed): low-SD window share and where it falls,
 still-window SD against the noise floor, ENMO before/after the true calibration, walking spectral
 peaks, worn temperature range.
 """

@@ -6,7 +6,7 @@ rule returns for them.
 The reference is wadpac/GGIR ``R/g.getbout.R`` @388064b707df4fcfb7f9b755c5a43a477d371092, run with
 R and the zoo package (``apt-get install r-cran-zoo``). Each line of the fixture:
 ``<bout epochs> <epoch s> <marked epochs as 0/1> <GGIR's bout epochs as 0/1>``; the tests compare
-``engine.outcomes.bouts.ggir_bouts`` with the last field (tests/test_outcomes_bands.py).
+``engine.outcomes.bouts.ggir_bouts`` with the last field (tests/engine/outcomes/test_outcomes_bands.py).
 """
 
 from __future__ import annotations

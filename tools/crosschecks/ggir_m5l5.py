@@ -9,7 +9,7 @@ Scenarios: the windows crosscheck's simulated weeks (tools/crosschecks/ggir_part
 waking activity, an afternoon and some nights of nonwear; a recording cut mid-night and a spring
 DST week with its 23-h day). Every local day is compared, valid or not (the day table keeps the
 valid ones). ``--write``: keep GGIR's figures as tests/data/ggir_m5l5/<scenario>.json (the
-fixtures of tests/test_outcomes_impute.py).
+fixtures of tests/engine/outcomes/test_outcomes_impute.py).
 """
 
 from __future__ import annotations

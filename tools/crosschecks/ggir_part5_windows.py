@@ -14,7 +14,7 @@ are not clean left out) are then compared with GGIR's to show what imputation ch
 Each scenario is given waking activity (light, MVPA and running stretches: ``active_per_day``)
 and an afternoon of nonwear (``nonwear_days``) so every bout class and the imputation are used.
 ``--write``: also keep GGIR's figures as tests/data/ggir_part5/<scenario>.json (the fixtures of
-tests/test_timeuse_ggir.py). ``--real DIR``: also each real recording there through ``process``
+tests/engine/timeuse/test_timeuse_ggir.py). ``--real DIR``: also each real recording there through ``process``
 (UTC, sleep on; the rhythm crosscheck's ``real_series``): GGIR's part 5 on its epoch table's
 series against its windows table.
 """

@@ -11,7 +11,7 @@ GGIR's decisions are kept as ``<scenario>.json``: every HASPT call (window, SPTE
 threshold, guider), the nights' hours and the SIB runs. ``--real DIR``: the anglez and nonwear of
 our epoch table for each real recording there are kept with GGIR's SIBs on them (recordings
 shorter than GGIR's 0.2-day minimum have no night). ``--check``: print the agreement of our
-operators with the new fixtures (what tests/test_sleep_ggir.py asserts) instead of writing.
+operators with the new fixtures (what tests/engine/sleep/test_sleep_ggir.py asserts) instead of writing.
 """
 
 from __future__ import annotations

@@ -16,7 +16,7 @@ fixture is the CSV, read the same way by R and by the tests):
 
 R writes, per input and parameter set, the steps per second its function returns:
 ``<input>.steps.csv`` with columns ``original`` and ``rowlands2022``. The tests compare our
-operator with these exactly (tests/test_outcomes_steps.py); CI needs no R.
+operator with these exactly (tests/engine/outcomes/test_outcomes_steps.py); CI needs no R.
 """
 
 from __future__ import annotations

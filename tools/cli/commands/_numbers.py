@@ -3,7 +3,7 @@
 argument --days: ...``, exit code 2) before any work, never handed to the engine.
 
 Every number a command line takes is parsed by a type made here (``number``, ``number_or``,
-``number_list``, ``number_pair``); ``tests/test_cli_numbers.py`` walks the whole parser and
+``number_list``, ``number_pair``); ``tests/tools/cli/test_cli_numbers.py`` walks the whole parser and
 fails for an option parsed with a bare ``int``/``float``/no type, and tries every bad value
 against every option. Each type carries its bounds (``lo``, ``hi``, ``integer``, ``lo_open``)
 so that test can compute the values just outside them."""

@@ -235,8 +235,10 @@ def test_interrupt_while_closing_stops_the_thread_before_the_file(tmp_path, core
         sample_rate_nominal=100.0, accel_range_g=8.0), {}, writer="thread")
     assert len(started) == 1
     gate = threading.Event()
+    running = threading.Event()
     ran = []
-    sink._framer.submit(lambda: (gate.wait(10), ran.append(1)))  # a step still being framed
+    sink._framer.submit(lambda: (running.set(), gate.wait(10), ran.append(1)))  # a step still being framed
+    assert running.wait(10)  # being framed, not waiting: a waiting call is dropped by abort()
 
     def drain(self):  # Ctrl-C while close() waits for the framing thread
         raise KeyboardInterrupt

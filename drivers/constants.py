@@ -109,9 +109,11 @@ def gna_rate_hz(text: str) -> float:
     return value
 
 
-def gna_accel_g(raw, gain, offset):
-    """Acceleration in g: (raw * 100 - offset) / gain. [GNA] §5 (vendor manual, all readers)"""
-    return (np.asarray(raw, dtype=np.float64) * 100.0 - offset) / gain
+def gna_accel_scale(gains, offsets) -> tuple[np.ndarray, np.ndarray]:
+    """(counts per g, zero in counts) of a GENEActiv header's per-axis gain and offset: the vendor's
+    g = (raw * 100 - offset) / gain, written as (raw - offset / 100) / (gain / 100). [GNA] §5 (vendor
+    manual, all readers)"""
+    return (np.asarray(gains, np.float64) / 100.0, np.asarray(offsets, np.float64) / 100.0)
 
 
 def gna_light_lux(raw, lux, volts):

@@ -48,7 +48,8 @@ from .byteio import (FollowingReader, check_recording_path, consumed_fraction, i
 from .constants import (GNA_GAIN_MAX, GNA_HEX_PER_SAMPLE, GNA_LIGHT_CAL_RANGE, GNA_LIGHT_SHIFT,
                         GNA_OFFSET_MAX, GNA_PAGE_MARKER, GNA_RATE_85_7, GNA_SAMPLES_PER_PAGE,
                         NS_TIME_RANGE_MS, PLAUSIBLE_BATTERY_V, PLAUSIBLE_RATE_HZ,
-                        PLAUSIBLE_TEMPERATURE_C, PLAUSIBLE_TIME_NS, PLAUSIBLE_YEARS, gna_rate_hz)
+                        PLAUSIBLE_TEMPERATURE_C, PLAUSIBLE_TIME_NS, PLAUSIBLE_YEARS, gna_accel_scale,
+                        gna_rate_hz)
 from stillpoint.engine.core.errors import (CorruptRecordingError, TruncatedRecordingError,
                      UnsupportedFormatError)
 from .geneactiv_header import (CALIBRATION_KEYS, SUBJECT_KEYS, TRIAL_KEYS, GeneactivHeader,
@@ -548,11 +549,12 @@ class GeneactivReader:
         light = cat([r.light[a:b] for r, a, b in sl])
         button = cat([r.button[a:b] for r, a, b in sl])
         hdr = self.info.header
+        counts_per_g, zero = gna_accel_scale(hdr["gains"], hdr["offsets"])
         block = Block(
             time_ns=time_ns,
             accel=accel,
-            accel_counts_per_g=np.asarray(hdr["gains"], np.float64) / 100.0,
-            accel_zero=np.asarray(hdr["offsets"], np.float64) / 100.0,
+            accel_counts_per_g=counts_per_g,
+            accel_zero=zero,
             unit_index=cat([r.index[lo:hi] for r, lo, hi, _ in pieces]).astype(np.int64),
             unit_sequence=cat([r.seq[lo:hi] for r, lo, hi, _ in pieces]).astype(np.int64),
             unit_start=starts,

@@ -239,6 +239,3 @@ def header_range_g(hdr: GeneactivHeader) -> float:
     except ValueError:
         return 8.0
 
-
-def is_marker(line: bytes) -> bool:
-    return line.strip(b" \t\r\x00") == GNA_PAGE_MARKER.encode()

@@ -81,11 +81,6 @@ def cell_text(v, decimals: int = 4) -> str:
     return str(v)
 
 
-def csv_row(values) -> list:
-    """``csv_cell`` over a row (a list of cells)."""
-    return [csv_cell(v) for v in values]
-
-
 # the file-name endings of the inputs we read (a trailing .gz first): ``recording_stem``
 RECORDING_SUFFIXES = (".cwa", ".bin", ".gt3x", ".mcap")
 

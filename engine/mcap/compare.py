@@ -8,7 +8,6 @@ calibration estimates, QC).
 from __future__ import annotations
 
 import hashlib
-from itertools import zip_longest
 
 from .stream import iter_messages  # streamed: one chunk in memory at a time
 
@@ -35,11 +34,3 @@ def compare(a, b, topics=None) -> dict:
     return {t: {"identical": da.get(t, empty) == db.get(t, empty),
                 "messages": (da.get(t, empty)[0], db.get(t, empty)[0])} for t in names}
 
-
-def first_difference(a, b, topic) -> int | None:
-    """Index of the first differing message of ``topic`` (None when identical)."""
-    ia, ib = iter_messages(a, [topic]), iter_messages(b, [topic])
-    for i, (x, y) in enumerate(zip_longest(ia, ib)):
-        if x is None or y is None or x[2].data != y[2].data or x[2].log_time != y[2].log_time:
-            return i
-    return None

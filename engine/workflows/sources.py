@@ -69,10 +69,3 @@ def stream_features(path, progress=None) -> StreamedFeatures:
     finally:
         src.close()
 
-
-def features_from_recording(path) -> WindowFeatures:
-    return stream_features(path).features
-
-
-def features_from_mcap(path) -> WindowFeatures:
-    return stream_features(path).features

@@ -88,3 +88,20 @@ def assert_features_equal(a: WindowFeatures, b: WindowFeatures):
     for name in ("start_ns", "n", "mean", "sd", "temperature", "norm_mean", "segment"):
         x, y = getattr(a, name), getattr(b, name)
         assert np.array_equal(x, y, equal_nan=True), name
+
+
+def push_in_pieces(op, tn, a, cuts=(), segments=None) -> list:
+    """Push (times ``tn``, g ``a``) into an operator taking ``CorrectedBatch`` es, cut at the sample
+    indices ``cuts`` and wherever ``segments`` (one id per sample) changes; its outputs, flush's
+    last."""
+    from stillpoint.engine.operators.correction import CorrectedBatch
+
+    edges = [0] + sorted(set(int(c) for c in cuts if 0 < c < len(tn))) + [len(tn)]
+    seg = np.zeros(len(tn), np.int64) if segments is None else segments
+    out = []
+    for s, e in zip(edges[:-1], edges[1:]):
+        for sg in np.unique(seg[s:e]):
+            m = np.flatnonzero(seg[s:e] == sg) + s
+            out.append(op.push(CorrectedBatch(tn[m], a[m], np.zeros(len(m)), int(sg))))
+    out.append(op.flush())
+    return out

@@ -10,6 +10,7 @@ import sys
 
 import numpy as np
 import pytest
+from synthetic_blocks import push_in_pieces
 
 from stillpoint.engine.operators.correction import CorrectedBatch
 from stillpoint.engine.operators.counts import (CountsOperator, EpochCounts, counts_path, trim)
@@ -31,16 +32,7 @@ def _signal(rate, seconds=90, seed=0):
 
 
 def _run(tn, a, rate, epoch, mode="normal", cuts=(), segments=None):
-    op = CountsOperator(rate, epoch, mode)
-    edges = [0] + sorted(set(int(c) for c in cuts if 0 < c < len(tn))) + [len(tn)]
-    seg = np.zeros(len(tn), np.int64) if segments is None else segments
-    out = []
-    for s, e in zip(edges[:-1], edges[1:]):
-        for sg in np.unique(seg[s:e]):
-            m = np.flatnonzero(seg[s:e] == sg) + s
-            out.append(op.push(CorrectedBatch(tn[m], a[m], np.zeros(len(m)), int(sg))))
-    out.append(op.flush())
-    return EpochCounts.concat(out)
+    return EpochCounts.concat(push_in_pieces(CountsOperator(rate, epoch, mode), tn, a, cuts, segments))
 
 
 @pytest.mark.parametrize("rate", [30, 50, 64, 100, 85.7])

@@ -12,6 +12,7 @@ import sys
 
 import numpy as np
 import pytest
+from synthetic_blocks import push_in_pieces
 
 from stillpoint.engine.operators.correction import CorrectedBatch
 from stillpoint.engine.operators import mims_extrapolation as mx
@@ -40,15 +41,7 @@ def _signal(rate, seconds, seed=0, start_frac=0.37):
 
 def _run(tn, a, epoch=1, cuts=(), segments=None, op=None):
     op = op or MimsOperator(0.0, epoch, 8.0)
-    edges = [0] + sorted(set(int(c) for c in cuts if 0 < c < len(tn))) + [len(tn)]
-    seg = np.zeros(len(tn), np.int64) if segments is None else segments
-    out = []
-    for s, e in zip(edges[:-1], edges[1:]):
-        for sg in np.unique(seg[s:e]):
-            m = np.flatnonzero(seg[s:e] == sg) + s
-            out.append(op.push(CorrectedBatch(tn[m], a[m], np.zeros(len(m)), int(sg))))
-    out.append(op.flush())
-    return EpochMims.concat(out)
+    return EpochMims.concat(push_in_pieces(op, tn, a, cuts, segments))
 
 
 @pytest.mark.parametrize("rate,seed", [(30, 0), (50, 1), (100, 2), (85.7, 3)])

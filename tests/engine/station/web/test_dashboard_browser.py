@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import os
 import re
-import shutil
 import signal
 import sqlite3
 import subprocess
@@ -21,35 +20,14 @@ import time
 from pathlib import Path
 
 import pytest
+from browser import chrome, missing
 
-CHROMIUM = os.environ.get("STILLPOINT_CHROMIUM", "/usr/bin/chromium")
-CHROMEDRIVER = shutil.which("chromedriver") or "/usr/bin/chromedriver"
-FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
-         "--disable-component-update", "--disable-sync", "--no-first-run",
-         "--window-size=1280,900")
-
-
-def _missing() -> str:
-    why = []
-    if not os.access(CHROMIUM, os.X_OK):
-        why.append(f"no chromium at {CHROMIUM}")
-    if not os.access(CHROMEDRIVER, os.X_OK):
-        why.append("no chromedriver")
-    try:
-        import selenium  # noqa: F401
-    except ImportError:
-        why.append("selenium is not installed (pip install -e '.[test]')")
-    return "; ".join(why)
-
-
-MISSING = _missing()
+MISSING = missing()
 if MISSING:
     if os.environ.get("CI"):
         pytest.fail(f"the dashboard's browser test must run in CI: {MISSING}", pytrace=False)
     pytest.skip(f"the dashboard's browser test needs a browser: {MISSING}", allow_module_level=True)
 
-from selenium import webdriver  # noqa: E402
-from selenium.webdriver.chrome.service import Service  # noqa: E402
 from selenium.webdriver.common.by import By  # noqa: E402
 from selenium.webdriver.support import expected_conditions as EC  # noqa: E402
 from selenium.webdriver.support.ui import WebDriverWait  # noqa: E402
@@ -113,11 +91,7 @@ def _text(drv, css: str) -> str:
 
 @pytest.fixture
 def browser():
-    opts = webdriver.ChromeOptions()
-    opts.binary_location = CHROMIUM
-    for f in FLAGS:
-        opts.add_argument(f)
-    drv = webdriver.Chrome(service=Service(CHROMEDRIVER), options=opts)
+    drv = chrome()
     drv.set_page_load_timeout(30)
     yield drv
     drv.quit()

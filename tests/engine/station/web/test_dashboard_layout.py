@@ -12,31 +12,12 @@ from __future__ import annotations
 
 import os
 import re
-import shutil
 from pathlib import Path
 
 import pytest
+from browser import chrome, missing
 
 from stillpoint.engine.station.web import pages
-
-CHROMIUM = os.environ.get("STILLPOINT_CHROMIUM", "/usr/bin/chromium")
-CHROMEDRIVER = shutil.which("chromedriver") or "/usr/bin/chromedriver"
-FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
-         "--disable-component-update", "--disable-sync", "--no-first-run")
-
-
-def _missing() -> str:
-    why = []
-    if not os.access(CHROMIUM, os.X_OK):
-        why.append(f"no chromium at {CHROMIUM}")
-    if not os.access(CHROMEDRIVER, os.X_OK):
-        why.append("no chromedriver")
-    try:
-        import selenium  # noqa: F401
-    except ImportError:
-        why.append("selenium is not installed (pip install -e '.[test]')")
-    return "; ".join(why)
-
 
 CSS = Path(pages.__file__).parent / "static" / "dashboard.css"
 WIDTH = 1300
@@ -76,14 +57,11 @@ def test_actions_and_progress_cells_wrap_and_the_rest_does_not():
 
 
 def test_dock_actions_fit_a_1300_px_window(tmp_path):
-    missing = _missing()
-    if missing:
+    why = missing()
+    if why:
         if os.environ.get("CI"):
-            pytest.fail(f"the dock's layout test must run in CI: {missing}", pytrace=False)
-        pytest.skip(f"the dock's layout test needs a browser: {missing}")
-    from selenium import webdriver
-    from selenium.webdriver.chrome.service import Service
-
+            pytest.fail(f"the dock's layout test must run in CI: {why}", pytrace=False)
+        pytest.skip(f"the dock's layout test needs a browser: {why}")
     frag = pages.dock_fragment(_rows(), {"free_bytes": 2.1e11, "downloads_fit": 380},
                                token="t" * 32, live=True)
     page = pages.dock_page(frag, folder="/data/station/out", live=True, read_only=False,
@@ -94,12 +72,7 @@ def test_dock_actions_fit_a_1300_px_window(tmp_path):
     html = tmp_path / "dock.html"
     html.write_text(page, encoding="utf-8")
 
-    opts = webdriver.ChromeOptions()
-    opts.binary_location = CHROMIUM
-    for f in FLAGS:
-        opts.add_argument(f)
-    opts.add_argument(f"--window-size={WIDTH},900")
-    drv = webdriver.Chrome(service=Service(CHROMEDRIVER), options=opts)
+    drv = chrome(WIDTH, 900)
     try:
         drv.set_page_load_timeout(30)
         drv.get(html.as_uri())

@@ -25,6 +25,7 @@ from dataclasses import replace
 from ..calibration.estimate import CalibrationEstimate, calibration_source
 from ..calibration.outcome import CalibrationOutcome
 from ..core.blocks import coalesce_blocks
+from ..core.malloc import tune_for_blocks
 from ..operators.correction import CorrectionOperator
 from ..operators.filters import band_used
 from ..run.output import OutputPass
@@ -35,6 +36,7 @@ def tables_with_estimate(source, est: CalibrationEstimate, settings, ts, *, sink
     """Write the tables ``ts`` of ``source`` corrected with ``est`` from its first sample (module
     docstring); return the tables summary (its day rows name the estimate:
     ``calibration_source``)."""
+    tune_for_blocks()  # the pass's block-sized arrays stay on the heap (engine/core/malloc.py)
     applied = est.applied and bool(settings.calibrate)
     initial = replace(est, effective_from_ns=None) if applied else CalibrationEstimate.identity(est.reason)
     rate = float(source.info.sample_rate_nominal or 0) or 100.0

@@ -93,3 +93,18 @@ def test_calibration_source_names_prior_static_recording_and_none():
     assert calibration_source(prior, True, t0) == SOURCE_PRIOR
     assert calibration_source(static, True, t0) == SOURCE_STATIC
     assert calibration_source(own, False, t0) == SOURCE_NONE
+
+
+def test_online_run_and_its_tables_pass_keep_block_arrays_on_the_heap(runs, monkeypatch, tmp_path):
+    """Both passes of an online run set glibc's block thresholds (engine/core/malloc.py): with the
+    dynamic ones their block-sized arrays were trimmed off the heap and faulted in every step."""
+    import stillpoint.engine.run.online as online
+    import stillpoint.engine.tables.estimate_pass as estimate_pass
+    calls = []
+    monkeypatch.setattr(online, "tune_for_blocks", lambda: calls.append("online pass"))
+    monkeypatch.setattr(estimate_pass, "tune_for_blocks", lambda: calls.append("tables pass"))
+    assert main(["process", str(runs / "rec.cwa"), "-o", str(tmp_path / "o.mcap"), "--mode",
+                 "online", "-q"]) == 0
+    assert calls == ["online pass", "tables pass"]
+    with gzip.open(tmp_path / "o.epochs.csv.gz", "rb") as a, gzip.open(runs / "o.epochs.csv.gz", "rb") as b:
+        assert a.read() == b.read()

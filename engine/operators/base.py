@@ -23,11 +23,12 @@ def ring_capacity(width_s: float, rate_hz: float, minimum: int = 4096) -> int:
 # (3, n) array whose transpose, an (n, 3) view, is returned.
 
 
-def accel_g_columns(block) -> np.ndarray:
-    """``block.accel_g()`` (float64 g, (n, 3)), computed column by column."""
+def accel_g_columns(block, out_t=None) -> np.ndarray:
+    """``block.accel_g()`` (float64 g, (n, 3)), computed column by column; ``out_t``: a (3, n)
+    array to write into (rows contiguous, e.g. the tail of a larger buffer)."""
     import numpy as np
     acc = block.accel
-    out = np.empty((3, acc.shape[0]))
+    out = np.empty((3, acc.shape[0])) if out_t is None else out_t
     zero = block.accel_zero.astype(np.float64)
     cpg = block.accel_counts_per_g.astype(np.float64)
     shift = bool(np.any(block.accel_zero))
@@ -46,15 +47,16 @@ def apply_columns(est, accel, temperature, out_t=None) -> np.ndarray:
     import numpy as np
     n = accel.shape[0]
     out = np.empty((3, n)) if out_t is None else out_t
-    dt = None
+    dt = term = None
     if est.uses_temperature:
         if temperature is None:
             raise ValueError("this estimate has a temperature term; temperature is required")
-        dt = np.asarray(temperature, np.float64) - est.temperature_ref
+        dt = np.subtract(np.asarray(temperature, np.float64), est.temperature_ref)
+        term = np.empty(n)  # one scratch column for dt * tempoffset
     for j in range(3):
         c = out[j]
         np.add(accel[:, j], est.offset[j], out=c)
         c *= est.scale[j]
         if dt is not None:
-            c += dt * est.tempoffset[j]
+            c += np.multiply(dt, est.tempoffset[j], out=term)
     return out.T

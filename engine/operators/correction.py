@@ -102,10 +102,10 @@ class TemperatureInterpolator:
             us, uidx, utemp = block.unit_start, block.unit_index, block.temperature_c
         else:  # a block without unit arrays: one unit of unknown temperature
             us, uidx, utemp = np.zeros(1, np.int64), np.array([-1]), np.array([np.nan])
-        t, g = block.time_ns, accel_g_columns(block)
+        t = block.time_ns
         continuing = self._open_unit is not None and uidx[0] == self._open_unit and uidx[0] >= 0
         if continuing and len(us) == 1:
-            self._ring.append(time=t, accel=g)
+            self._ring.append(time=t, accel=accel_g_columns(block))
             self._open_last = int(t[-1])
             return out
         anchors_t, anchors_v = [], []
@@ -119,16 +119,17 @@ class TemperatureInterpolator:
         anchors_t += (t[ends - 1] - self._t0).astype(np.float64).tolist()
         anchors_v += utemp[:len(ends)].tolist()
         cut = int(us[-1])
-        if len(self._ring):
+        if len(self._ring):  # the held samples, then the block's, in one (3, h + n) buffer
             held = self._ring.view()
             tt = np.concatenate([held["time"], t[:cut]])
             h = held["time"].shape[0]
-            gc = np.empty((3, h + cut))  # column by column, like g: (n, 3) view of (3, n)
+            gc = np.empty((3, h + n))  # column by column, like g: (n, 3) view of (3, n)
             gc[:, :h] = held["accel"].T
-            gc[:, h:] = g[:cut].T
-            gg = gc.T
+            g = accel_g_columns(block, gc[:, h:])
+            gg = gc[:, :h + cut].T
             self._ring.clear()
         else:
+            g = accel_g_columns(block)
             tt, gg = t[:cut], g[:cut]
         if tt.shape[0]:
             out.append(self._release(tt, gg, anchors_t, anchors_v))

@@ -102,7 +102,7 @@ class SosStream:
             from scipy import signal
             y, zi = signal.sosfilt(self.sos, x, axis=0, zi=self.zi)
             self._zi = np.ascontiguousarray(np.moveaxis(zi, -1, 0))
-            return y
+            return np.ascontiguousarray(y.T).T  # the kernel's layout: (n, 3) view of (3, n)
         xt = np.array(np.asarray(x, np.float64).T, np.float64, order="C")  # (channels, n) copy
         _KERNEL(self.sos, xt, self._zi)
         return xt.T

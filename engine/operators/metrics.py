@@ -56,12 +56,26 @@ class EpochMetrics:
                                for f in fields(EpochMetrics)})
 
 
+def _norm_in_place(x: np.ndarray) -> np.ndarray:
+    """Euclidean norm of the columns of a (3, n) array the caller gives up, computed in its
+    first row: ``sqrt((x0*x0 + x1*x1) + x2*x2)``, the sum in ``einsum("ij,ij->i")``'s order."""
+    x0, x1, x2 = x
+    np.multiply(x0, x0, out=x0)
+    np.multiply(x1, x1, out=x1)
+    x0 += x1
+    np.multiply(x2, x2, out=x2)
+    x0 += x2
+    return np.sqrt(x0, out=x0)
+
+
 def chunk_metrics(chunk: BinChunk, width_ns: int) -> EpochMetrics:
     st, cnt = chunk.starts, chunk.counts
     c = chunk.cols
     r = c["norm"]
     mean_r = np.add.reduceat(r, st) / cnt
-    mad = np.add.reduceat(np.abs(r - np.repeat(mean_r, cnt)), st) / cnt
+    dev = np.repeat(mean_r, cnt)
+    np.subtract(r, dev, out=dev)
+    mad = np.add.reduceat(np.abs(dev, out=dev), st) / cnt
     return EpochMetrics(
         start_ns=chunk.bin_start_ns(width_ns), n=cnt.astype(np.int64),
         enmo_mg=np.add.reduceat(c["enmo"], st) / cnt * 1000.0,
@@ -101,9 +115,9 @@ class MetricsOperator:
             self._segment = batch.segment
         a = batch.accel
         r = np.sqrt(np.einsum("ij,ij->i", a, a))
-        enmo = np.maximum(r - 1.0, 0.0)
-        f = self._filter.push(a)
-        bfen = np.sqrt(np.einsum("ij,ij->i", f, f))
+        enmo = np.subtract(r, 1.0)
+        np.maximum(enmo, 0.0, out=enmo)
+        bfen = _norm_in_place(self._filter.push(a).T)
         self.enmo_sum_mg += float(enmo.sum()) * 1000.0
         self.samples += batch.n
         return self._rows(self._binner.push(batch.segment, batch.time_ns, norm=r, enmo=enmo,

@@ -57,13 +57,26 @@ class CommandLineParser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {' '.join(message.split())}\n")
 
 
+class _VersionAction(argparse.Action):
+    """``--version``: the installed distribution's version, looked up only when asked for (the
+    lookup imports importlib.metadata and email, ~40 ms of every command's start-up)."""
+
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS,
+                 help="show program's version number and exit"):
+        super().__init__(option_strings, dest=dest, default=default, nargs=0, help=help)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        import stillpoint
+        parser._print_message(f"stillpoint {getattr(stillpoint, '__version__', '0+unknown')}\n",
+                              sys.stdout)
+        parser.exit()
+
+
 def build_parser(only=None) -> argparse.ArgumentParser:
     parser = CommandLineParser(
         prog="stillpoint",
         description="Streaming engine for raw wearable-accelerometer data (AX3/AX6 .cwa, GENEActiv .bin).")
-    import stillpoint
-    parser.add_argument("--version", action="version",
-                        version=f"stillpoint {getattr(stillpoint, '__version__', '0+unknown')}")
+    parser.add_argument("--version", action=_VersionAction)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for mod in _command_modules(only):
         p = sub.add_parser(mod.NAME, help=getattr(mod, "HELP", None),

@@ -133,11 +133,11 @@ def ivis(x: np.ndarray, epoch_s: float = 60.0, threshold: Optional[float] = rule
 def ar1_phi(y: np.ndarray) -> Optional[float]:
     """The AR(1) coefficient by exact Gaussian maximum likelihood with a mean (R's
     ``arima(order = c(1, 0, 0))``; R finds the same optimum numerically, to its tolerance)."""
-    from scipy.optimize import minimize
     y = np.asarray(y, np.float64)
     n = y.shape[0]
     if n < 3 or np.ptp(y) == 0:
         return None
+    from scipy.optimize import minimize  # ~0.35 s of imports: only when there is a fit to do
 
     def nll(p):
         phi, mu = math.tanh(p[0]), p[1]
@@ -203,12 +203,12 @@ def _add24ifneg(x: float) -> float:
 def cosinor(minutes: np.ndarray, time_offset_h: float, threshold: Optional[float] = rules.LIGHT_MG
             ) -> Cosinor:
     """GGIR's ``cosinor_IS_IV_Analyses`` on the minute series of ``cosinor_input``."""
-    from scipy.optimize import least_squares
     x = to_mg(whole_days(np.asarray(minutes, np.float64)))
     out = Cosinor(time_offset_h=time_offset_h)
     n = rules.MINUTES_PER_DAY
     if x.shape[0] < n:
         return out
+    from scipy.optimize import least_squares  # ~0.35 s of imports: only when there is a fit to do
     ok = np.isfinite(x)
     y = np.log(x[ok] + 1)
     t = (np.tile(np.arange(1, n + 1), x.shape[0] // n) / 60.0)[ok]

@@ -34,6 +34,8 @@ class RunContext:
     tables: Any = None  # engine.tables.TablesSettings (with the run's zone), or None
     progress: Optional[Callable[[str, PipelineStats], None]] = None
     summary: Any = None  # the RunSummary (a schedule fills static_calibration)
+    sink_process: Any = None  # engine.mcap.sinkproc.SinkProcess: the log is written there
+
 
     @property
     def meta_settings(self) -> dict:
@@ -50,12 +52,13 @@ class RunContext:
     def open_log(self, info, *, step_chunks: bool = False) -> McapSink:
         """Open the MCAP log for the recording ``info`` describes and write its clock record."""
         s = self.settings
-        sink = McapSink(self.out, loggable(info), self.meta_settings,
-                        flush_every_s=s.flush_every_s, compression=s.compression,
-                        chunk_size=s.chunk_size, corrected_quantum_g=s.corrected_quantum_g,
-                        writer=self.writer, zstd_level=s.zstd_level, view_hz=s.view_hz,
-                        chunk_s=chunk_span(s), **({"step_chunks": True} if step_chunks else {}))
-        return sink
+        kw = dict(flush_every_s=s.flush_every_s, compression=s.compression,
+                  chunk_size=s.chunk_size, corrected_quantum_g=s.corrected_quantum_g,
+                  writer=self.writer, zstd_level=s.zstd_level, view_hz=s.view_hz,
+                  chunk_s=chunk_span(s), **({"step_chunks": True} if step_chunks else {}))
+        if self.sink_process is not None:  # the same sink, in the child process
+            return self.sink_process.open(self.out, loggable(info), self.meta_settings, **kw)
+        return McapSink(self.out, loggable(info), self.meta_settings, **kw)
 
 
 @dataclass

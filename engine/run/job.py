@@ -59,6 +59,22 @@ def _check_tables(tables) -> None:
         check_sleep_outputs(tables)
 
 
+def sink_process_for(path: Path, mode: str, writer: str):
+    """A started ``SinkProcess`` when this run writes its log in a child process: a batch run
+    (writer "thread") with a second core, an input of at least
+    ``tuning.SINK_PROCESS_MIN_BYTES`` and $STILLPOINT_SINK_PROCESS not "0"; else None.
+    Started before the first pass, so the child's start-up overlaps it."""
+    from ..mcap import sinkproc
+    if mode != "batch" or writer != "thread" or cores_available() < 2 or not sinkproc.enabled():
+        return None
+    try:
+        if not path.is_file() or path.stat().st_size < tuning.SINK_PROCESS_MIN_BYTES:
+            return None
+    except OSError:
+        return None
+    return sinkproc.SinkProcess.start()
+
+
 def process_file(path, out, settings: Optional[RunSettings] = None, *,
                  progress: Optional[Callable[[str, PipelineStats], None]] = None,
                  writer: Optional[str] = None, source_options: Optional[dict] = None,
@@ -82,6 +98,18 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
     writer = writer or tuning.WRITER_BY_MODE[s.mode]
     path, out = Path(path), Path(out)
     check_output(out)
+    child = sink_process_for(path, s.mode, writer)
+    try:
+        return _process(path, out, s, progress, writer, source_options, tables, metadata,
+                        prefetch, child)
+    finally:
+        if child is not None:  # ended already unless the run failed before its log was open
+            child.stop()
+
+
+def _process(path: Path, out: Path, s: RunSettings, progress, writer: str, source_options,
+             tables, metadata, prefetch, child) -> dict:
+    """``process_file``'s run (``child``: the SinkProcess its log is written in, or None)."""
     if prefetch is None:
         prefetch = tuning.PREFETCH_BY_MODE[s.mode] and cores_available() > 1
     t_start = time.perf_counter()
@@ -106,7 +134,7 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
                                  "session": info.session_id, "rate_hz": rate,
                                  "range_g": info.accel_range_g})
     ctx = RunContext(s, opened.input, opened.clock, out, rate, band_used(rate, s.bfen_band_hz),
-                     writer, tables, progress, summary)
+                     writer, tables, progress, summary, child)
     res = run_batch(ctx, src) if s.mode == "batch" else run_online(ctx, src)
     if s.mode == "online":
         summary.estimates = res.estimates

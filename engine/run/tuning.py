@@ -16,3 +16,5 @@ PREFETCH_BY_MODE = {"batch": True, "online": False}
 OUTPUT_BATCH_SECTORS = 500
 # QC events described in the run summary (all are counted, and logged on /qc)
 QC_DETAILS = 10
+# batch runs write the MCAP log in a child process (engine/mcap/sinkproc.py) for inputs of at least this many bytes
+SINK_PROCESS_MIN_BYTES = 16 << 20

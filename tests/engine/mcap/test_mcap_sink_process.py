@@ -1,0 +1,309 @@
+"""Batch `process` with its MCAP log written by a child process (engine/mcap/sinkproc.py, the
+step's arrays through shared-memory slots, engine/mcap/slots.py) writes the same log and tables,
+byte for byte, as a one-core run; a failure in the child (a full disk, a call that fails, the
+child killed) is the one-line error and exit code 2 one core gives, with the partial log kept and
+recoverable; an interrupt leaves no child process, no thread and nothing in /dev/shm.
+
+Faults are made inside the child by a ``sitecustomize`` module put on its PYTHONPATH (the
+child is a fresh interpreter: the test's monkeypatching does not reach it)."""
+
+from __future__ import annotations
+
+import os
+import signal
+import textwrap
+import threading
+
+import pytest
+from mcap.reader import make_reader
+
+import stillpoint.engine.mcap.sinkproc as sinkproc
+import stillpoint.engine.run.job as job_mod
+from stillpoint.engine.core.errors import StillpointError
+from stillpoint.engine.mcap.slots import SlotRing
+from stillpoint.engine.recover import recover
+from stillpoint.engine.run import RunSettings, process_file, tuning
+from stillpoint.engine.tables import TablesSettings
+from stillpoint.tools.cli import main as cli
+from synthetic_recording import make_recording
+
+TOPICS = ("/raw/accel", "/corrected/accel", "/temperature", "/metrics/epoch")
+THREADS = ("mcap-framing", "mcap-writer", "source-prefetch")
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory):
+    rec = tmp_path_factory.mktemp("child") / "rec.cwa"
+    make_recording(rec, hours=2.0, rate=100.0, seed=21)  # ~12 pipeline steps of pass 2
+    return rec
+
+
+@pytest.fixture
+def child(monkeypatch):
+    """Use the child process for any input on two cores; returns the SinkProcesses started."""
+    started = []
+    real = sinkproc.SinkProcess.start.__func__
+
+    def start(cls):
+        p = real(cls)
+        started.append(p)
+        return p
+    monkeypatch.setattr(sinkproc.SinkProcess, "start", classmethod(start))
+    monkeypatch.setattr(tuning, "SINK_PROCESS_MIN_BYTES", 0)
+    monkeypatch.setattr(job_mod, "cores_available",  # two, unless capped to one
+                        lambda: 1 if os.environ.get("STILLPOINT_CORES") == "1" else 2)
+    monkeypatch.delenv(sinkproc.ENV, raising=False)
+    monkeypatch.delenv("STILLPOINT_CORES", raising=False)
+    return started
+
+
+def _in_child(monkeypatch, tmp_path, code: str) -> None:
+    """Run ``code`` at the start of the child interpreter (a sitecustomize on its path)."""
+    d = tmp_path / "site"
+    d.mkdir()
+    (d / "sitecustomize.py").write_text(textwrap.dedent(code))
+    monkeypatch.setenv("PYTHONPATH", str(d) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+
+
+def _messages(path):
+    out = {t: [] for t in TOPICS}
+    with open(path, "rb") as f:
+        for _s, ch, m in make_reader(f).iter_messages(topics=list(TOPICS), log_time_order=False):
+            out[ch.topic].append((m.log_time, m.data))
+    return out
+
+
+def _children():
+    """Live child processes of this one (pids), from /proc."""
+    me, kids = os.getpid(), []
+    for d in os.listdir("/proc"):
+        if d.isdigit():
+            try:
+                with open(f"/proc/{d}/stat") as f:
+                    st = f.read().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if int(st[1]) == me and st[0] != "Z":
+                kids.append(int(d))
+    return kids
+
+
+def _clean():
+    assert [t.name for t in threading.enumerate() if t.name in THREADS and t.is_alive()] == []
+    assert _children() == []
+
+
+def _shm():
+    return sorted(os.listdir("/dev/shm")) if os.path.isdir("/dev/shm") else []
+
+
+@pytest.mark.parametrize("log", ["full", "lean"])
+def test_child_writes_the_bytes_of_one_core(recording, tmp_path, child, monkeypatch, log):
+    out = tmp_path / "r.mcap"  # the same names: the summary record names the outputs
+    tables = TablesSettings(tmp_path / "r.epochs.csv.gz", tmp_path / "r.days.csv")
+    s = RunSettings(mode="batch", log=log)
+    shm = _shm()
+    two = process_file(recording, out, s, tables=tables)
+    assert len(started := child) == 1 and started[0].proc is None  # used, and ended
+    got = {p: p.read_bytes() for p in (out, tables.epochs_path, tables.days_path)}
+    for p in got:
+        p.unlink()
+    monkeypatch.setenv("STILLPOINT_CORES", "1")
+    one = process_file(recording, out, s, tables=tables)
+    assert len(child) == 1  # one core: no child
+    for p, b in got.items():
+        assert p.read_bytes() == b, p.name
+    assert one["mcap_flushes"] == two["mcap_flushes"] > 20
+    assert one["mcap_messages"] == two["mcap_messages"]
+    assert two["peak_rss_mb"]["writer"] > 0  # the child's own peak RSS
+    _clean()
+    assert _shm() == shm
+
+
+def test_child_off_by_env_and_for_short_inputs(recording, tmp_path, child, monkeypatch):
+    monkeypatch.setenv(sinkproc.ENV, "0")
+    process_file(recording, tmp_path / "a.mcap", RunSettings(mode="batch"))
+    monkeypatch.delenv(sinkproc.ENV)
+    monkeypatch.setattr(tuning, "SINK_PROCESS_MIN_BYTES", recording.stat().st_size + 1)
+    process_file(recording, tmp_path / "b.mcap", RunSettings(mode="batch"))
+    process_file(recording, tmp_path / "c.mcap", RunSettings(mode="online"))
+    assert child == []
+
+
+def _cli_run(recording, out, capsys):
+    rc = cli(["process", str(recording), "-o", str(out), "-q", "--no-tables"])
+    err = capsys.readouterr().err
+    return rc, [ln for ln in err.strip().splitlines() if ln]
+
+
+def _prefix_of(part, full, tmp_path):
+    fixed = tmp_path / "fixed.mcap"
+    recover(part, fixed)
+    got, ref = _messages(fixed), _messages(full)
+    assert got["/raw/accel"]
+    for t in TOPICS:
+        assert got[t] == ref[t][:len(got[t])], t
+    return got
+
+
+def _one_core_line(recording, tmp_path, monkeypatch, capsys, patch):
+    """The one-line error of a one-core run with ``patch`` applied in this process."""
+    monkeypatch.setenv("STILLPOINT_CORES", "1")
+    undo = patch()
+    out = tmp_path / "1" / "r.mcap"
+    out.parent.mkdir()
+    rc, lines = _cli_run(recording, out, capsys)
+    undo()
+    monkeypatch.delenv("STILLPOINT_CORES")
+    assert rc == 2 and len(lines) == 1, lines
+    return lines[0]
+
+
+def test_disk_full_in_the_child(recording, tmp_path, child, monkeypatch, capsys):
+    full = tmp_path / "full.mcap"
+    process_file(recording, full, RunSettings(mode="batch"), writer="inline")
+    child.clear()
+
+    def patch():
+        real, calls = os.writev, [0]
+
+        def writev(fd, parts):
+            calls[0] += 1
+            if calls[0] > 8:
+                raise OSError(28, "No space left on device")
+            return real(fd, parts)
+        os.writev = writev
+        return lambda: setattr(os, "writev", real)
+    line1 = _one_core_line(recording, tmp_path, monkeypatch, capsys, patch)
+    _in_child(monkeypatch, tmp_path, """
+        import os
+        _real, _calls = os.writev, [0]
+        def _writev(fd, parts):
+            _calls[0] += 1
+            if _calls[0] > 8:
+                raise OSError(28, "No space left on device")
+            return _real(fd, parts)
+        os.writev = _writev
+    """)
+    out = tmp_path / "2" / "r.mcap"
+    out.parent.mkdir()
+    rc, lines = _cli_run(recording, out, capsys)
+    assert len(child) == 1
+    assert rc == 2 and len(lines) == 1, lines
+    assert "no space left on device" in lines[0] and "stillpoint recover" in lines[0]
+    assert lines[0].replace(str(tmp_path / "2"), str(tmp_path / "1")) == line1
+    assert not out.exists() and (out.parent / "r.mcap.part").exists()
+    _prefix_of(out.parent / "r.mcap.part", full, tmp_path / "2")
+    _clean()
+
+
+def test_error_in_a_call_in_the_child(recording, tmp_path, child, monkeypatch, capsys):
+    import stillpoint.engine.mcap.sink as sink_mod
+
+    def patch():
+        real, calls = sink_mod._frame_block, [0]
+
+        def frame(*a):
+            calls[0] += 1
+            if calls[0] == 4:
+                raise StillpointError("step 4 could not be framed")
+            return real(*a)
+        sink_mod._frame_block = frame
+        return lambda: setattr(sink_mod, "_frame_block", real)
+    line1 = _one_core_line(recording, tmp_path, monkeypatch, capsys, patch)
+    _in_child(monkeypatch, tmp_path, """
+        import stillpoint.engine.mcap.sink as sink_mod
+        from stillpoint.engine.core.errors import StillpointError
+        _real, _calls = sink_mod._frame_block, [0]
+        def _frame(*a):
+            _calls[0] += 1
+            if _calls[0] == 4:
+                raise StillpointError("step 4 could not be framed")
+            return _real(*a)
+        sink_mod._frame_block = _frame
+    """)
+    out = tmp_path / "2" / "r.mcap"
+    out.parent.mkdir()
+    rc, lines = _cli_run(recording, out, capsys)
+    assert len(child) == 1
+    assert rc == 2 and len(lines) == 1, lines
+    assert lines[0].replace(str(tmp_path / "2"), str(tmp_path / "1")) == line1
+    assert (out.parent / "r.mcap.part").exists() and not out.exists()
+    _clean()
+
+
+def test_killed_child_is_one_line(recording, tmp_path, child):
+    full = tmp_path / "full.mcap"
+    process_file(recording, full, RunSettings(mode="batch"), writer="inline")
+    seen = [0]
+
+    def progress(label, stats):
+        if label == "pass 2/2":
+            seen[0] += 1
+            if seen[0] == 5:
+                os.kill(child[-1].proc.pid, signal.SIGKILL)
+                child[-1].proc.wait()
+
+    out = tmp_path / "r.mcap"
+    with pytest.raises(StillpointError) as e:
+        process_file(recording, out, RunSettings(mode="batch"), progress=progress)
+    msg = str(e.value)
+    assert "\n" not in msg and "writer process ended (signal 9)" in msg
+    assert "stillpoint recover" in msg and str(out) in msg
+    assert not out.exists() and (tmp_path / "r.mcap.part").exists()
+    _prefix_of(tmp_path / "r.mcap.part", full, tmp_path)
+    _clean()
+
+
+def test_interrupt_stops_the_child_and_keeps_a_recoverable_log(recording, tmp_path, child):
+    full = tmp_path / "full.mcap"
+    process_file(recording, full, RunSettings(mode="batch"), writer="inline")
+    shm, fds = _shm(), len(os.listdir("/proc/self/fd"))
+    seen = [0]
+
+    def progress(label, stats):
+        if label == "pass 2/2":
+            seen[0] += 1
+            if seen[0] == 6:
+                raise KeyboardInterrupt
+
+    out = tmp_path / "r.mcap"
+    with pytest.raises(KeyboardInterrupt) as e:
+        process_file(recording, out, RunSettings(mode="batch"), progress=progress)
+    assert len(child) == 1 and child[0].proc is None
+    _clean()
+    assert _shm() == shm and len(os.listdir("/proc/self/fd")) == fds  # no segment, no fd left
+    part = tmp_path / "r.mcap.part"
+    assert e.value.partial_output == str(part) and not out.exists()
+    got = _prefix_of(part, full, tmp_path)
+    assert len(got["/raw/accel"]) < len(_messages(full)["/raw/accel"])
+
+
+def test_failure_before_the_log_opens_ends_the_child(tmp_path, child):
+    bad = tmp_path / "bad.cwa"
+    bad.write_bytes(b"\0" * 4096)
+    with pytest.raises(StillpointError):
+        process_file(bad, tmp_path / "r.mcap", RunSettings(mode="batch"))
+    assert len(child) == 1 and child[0].proc is None
+    _clean()
+
+
+def test_slots_carry_arrays_and_objects():
+    import numpy as np
+    ring = SlotRing(2, 1 << 16)
+    other = SlotRing(2, 1 << 16, fd=os.dup(ring.fd))  # the child's view of the same memory
+    a = np.arange(1000, dtype=np.int64)
+    obj = {"a": a, "b": np.ones((10, 3))[:, 1], "s": "text"}  # b: not contiguous, in band
+    head, sizes = ring.pack(obj)
+    assert ring.fits(sizes) and len(sizes) == 1
+    ring.fill(1, sizes)
+    got = other.unpack(1, head, sizes)
+    ring.fill(1, ring.pack({"a": a * 0, "b": a, "s": ""})[1])  # the slot reused: got is a copy
+    assert np.array_equal(got["a"], a) and np.array_equal(got["b"], np.ones(10))
+    got["a"][0] = 5  # writable, its own memory
+    assert not ring.stopping and not other.stopping
+    ring.stop()
+    assert other.stopping
+    assert not ring.fits([1 << 17])
+    ring.close()
+    other.close()

@@ -74,16 +74,18 @@ def _messages(path):
 
 
 def _children():
-    """Live child processes of this one (pids), from /proc."""
+    """Live log-writing child processes of this one (pids), from /proc."""
     me, kids = os.getpid(), []
     for d in os.listdir("/proc"):
         if d.isdigit():
             try:
                 with open(f"/proc/{d}/stat") as f:
                     st = f.read().rsplit(")", 1)[1].split()
+                with open(f"/proc/{d}/cmdline", "rb") as f:
+                    cmd = f.read()
             except OSError:
                 continue
-            if int(st[1]) == me and st[0] != "Z":
+            if int(st[1]) == me and st[0] != "Z" and b"mcap.sinkproc" in cmd:
                 kids.append(int(d))
     return kids
 

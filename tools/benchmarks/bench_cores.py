@@ -6,22 +6,23 @@ revision), full and lean logs, on the simulator's default wearer.
 
 For each realistic recording (``benchlib.realistic_recording``: AX3 wrist, 100 Hz, seed 3) the
 commands run in rounds, alternating (A B C .., A B C ..), each in a fresh child; per command the
-least wall time and the least CPU time (user + system of the child) over the rounds are kept
-separately, and the largest peak RSS:
+least wall time and the least CPU time (user + system of the child and of its own child
+process) over the rounds are kept separately, and the largest peak RSS:
 
 * ``process`` (full log) and ``process --log lean`` as installed: on two cores the next block
-  is decoded on a reader thread and the chunks compressed on a writer thread;
-* the same with ``STILLPOINT_FRAMING_THREAD=1``: also a pipeline step's records framed on a
-  thread of their own while the engine works on the next step (engine/mcap/sink.py);
-* the same with ``STILLPOINT_CORES=1``: no extra thread at all (one core);
+  is decoded on a reader thread and the MCAP log framed, compressed and written by a child
+  process (engine/mcap/sinkproc.py; inputs of ``tuning.SINK_PROCESS_MIN_BYTES`` or more);
+* the same with ``STILLPOINT_SINK_PROCESS=0``: no child; the chunks compressed on a writer
+  thread, the framing in the engine's thread (the default before the child process);
+* the same with ``STILLPOINT_CORES=1``: no extra thread or process at all (one core);
 * with ``--before REV``: the same two commands at that revision (``git archive`` of engine/,
   drivers/, tools/ into the workdir, first on PYTHONPATH, as bench_process.py --before).
 
 The load average is printed before and after the rounds (the machine is shared: read CPU
-first, and ratios measured in the same run). Then, once each, in-process: the CPU time of every
-thread of a full run with the framing thread (the engine's main thread, the reader, the framing
-thread and the compression thread: the compressor's share of the work), and a check that its
-log and the one-core log of the same output path are the same bytes.
+first, and ratios measured in the same run). Then, once each, in-process: the CPU time of the
+engine's threads (main, reader) and of the log's child process in a default full run, the peak
+RSS of both, and a check that the default log and the one-core log of the same output path are
+the same bytes.
 """
 
 from __future__ import annotations
@@ -51,10 +52,14 @@ threading.Thread.run = timed
 from stillpoint.engine.run import RunSettings, process_file
 t = time.perf_counter()
 c = time.process_time()
-process_file(sys.argv[1], sys.argv[2], RunSettings(mode="batch", log=sys.argv[3]))
+s = process_file(sys.argv[1], sys.argv[2], RunSettings(mode="batch", log=sys.argv[3]))
 cpu["main"] = time.thread_time()
-print(json.dumps({"wall": time.perf_counter() - t, "cpu": time.process_time() - c,
-                  "threads": cpu}))
+import resource
+ru = resource.getrusage(resource.RUSAGE_CHILDREN)
+if ru.ru_utime + ru.ru_stime:
+    cpu["log process"] = ru.ru_utime + ru.ru_stime
+print(json.dumps({"wall": time.perf_counter() - t, "cpu": time.process_time() - c + ru.ru_utime
+                  + ru.ru_stime, "threads": cpu, "rss": s["peak_rss_mb"]}))
 """
 
 
@@ -76,14 +81,14 @@ def sha256(path: Path) -> str:
 def run_file(path: Path, wd: Path, repeat: int, before) -> dict:
     sp = [sys.executable, "-m", "stillpoint.tools", "process"]
     one = dict(os.environ, STILLPOINT_CORES="1")
-    framing = dict(os.environ, STILLPOINT_FRAMING_THREAD="1")
+    thread = dict(os.environ, STILLPOINT_SINK_PROCESS="0")
 
     def cmd(log, name):
         return sp + [path, "-o", wd / f"{name}.mcap", "--mode", "batch", "-q", "--log", log,
                      "--overwrite"]
-    cmds = {"full2": (cmd("full", "full2"), None), "fullf": (cmd("full", "fullf"), framing),
+    cmds = {"full2": (cmd("full", "full2"), None), "fullt": (cmd("full", "fullt"), thread),
             "full1": (cmd("full", "full1"), one),
-            "lean2": (cmd("lean", "lean2"), None), "leanf": (cmd("lean", "leanf"), framing),
+            "lean2": (cmd("lean", "lean2"), None), "leant": (cmd("lean", "leant"), thread),
             "lean1": (cmd("lean", "lean1"), one)}
     if before:
         cmds["fullb"] = (cmd("full", "fullb"), before[0])
@@ -105,12 +110,12 @@ def run_file(path: Path, wd: Path, repeat: int, before) -> dict:
     # the thread CPU of a two-core full run, in-process
     out = wd / "threads.mcap"
     t = subprocess.run([sys.executable, "-c", THREAD_CPU, str(path), str(out), "full"],
-                       check=True, stdout=subprocess.PIPE, text=True, env=framing).stdout
+                       check=True, stdout=subprocess.PIPE, text=True).stdout
     res["_threads"] = json.loads(t.strip().splitlines()[-1])
     # the same bytes on one core and on two (the same output path: the log names it)
     same = wd / "same.mcap"
     hashes = []
-    for env in (framing, one):
+    for env in (None, one):
         subprocess.run(cmd("full", "same"), check=True, env=env)
         hashes.append(sha256(same))
     res["_identical"] = hashes[0] == hashes[1]
@@ -139,10 +144,10 @@ def main(argv=None) -> int:
         print(f"\n{path.name} ({path.stat().st_size / 1e6:.0f} MB), load average "
               f"{l0[0]:.2f} before the rounds, {l1[0]:.2f} after")
         rows = [("full2", "process (full log), default"),
-                ("fullf", "process (full log), STILLPOINT_FRAMING_THREAD=1"),
+                ("fullt", "process (full log), STILLPOINT_SINK_PROCESS=0"),
                 ("full1", "process (full log), STILLPOINT_CORES=1"),
                 ("lean2", "process --log lean, default"),
-                ("leanf", "process --log lean, STILLPOINT_FRAMING_THREAD=1"),
+                ("leant", "process --log lean, STILLPOINT_SINK_PROCESS=0"),
                 ("lean1", "process --log lean, STILLPOINT_CORES=1")]
         if before:
             rows += [("fullb", f"process (full log) at {before[1]}"),
@@ -156,9 +161,9 @@ def main(argv=None) -> int:
             print(f"  {label:44s} {r[a]['wall'] / r[b]['wall']:6.2f}x wall "
                   f"{r[a]['cpu'] / r[b]['cpu']:5.2f}x CPU")
         ratio("full: default / one core", "full2", "full1")
-        ratio("full: framing thread / default", "fullf", "full2")
+        ratio("full: default / no child process", "full2", "fullt")
         ratio("lean: default / one core", "lean2", "lean1")
-        ratio("lean: framing thread / default", "leanf", "lean2")
+        ratio("lean: default / no child process", "lean2", "leant")
         if before:
             ratio(f"full: now / {before[1]}", "full2", "fullb")
             ratio(f"lean: now / {before[1]}", "lean2", "leanb")
@@ -166,9 +171,9 @@ def main(argv=None) -> int:
         tot = th["cpu"]
         parts = ", ".join(f"{k} {v:.2f} s ({v / tot:.0%})" for k, v in
                           sorted(th["threads"].items(), key=lambda kv: -kv[1]))
-        print(f"  thread CPU, one full run with the framing thread, in-process ({th['wall']:.2f} s wall, "
-              f"{tot:.2f} s CPU): {parts}")
-        print(f"  framing-thread and one-core logs the same bytes: {'yes' if r['_identical'] else 'NO'}")
+        print(f"  CPU of one default full run, in-process ({th['wall']:.2f} s wall, "
+              f"{tot:.2f} s CPU): {parts}; peak RSS MB {th['rss']}")
+        print(f"  default and one-core logs the same bytes: {'yes' if r['_identical'] else 'NO'}")
     return 0
 
 

@@ -319,7 +319,17 @@ class RemoteSink:
 
 # ---------------------------------------------------------------------------- the child
 def _serve(rconn, wconn, ring: slots.SlotRing) -> None:
-    """Run the engine's calls on one McapSink until the log is closed or aborted."""
+    """Run the engine's calls on one McapSink until the log is closed or aborted; if the
+    engine goes away (its pipe closed), abort the log: the ``.part`` file stays."""
+    box: list = []
+    try:
+        _serve_calls(rconn, wconn, ring, box)
+    except (EOFError, OSError):  # the engine is gone (a closed pipe either way)
+        if box:
+            box[0].abort()
+
+
+def _serve_calls(rconn, wconn, ring: slots.SlotRing, box: list) -> None:
     sink: Optional[McapSink] = None
     failed = False
 
@@ -329,12 +339,7 @@ def _serve(rconn, wconn, ring: slots.SlotRing) -> None:
         wconn.send(("error", _error_state(e)))
 
     while True:
-        try:
-            msg = rconn.recv()
-        except (EOFError, OSError):  # the engine is gone: keep the partial log
-            if sink is not None:
-                sink.abort()
-            return
+        msg = rconn.recv()
         op = msg[0]
         if op == "call":
             _op, head, slot, sizes = msg
@@ -359,6 +364,7 @@ def _serve(rconn, wconn, ring: slots.SlotRing) -> None:
             _op, path, info, settings, kwargs = msg
             try:
                 sink = McapSink(path, info, settings, **kwargs)
+                box.append(sink)
             except BaseException as e:
                 wconn.send(("error", _error_state(e)))
                 return
@@ -391,8 +397,6 @@ def _main() -> None:
     ring = slots.SlotRing(count, size, fd=fd)
     try:
         _serve(rconn, wconn, ring)
-    except (BrokenPipeError, EOFError):  # the engine is gone
-        pass
     finally:
         ring.close()
 

@@ -309,3 +309,75 @@ def test_slots_carry_arrays_and_objects():
     assert not ring.fits([1 << 17])
     ring.close()
     other.close()
+
+
+def test_engine_killed_the_child_aborts_and_the_log_recovers(recording, tmp_path, monkeypatch):
+    """SIGKILL of the engine: the child sees its pipe close, aborts the log and ends; the
+    .part file recovers to a prefix of the complete log."""
+    import subprocess
+    import sys
+    import time
+    full = tmp_path / "full.mcap"
+    process_file(recording, full, RunSettings(mode="batch"), writer="inline")
+    _in_child(monkeypatch, tmp_path, """
+        import time
+        import stillpoint.engine.run.tuning as tuning
+        import stillpoint.engine.run.output as output
+        tuning.SINK_PROCESS_MIN_BYTES = 0  # this short input too
+        _push = output.OutputStage.push
+        def _slow(self, block):  # each step takes a while: the engine is killed mid-run
+            time.sleep(0.3)
+            _push(self, block)
+        output.OutputStage.push = _slow
+    """)
+    out = tmp_path / "r.mcap"
+    part = tmp_path / "r.mcap.part"
+    eng = subprocess.Popen([sys.executable, "-m", "stillpoint.tools", "process", str(recording),
+                            "-o", str(out), "-q", "--no-tables"])
+    kid = None
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and eng.poll() is None:
+            kids = [p for p in _pids_of_parent(eng.pid)]
+            if kids and part.exists() and part.stat().st_size > 200_000:
+                kid = kids[0]
+                break
+            time.sleep(0.05)
+        assert kid is not None and eng.poll() is None, "the run ended before it could be killed"
+        eng.kill()
+        eng.wait()
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and _alive_pid(kid):
+            time.sleep(0.05)
+        assert not _alive_pid(kid)
+    finally:
+        if eng.poll() is None:
+            eng.kill()
+            eng.wait()
+    assert not out.exists() and part.exists()
+    _prefix_of(part, full, tmp_path)
+
+
+def _pids_of_parent(ppid: int) -> list:
+    kids = []
+    for d in os.listdir("/proc"):
+        if d.isdigit():
+            try:
+                with open(f"/proc/{d}/stat") as f:
+                    st = f.read().rsplit(")", 1)[1].split()
+                with open(f"/proc/{d}/cmdline", "rb") as f:
+                    cmd = f.read()
+            except OSError:
+                continue
+            if int(st[1]) == ppid and b"mcap.sinkproc" in cmd:
+                kids.append(int(d))
+    return kids
+
+
+def _alive_pid(pid: int) -> bool:
+    """The process exists and is not a zombie (an orphan's exit may be reaped late)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False

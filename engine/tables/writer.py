@@ -96,9 +96,19 @@ class TablesSettings:
 
 
 def _num(v: np.ndarray, decimals: int) -> list:
-    """Each value as ``%.<decimals>f`` text; empty when not finite."""
-    fmt = f"%.{decimals}f"
-    return [fmt % x if ok else "" for x, ok in zip(v.tolist(), np.isfinite(v).tolist())]
+    """Each value as ``%.<decimals>f`` text; empty when not finite. The column is formatted by
+    one ``%`` of a repeated template (the same text per value as ``fmt % x``, without a Python
+    step per value), then split."""
+    values = v.tolist()
+    if not values:
+        return []
+    text = ((f"%.{decimals}f\n" * len(values)) % tuple(values)).split("\n")
+    text.pop()  # after the last newline
+    bad = ~np.isfinite(v)
+    if bad.any():
+        for i in np.flatnonzero(bad).tolist():
+            text[i] = ""
+    return text
 
 
 def _flag(f: np.ndarray) -> list:

@@ -62,7 +62,8 @@ class OutputStage(OutputPass):
     """A run's output stage: the output pass, logging raw + corrected + metrics to MCAP."""
 
     def __init__(self, s, rate_hz: float, sink: McapSink, source,
-                 initial: CalibrationEstimate, gate=None):
+                 initial: CalibrationEstimate, gate=None, trim: bool = True):
+        """``trim``: give the heap's free pages back every ``tuning.TRIM_EVERY_STEPS`` steps."""
         range_g = getattr(getattr(source, "info", None), "accel_range_g", None)
         super().__init__(CorrectionOperator(initial, rate_hz=rate_hz, gate=gate), s, rate_hz,
                          range_g)
@@ -76,6 +77,7 @@ class OutputStage(OutputPass):
         self._segment = None
         self.clipping = ClippingMonitor(range_g, rate_hz)
         self._steps = 0
+        self.trim = trim
 
     def _log_reader_qc(self) -> None:
         events = getattr(getattr(self.source, "qc", None), "events", [])
@@ -121,7 +123,7 @@ class OutputStage(OutputPass):
         self.clipping.observe(block)
         super().push(block)
         self._steps += 1
-        if self._steps % tuning.TRIM_EVERY_STEPS == 0:
+        if self.trim and self._steps % tuning.TRIM_EVERY_STEPS == 0:
             trim()
 
     def flush(self) -> None:

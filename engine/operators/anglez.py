@@ -28,6 +28,20 @@ MEDIAN_HZ = 10.0  # GGIR: the median runs on data subsampled to ~10 Hz
 _RANK = getattr(scipy_extension("ndimage", "_rank_filter_1d"), "rank_filter", None)
 
 
+def window_medians(x: np.ndarray, k: int) -> np.ndarray:
+    """Median of every complete window of ``k`` (odd) consecutive values of a 1-D float64 array:
+    (m,) -> (m - k + 1,), each an element of its window (``np.median``'s value for odd k). The
+    rank kernel of :func:`_medians` when it loads, else ``scipy.ndimage.median_filter``."""
+    h = k // 2
+    m = x.shape[0]
+    if _RANK is not None and m >= k and x.dtype == np.float64:
+        full = np.empty(m)
+        _RANK(np.ascontiguousarray(x), h, k, full, 0, 0.0, 0)
+        return full[h:m - h]
+    from scipy.ndimage import median_filter
+    return median_filter(x, size=k, mode="nearest")[h:m - h]
+
+
 def _medians(sub: np.ndarray, k: int) -> np.ndarray:
     """Rolling medians of every complete window of k subsamples, one row per axis:
     (3, m) -> (3, m - k + 1) (scipy's compiled median filter on each contiguous axis row; only the

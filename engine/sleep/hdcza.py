@@ -14,6 +14,7 @@ from typing import Optional
 
 import numpy as np
 
+from ..operators.anglez import window_medians
 from . import rules
 
 MEDIAN_ROWS = 2048  # windows whose median is taken at once (about 1 MB of scratch)
@@ -57,6 +58,9 @@ def movement(anglez: np.ndarray, epoch_s: float = rules.EPOCH_S) -> np.ndarray:
     ad = np.abs(np.diff(anglez))  # the window at i holds ad[i .. i + k - 2]
     win = np.lib.stride_tricks.sliding_window_view(ad, k - 1)
     h = (k - 1) // 2
+    if (k - 1) % 2 == 1 and not np.isnan(ad).any():  # odd windows: the middle value, selected
+        x[h:h + win.shape[0]] = window_medians(np.asarray(ad, np.float64), k - 1)
+        return x
     for a in range(0, win.shape[0], MEDIAN_ROWS):  # bounded scratch: MEDIAN_ROWS x (k - 1)
         b = min(a + MEDIAN_ROWS, win.shape[0])
         x[h + a:h + b] = np.median(win[a:b], axis=1)

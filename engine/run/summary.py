@@ -89,7 +89,8 @@ class RunSummary:
     mcap_messages: Optional[int] = _field("count", "messages written", logged=False)
     mcap_flushes: Optional[int] = _field("count", "chunk flushes", logged=False)
     peak_rss_mb: Optional[dict] = _field(
-        "MB", "peak resident memory of the `engine` (and `writer` process)", logged=False)
+        "MB", "peak resident memory of the `engine` and of the process that wrote the log "
+        "(`writer`: the child process that wrote it; null when the engine did)", logged=False)
 
     def as_dict(self, *, log: bool = False) -> dict:
         """The summary as a dict in field order, without the optional fields that are None;

@@ -12,8 +12,8 @@ freed for itself: :func:`one_arena` makes threads started afterwards allocate fr
 arena, so the arrays a reader thread frees are reused by the engine's thread (a week's batch run
 with a reader thread: ~10 MB less peak RSS). ``MALLOC_ARENA_MAX`` in the environment wins.
 
-Freed arrays around longer-lived ones stay resident: :func:`trim` gives the heap's free pages
-back (a run calls it every few pipeline steps, engine.run.tuning.TRIM_EVERY_STEPS).
+A run does not trim the heap every few steps: with the block thresholds the freed pages are
+reused by the next steps, and trimming them made those steps fault them in again.
 """
 
 from __future__ import annotations
@@ -84,15 +84,3 @@ def one_arena() -> bool:
         return False
     _ONE_ARENA = True
     return True
-
-
-def trim() -> bool:
-    """Give the heap's free pages back to the system (glibc ``malloc_trim(0)``: the top of the
-    heap and whole free pages inside it); False where it cannot be done (not glibc)."""
-    if not sys.platform.startswith("linux"):
-        return False
-    try:
-        _libc().malloc_trim(0)
-        return True
-    except (OSError, AttributeError):
-        return False

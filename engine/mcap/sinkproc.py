@@ -321,6 +321,8 @@ class RemoteSink:
 def _serve(rconn, wconn, ring: slots.SlotRing) -> None:
     """Run the engine's calls on one McapSink until the log is closed or aborted; if the
     engine goes away (its pipe closed), abort the log: the ``.part`` file stays."""
+    from ..core.malloc import tune_for_blocks
+    tune_for_blocks()  # each step's unpickled arrays stay on the heap (engine/run/batch.py)
     box: list = []
     try:
         _serve_calls(rconn, wconn, ring, box)

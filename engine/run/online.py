@@ -99,7 +99,7 @@ def run_online(ctx: RunContext, src) -> ScheduleResult:
     # no malloc_trim every few steps: with the block thresholds the freed pages are reused, and
     # trimming them only made the next steps fault them in again (a week: 155 k -> 13 k page
     # faults, 24.55 -> 22.03 CPU-s; peak RSS 70 MB either way, 77 MB at 14 days)
-    outst = OutputStage(s, rate, sink, src, initial, gate=gate, trim=False)
+    outst = OutputStage(s, rate, sink, src, initial, gate=gate)
     # the tables are made after the pass, from the final estimate (``online_tables``)
     stages = [feat, FinishCalibrator(cal, publish), outst]
     if prior is not None:  # logged at the first sample's time (no message before the data)

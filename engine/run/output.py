@@ -17,12 +17,10 @@ import numpy as np
 from ..calibration.estimate import CalibrationEstimate
 from ..clipping import ClippingMonitor
 from ..core.blocks import Block
-from ..core.malloc import trim
 from ..mcap.sink import McapSink
 from ..operators.correction import CorrectionOperator
 from ..operators.extras import ExtraMetrics
 from ..operators.metrics import EpochMetrics, MetricsOperator
-from . import tuning
 
 
 class OutputPass:
@@ -62,8 +60,7 @@ class OutputStage(OutputPass):
     """A run's output stage: the output pass, logging raw + corrected + metrics to MCAP."""
 
     def __init__(self, s, rate_hz: float, sink: McapSink, source,
-                 initial: CalibrationEstimate, gate=None, trim: bool = True):
-        """``trim``: give the heap's free pages back every ``tuning.TRIM_EVERY_STEPS`` steps."""
+                 initial: CalibrationEstimate, gate=None):
         range_g = getattr(getattr(source, "info", None), "accel_range_g", None)
         super().__init__(CorrectionOperator(initial, rate_hz=rate_hz, gate=gate), s, rate_hz,
                          range_g)
@@ -76,8 +73,6 @@ class OutputStage(OutputPass):
         self._last_ns = 0
         self._segment = None
         self.clipping = ClippingMonitor(range_g, rate_hz)
-        self._steps = 0
-        self.trim = trim
 
     def _log_reader_qc(self) -> None:
         events = getattr(getattr(self.source, "qc", None), "events", [])
@@ -122,9 +117,6 @@ class OutputStage(OutputPass):
                                 if block.m else -1, "time_ns": self._last_ns}, self._last_ns)
         self.clipping.observe(block)
         super().push(block)
-        self._steps += 1
-        if self.trim and self._steps % tuning.TRIM_EVERY_STEPS == 0:
-            trim()
 
     def flush(self) -> None:
         """End of the stream: the last QC events, then the output pass's last output."""

@@ -8,9 +8,6 @@ Code reads them as ``tuning.NAME`` so a benchmark or a test can change one here.
 CHUNK_S = 60.0
 # MCAP writer when process_file is given none: batch compresses on a thread, online inline (a kill loses no queued step)
 WRITER_BY_MODE = {"batch": "thread", "online": "inline"}
-# free heap pages go back to the system every this many output steps (~2.7 h): RSS flat as files grow
-# (a batch run's; an online run sets glibc's block thresholds instead and does not trim: engine/run/online.py)
-TRIM_EVERY_STEPS = 16
 # read ahead on a thread (with a second core): batch only; the station's online run reads in the engine's thread
 PREFETCH_BY_MODE = {"batch": True, "online": False}
 # .cwa sectors an output pass reads at a time: about one pipeline step (10 min at 100 Hz), so read-ahead stays small

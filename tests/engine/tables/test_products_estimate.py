@@ -110,14 +110,13 @@ def test_online_run_and_its_tables_pass_keep_block_arrays_on_the_heap(runs, monk
         assert a.read() == b.read()
 
 
-def test_batch_output_pass_trims_the_heap_and_the_online_pass_does_not(runs, monkeypatch, tmp_path):
-    """A batch run gives the heap's free pages back every few steps; an online run (block
-    thresholds set) keeps them for the next steps instead of faulting them in again."""
-    import stillpoint.engine.run.output as output
+def test_batch_run_keeps_block_arrays_on_the_heap(runs, monkeypatch, tmp_path):
+    """A batch run sets glibc's block thresholds too (engine/core/malloc.py), and its output is
+    the same bytes."""
+    import stillpoint.engine.run.batch as batch
     calls = []
-    monkeypatch.setattr(output, "trim", lambda: calls.append(1))
-    cwa = str(runs / "rec.cwa")
-    assert main(["process", cwa, "-o", str(tmp_path / "o.mcap"), "--mode", "online", "-q"]) == 0
-    assert calls == []
-    assert main(["process", cwa, "-o", str(tmp_path / "b.mcap"), "-q"]) == 0
-    assert len(calls) >= 5  # a day of 10 min steps, every 16 steps
+    monkeypatch.setattr(batch, "tune_for_blocks", lambda: calls.append("batch"))
+    assert main(["process", str(runs / "rec.cwa"), "-o", str(tmp_path / "b.mcap"), "-q"]) == 0
+    assert calls == ["batch"]
+    with gzip.open(tmp_path / "b.epochs.csv.gz", "rb") as a, gzip.open(runs / "b.epochs.csv.gz", "rb") as b:
+        assert a.read() == b.read()

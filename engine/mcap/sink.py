@@ -321,10 +321,13 @@ class _RawCells:
 class _CorrectedRun:
     """A CorrectedBatch quantised to float32 once; messages slice it. ``words``: (4, n) 4-byte
     rows dt_ns, x, y, z (the layout of a corrected message's arrays, so one copy frames them);
-    ``dt``, ``x``, ``y``, ``z`` are its rows."""
+    ``dt``, ``x``, ``y``, ``z`` are its rows. ``words=False`` (a lean log, which frames no
+    corrected message): no rows; ``xyz`` quantises only the samples asked for (the view's)."""
 
-    def __init__(self, batch: CorrectedBatch, quantum_g: float, scratch=None):
+    def __init__(self, batch: CorrectedBatch, quantum_g: float, scratch=None, words: bool = True):
         self.batch = batch
+        self.quantum_g = quantum_g
+        self.words = None
         self.view = None  # None: not framed yet; False: no view sample; else (records, indices)
         self.segment = batch.segment
         self.time_ns = batch.time_ns
@@ -332,7 +335,7 @@ class _CorrectedRun:
         dmin = int(d.min()) if d.size else 0
         self.ok = not d.size or (int(d.max()) <= INT32_MAX and dmin >= -INT32_MAX)
         self.sorted = dmin >= 0
-        if self.ok:
+        if self.ok and words:
             n = batch.n
             self.words = np.empty((4, n), "<u4")
             self.bytes = self.words.view(np.uint8)  # (4, 4 n)
@@ -358,14 +361,22 @@ class _CorrectedRun:
         sample, and the copy's first step is 0 as the message start's is)."""
         b = self.batch
         t = _CorrectedRun(CorrectedBatch(b.time_ns[a:].copy(), b.accel[a:].copy(),
-                                         b.temperature[a:].copy(), b.segment), quantum_g)
+                                         b.temperature[a:].copy(), b.segment), quantum_g,
+                          words=self.words is not None)
         t.view = self.view
         return t
 
     def cut(self, starts: list) -> None:
         """Messages will start at these indices: each starts its own deltas."""
-        if self.ok:
+        if self.words is not None:
             self.dt[starts] = 0
+
+    def xyz(self, idx: np.ndarray) -> tuple:
+        """The float32 x, y, z of samples ``idx``, quantised as the rows are (the same bits:
+        the same float64 products, rounded, cast once)."""
+        if self.words is not None:
+            return self.x[idx], self.y[idx], self.z[idx]
+        return tuple(quantize(self.batch.accel[idx], self.quantum_g).T)
 
 
 class McapSink(McapLog):
@@ -583,7 +594,7 @@ class McapSink(McapLog):
         for c in corrected:
             if c.n == 0:
                 continue
-            run = _CorrectedRun(c, self.quantum, self._tmp)
+            run = _CorrectedRun(c, self.quantum, self._tmp, words=not self.lean)
             cc = c.time_ns // w
             edges = np.concatenate([[0], np.flatnonzero(cc[1:] != cc[:-1]) + 1, [c.n]]).tolist()
             ccl = cc[edges[:-1]].tolist()
@@ -638,7 +649,7 @@ class McapSink(McapLog):
         if not idx.size:
             return
         if run.ok:
-            x, y, z = run.x[idx], run.y[idx], run.z[idx]
+            x, y, z = run.xyz(idx)
         else:
             x, y, z = quantize(run.batch.accel[idx], self.quantum).T
         t = run.time_ns[idx]
@@ -742,7 +753,7 @@ def _frame_block(sink: "McapSink", block: Optional[Block], corrected: list,
         raw = _RawCells(block, w)
         if not raw.ok or (raw.cell.shape[0] > 1 and bool(np.any(raw.cell[1:] <= raw.cell[:-1]))):
             return False
-    runs = [_CorrectedRun(c, sink.quantum, sink._tmp) for c in corrected if c.n]
+    runs = [_CorrectedRun(c, sink.quantum, sink._tmp, words=not sink.lean) for c in corrected if c.n]
     pend = [p for p in sink._pending_corr if p[2] > p[1]]
     if not all(r.ok and r.sorted for r in runs) or not all(r.ok for r, _a, _b in pend):
         return False
@@ -929,8 +940,8 @@ def _frame_block(sink: "McapSink", block: Optional[Block], corrected: list,
         if vt.shape[0]:
             vj = np.concatenate([fp + np.searchsorted(e, i, side="right") - 1
                                  for fp, e, i in zip(first_piece, edges, vidx)])
-            vp = view_records(vt, *(np.concatenate([getattr(r, c)[i] for r, i in zip(runs, vidx)])
-                                    for c in "xyz"))
+            vq = [r.xyz(i) for r, i in zip(runs, vidx)]
+            vp = view_records(vt, *(np.concatenate([q[k] for q in vq]) for k in range(3)))
             fixed(_TYPE_VIEW, vp, np.maximum(vt, 0), pit[vj], 0, vj, 0)
     if ne:
         fixed(_TYPE_EPOCH, epoch_records(epochs), np.maximum(epochs.start_ns, 0),

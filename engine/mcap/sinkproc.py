@@ -166,6 +166,8 @@ class RemoteSink:
         self.messages = 0
         self.flushes = 0
         self.writer_maxrss_mb: Optional[float] = None
+        from ..settings import is_lean
+        self.lean = is_lean(settings)  # the sink writes no raw message: the block is not sent
         self._error: Optional[BaseException] = None
         self._kept: Optional[Path] = None
         self._done = False
@@ -253,7 +255,7 @@ class RemoteSink:
 
     # ------------------------------------------------------------------ the sink's calls
     def write_slices(self, block, corrected: list, epochs) -> None:
-        self._call("write_slices", block, corrected, epochs)
+        self._call("write_slices", None if self.lean else block, corrected, epochs)
 
     def write_extras(self, extras: dict) -> None:
         self._call("write_extras", extras)

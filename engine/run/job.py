@@ -92,13 +92,14 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
     are written (the station's record of what its verification repaired). ``prefetch``: read
     and decode the next blocks on a thread while the engine works (engine/core/prefetch.py; the
     logs are the same); default: ``tuning.PREFETCH_BY_MODE``, where the process may use more
-    than one core.
+    than one core. ``prefetch=False`` also means no log child process (``sink_process_for``):
+    a caller that runs one job per core (a cohort's workers) has no idle core to give it.
     """
     s = settings or RunSettings()
     writer = writer or tuning.WRITER_BY_MODE[s.mode]
     path, out = Path(path), Path(out)
     check_output(out)
-    child = sink_process_for(path, s.mode, writer)
+    child = sink_process_for(path, s.mode, writer) if prefetch is not False else None
     try:
         return _process(path, out, s, progress, writer, source_options, tables, metadata,
                         prefetch, child)

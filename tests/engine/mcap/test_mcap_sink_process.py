@@ -20,6 +20,7 @@ from mcap.reader import make_reader
 import stillpoint.engine.mcap.sinkproc as sinkproc
 import stillpoint.engine.run.job as job_mod
 from stillpoint.engine.core.errors import StillpointError
+from stillpoint.engine.mcap.compare import topic_digests
 from stillpoint.engine.mcap.slots import SlotRing
 from stillpoint.engine.recover import recover
 from stillpoint.engine.run import RunSettings, process_file, tuning
@@ -130,6 +131,16 @@ def test_child_off_by_env_and_for_short_inputs(recording, tmp_path, child, monke
     process_file(recording, tmp_path / "b.mcap", RunSettings(mode="batch"))
     process_file(recording, tmp_path / "c.mcap", RunSettings(mode="online"))
     assert child == []
+
+
+def test_no_child_for_a_job_that_has_one_core(recording, tmp_path, child):
+    """A caller that reads without a read-ahead thread (a cohort worker: one job per core) gets no
+    log child either; the log is the same."""
+    process_file(recording, tmp_path / "a.mcap", RunSettings(mode="batch", log="lean"), prefetch=False)
+    assert child == []
+    process_file(recording, tmp_path / "b.mcap", RunSettings(mode="batch", log="lean"))
+    assert len(child) == 1
+    assert topic_digests(tmp_path / "a.mcap", None) == topic_digests(tmp_path / "b.mcap", None)
 
 
 def _cli_run(recording, out, capsys):

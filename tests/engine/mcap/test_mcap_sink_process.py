@@ -97,7 +97,18 @@ def _clean():
 
 
 def _shm():
-    return sorted(os.listdir("/dev/shm")) if os.path.isdir("/dev/shm") else []
+    """Shared memory this process holds: its descriptors on /dev/shm entries or on memory files
+    (the slots' ring is one). Not a listing of /dev/shm: other tests' processes add and remove
+    their own entries there while this one runs."""
+    held = []
+    for fd in os.listdir("/proc/self/fd"):
+        try:
+            target = os.readlink(f"/proc/self/fd/{fd}")
+        except OSError:
+            continue
+        if target.startswith(("/dev/shm/", "/memfd:")):
+            held.append(target)
+    return sorted(held)
 
 
 @pytest.mark.parametrize("log", ["full", "lean"])

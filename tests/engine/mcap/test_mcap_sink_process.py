@@ -15,14 +15,13 @@ import textwrap
 import threading
 
 import pytest
-from mcap.reader import make_reader
+from log_messages import messages, recovers_to_prefix
 
 import stillpoint.engine.mcap.sinkproc as sinkproc
 import stillpoint.engine.run.job as job_mod
 from stillpoint.engine.core.errors import StillpointError
 from stillpoint.engine.mcap.compare import topic_digests
 from stillpoint.engine.mcap.slots import SlotRing
-from stillpoint.engine.recover import recover
 from stillpoint.engine.run import RunSettings, process_file, tuning
 from stillpoint.engine.tables import TablesSettings
 from stillpoint.tools.cli import main as cli
@@ -67,28 +66,12 @@ def _in_child(monkeypatch, tmp_path, code: str) -> None:
 
 
 def _messages(path):
-    out = {t: [] for t in TOPICS}
-    with open(path, "rb") as f:
-        for _s, ch, m in make_reader(f).iter_messages(topics=list(TOPICS), log_time_order=False):
-            out[ch.topic].append((m.log_time, m.data))
-    return out
+    return messages(path, TOPICS)
 
 
 def _children():
     """Live log-writing child processes of this one (pids), from /proc."""
-    me, kids = os.getpid(), []
-    for d in os.listdir("/proc"):
-        if d.isdigit():
-            try:
-                with open(f"/proc/{d}/stat") as f:
-                    st = f.read().rsplit(")", 1)[1].split()
-                with open(f"/proc/{d}/cmdline", "rb") as f:
-                    cmd = f.read()
-            except OSError:
-                continue
-            if int(st[1]) == me and st[0] != "Z" and b"mcap.sinkproc" in cmd:
-                kids.append(int(d))
-    return kids
+    return _pids_of_parent(os.getpid())
 
 
 def _clean():
@@ -161,13 +144,8 @@ def _cli_run(recording, out, capsys):
 
 
 def _prefix_of(part, full, tmp_path):
-    fixed = tmp_path / "fixed.mcap"
-    recover(part, fixed)
-    got, ref = _messages(fixed), _messages(full)
-    assert got["/raw/accel"]
-    for t in TOPICS:
-        assert got[t] == ref[t][:len(got[t])], t
-    return got
+    """``part`` (an unfinished log) recovers to a prefix of ``full``'s messages, not empty."""
+    return recovers_to_prefix(part, full, tmp_path, TOPICS)
 
 
 def _one_core_line(recording, tmp_path, monkeypatch, capsys, patch):
@@ -381,6 +359,7 @@ def test_engine_killed_the_child_aborts_and_the_log_recovers(recording, tmp_path
 
 
 def _pids_of_parent(ppid: int) -> list:
+    """Live (not zombie) log-writing child processes of ``ppid``, from /proc."""
     kids = []
     for d in os.listdir("/proc"):
         if d.isdigit():
@@ -391,7 +370,7 @@ def _pids_of_parent(ppid: int) -> list:
                     cmd = f.read()
             except OSError:
                 continue
-            if int(st[1]) == ppid and b"mcap.sinkproc" in cmd:
+            if int(st[1]) == ppid and st[0] != "Z" and b"mcap.sinkproc" in cmd:
                 kids.append(int(d))
     return kids
 

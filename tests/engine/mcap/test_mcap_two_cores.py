@@ -11,12 +11,11 @@ import os
 import threading
 
 import pytest
-from mcap.reader import make_reader
+from log_messages import messages, recovers_to_prefix
 
 import stillpoint.engine.mcap.sink as sink_mod
 from stillpoint.engine.core.errors import StillpointError
 from stillpoint.engine.core.prefetch import CORES_ENV, cores_available
-from stillpoint.engine.recover import recover
 from stillpoint.engine.run import RunSettings, process_file
 from stillpoint.tools.cli import main as cli
 from synthetic_recording import make_recording
@@ -53,11 +52,7 @@ def cores(monkeypatch):
 
 
 def _messages(path):
-    out = {t: [] for t in TOPICS}
-    with open(path, "rb") as f:
-        for _s, ch, m in make_reader(f).iter_messages(topics=list(TOPICS), log_time_order=False):
-            out[ch.topic].append((m.log_time, m.data))
-    return out
+    return messages(path, TOPICS)
 
 
 def _alive():
@@ -101,13 +96,7 @@ def _cli_run(recording, out, capsys):
 
 def _prefix_of(part, full, tmp_path):
     """``part`` (an unfinished log) recovers to a prefix of ``full``'s messages, not empty."""
-    fixed = tmp_path / "fixed.mcap"
-    recover(part, fixed)
-    got, ref = _messages(fixed), _messages(full)
-    assert got["/raw/accel"]
-    for t in TOPICS:
-        assert got[t] == ref[t][:len(got[t])], t
-    return got
+    return recovers_to_prefix(part, full, tmp_path, TOPICS)
 
 
 def test_disk_full_on_the_writer_thread(recording, tmp_path, cores, monkeypatch, capsys):

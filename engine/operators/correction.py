@@ -173,12 +173,17 @@ class EstimateSchedule:
         """Calibrate a batch of raw g (per-sample estimate in force); the result is the (n, 3)
         view of a (3, n) array (``CalibrationEstimate.apply``'s numbers, column by column)."""
         if len(self._est) == 1:
-            out = apply_columns(self._est[0], batch.accel, batch.temperature)
+            return CorrectedBatch(batch.time_ns, apply_columns(self._est[0], batch.accel,
+                                                               batch.temperature),
+                                  batch.temperature, batch.segment)
+        # compare in int64 ns (exact); -inf entries map to the smallest int64
+        eff = np.array([np.iinfo(np.int64).min if f == -np.inf else int(e.effective_from_ns)
+                        for f, e in zip(self._from, self._est)], np.int64)
+        one = self._one_estimate(eff, batch.time_ns)
+        if one is not None:
+            out = apply_columns(self._est[one], batch.accel, batch.temperature)
         else:
             out_t = np.empty((3, batch.n))
-            # compare in int64 ns (exact); -inf entries map to the smallest int64
-            eff = np.array([np.iinfo(np.int64).min if f == -np.inf else int(e.effective_from_ns)
-                            for f, e in zip(self._from, self._est)], np.int64)
             idx = np.searchsorted(eff, batch.time_ns, side="right") - 1
             idx = np.maximum(idx, 0)
             bounds = np.concatenate([[0], np.flatnonzero(idx[1:] != idx[:-1]) + 1, [batch.n]])
@@ -187,6 +192,20 @@ class EstimateSchedule:
                               out_t[:, a:b])
             out = out_t.T
         return CorrectedBatch(batch.time_ns, out, batch.temperature, batch.segment)
+
+    @staticmethod
+    def _one_estimate(eff: np.ndarray, time_ns: np.ndarray) -> Optional[int]:
+        """The index of the one estimate in force at every sample time, or None when the
+        samples span a change. Between two refits (nearly every batch) this takes the extremes
+        of the times instead of a binary search per sample; the choice is the per-sample
+        search's: every time in [eff[i], eff[i + 1]) maps to i."""
+        if time_ns.shape[0] == 0:
+            return None
+        lo, hi = int(time_ns.min()), int(time_ns.max())
+        i = int(np.searchsorted(eff, lo, side="right")) - 1
+        if i < 0 or (i + 1 < eff.shape[0] and hi >= int(eff[i + 1])):
+            return None
+        return i
 
 
 class CorrectionOperator:

@@ -85,6 +85,40 @@ def test_correction_uses_estimate_in_force_and_gate():
     assert not np.allclose(c.accel[:3000], raw[:3000] + 0.1, atol=1e-3)
 
 
+def test_schedule_applies_per_sample_estimates_bit_for_bit_whatever_the_batch():
+    """A batch between two changes takes one estimate whole; one that spans a change, touches
+    its first nanosecond or ends just before it is corrected sample by sample: the numbers
+    are the per-sample rule's in every case."""
+    from stillpoint.engine.operators.correction import EstimateSchedule
+    rng = np.random.default_rng(7)
+    n = 4000
+    t = np.arange(n, dtype=np.int64) * 10_000_000 + 1_700_000_000_000_000_000
+    accel = rng.normal(size=(n, 3))
+    temp = 25.0 + rng.normal(size=n)
+    changes = [int(t[1000]), int(t[1000]) + 1, int(t[2500]) + 5_000_000]
+    sched = EstimateSchedule(EST)
+    ests = [EST]
+    for k, at in enumerate(changes):
+        e = CalibrationEstimate(offset=[0.01 * (k + 1)] * 3, scale=[1.0 + 0.01 * k] * 3,
+                                tempoffset=[0.001, 0.0, -0.001], temperature_ref=25.0,
+                                effective_from_ns=at, status="ok")
+        sched.add(e)
+        ests.append(e)
+    eff = np.array([np.iinfo(np.int64).min] + changes, np.int64)
+    which = np.searchsorted(eff, t, side="right") - 1
+    want = np.empty((n, 3))
+    for i, e in enumerate(ests):
+        m = which == i
+        want[m] = e.apply(accel[m], temp[m])
+    for a, b in [(0, 1000), (0, 1001), (999, 1001), (1000, 1001), (1001, 2500), (1200, 2400),
+                 (2400, 2600), (2501, n), (2502, n), (0, n), (3000, 3001)]:
+        got = sched.apply(CorrectedBatch(t[a:b], accel[a:b], temp[a:b], 0))
+        assert np.array_equal(got.accel, want[a:b]), (a, b)
+    shuffled = rng.permutation(np.arange(900, 1100))  # times out of order: still per sample
+    got = sched.apply(CorrectedBatch(t[shuffled], accel[shuffled], temp[shuffled], 0))
+    assert np.array_equal(got.accel, want[shuffled])
+
+
 def test_streaming_filter_equals_scipy_on_whole_signal():
     rng = np.random.default_rng(1)
     x = rng.normal(size=(5003, 3))

@@ -28,6 +28,12 @@ Faults, as on one core:
 * a child that dies (killed) is one ``OutputError`` line naming the log and the partial file;
 * the engine dying closes the pipe: the child aborts the sink and ends (the ``.part`` stays).
 The slots have no name in /dev/shm (an anonymous memory file): nothing is left behind.
+
+Beside the sink, the child may run objects that write next to the log and into it (the
+tables' epoch-level half, engine/run/taps.py): ``RemoteSink.attach`` builds one there, given the
+child's sink, and its calls (``RemoteObject``) run in order with the sink's. Their faults are
+the sink's (raised at the engine's next call, the calls after it not run), and aborting the log
+(or the engine going away) aborts them too (their ``abort()``).
 """
 
 from __future__ import annotations
@@ -55,6 +61,8 @@ _WAIT_S = 30.0  # how long stop() waits for the child to end before killing it
 
 # the calls the engine makes that the child runs (McapSink's methods of those names)
 CALLS = frozenset({"write_slices", "write_extras", "write", "write_metadata", "flush"})
+ATTACH = "attach"  # build an object beside the sink (``RemoteSink.attach``)
+OBJECT = "object"  # a call of an attached object (``RemoteObject``)
 
 
 def enabled() -> bool:
@@ -64,7 +72,8 @@ def enabled() -> bool:
 
 
 def _error_state(e: BaseException) -> tuple:
-    """An exception as plain data (many of ours cannot be unpickled from their args alone)."""
+    """An exception as plain data (many of ours cannot be unpickled from their args alone; an
+    OSError's errno, strerror and file names are not in its args' place once raised)."""
     d = {}
     for k, v in getattr(e, "__dict__", {}).items():
         try:
@@ -72,13 +81,19 @@ def _error_state(e: BaseException) -> tuple:
             d[k] = v
         except Exception:
             pass
-    return (type(e).__module__, type(e).__qualname__, e.args, d, f"{type(e).__name__}: {e}")
+    os_fields = {k: getattr(e, k) for k in _OS_FIELDS if getattr(e, k) is not None} \
+        if isinstance(e, OSError) else {}
+    return (type(e).__module__, type(e).__qualname__, e.args, d, f"{type(e).__name__}: {e}",
+            os_fields)
+
+
+_OS_FIELDS = ("errno", "strerror", "filename", "filename2")
 
 
 def _rebuild(state: tuple) -> BaseException:
     """The exception ``_error_state`` described (same class, args and attributes), or a
     RuntimeError with its text when the class cannot be found here."""
-    mod, qual, args, d, text = state
+    mod, qual, args, d, text, os_fields = state
     try:
         import importlib
         cls: Any = importlib.import_module(mod)
@@ -87,6 +102,8 @@ def _rebuild(state: tuple) -> BaseException:
         e = cls.__new__(cls)
         e.args = args
         e.__dict__.update(d)
+        for k, v in os_fields.items():
+            setattr(e, k, v)
         return e
     except Exception:
         return RuntimeError(text)
@@ -115,6 +132,15 @@ class SinkProcess:
     @classmethod
     def start(cls) -> "SinkProcess":
         return cls()
+
+    def preload(self, modules) -> None:
+        """Have the child import ``modules`` (names) while it waits for its log: what objects
+        attached later will need (``RemoteSink.attach``) is then imported off the run's path.
+        A module that cannot be imported there is left to fail where it is used."""
+        try:
+            self.send(("preload", list(modules)))
+        except OSError:  # the child is gone: opening the log says so
+            pass
 
     def open(self, path, info, settings: dict, **kwargs) -> "RemoteSink":
         """Open the log ``McapSink(path, info, settings, **kwargs)`` in the child; raises what
@@ -270,6 +296,24 @@ class RemoteSink:
     def flush(self, fsync: bool = True) -> None:
         self._call("flush", fsync)
 
+    # ------------------------------------------------------------------ objects beside the sink
+    def attach(self, key: str, factory, *args, **kwargs) -> "RemoteObject":
+        """Build ``factory(*args, sink=<the child's sink>, **kwargs)`` in the child (``factory``
+        importable there by name); returns the handle whose calls run it (module docstring)."""
+        self._piped(ATTACH, key, factory, args, kwargs)
+        return RemoteObject(self, key)
+
+    def _piped(self, name: str, *args) -> None:
+        """Hand one call to the child through the pipe (small arguments: no slot is taken from
+        the steps' arrays)."""
+        self._check()
+        try:
+            self._child.send(("call", pickle.dumps((name, args), protocol=5), -1, []))
+        except (BrokenPipeError, OSError):
+            self._check()
+            self._done = True
+            raise self._died() from None
+
     # encoded here as the sink encodes them (JSON text, CDR bytes), then handed over by write()
     write_cdr = McapSink.write_cdr
     write_json = McapSink.write_json
@@ -319,6 +363,28 @@ class RemoteSink:
         return self._kept
 
 
+class RemoteObject:
+    """An object built in the child by ``RemoteSink.attach``: ``call`` runs one of its methods
+    there in order with the log's calls; ``ask`` also waits for what it returns."""
+
+    def __init__(self, sink: RemoteSink, key: str):
+        self._sink = sink
+        self.key = key
+
+    def call(self, method: str, *args) -> None:
+        self._sink._piped(OBJECT, self.key, method, args, False)
+
+    def ask(self, method: str, *args):
+        """Run ``method(*args)`` in the child and return its result; raises what it raised
+        there (or an earlier call's failure)."""
+        sink = self._sink
+        sink._piped(OBJECT, self.key, method, args, True)
+        msg = sink._answer()
+        if msg[0] == "error":
+            raise sink._error
+        return msg[1]
+
+
 # ---------------------------------------------------------------------------- the child
 def _serve(rconn, wconn, ring: slots.SlotRing) -> None:
     """Run the engine's calls on one McapSink until the log is closed or aborted; if the
@@ -326,14 +392,26 @@ def _serve(rconn, wconn, ring: slots.SlotRing) -> None:
     from ..core.malloc import tune_for_blocks
     tune_for_blocks()  # each step's unpickled arrays stay on the heap (engine/run/batch.py)
     box: list = []
+    attached: dict = {}
     try:
-        _serve_calls(rconn, wconn, ring, box)
+        _serve_calls(rconn, wconn, ring, box, attached)
     except (EOFError, OSError):  # the engine is gone (a closed pipe either way)
+        _abort_attached(attached)
         if box:
             box[0].abort()
 
 
-def _serve_calls(rconn, wconn, ring: slots.SlotRing, box: list) -> None:
+def _abort_attached(attached: dict) -> None:
+    """Abort the objects built beside the sink (a finished one ignores it)."""
+    for obj in attached.values():
+        try:
+            obj.abort()
+        except Exception:
+            pass
+    attached.clear()
+
+
+def _serve_calls(rconn, wconn, ring: slots.SlotRing, box: list, attached: dict) -> None:
     sink: Optional[McapSink] = None
     failed = False
 
@@ -357,13 +435,28 @@ def _serve_calls(rconn, wconn, ring: slots.SlotRing, box: list) -> None:
                 if failed or ring.stopping:
                     continue
                 name, args = pickle.loads(head)
-            if name not in CALLS:
-                fail(ValueError(f"not a sink call: {name}"))
-                continue
             try:
-                getattr(sink, name)(*args)
+                if name in CALLS:
+                    getattr(sink, name)(*args)
+                elif name == OBJECT:
+                    key, method, margs, reply = args
+                    result = getattr(attached[key], method)(*margs)
+                    if reply:
+                        wconn.send(("result", result))
+                elif name == ATTACH:
+                    key, factory, fargs, kwargs = args
+                    attached[key] = factory(*fargs, sink=sink, **kwargs)
+                else:
+                    raise ValueError(f"not a sink call: {name}")
             except BaseException as e:
                 fail(e)
+        elif op == "preload":
+            import importlib
+            for name in msg[1]:
+                try:
+                    importlib.import_module(name)
+                except Exception:
+                    pass
         elif op == "open":
             _op, path, info, settings, kwargs = msg
             try:
@@ -382,10 +475,12 @@ def _serve_calls(rconn, wconn, ring: slots.SlotRing, box: list) -> None:
             except BaseException as e:
                 fail(e)
                 continue
+            _abort_attached(attached)  # closed before the log, unless the engine did not
             from .writer import peak_rss_mb
             wconn.send(("closed", str(path), sink.messages, sink.flushes, peak_rss_mb()))
             return
         elif op == "abort":
+            _abort_attached(attached)
             kept = sink.abort() if sink is not None else None
             wconn.send(("aborted", str(kept) if kept is not None else None))
             return

@@ -100,6 +100,9 @@ def process_file(path, out, settings: Optional[RunSettings] = None, *,
     path, out = Path(path), Path(out)
     check_output(out)
     child = sink_process_for(path, s.mode, writer) if prefetch is not False else None
+    if child is not None and tables is not None:  # the tables' writer runs there too
+        from .taps import writer_modules
+        child.preload(writer_modules(tables))
     try:
         return _process(path, out, s, progress, writer, source_options, tables, metadata,
                         prefetch, child)

@@ -1,7 +1,11 @@
 """Write the epoch table (``<stem>.epochs.csv.gz``) and the day table (``<stem>.days.csv``) while the
 output pass runs: ``TablesTap`` is pushed the raw Block, corrected batches and epoch metrics of every
 pipeline step (see ``engine.run.OutputStage``), streams epoch rows into gzip text and keeps one
-local day of rows for the day table. Both files go through ``engine/core/outputs.py`` (``.part``, fsync,
+local day of rows for the day table. It is two halves with one job each: ``EpochFeed`` (the
+per-sample half: the ``EpochAssembler`` and the step counter) hands the epoch rows and steps it
+makes final to ``EpochTableWriter`` (the epoch-level half: the tables' text, gzip, days, outcomes,
+sleep, rhythm, windows), which needs no sample and may run in the log's child process
+(engine/run/taps.py). Both files go through ``engine/core/outputs.py`` (``.part``, fsync,
 atomic rename); a failed run leaves no table under the final names.
 
 Epoch table columns: ``time_utc`` (ISO 8601, ``Z``; only when the zone is known: a table of
@@ -151,14 +155,66 @@ def format_rows(rows: EpochRows, zone: Zone, epoch_ns: int, extra=(), idle: bool
     return "\n".join(map(",".join, zip(*cols))) + "\n"
 
 
-class TablesTap:
-    """Pushed by the output stage; writes both tables; ``close()`` returns the table summary."""
+class EpochFeed:
+    """The per-sample half of the tables: the ``EpochAssembler`` (anglez, nonwear, the metrics'
+    sums, QC and warm-up flags) and the step counter, pushed each output step; hands the epoch
+    rows they make final, and the steps counted, to an ``EpochTableWriter`` (or to anything with
+    its ``rows``, ``advance`` and ``finish``: the writer may run in the log's process)."""
 
     def __init__(self, ts: TablesSettings, rate_hz: float, epoch_s: float, band, source, info,
-                 sink=None, extras=(), *, corrected: bool = True, calibration_source: str = ""):
+                 extras=()):
+        self.assembler = EpochAssembler(rate_hz, epoch_s, band, source=source,
+                                        nonwear_version=ts.nonwear_version,
+                                        clip_g=clip_threshold_g(getattr(info, "accel_range_g", None)),
+                                        extras=tuple(extras))
+        self.outcomes = ts.outcomes.active  # the writer waits for the steps (``advance``)
+        self.steps = None
+        if self.outcomes and ts.outcomes.steps:
+            from ..outcomes.steps import StepOperator
+            self.steps = StepOperator(ts.outcomes.steps)
+
+    def _step_times(self) -> dict:
+        return self.steps.take() if self.steps is not None else {}
+
+    def push(self, writer, block, batches, metrics, extras=None) -> None:
+        if self.steps is not None:
+            for b in batches:
+                self.steps.push(b)
+        for rows in self.assembler.push(block, batches, metrics, extras):
+            if len(rows):
+                writer.rows(rows)
+        if self.outcomes:
+            times = self._step_times()
+            writer.advance(times, self.steps.final_before_ns if self.steps is not None else None)
+
+    def flush(self, writer, metrics=None, extras=None) -> None:
+        if self.steps is not None:
+            self.steps.flush()
+        for rows in self.assembler.flush(metrics, extras):
+            if len(rows):
+                writer.rows(rows)
+        writer.finish(self._step_times())
+
+    def assembly(self) -> dict:
+        """What the table summary says of the assembly (``EpochTableWriter.close``)."""
+        nw = self.assembler.nonwear
+        return {"nonwear_windows": nw.nonwear_windows, "clipping_windows": nw.clipping_windows,
+                "filter_warmup_s": self.assembler.warmup_ns / 1e9,
+                "epochs_not_in_table": self.assembler.epochs_not_in_table}
+
+
+class EpochTableWriter:
+    """The epoch-level half of the tables: takes the epoch rows (``rows``) and the steps counted
+    (``advance``, ``finish``) in order and writes the epoch table, the day table and what they
+    carry (outcomes, sleep and its log messages, rhythm, windows); ``close()`` returns the table
+    summary. Needs no sample: it runs where the log is written (the engine, or the log's child
+    process: engine/run/taps.py)."""
+
+    def __init__(self, ts: TablesSettings, epoch_s: float, *, idle: bool = False, metrics=(),
+                 sink=None, corrected: bool = True, calibration_source: str = ""):
         self.ts = ts
-        # optional metrics the run computes ("counts", "mims") and their columns
-        self.metrics = metric_columns("counts" in extras, "mims" in extras)
+        # optional metric columns the run computes ("counts", "mims": ``metric_columns``)
+        self.metrics = list(metrics)
         # the one estimate the rows were corrected with, applied from the first sample (the
         # epoch table's ``corrected``, the day table's ``calibration_source``)
         self.corrected = corrected
@@ -171,10 +227,6 @@ class TablesTap:
         if ts.sleep is not None:
             from ..sleep.tap import open_sleep
             self.sleep = open_sleep(ts, epoch_s)
-        self.assembler = EpochAssembler(rate_hz, epoch_s, band, source=source,
-                                        nonwear_version=ts.nonwear_version,
-                                        clip_g=clip_threshold_g(getattr(info, "accel_range_g", None)),
-                                        extras=tuple(extras))
         self.outcomes = DailyOutcomes(ts.outcomes, epoch_s) if ts.outcomes.active else None
         self.rhythm = None
         if ts.rhythm_path is not None:
@@ -183,10 +235,6 @@ class TablesTap:
             cut = self.outcomes.cut if self.outcomes is not None else None
             self.rhythm = RhythmTap(ts.rhythm_path, ts.zone, epoch_s, sleep=self.sleep is not None,
                                     metrics=(cut.column,) if cut is not None else ())
-        self.steps = None
-        if self.outcomes is not None and ts.outcomes.steps:
-            from ..outcomes.steps import StepOperator
-            self.steps = StepOperator(ts.outcomes.steps)
         self._waiting: list = []  # rows waiting for their steps
         self._held: list = []  # (rows, extra columns, step counts) of the local day being read
         self._held_day = None
@@ -201,41 +249,51 @@ class TablesTap:
         self._out = AtomicOutput(ts.epochs_path, what="epoch table")
         self._gz = gzip.GzipFile(filename="", mode="wb", fileobj=self._out.file, mtime=0,
                                  compresslevel=GZIP_LEVEL)
-        self.idle = getattr(info, "device_type", None) == "ActiGraph"  # idle_sleep column
+        self.idle = idle  # the idle_sleep column (an ActiGraph source)
         head = epoch_columns(ts.zone)[:-1] + (["idle_sleep"] if self.idle else []) + self.metrics \
             + ["corrected"] \
             + (self.outcomes.epoch_columns() if self.outcomes else []) \
             + (self.sleep.columns if self.sleep is not None else [])
         self._gz.write((",".join(head) + "\n").encode())
-        self.rows = 0
+        self.rows_written = 0
         self.flag_counts = {f: 0 for f in FLAGS}
         self.clean = 0
         self._closed = False
 
-    def _write(self, slices, final: bool = False) -> None:
+    # ------------------------------------------------------------------ inputs, in order
+    def rows(self, rows: EpochRows) -> None:
+        """Epoch rows the assembler made final (consecutive, in time order, not empty)."""
         if self.outcomes is not None:
-            self._write_outcomes(slices, final)
+            self._waiting.append(rows)  # until ``advance`` says their steps are counted
             return
-        for rows in slices:
-            if not len(rows):
-                continue
-            self._count(rows)
-            self._put(rows, [], None)
+        self._count(rows)
+        self._put(rows, [], None)
+
+    def advance(self, step_times: dict, final_before_ns: Optional[int]) -> None:
+        """With outcomes, after each step's rows: the steps counted in it (times, ns, per step
+        algorithm) and the time before which no step can come any more (None: no step counter)."""
+        self._write_outcomes(step_times, final_before_ns)
+
+    def finish(self, step_times: dict) -> None:
+        """The end of the rows: the last steps counted, then every row still held is written."""
+        if self.outcomes is not None:
+            self._write_outcomes(step_times, None)
+            self._finish_day()
+        if self.sleep is not None:
+            self._put(None, [], None, final=True)
 
     def _count(self, rows) -> None:
-        self.rows += len(rows)
+        self.rows_written += len(rows)
         for f in FLAGS:
             self.flag_counts[f] += int(getattr(rows, f).sum())
         self.clean += int(rows.clean.sum())
 
-    def _write_outcomes(self, slices, final: bool) -> None:
-        """Rows with the outcome columns; a row waits until no step before its end can come."""
-        self._waiting.extend(r for r in slices if len(r))
-        if self.steps is not None:
-            for s, t in self.steps.take().items():
-                if t.shape[0]:  # sorted: a restart may send the clock back
-                    self._step_times[s] = np.sort(np.concatenate([self._step_times[s], t]))
-        fb = None if (final or self.steps is None) else self.steps.final_before_ns
+    def _write_outcomes(self, step_times: dict, fb: Optional[int]) -> None:
+        """Rows with the outcome columns; a row waits until no step before its end can come
+        (``fb``: None, every row may go)."""
+        for s, t in step_times.items():
+            if t.shape[0]:  # sorted: a restart may send the clock back
+                self._step_times[s] = np.sort(np.concatenate([self._step_times[s], t]))
         while self._waiting:
             rows = self._waiting[0]
             if fb is not None:
@@ -311,22 +369,9 @@ class TablesTap:
                 else:
                     self.rhythm.push(r)
 
-    def push(self, block, batches, metrics, extras=None) -> None:
-        if self.steps is not None:
-            for b in batches:
-                self.steps.push(b)
-        self._write(self.assembler.push(block, batches, metrics, extras))
-
-    def flush(self, metrics=None, extras=None) -> None:
-        if self.steps is not None:
-            self.steps.flush()
-        self._write(self.assembler.flush(metrics, extras), final=True)
-        if self.outcomes is not None:
-            self._finish_day()
-        if self.sleep is not None:
-            self._put(None, [], None, final=True)
-
-    def close(self, calibration_status: str = "") -> dict:
+    def close(self, calibration_status: str = "", assembly: Optional[dict] = None) -> dict:
+        """Finish every table; the summary, with what ``EpochFeed.assembly`` said of the rows."""
+        a = assembly or {}
         self._gz.close()
         self._out.commit()
         days = self.days.close()
@@ -361,15 +406,14 @@ class TablesTap:
             for d in days + [summary]:
                 w.writerow([csv_cell(cell_text(d.get(c))) for c in cols])
         self._closed = True
-        nw = self.assembler.nonwear
         out = {"epochs": str(self.ts.epochs_path), "days": str(self.ts.days_path),
                "timezone": self.ts.zone.label, "nonwear_version": self.ts.nonwear_version,
-               "epoch_rows": self.rows, "clean_epochs": self.clean, "flags": self.flag_counts,
-               "nonwear_windows": nw.nonwear_windows, "clipping_windows": nw.clipping_windows,
-               "filter_warmup_s": self.assembler.warmup_ns / 1e9,
-               "day_rows": len(days), "file": summary}
-        if self.assembler.epochs_not_in_table:
-            out["epochs_not_in_table"] = self.assembler.epochs_not_in_table
+               "epoch_rows": self.rows_written, "clean_epochs": self.clean,
+               "flags": self.flag_counts, "nonwear_windows": a.get("nonwear_windows"),
+               "clipping_windows": a.get("clipping_windows"),
+               "filter_warmup_s": a.get("filter_warmup_s"), "day_rows": len(days), "file": summary}
+        if a.get("epochs_not_in_table"):
+            out["epochs_not_in_table"] = a["epochs_not_in_table"]
         if self.outcomes is not None:
             out["outcomes"] = self.ts.outcomes.to_dict()
         if self.sleep is not None:
@@ -393,3 +437,46 @@ class TablesTap:
             pass
         self._out.abandon()
         self._closed = True
+
+
+class TablesTap:
+    """Pushed by the output pass (``push(block, batches, metrics, extras)``, ``flush``): both
+    halves of the tables in this process, the per-sample ``EpochFeed`` handing its rows to the
+    ``EpochTableWriter``; ``close()`` returns the table summary."""
+
+    def __init__(self, ts: TablesSettings, rate_hz: float, epoch_s: float, band, source, info,
+                 sink=None, extras=(), *, corrected: bool = True, calibration_source: str = ""):
+        self.writer = EpochTableWriter(ts, epoch_s, **writer_options(info, extras), sink=sink,
+                                       corrected=corrected, calibration_source=calibration_source)
+        try:
+            self.feed = EpochFeed(ts, rate_hz, epoch_s, band, source, info, extras)
+        except BaseException:
+            self.writer.abort()
+            raise
+
+    @property
+    def calibration_source(self) -> str:
+        return self.writer.calibration_source
+
+    @calibration_source.setter
+    def calibration_source(self, value: str) -> None:
+        self.writer.calibration_source = value
+
+    def push(self, block, batches, metrics, extras=None) -> None:
+        self.feed.push(self.writer, block, batches, metrics, extras)
+
+    def flush(self, metrics=None, extras=None) -> None:
+        self.feed.flush(self.writer, metrics, extras)
+
+    def close(self, calibration_status: str = "") -> dict:
+        return self.writer.close(calibration_status, self.feed.assembly())
+
+    def abort(self) -> None:
+        self.writer.abort()
+
+
+def writer_options(info, extras) -> dict:
+    """The ``EpochTableWriter`` options a source and the run's optional metrics decide: the
+    ``idle_sleep`` column (an ActiGraph source) and the metric columns (counts, MIMS-units)."""
+    return {"idle": getattr(info, "device_type", None) == "ActiGraph",
+            "metrics": metric_columns("counts" in extras, "mims" in extras)}

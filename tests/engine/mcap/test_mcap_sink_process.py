@@ -382,3 +382,167 @@ def _alive_pid(pid: int) -> bool:
             return f.read().rsplit(")", 1)[1].split()[0] != "Z"
     except OSError:
         return False
+
+
+# ---------------------------------------------------------------------------- the tables' writer
+# With the log in a child process, the tables' epoch-level half (EpochTableWriter: the epoch
+# table's text and gzip, days, outcomes, sleep, rhythm, windows) runs there too, handed the rows
+# the engine's per-sample half (EpochFeed) makes; its outputs and faults are a one-core run's.
+TABLE_ARGS = ["--cutpoints", "hildebrand_adults_geneactiv_wrist", "--steps", "--impute"]
+
+
+def _cli_tables(recording, out, capsys, *args):
+    """``process`` with every table (outcomes, steps, imputation, sleep, rhythm, windows)."""
+    rc = cli(["process", str(recording), "-o", str(out), "-q", *TABLE_ARGS,
+              "--summary", str(out.parent / "summary.json"), *args])
+    err = capsys.readouterr().err
+    return rc, [ln for ln in err.strip().splitlines() if ln]
+
+
+def _outputs(folder):
+    """Every file of a run's folder (bytes), the summary without its timings."""
+    import json
+    got = {}
+    for p in sorted(folder.iterdir()):
+        if p.name == "summary.json":
+            d = json.loads(p.read_text())
+            for k in ("wall_s", "peak_rss_mb"):
+                d.pop(k)
+            got[p.name] = d
+        elif p.is_file():
+            got[p.name] = p.read_bytes()
+    return got
+
+
+@pytest.mark.parametrize("log", ["full", "lean"])
+def test_tables_written_by_the_child_are_one_cores(recording, tmp_path, child, monkeypatch,
+                                                    capsys, log):
+    out = tmp_path / "r.mcap"  # the same names: the summary record names the outputs
+    assert _cli_tables(recording, out, capsys, "--log", log) == (0, [])
+    assert len(child) == 1 and child[0].proc is None
+    two = _outputs(tmp_path)
+    assert {"r.epochs.csv.gz", "r.days.csv", "r.nights.csv", "r.rhythm.csv",
+            "r.windows.csv"} <= set(two)
+    assert two["summary.json"]["tables"]["outcomes"]["steps"]
+    for p in tmp_path.iterdir():
+        p.unlink()
+    monkeypatch.setenv("STILLPOINT_CORES", "1")
+    assert _cli_tables(recording, out, capsys, "--log", log) == (0, [])
+    assert len(child) == 1  # one core: no child
+    one = _outputs(tmp_path)
+    assert one.keys() == two.keys()
+    for name in one:
+        assert one[name] == two[name], name
+    _clean()
+
+
+def _table_fault(recording, tmp_path, child, monkeypatch, capsys, patch, code):
+    """The same fault made in this process on one core and in the child on two: the same one
+    line (exit code 2) and the same files left, nothing of the tables under a final name
+    unless one core leaves it too, and no child."""
+    left = {}
+    lines = {}
+    for run in ("1", "2"):
+        out = tmp_path / run / "r.mcap"
+        out.parent.mkdir()
+        if run == "1":
+            monkeypatch.setenv("STILLPOINT_CORES", "1")
+            undo = patch()
+        else:
+            _in_child(monkeypatch, tmp_path, code)
+        rc, ls = _cli_tables(recording, out, capsys)
+        if run == "1":
+            undo()
+            monkeypatch.delenv("STILLPOINT_CORES")
+        assert rc == 2 and len(ls) == 1, ls
+        lines[run] = ls[0].replace(str(out.parent), "<dir>")
+        left[run] = sorted(p.name for p in out.parent.iterdir())
+    assert len(child) == 1 and child[0].proc is None
+    assert lines["2"] == lines["1"]
+    assert left["2"] == left["1"]
+    _clean()
+    return lines["1"], left["1"]
+
+
+def test_epoch_table_disk_full_in_the_child(recording, tmp_path, child, monkeypatch, capsys):
+    import gzip
+
+    def patch():
+        real, calls = gzip.GzipFile.write, [0]
+
+        def write(self, data):
+            calls[0] += 1
+            if calls[0] > 6:
+                raise OSError(28, "No space left on device")
+            return real(self, data)
+        gzip.GzipFile.write = write
+        return lambda: setattr(gzip.GzipFile, "write", real)
+    line, left = _table_fault(recording, tmp_path, child, monkeypatch, capsys, patch, """
+        import gzip
+        _real, _calls = gzip.GzipFile.write, [0]
+        def _write(self, data):
+            _calls[0] += 1
+            if _calls[0] > 6:
+                raise OSError(28, "No space left on device")
+            return _real(self, data)
+        gzip.GzipFile.write = _write
+    """)
+    assert "no space left on device" in line.lower()
+    assert "r.mcap.part" in left and "r.mcap" not in left  # the log kept for recovery
+    assert not [n for n in left if n.endswith((".csv", ".csv.gz"))]  # no table under its name
+
+
+def test_day_table_fails_at_close_in_the_child(recording, tmp_path, child, monkeypatch, capsys):
+    from stillpoint.engine.core import outputs
+
+    def patch():
+        real = outputs.AtomicOutput.commit
+
+        def commit(self):
+            if self.path.name.endswith(".days.csv"):
+                raise outputs.OutputError(self.part, "cannot finish writing: disk full")
+            return real(self)
+        outputs.AtomicOutput.commit = commit
+        return lambda: setattr(outputs.AtomicOutput, "commit", real)
+    line, left = _table_fault(recording, tmp_path, child, monkeypatch, capsys, patch, """
+        from stillpoint.engine.core import outputs
+        _real = outputs.AtomicOutput.commit
+        def _commit(self):
+            if self.path.name.endswith(".days.csv"):
+                raise outputs.OutputError(self.part, "cannot finish writing: disk full")
+            return _real(self)
+        outputs.AtomicOutput.commit = _commit
+    """)
+    assert "r.days.csv.part" in line and "disk full" in line
+    assert "r.days.csv" not in left and "r.mcap" not in left
+
+
+def test_interrupt_leaves_the_tables_of_one_core_and_no_child(recording, tmp_path, child,
+                                                             monkeypatch):
+    """An interrupt in pass 2: the files left are a one-core run's (the logs' partial files; the
+    tables' partial files abandoned as on one core: no table under its name)."""
+    left = {}
+    for run in ("1", "2"):
+        if run == "1":
+            monkeypatch.setenv("STILLPOINT_CORES", "1")
+        else:
+            monkeypatch.delenv("STILLPOINT_CORES")
+        seen = [0]
+
+        def progress(label, stats):
+            if label == "pass 2/2":
+                seen[0] += 1
+                if seen[0] == 6:
+                    raise KeyboardInterrupt
+        d = tmp_path / run
+        d.mkdir()
+        tables = TablesSettings(d / "r.epochs.csv.gz", d / "r.days.csv")
+        with pytest.raises(KeyboardInterrupt):
+            process_file(recording, d / "r.mcap", RunSettings(mode="batch"), tables=tables,
+                         progress=progress)
+        left[run] = sorted(p.name for p in d.iterdir())
+    assert len(child) == 1 and child[0].proc is None
+    assert left["2"] == left["1"]
+    assert "r.mcap.part" in left["2"]
+    assert not [n for n in left["2"] if n.endswith((".csv", ".csv.gz"))]
+    _clean()

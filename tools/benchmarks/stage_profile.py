@@ -53,8 +53,12 @@ MAIN_STAGES = [
     ("tables: nonwear", "stillpoint.engine.operators.nonwear", "NonwearOperator", "push"),
     ("tables: epoch assembly (rest)", "stillpoint.engine.tables.epochs", "EpochAssembler", "push"),
     ("tables: epoch assembly (rest)", "stillpoint.engine.tables.epochs", "EpochAssembler", "flush"),
-    ("tables: CSV rows + gzip", "stillpoint.engine.tables.writer", "TablesTap", "_write"),
-    ("tables: CSV rows + gzip", "stillpoint.engine.tables.writer", "TablesTap", "close"),
+    # the tables' epoch-level half (engine/tables/writer.py): in the log's child process when
+    # the run has one (then not measured here: only this process is)
+    ("tables: CSV rows + gzip", "stillpoint.engine.tables.writer", "EpochTableWriter", "rows"),
+    ("tables: CSV rows + gzip", "stillpoint.engine.tables.writer", "EpochTableWriter", "advance"),
+    ("tables: CSV rows + gzip", "stillpoint.engine.tables.writer", "EpochTableWriter", "finish"),
+    ("tables: CSV rows + gzip", "stillpoint.engine.tables.writer", "EpochTableWriter", "close"),
 ]
 
 

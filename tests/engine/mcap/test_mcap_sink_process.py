@@ -527,9 +527,7 @@ def test_interrupt_leaves_the_tables_of_one_core_and_no_child(recording, tmp_pat
             monkeypatch.setenv("STILLPOINT_CORES", "1")
         else:
             monkeypatch.delenv("STILLPOINT_CORES")
-        seen = [0]
-
-        def progress(label, stats):
+        def progress(label, stats, seen=[0]):  # noqa: B006  (one counter per run)
             if label == "pass 2/2":
                 seen[0] += 1
                 if seen[0] == 6:

@@ -13,7 +13,10 @@ Transport: calls go through a pipe (pickled); the arrays of a pipeline step (Blo
 batches, epoch metrics, extras) go through a small ring of shared-memory slots
 (engine/mcap/slots.py: ``SLOTS`` slots of ``SLOT_BYTES``), which the child copies out of at once.
 At most ``SLOTS`` steps wait while one is framed: a parent that gets ahead waits for a free
-slot, so memory stays flat.
+slot, so memory stays flat. A lean log's sink writes neither raw nor corrected messages: the
+engine sends it no Block and, of the corrected batches, only the view's samples
+(``ViewDecimator.thin``, engine/mcap/view.py: a few kB a step instead of ~2.4 MB), from which it
+writes the same bytes.
 
 Faults, as on one core:
 
@@ -51,9 +54,11 @@ from ..core.outputs import OutputError
 from . import slots
 from .log import recover_hint
 from .sink import McapSink
+from .view import ViewDecimator
 
-# A step's arrays at 100 Hz are ~3.3 MB (Block ~0.9 MB, corrected batches ~2.4 MB); a call
-# whose arrays do not fit a slot is pickled through the pipe instead (same result, slower).
+# A step's arrays at 100 Hz are ~3.3 MB (Block ~0.9 MB, corrected batches ~2.4 MB; a lean
+# log's: its epochs and view samples, a few kB); a call whose arrays do not fit a slot is
+# pickled through the pipe instead (same result, slower).
 SLOT_BYTES = 8 << 20
 SLOTS = 2  # steps waiting for the child while it frames one
 ENV = "STILLPOINT_SINK_PROCESS"  # "0": never write the log in a child process (comparisons)
@@ -194,6 +199,10 @@ class RemoteSink:
         self.writer_maxrss_mb: Optional[float] = None
         from ..settings import is_lean
         self.lean = is_lean(settings)  # the sink writes no raw message: the block is not sent
+        # nor a corrected one: of the corrected batches only the view's samples are sent
+        # (ViewDecimator.thin; none when the view is off: then nothing is taken from them)
+        view_hz = kwargs.get("view_hz") or 0.0
+        self._view = ViewDecimator(view_hz) if self.lean and view_hz else None
         self._error: Optional[BaseException] = None
         self._kept: Optional[Path] = None
         self._done = False
@@ -281,7 +290,9 @@ class RemoteSink:
 
     # ------------------------------------------------------------------ the sink's calls
     def write_slices(self, block, corrected: list, epochs) -> None:
-        self._call("write_slices", None if self.lean else block, corrected, epochs)
+        if self.lean:
+            block, corrected = None, self._view.thin(corrected) if self._view is not None else []
+        self._call("write_slices", block, corrected, epochs)
 
     def write_extras(self, extras: dict) -> None:
         self._call("write_extras", extras)

@@ -15,6 +15,7 @@ from typing import Optional
 
 import numpy as np
 
+from ..operators.correction import CorrectedBatch
 from .schemas import VIEW_SAMPLE
 
 TOPIC_VIEW = "/view/accel"
@@ -53,12 +54,46 @@ class ViewDecimator:
         p = self.period_ns
         g0, g1 = int(time_ns[0]) // p, int(time_ns[-1]) // p
         idx = np.searchsorted(time_ns, np.arange(g0 + 1, g1 + 1, dtype=np.int64) * p, side="left")
-        if idx.shape[0] > 1:
-            idx = np.unique(idx)
+        if idx.shape[0] > 1:  # nondecreasing: a gap over several periods repeats an index
+            keep = np.empty(idx.shape[0], bool)
+            keep[0] = True
+            np.not_equal(idx[1:], idx[:-1], out=keep[1:])
+            idx = idx[keep]
         if self._last is None or g0 != self._last:
             idx = np.concatenate([[0], idx])
         self._last = g1
         return idx.astype(np.int64, copy=False)
+
+    def thin(self, batches: list) -> list:
+        """What a sink that writes no corrected message (a lean log) needs of one step's
+        corrected batches: of each, the view samples only (a small batch of the same segment;
+        none when it has no view sample). A sink with its own decimator of the same rate, fed
+        the thinned steps in order instead of the whole ones, writes the same bytes: it picks
+        every sample it gets (each opens a new period: the samples skipped between two picks
+        share the first one's period) and so keeps the same state; each view sample keeps its
+        batch and cell, so the records, their order among the epochs' cells and the places a
+        chunk may end are the same; the samples dropped only changed which of the sink's two
+        framing paths ran (engine/mcap/sink.py: the same bytes either way). A step whose times
+        go backwards (in a batch or from one batch to the next) comes back whole (its pieces
+        may then wait behind an earlier cell's); this decimator still picks it, so its state
+        follows the sink's."""
+        live = [b for b in batches if b.n]
+        last = None
+        for b in live:
+            t = b.time_ns
+            if (last is not None and t[0] < last) or bool(np.any(t[1:] < t[:-1])):
+                for c in live:
+                    self.pick(c.time_ns)
+                return list(batches)
+            last = t[-1]
+        out = []
+        for b in live:
+            i = self.pick_sorted(b.time_ns)
+            if i.shape[0]:
+                # accel[i], not take(): take() first copies a strided (column-major) array whole
+                out.append(CorrectedBatch(b.time_ns.take(i), b.accel[i], b.temperature.take(i),
+                                          b.segment))
+        return out
 
 
 def view_records(time_ns: np.ndarray, x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:

@@ -79,12 +79,15 @@ class ChildTables:
         self.writer = _WriterInChild(self.remote)
 
     def push(self, block, batches, metrics, extras=None) -> None:
+        """One step: the epoch rows it makes final go to the child's writer."""
         self.feed.push(self.writer, block, batches, metrics, extras)
 
     def flush(self, metrics=None, extras=None) -> None:
+        """The end of the stream: the last rows and steps go to the child's writer."""
         self.feed.flush(self.writer, metrics, extras)
 
     def close(self, calibration_status: str = "") -> dict:
+        """Close the tables in the child; return the tables summary it made."""
         return self.remote.ask("close", calibration_status, self.feed.assembly())
 
     def abort(self) -> None:

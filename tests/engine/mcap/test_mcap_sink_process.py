@@ -234,6 +234,19 @@ def test_error_in_a_call_in_the_child(recording, tmp_path, child, monkeypatch, c
     _clean()
 
 
+def _child_has_written(part, full, share: float = 0.2, timeout_s: float = 120.0) -> None:
+    """Hold the engine (from its progress callback) until the child has written ``share`` of
+    the complete log's bytes into ``part``: the steps already handed over (up to
+    ``sinkproc.SLOTS`` waiting) are framed and written whatever the machine's speed, so the
+    unfinished log has whole chunks of every topic to recover."""
+    import time
+    want = share * full.stat().st_size
+    end = time.monotonic() + timeout_s
+    while not (part.exists() and part.stat().st_size >= want):
+        assert time.monotonic() < end, f"the child wrote {part.stat().st_size if part.exists() else 0} bytes"
+        time.sleep(0.02)
+
+
 def test_killed_child_is_one_line(recording, tmp_path, child):
     full = tmp_path / "full.mcap"
     process_file(recording, full, RunSettings(mode="batch"), writer="inline")
@@ -243,6 +256,7 @@ def test_killed_child_is_one_line(recording, tmp_path, child):
         if label == "pass 2/2":
             seen[0] += 1
             if seen[0] == 5:
+                _child_has_written(tmp_path / "r.mcap.part", full)
                 os.kill(child[-1].proc.pid, signal.SIGKILL)
                 child[-1].proc.wait()
 
@@ -267,6 +281,7 @@ def test_interrupt_stops_the_child_and_keeps_a_recoverable_log(recording, tmp_pa
         if label == "pass 2/2":
             seen[0] += 1
             if seen[0] == 6:
+                _child_has_written(tmp_path / "r.mcap.part", full)
                 raise KeyboardInterrupt
 
     out = tmp_path / "r.mcap"

@@ -451,10 +451,11 @@ def test_tables_written_by_the_child_are_one_cores(recording, tmp_path, child, m
     _clean()
 
 
-def _table_fault(recording, tmp_path, child, monkeypatch, capsys, patch, code):
-    """The same fault made in this process on one core and in the child on two: the same one
-    line (exit code 2) and the same files left, nothing of the tables under a final name
-    unless one core leaves it too, and no child."""
+def _table_fault(recording, tmp_path, child, monkeypatch, capsys, code, target):
+    """The same fault (``code``, which replaces the attribute ``target = (owner, name)``) made
+    in this process on one core and in the child on two: the same one line (exit code 2) and
+    the same files left, nothing of the tables under a final name unless one core leaves it
+    too, and no child."""
     left = {}
     lines = {}
     for run in ("1", "2"):
@@ -462,12 +463,14 @@ def _table_fault(recording, tmp_path, child, monkeypatch, capsys, patch, code):
         out.parent.mkdir()
         if run == "1":
             monkeypatch.setenv("STILLPOINT_CORES", "1")
-            undo = patch()
+            owner, name = target
+            real = getattr(owner, name)
+            exec(textwrap.dedent(code), {})
         else:
             _in_child(monkeypatch, tmp_path, code)
         rc, ls = _cli_tables(recording, out, capsys)
         if run == "1":
-            undo()
+            setattr(owner, name, real)
             monkeypatch.delenv("STILLPOINT_CORES")
         assert rc == 2 and len(ls) == 1, ls
         lines[run] = ls[0].replace(str(out.parent), "<dir>")
@@ -481,18 +484,7 @@ def _table_fault(recording, tmp_path, child, monkeypatch, capsys, patch, code):
 
 def test_epoch_table_disk_full_in_the_child(recording, tmp_path, child, monkeypatch, capsys):
     import gzip
-
-    def patch():
-        real, calls = gzip.GzipFile.write, [0]
-
-        def write(self, data):
-            calls[0] += 1
-            if calls[0] > 6:
-                raise OSError(28, "No space left on device")
-            return real(self, data)
-        gzip.GzipFile.write = write
-        return lambda: setattr(gzip.GzipFile, "write", real)
-    line, left = _table_fault(recording, tmp_path, child, monkeypatch, capsys, patch, """
+    line, left = _table_fault(recording, tmp_path, child, monkeypatch, capsys, """
         import gzip
         _real, _calls = gzip.GzipFile.write, [0]
         def _write(self, data):
@@ -501,7 +493,7 @@ def test_epoch_table_disk_full_in_the_child(recording, tmp_path, child, monkeypa
                 raise OSError(28, "No space left on device")
             return _real(self, data)
         gzip.GzipFile.write = _write
-    """)
+    """, (gzip.GzipFile, "write"))
     assert "no space left on device" in line.lower()
     assert "r.mcap.part" in left and "r.mcap" not in left  # the log kept for recovery
     assert not [n for n in left if n.endswith((".csv", ".csv.gz"))]  # no table under its name
@@ -509,17 +501,7 @@ def test_epoch_table_disk_full_in_the_child(recording, tmp_path, child, monkeypa
 
 def test_day_table_fails_at_close_in_the_child(recording, tmp_path, child, monkeypatch, capsys):
     from stillpoint.engine.core import outputs
-
-    def patch():
-        real = outputs.AtomicOutput.commit
-
-        def commit(self):
-            if self.path.name.endswith(".days.csv"):
-                raise outputs.OutputError(self.part, "cannot finish writing: disk full")
-            return real(self)
-        outputs.AtomicOutput.commit = commit
-        return lambda: setattr(outputs.AtomicOutput, "commit", real)
-    line, left = _table_fault(recording, tmp_path, child, monkeypatch, capsys, patch, """
+    line, left = _table_fault(recording, tmp_path, child, monkeypatch, capsys, """
         from stillpoint.engine.core import outputs
         _real = outputs.AtomicOutput.commit
         def _commit(self):
@@ -527,7 +509,7 @@ def test_day_table_fails_at_close_in_the_child(recording, tmp_path, child, monke
                 raise outputs.OutputError(self.part, "cannot finish writing: disk full")
             return _real(self)
         outputs.AtomicOutput.commit = _commit
-    """)
+    """, (outputs.AtomicOutput, "commit"))
     assert "r.days.csv.part" in line and "disk full" in line
     assert "r.days.csv" not in left and "r.mcap" not in left
 

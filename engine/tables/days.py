@@ -152,7 +152,8 @@ class DayAccumulator:
         self._steps: list[dict] = []
         self._local: list[np.ndarray] = []
         self.days: list[dict] = []
-        # epoch-level totals (for the summary and the day-sum = epoch-sum check)
+        # epoch-level totals (for the summary and the day-sum = epoch-sum check); the sums are
+        # added day by day (``_finish``), so they do not depend on how the rows came in
         self.totals = {"epochs": 0, "clean": 0, "enmo_clean_sum": 0.0, "mad_clean_sum": 0.0}
 
     # ------------------------------------------------------------------ streaming
@@ -165,8 +166,6 @@ class DayAccumulator:
         self.totals["epochs"] += len(rows)
         c = rows.clean
         self.totals["clean"] += int(c.sum())
-        self.totals["enmo_clean_sum"] += float(np.nansum(rows.enmo_mg[c]))
-        self.totals["mad_clean_sum"] += float(np.nansum(rows.mad_mg[c]))
         cuts = np.flatnonzero(np.diff(day)) + 1
         for a, b in zip(np.r_[0, cuts], np.r_[cuts, len(rows)]):
             d = int(day[a])
@@ -213,6 +212,8 @@ class DayAccumulator:
         row["valid_day"] = int(row["wear_hours"] >= self.valid_day_hours - 1e-9)
         row["enmo_mean_mg"] = float(e[clean].mean()) if clean.any() else None
         row["mad_mean_mg"] = float(r.mad_mg[clean].mean()) if clean.any() else None
+        self.totals["enmo_clean_sum"] += float(np.nansum(e[clean]))
+        self.totals["mad_clean_sum"] += float(np.nansum(r.mad_mg[clean]))
         edges = [0.0] + list(self.bands) + [np.inf]
         for name, lo, hi in zip(_band_names(self.bands), edges[:-1], edges[1:]):
             row[name] = int((clean & (e >= lo) & (e < hi)).sum()) * self.epoch_s / 60.0

@@ -44,13 +44,15 @@ class RunInput:
     options: dict = field(default_factory=dict)  # reader options (the caller's, and the zone's)
     prefetch: bool = False  # read and decode ahead on a thread (engine/core/prefetch.py)
 
-    def open(self, *, features_only: bool = False, follow: bool = True):
+    def open(self, *, features_only: bool = False, follow: bool = True, tables: bool = False):
         """Open the input for one pass (``reader_options``); ``follow=False`` drops the options
-        that follow a growing file (a pass after the file is complete)."""
+        that follow a growing file (a pass after the file is complete); ``tables``: the tables'
+        own pass (an online run's, after it), which reads larger batches."""
         opts = self.options if follow else {k: v for k, v in self.options.items()
                                             if not k.startswith("follow")}
         src = open_format(self.path, self.format,
-                          **reader_options(self.format, opts, features_only=features_only))
+                          **reader_options(self.format, opts, features_only=features_only,
+                                           tables=tables))
         return Prefetched(src) if self.prefetch else src
 
 
@@ -63,17 +65,20 @@ class OpenedInput:
     source: object
 
 
-def reader_options(fmt: str, opts: dict, *, features_only: bool = False) -> dict:
+def reader_options(fmt: str, opts: dict, *, features_only: bool = False,
+                   tables: bool = False) -> dict:
     """Reader options of a run's passes: a ``.cwa`` is decoded column-major (each axis
     contiguous, the layout the window features, the correction and the raw messages' x/y/z
     sequences read; the same values); a pass that only needs window features (``features_only``)
     also reads it without per-sample times (a sample clock cuts the windows at the same samples);
-    the other passes read ``tuning.OUTPUT_BATCH_SECTORS`` at a time. The logs are the same, byte
-    for byte, as with the per-sample, row-major read. Options the caller gives win."""
+    the other passes read ``tuning.OUTPUT_BATCH_SECTORS`` at a time, the tables' own pass
+    (``tables``) ``tuning.TABLES_PASS_SECTORS``. The logs and tables are the same, byte for
+    byte, as with the per-sample, row-major read. Options the caller gives win."""
     if fmt != "cwa":
         return opts
+    sectors = tuning.TABLES_PASS_SECTORS if tables else tuning.OUTPUT_BATCH_SECTORS
     extra = ({"column_major": True, "sample_times": False} if features_only
-             else {"column_major": True, "batch_sectors": tuning.OUTPUT_BATCH_SECTORS})
+             else {"column_major": True, "batch_sectors": sectors})
     return dict(extra, **opts)
 
 

@@ -124,7 +124,7 @@ def online_tables(ctx: RunContext, final: CalibrationEstimate, sink) -> dict:
     first sample (``engine.tables.estimate_pass``), so they do not depend on when the refits
     came. The log keeps what was applied live; sleep's topics go into it."""
     from ..tables.estimate_pass import tables_with_estimate
-    src = ctx.input.open(follow=False)
+    src = ctx.input.open(follow=False, tables=True)
     try:
         return tables_with_estimate(src, final, ctx.settings, ctx.tables, sink=sink)
     finally:

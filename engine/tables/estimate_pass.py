@@ -4,9 +4,9 @@
 One pass over a source's raw blocks (a recording read again, or a log's raw stream): the run's
 output pass (``engine.run.output.OutputPass``: correction with ``est`` from the first sample,
 the epoch metrics, counts and MIMS-units) with the table writer (``TablesTap``) as its tap. The
-blocks are first joined into runs of up to 10 min of one segment (every operator's output is
-independent of block cuts, so the tables equal those written during a run that applied the same
-estimate from the first sample). Used for
+blocks are first joined into runs of one segment of up to ``tuning.TABLES_PASS_STEP_S`` of data
+(every operator's output is independent of block cuts, so the tables equal those written during
+a run that applied the same estimate from the first sample; longer steps cost less). Used for
 
 * a batch log's tables (``engine.workflows.tables_from_mcap``: the run's one estimate);
 * the products of an online run (``process --mode online`` after its pass, the station after a
@@ -28,6 +28,7 @@ from ..core.blocks import coalesce_blocks
 from ..core.malloc import tune_for_blocks
 from ..operators.correction import CorrectionOperator
 from ..operators.filters import band_used
+from ..run import tuning
 from ..run.output import OutputPass
 from .writer import TablesTap
 
@@ -49,7 +50,7 @@ def tables_with_estimate(source, est: CalibrationEstimate, settings, ts, *, sink
     output.taps.append(tap)
     try:
         first = True
-        for block in coalesce_blocks(source):
+        for block in coalesce_blocks(source, tuning.TABLES_PASS_STEP_S):
             if first:  # a fit that ended before the recording began is a prior
                 tap.calibration_source = calibration_source(est, applied, int(block.time_ns[0]))
                 first = False

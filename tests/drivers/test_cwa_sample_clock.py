@@ -259,8 +259,9 @@ def test_process_reads_cwa_column_major_and_pass_one_without_sample_times(real_f
     # the reader's own defaults, but the output passes' batch size (it decides where blocks, and
     # so raw messages, are cut)
     from stillpoint.engine.run import inputs, tuning
-    monkeypatch.setattr(inputs, "reader_options", lambda fmt, opts, features_only=False: (
-        opts if features_only else dict(opts, batch_sectors=tuning.OUTPUT_BATCH_SECTORS)))
+    monkeypatch.setattr(inputs, "reader_options", lambda fmt, opts, features_only=False, tables=False: (
+        opts if features_only else dict(opts, batch_sectors=tuning.TABLES_PASS_SECTORS if tables
+                                        else tuning.OUTPUT_BATCH_SECTORS)))
     run_mod.process_file(real_file(name), out, run_mod.RunSettings(mode=mode), writer="inline")
     assert seen and not any(clock or cm for clock, cm in seen)
     assert out.read_bytes() == fast

@@ -130,3 +130,16 @@ def test_bench_refits_replays_the_calibrator_with_and_without_the_fit_set(tmp_pa
     diffs = [float(x) for x in out.split("every window| max per estimate (mg):")[1]
              .splitlines()[0].split()]
     assert len(diffs) >= 2 and max(diffs) < 5.0 and diffs[-1] < 1e-2  # the last: every window
+
+
+def test_bench_tables_pass_runs_each_step_and_checks_the_tables_are_the_same(tmp_path):
+    """The tables' own pass at a step of the output passes' size and at a far smaller one (other
+    block cuts): both rows printed, and the script's own check that every step wrote the same
+    tables, byte for byte, says yes."""
+    r = subprocess.run([sys.executable, str(TOOLS / "bench_tables_pass.py"), "--days", "0.05",
+                        "--steps", "500:600,7:30", "--repeat", "1", "--workdir", str(tmp_path)],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stdout + r.stderr
+    rows = [line for line in r.stdout.splitlines() if " | " in line and "x" in line.split("|")[-1]]
+    assert [line.split("|")[0].strip() for line in rows] == ["500 : 600", "7 : 30"]
+    assert "tables the same at every step: yes" in r.stdout

@@ -11,7 +11,8 @@ each run in its own child process, the step lengths alternating, the least CPU a
 ``--repeat`` rounds and the largest peak RSS. A step ``SECTORS:SECONDS`` is the .cwa sectors
 the reader decodes at a time (``tuning.TABLES_PASS_SECTORS``) and the longest run of blocks the
 pass joins (``tuning.TABLES_PASS_STEP_S``). Every step writes the same tables, byte for byte
-(checked: the script exits 1 otherwise).
+and the same tables summary, full-precision means included (checked: the script exits 1
+otherwise).
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ from pathlib import Path
 from benchlib import measure, realistic_recording
 
 PASS = r"""
-import hashlib, sys
+import json, sys
 from dataclasses import replace
 from pathlib import Path
 import numpy as np
@@ -46,14 +47,15 @@ est = CalibrationEstimate(offset=np.array([0.012, -0.021, 0.006]), scale=np.arra
 ts = replace(TablesSettings(*table_paths(out / "t.mcap")), zone=opened.clock.zone)
 src = opened.input.open(follow=False, tables=True)
 try:
-    tables_with_estimate(src, est, s, ts)
+    summary = tables_with_estimate(src, est, s, ts)
 finally:
     src.close()
+print(json.dumps(summary, sort_keys=True, default=str).replace(str(out), "OUT"))
 """
 
 
-def _digest(folder: Path) -> str:
-    h = hashlib.sha256()
+def _digest(folder: Path, summary: str) -> str:
+    h = hashlib.sha256(summary.encode())
     for p in sorted(folder.iterdir()):
         h.update(p.name.encode())
         h.update(p.read_bytes())
@@ -81,7 +83,7 @@ def main(argv=None) -> int:
                 if r["rc"] != 0:
                     print(f"the pass failed at step {st}: {r['err'].strip().splitlines()[-1:]}")
                     return 2
-                digests.setdefault(st, set()).add(_digest(Path(tmp)))
+                digests.setdefault(st, set()).add(_digest(Path(tmp), r["out"]))
             runs[st].append(r)
     print(f"{rec.name}: the tables' own pass alone, least of {a.repeat} rounds (CPU and wall "
           "separately), the largest peak RSS")

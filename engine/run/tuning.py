@@ -12,11 +12,13 @@ WRITER_BY_MODE = {"batch": "thread", "online": "inline"}
 PREFETCH_BY_MODE = {"batch": True, "online": False}
 # .cwa sectors an output pass reads at a time: about one pipeline step (10 min at 100 Hz), so read-ahead stays small
 OUTPUT_BATCH_SECTORS = 500
-# the tables' own pass (an online run's tables, tables from a log): .cwa sectors read at a time and the longest step (s)
-# its blocks are joined into, 40 min at 100 Hz: each step costs ~1.5 ms in its operators whatever its length (a week,
-# that pass alone: 10-min steps 7.1 CPU-s, 20 min 6.5, 40 min 5.9, 60 min 5.7; its peak RSS 55, 64, 87, 108 MB)
+# the tables' own pass (an online run's tables, tables from a log): .cwa sectors read at a time, the longest step (s)
+# its blocks are joined into, 40 min at 100 Hz, and the most samples a step holds at any rate (2,000 sectors of 120):
+# each step costs ~1.5 ms in its operators whatever its length (a week, that pass alone, bench_tables_pass.py: 10-min
+# steps 7.82 CPU-s / 55 MB peak RSS, 40 min 7.03 / 88 MB; docs/performance.md#run-tuning)
 TABLES_PASS_SECTORS = 2000
 TABLES_PASS_STEP_S = 2400.0
+TABLES_PASS_SAMPLES = 240_000
 # QC events described in the run summary (all are counted, and logged on /qc)
 QC_DETAILS = 10
 # a batch run writes its MCAP log in a child process (engine/mcap/sinkproc.py) for inputs of at least this many

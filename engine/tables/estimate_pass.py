@@ -4,9 +4,9 @@
 One pass over a source's raw blocks (a recording read again, or a log's raw stream): the run's
 output pass (``engine.run.output.OutputPass``: correction with ``est`` from the first sample,
 the epoch metrics, counts and MIMS-units) with the table writer (``TablesTap``) as its tap. The
-blocks are first joined into runs of one segment of up to ``tuning.TABLES_PASS_STEP_S`` of data
-(every operator's output is independent of block cuts, so the tables equal those written during
-a run that applied the same estimate from the first sample; longer steps cost less). Used for
+blocks are first joined into runs of one segment of up to ``step_s(rate)`` of data (every
+operator's output is independent of block cuts, so the tables equal those written during a run
+that applied the same estimate from the first sample; longer steps cost less). Used for
 
 * a batch log's tables (``engine.workflows.tables_from_mcap``: the run's one estimate);
 * the products of an online run (``process --mode online`` after its pass, the station after a
@@ -33,6 +33,13 @@ from ..run.output import OutputPass
 from .writer import TablesTap
 
 
+def step_s(rate_hz: float) -> float:
+    """The longest step of the pass (s of data): ``tuning.TABLES_PASS_STEP_S``, or less at a rate
+    where that would hold more than ``tuning.TABLES_PASS_SAMPLES`` samples (the step's arrays,
+    not its length in time, decide the pass's memory)."""
+    return min(tuning.TABLES_PASS_STEP_S, tuning.TABLES_PASS_SAMPLES / max(float(rate_hz), 1.0))
+
+
 def tables_with_estimate(source, est: CalibrationEstimate, settings, ts, *, sink=None) -> dict:
     """Write the tables ``ts`` of ``source`` corrected with ``est`` from its first sample (module
     docstring); return the tables summary (its day rows name the estimate:
@@ -50,7 +57,7 @@ def tables_with_estimate(source, est: CalibrationEstimate, settings, ts, *, sink
     output.taps.append(tap)
     try:
         first = True
-        for block in coalesce_blocks(source, tuning.TABLES_PASS_STEP_S):
+        for block in coalesce_blocks(source, step_s(rate)):
             if first:  # a fit that ended before the recording began is a prior
                 tap.calibration_source = calibration_source(est, applied, int(block.time_ns[0]))
                 first = False

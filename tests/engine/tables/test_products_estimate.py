@@ -120,3 +120,33 @@ def test_batch_run_keeps_block_arrays_on_the_heap(runs, monkeypatch, tmp_path):
     assert calls == ["batch"]
     with gzip.open(tmp_path / "b.epochs.csv.gz", "rb") as a, gzip.open(runs / "b.epochs.csv.gz", "rb") as b:
         assert a.read() == b.read()
+
+
+def test_tables_pass_steps_hold_at_most_its_samples_and_write_the_same_tables(runs, monkeypatch,
+                                                                              tmp_path):
+    """The tables' own pass joins blocks into steps of ``estimate_pass.step_s(rate)``: at most
+    ``tuning.TABLES_PASS_STEP_S`` of data and at most ``tuning.TABLES_PASS_SAMPLES`` samples
+    at any rate. With a small cap (and the reader's batches smaller still) every step stays under
+    it, and the tables and the summary's numbers are those of the default steps."""
+    import stillpoint.engine.tables.estimate_pass as estimate_pass
+    from stillpoint.engine.run import tuning
+    assert estimate_pass.step_s(100.0) == tuning.TABLES_PASS_STEP_S
+    assert estimate_pass.step_s(1600.0) == tuning.TABLES_PASS_SAMPLES / 1600.0
+    monkeypatch.setattr(tuning, "TABLES_PASS_SAMPLES", 3000)  # 240 s at 12.5 Hz
+    monkeypatch.setattr(tuning, "TABLES_PASS_SECTORS", 3)
+    steps = []
+    coalesce = estimate_pass.coalesce_blocks
+
+    def spy(src, max_s):
+        for b in coalesce(src, max_s):
+            steps.append(b.n)
+            yield b
+    monkeypatch.setattr(estimate_pass, "coalesce_blocks", spy)
+    assert main(["process", str(runs / "rec.cwa"), "-o", str(tmp_path / "o.mcap"), "--mode",
+                 "online", "-q", "--summary", str(tmp_path / "o.json")]) == 0
+    assert len(steps) > 100 and max(steps) <= 3001
+    with gzip.open(tmp_path / "o.epochs.csv.gz", "rb") as a, gzip.open(runs / "o.epochs.csv.gz", "rb") as b:
+        assert a.read() == b.read()
+    assert (tmp_path / "o.days.csv").read_text() == (runs / "o.days.csv").read_text()
+    got, want = (json.loads(p.read_text())["tables"]["file"] for p in (tmp_path / "o.json", runs / "o.json"))
+    assert got == want

@@ -10,9 +10,10 @@ rhythm tables; no log), over the simulator's default wearer (``benchlib.realisti
 each run in its own child process, the step lengths alternating, the least CPU and wall of
 ``--repeat`` rounds and the largest peak RSS. A step ``SECTORS:SECONDS`` is the .cwa sectors
 the reader decodes at a time (``tuning.TABLES_PASS_SECTORS``) and the longest run of blocks the
-pass joins (``tuning.TABLES_PASS_STEP_S``). Every step writes the same tables, byte for byte
-and the same tables summary, full-precision means included (checked: the script exits 1
-otherwise).
+pass joins (``tuning.TABLES_PASS_STEP_S``; the sample cap ``tuning.TABLES_PASS_SAMPLES`` is
+lifted, so a step is the seconds given at any rate). Every step writes the same tables, byte
+for byte, and the same tables summary, full-precision means included (checked: the script
+exits 1 otherwise).
 """
 
 from __future__ import annotations
@@ -37,6 +38,7 @@ from stillpoint.engine.tables import TablesSettings, table_paths
 from stillpoint.engine.tables.estimate_pass import tables_with_estimate
 path, sectors, step_s, out = Path(sys.argv[1]), int(sys.argv[2]), float(sys.argv[3]), Path(sys.argv[4])
 tuning.TABLES_PASS_SECTORS, tuning.TABLES_PASS_STEP_S = sectors, step_s
+tuning.TABLES_PASS_SAMPLES = 1 << 62  # the step is the seconds given
 s = RunSettings(mode="online")
 opened = open_input(path, s)
 opened.source.close()
